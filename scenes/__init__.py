@@ -1,0 +1,1 @@
+"""Bundled scene data (installed as raytrace._scenes)."""

@@ -1,0 +1,1 @@
+"""Tiny canonical scenes used by the tests."""
