@@ -1,0 +1,35 @@
+"""hallray's ray tracer: scenes with ITU-R P.2040 materials, paths by the image method, penetration
+and UTD diffraction, channel and ToA emulation.
+
+The main entry points::
+
+    scene = raytrace.load_scene("hall")            # the bundled reference hall
+    paths = raytrace.trace(scene, tx, rx, 3.775e9)  # all paths of all tx x rx links
+"""
+
+from __future__ import annotations
+
+from importlib.metadata import PackageNotFoundError, version
+
+from .errors import HallrayError, MaterialError, SceneError, TraceInputError
+from .paths import Paths
+from .scene import Scene, load_scene
+from .tracer import TraceConfig, trace
+
+try:
+    __version__ = version("hallray")
+except PackageNotFoundError:  # running from a source checkout
+    __version__ = "0.0.0+checkout"
+
+__all__ = [
+    "HallrayError",
+    "MaterialError",
+    "Paths",
+    "Scene",
+    "SceneError",
+    "TraceConfig",
+    "TraceInputError",
+    "__version__",
+    "load_scene",
+    "trace",
+]

@@ -1,0 +1,146 @@
+"""Specular reflection by the image method over planar facets.
+
+Pure, vectorised geometry: image points, line-plane intersections, point-in-facet tests, and
+the candidate generation of first- and second-order reflection paths. Visibility (Embree) and
+field computation are done by the tracer.
+
+A facet of a closed solid reflects only on its outward side; a facet of an open sheet on both.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .scene import Facets
+
+#: Barycentric tolerance of the point-in-triangle test (dimensionless): a reflection point on
+#: the shared edge of two triangles of one facet must not fall through the crack.
+BARY_TOL = 1e-9
+#: Points closer than this to a facet's plane (m) are on it: no reflection from there.
+PLANE_TOL_M = 1e-9
+
+
+def mirror(points: np.ndarray, normal: np.ndarray, offset: np.ndarray) -> np.ndarray:
+    """Image of points in planes ``normal . x = offset``.
+
+    Parameters
+    ----------
+    points : (n, 3) float, metres
+    normal : (n, 3) float, unit normals
+    offset : (n,) float, metres
+
+    Returns
+    -------
+    (n, 3) float, ``x - 2 (n . x - offset) n``
+    """
+    s = np.einsum("ij,ij->i", points, normal) - offset
+    return points - 2.0 * s[:, None] * normal
+
+
+def signed_distance(points: np.ndarray, normal: np.ndarray, offset: np.ndarray) -> np.ndarray:
+    """Signed distance (m) of points from planes, positive on the normal's side; broadcasts."""
+    return np.einsum("...j,...j->...", points, normal) - offset
+
+
+def segment_plane_point(
+    a: np.ndarray, b: np.ndarray, normal: np.ndarray, offset: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Where the segments ``a -> b`` cross planes.
+
+    Returns
+    -------
+    u : (n,) float, parameter along the segment (the crossing lies on it for 0 < u < 1)
+    point : (n, 3) float, metres
+    """
+    sa = signed_distance(a, normal, offset)
+    sb = signed_distance(b, normal, offset)
+    den = sa - sb
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u = np.where(np.abs(den) > 0, sa / den, np.nan)
+    return u, a + u[:, None] * (b - a)
+
+
+def points_in_facets(points: np.ndarray, facet: np.ndarray, facets: Facets) -> np.ndarray:
+    """Whether each point (on its facet's plane) lies inside that facet.
+
+    A facet is a union of triangles; the point is inside if it is in any of them (barycentric
+    test in 3D, with :data:`BARY_TOL`).
+
+    Parameters
+    ----------
+    points : (n, 3) float, metres
+    facet : (n,) int, facet index of each point
+
+    Returns
+    -------
+    (n,) bool
+    """
+    n = len(points)
+    if n == 0:
+        return np.zeros(0, dtype=bool)
+    counts = facets.tri_count[facet]
+    rep = np.repeat(np.arange(n), counts)
+    # index of each expanded triangle: tri_start[f] + 0..count-1
+    within = np.arange(len(rep)) - np.repeat(np.cumsum(counts) - counts, counts)
+    tri = facets.triangles[np.repeat(facets.tri_start[facet], counts) + within]
+    p = points[rep]
+    v0 = tri[:, 1] - tri[:, 0]
+    v1 = tri[:, 2] - tri[:, 0]
+    v2 = p - tri[:, 0]
+    d00 = np.einsum("ij,ij->i", v0, v0)
+    d01 = np.einsum("ij,ij->i", v0, v1)
+    d11 = np.einsum("ij,ij->i", v1, v1)
+    d20 = np.einsum("ij,ij->i", v2, v0)
+    d21 = np.einsum("ij,ij->i", v2, v1)
+    den = d00 * d11 - d01 * d01
+    v = (d11 * d20 - d01 * d21) / den
+    w = (d00 * d21 - d01 * d20) / den
+    inside_tri = (v >= -BARY_TOL) & (w >= -BARY_TOL) & (v + w <= 1 + BARY_TOL)
+    out = np.zeros(n, dtype=bool)
+    np.logical_or.at(out, rep, inside_tri)
+    return out
+
+
+def reflecting_side(facets: Facets, points: np.ndarray) -> np.ndarray:
+    """Side (+1, -1) from which each facet can reflect a source at each point, 0 if it cannot.
+
+    Parameters
+    ----------
+    points : (m, 3) float, metres
+
+    Returns
+    -------
+    (m, K) int8: +1 in front, -1 behind (open sheets only), 0 on the plane or behind a closed
+    solid's face.
+    """
+    s = points @ facets.normal.T - facets.offset[None, :]
+    side = np.sign(s).astype(np.int8)
+    side[np.abs(s) <= PLANE_TOL_M] = 0
+    side[:, ~facets.two_sided] = np.maximum(side[:, ~facets.two_sided], 0)
+    return side
+
+
+def facing_pairs(facets: Facets) -> np.ndarray:
+    """(K, K) bool: facet j can receive a reflection from facet i (necessary condition).
+
+    Some part of facet i must lie strictly on a reflecting side of facet j and vice versa
+    (closed solids reflect outward only). Excludes i == j and facets in the same plane.
+    """
+    k = len(facets)
+    tri = facets.triangles
+    # every facet vertex, tagged with its facet
+    owner = np.repeat(np.arange(k), facets.tri_count)
+    verts = tri.reshape(-1, 3)
+    vowner = np.repeat(owner, 3)
+    s = verts @ facets.normal.T - facets.offset[None, :]  # (nv, K)
+    pos = s > PLANE_TOL_M
+    neg = s < -PLANE_TOL_M
+    # any vertex of facet i in front of (behind) facet j
+    front = np.zeros((k, k), dtype=bool)
+    back = np.zeros((k, k), dtype=bool)
+    np.logical_or.at(front, vowner, pos)
+    np.logical_or.at(back, vowner, neg)
+    sees = front | (back & facets.two_sided[None, :])  # [i, j]: part of i on a reflecting side of j
+    ok = sees & sees.T
+    np.fill_diagonal(ok, False)
+    return ok

@@ -1,0 +1,504 @@
+"""Path finding over many links: line of sight, reflections, penetrations (and diffraction).
+
+What is traced (Table I of the paper: each mechanism has its own limit):
+
+* line of sight;
+* specular reflections up to ``max_reflections`` (0, 1 or 2) by the image method over the
+  scene's planar facets;
+* penetrations: every segment of every path may cross objects; each crossing is attenuated by
+  the slab transmission of the crossed material (ITU-R P.2040 section 3); paths with more than
+  ``max_penetrations`` crossings in all are dropped;
+* first-order edge diffraction (UTD), with reflections before and/or after it when
+  ``max_interactions`` allows (see :mod:`raytrace.diffraction`).
+
+Field model: isotropic antennas with vertical polarisation at both ends. The field vector is
+tracked through every interaction in the TE/TM basis of the interaction's plane of incidence
+(basis ``s = k_i x n``, ``p = s x k``), and the received amplitude is its projection on the
+receive antenna's polarisation (vertical, made perpendicular to the arrival direction), so that
+line of sight is exactly Friis: ``gain = lambda / (4 pi d) * exp(-j k d)``.
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import reflection as refl
+from .constants import C0
+from .errors import TraceInputError
+from .materials import fresnel, slab
+from .paths import DIFFRACTION, PENETRATION, REFLECTION, Paths
+from .penetration import segment_crossings
+from .scene import Scene
+
+#: Paths whose power gain is below this (dB) carry no power (e.g. through metal) and are dropped.
+MIN_POWER_DB = -250.0
+#: Work is split into chunks of about this many candidate paths to bound memory.
+CHUNK = 400_000
+
+
+@dataclass(frozen=True)
+class TraceConfig:
+    """Tracer settings.
+
+    Attributes
+    ----------
+    max_reflections : int, 0..2
+    max_penetrations : int, >= 0, crossings in all along a path
+    max_diffractions : int, 0 or 1
+    max_interactions : int, reflections plus diffractions on one path (penetrations apart)
+    min_power_db : float, paths weaker than this are dropped
+    extrapolate : bool, allow materials outside their ITU-R P.2040 frequency range (warns)
+    """
+
+    max_reflections: int = 2
+    max_penetrations: int = 2
+    max_diffractions: int = 1
+    max_interactions: int = 2
+    min_power_db: float = MIN_POWER_DB
+    extrapolate: bool = False
+
+    def validate(self) -> None:
+        if not 0 <= self.max_reflections <= 2:
+            raise TraceInputError(f"max_reflections must be 0, 1 or 2, got {self.max_reflections}")
+        if self.max_penetrations < 0:
+            raise TraceInputError(f"max_penetrations must be >= 0, got {self.max_penetrations}")
+        if self.max_diffractions not in (0, 1):
+            raise TraceInputError(f"max_diffractions must be 0 or 1, got {self.max_diffractions}")
+        if self.max_interactions < 0:
+            raise TraceInputError(f"max_interactions must be >= 0, got {self.max_interactions}")
+
+
+def check_positions(scene: Scene, points: np.ndarray, what: str) -> np.ndarray:
+    """Validate transmitter or receiver positions: finite, near the scene, not inside a solid.
+
+    A point is outside the scene when it is farther from the scene's bounding box than 10% of
+    the box diagonal plus 1 m (a unit mistake, typically). Raises :class:`TraceInputError`.
+    """
+    p = np.asarray(points, dtype=float)
+    if p.ndim == 1:
+        p = p.reshape(1, -1)
+    if p.ndim != 2 or p.shape[1] != 3:
+        raise TraceInputError(f"{what} positions must be (n, 3), got shape {p.shape}")
+    if len(p) == 0:
+        raise TraceInputError(f"no {what} positions given")
+    bad = ~np.isfinite(p).all(axis=1)
+    if bad.any():
+        raise TraceInputError(f"{what} {int(np.argmax(bad))} has a NaN or infinite coordinate")
+    lo, hi = scene.bounds
+    slack = 0.1 * scene.extent + 1.0
+    out = ((p < lo - slack) | (p > hi + slack)).any(axis=1)
+    if out.any():
+        i = int(np.argmax(out))
+        raise TraceInputError(
+            f"{what} {i} at {p[i].round(3).tolist()} is outside the scene "
+            f"(bounds {lo.round(2).tolist()} .. {hi.round(2).tolist()} m)"
+        )
+    inside = scene.inside_solid(p)
+    if (inside >= 0).any():
+        i = int(np.argmax(inside >= 0))
+        raise TraceInputError(
+            f"{what} {i} at {p[i].round(3).tolist()} is inside the solid "
+            f"{scene.objects[inside[i]].name!r}"
+        )
+    return p
+
+
+def trace(
+    scene: Scene,
+    tx: np.ndarray,
+    rx: np.ndarray,
+    frequency_hz: float,
+    max_reflections: int = 2,
+    max_penetrations: int = 2,
+    max_diffractions: int = 1,
+    *,
+    max_interactions: int = 2,
+    min_power_db: float = MIN_POWER_DB,
+    extrapolate: bool = False,
+    progress: bool | Callable[[int], None] = False,
+) -> Paths:
+    """Find every path between every transmitter and every receiver.
+
+    Parameters
+    ----------
+    scene : Scene
+    tx : (T, 3) float, transmitter positions, metres
+    rx : (R, 3) float, receiver positions, metres
+    frequency_hz : float
+    max_reflections : int, 0..2
+    max_penetrations : int, crossings of objects allowed along one path
+    max_diffractions : int, 0 or 1
+    max_interactions : int, reflections plus diffractions on one path
+    min_power_db : float, weaker paths are dropped (metal blocks: its transmission is ~0)
+    extrapolate : bool, allow materials outside their valid frequency range (warns)
+    progress : bool, show a progress bar over the mechanisms
+
+    Returns
+    -------
+    Paths, sorted by link, delay and kind.
+    """
+    cfg = TraceConfig(
+        max_reflections,
+        max_penetrations,
+        max_diffractions,
+        max_interactions,
+        min_power_db,
+        extrapolate,
+    )
+    cfg.validate()
+    f = float(frequency_hz)
+    if not np.isfinite(f) or f <= 0:
+        raise TraceInputError(f"frequency must be a positive number of Hz, got {frequency_hz}")
+    tx = check_positions(scene, tx, "transmitter")
+    rx = check_positions(scene, rx, "receiver")
+    ctx = _Context(scene, tx, rx, f, cfg)
+
+    stages: list[tuple[str, Callable[[], list[Paths]]]] = [("line of sight", ctx.los)]
+    if cfg.max_reflections >= 1 and cfg.max_interactions >= 1:
+        stages.append(("1st-order reflections", ctx.reflections_1))
+    if cfg.max_reflections >= 2 and cfg.max_interactions >= 2:
+        stages.append(("2nd-order reflections", ctx.reflections_2))
+    if cfg.max_diffractions >= 1 and cfg.max_interactions >= 1 and len(scene.wedges):
+        from . import diffraction_paths
+
+        stages.append(("diffraction", lambda: diffraction_paths.trace_diffraction(ctx)))
+
+    bar = None
+    if progress is True:
+        from tqdm import tqdm
+
+        bar = tqdm(total=len(stages), desc="tracing", unit="stage", leave=False)
+    parts: list[Paths] = []
+    for name, stage in stages:
+        if bar is not None:
+            bar.set_postfix_str(name)
+        parts.extend(stage())
+        if bar is not None:
+            bar.update(1)
+        elif callable(progress):
+            progress(1)
+    if bar is not None:
+        bar.close()
+    return Paths.concatenate(parts).sorted()
+
+
+class _Context:
+    """Per-call state shared by the path stages: scene, links, material constants."""
+
+    def __init__(self, scene: Scene, tx: np.ndarray, rx: np.ndarray, f: float, cfg: TraceConfig):
+        self.scene, self.tx, self.rx, self.f, self.cfg = scene, tx, rx, f, cfg
+        self.k0 = 2 * np.pi * f / C0
+        self.wavelength = C0 / f
+        with warnings.catch_warnings():
+            if cfg.extrapolate:
+                warnings.simplefilter("default")
+            self.eta = np.array(
+                [
+                    scene.materials[m].permittivity(f, extrapolate=cfg.extrapolate)
+                    for m in scene.material_names
+                ],
+                dtype=complex,
+            )
+        self.thickness = scene.material_thickness()
+        self.obj_material = scene.object_material
+        self.obj_closed = scene.object_closed
+        self.stats: dict[str, int] = {}
+
+    def count(self, key: str, n: int) -> None:
+        self.stats[key] = self.stats.get(key, 0) + int(n)
+
+    # -- stages -------------------------------------------------------------------------------
+    def los(self) -> list[Paths]:
+        t_idx, r_idx = np.divmod(np.arange(len(self.tx) * len(self.rx)), len(self.rx))
+        return [
+            self.finish(t_idx, r_idx, np.zeros((len(t_idx), 0, 3)), np.zeros((len(t_idx), 0), int))
+        ]
+
+    def reflections_1(self) -> list[Paths]:
+        fc = self.scene.facets
+        side_tx = refl.reflecting_side(fc, self.tx)  # (T, K)
+        side_rx = refl.reflecting_side(fc, self.rx)  # (R, K)
+        t_idx, k_idx, r_idx = np.nonzero(
+            (side_tx[:, :, None] != 0) & (side_tx[:, :, None] == side_rx.T[None])
+        )
+        self.count("candidates_r1", len(t_idx))
+        img = refl.mirror(self.tx[t_idx], fc.normal[k_idx], fc.offset[k_idx])
+        u, p = refl.segment_plane_point(self.rx[r_idx], img, fc.normal[k_idx], fc.offset[k_idx])
+        ok = (u > 0) & (u < 1)
+        ok[ok] = refl.points_in_facets(p[ok], k_idx[ok], fc)
+        return [self.finish(t_idx[ok], r_idx[ok], p[ok][:, None, :], k_idx[ok][:, None])]
+
+    def reflections_2(self) -> list[Paths]:
+        sc, fc = self.scene, self.scene.facets
+        pairs = refl.facing_pairs(fc)
+        side_rx = refl.reflecting_side(fc, self.rx)  # (R, K)
+        out: list[Paths] = []
+        for t in range(len(self.tx)):
+            side_t = refl.reflecting_side(fc, self.tx[t : t + 1])[0]  # (K,)
+            f1 = np.flatnonzero(side_t != 0)
+            img1 = refl.mirror(
+                np.broadcast_to(self.tx[t], (len(f1), 3)), fc.normal[f1], fc.offset[f1]
+            )
+            # first images on a reflecting side of the second facet (exact necessary condition)
+            side_img = refl.reflecting_side(fc, img1)  # (len(f1), K)
+            a, f2 = np.nonzero((side_img != 0) & pairs[f1])
+            i1, f1a = a, f1[a]
+            if len(f1a) == 0:
+                continue
+            img2 = refl.mirror(img1[i1], fc.normal[f2], fc.offset[f2])
+            s_img = side_img[i1, f2]
+            # receivers on the same side of the second facet as the first image
+            step = max(1, CHUNK // max(len(self.rx), 1))
+            for c0 in range(0, len(f1a), step):
+                sl = slice(c0, c0 + step)
+                q, r_idx = np.nonzero(side_rx.T[f2[sl]] == s_img[sl, None])
+                self.count("candidates_r2", len(q))
+                q = q + c0
+                ff1, ff2 = f1a[q], f2[q]
+                u2, p2 = refl.segment_plane_point(
+                    self.rx[r_idx], img2[q], fc.normal[ff2], fc.offset[ff2]
+                )
+                ok = (u2 > 0) & (u2 < 1)
+                ok[ok] = refl.points_in_facets(p2[ok], ff2[ok], fc)
+                q, r_idx, ff1, ff2, p2 = q[ok], r_idx[ok], ff1[ok], ff2[ok], p2[ok]
+                u1, p1 = refl.segment_plane_point(p2, img1[i1[q]], fc.normal[ff1], fc.offset[ff1])
+                ok = (u1 > 0) & (u1 < 1)
+                ok[ok] = refl.points_in_facets(p1[ok], ff1[ok], fc)
+                # the second reflection point must be on the side of the first facet that the
+                # transmitter is on
+                s2 = refl.signed_distance(p2[ok], fc.normal[ff1[ok]], fc.offset[ff1[ok]])
+                ok[ok] = np.sign(s2) == side_t[ff1[ok]]
+                if ok.any():
+                    verts = np.stack([p1[ok], p2[ok]], axis=1)
+                    fac = np.stack([ff1[ok], ff2[ok]], axis=1)
+                    out.append(self.finish(np.full(int(ok.sum()), t), r_idx[ok], verts, fac))
+        del sc
+        return out
+
+    # -- common back end ----------------------------------------------------------------------
+    def finish(
+        self,
+        t_idx: np.ndarray,
+        r_idx: np.ndarray,
+        verts: np.ndarray,
+        facet: np.ndarray,
+        kinds: np.ndarray | None = None,
+        diffraction: Callable[..., tuple[np.ndarray, np.ndarray]] | None = None,
+    ) -> Paths:
+        """Check visibility and penetrations of candidate paths and compute their fields.
+
+        Parameters
+        ----------
+        t_idx, r_idx : (M,) int
+        verts : (M, k, 3) float, interaction points in order, metres
+        facet : (M, k) int, facet of each reflection (or wedge index of a diffraction)
+        kinds : (M, k) int8, interaction codes (default: all reflections)
+        diffraction : callable applied at diffraction vertices (see diffraction_paths)
+        """
+        sc = self.scene
+        m, k = verts.shape[0], verts.shape[1]
+        kinds = np.full((m, k), REFLECTION, np.int8) if kinds is None else kinds
+        if m == 0:
+            return Paths.empty(self.tx, self.rx, self.f, k + self.cfg.max_penetrations)
+        chain = np.concatenate([self.tx[t_idx][:, None], verts, self.rx[r_idx][:, None]], axis=1)
+        a = chain[:, :-1].reshape(-1, 3)
+        b = chain[:, 1:].reshape(-1, 3)
+        kmax = self.cfg.max_penetrations
+        cr = segment_crossings(sc, a, b, kmax)
+        self.count("segments_tested", len(a))
+        seg_count = cr.count.reshape(m, k + 1)
+        n_pen = seg_count.sum(axis=1)
+        ok = ~cr.exceeded.reshape(m, k + 1).any(axis=1) & (n_pen <= kmax)
+        if not ok.all():
+            sel = np.flatnonzero(ok)
+            idx2 = (sel[:, None] * (k + 1) + np.arange(k + 1)[None]).reshape(-1)
+            t_idx, r_idx, verts, facet, kinds, chain = (
+                t_idx[sel],
+                r_idx[sel],
+                verts[sel],
+                facet[sel],
+                kinds[sel],
+                chain[sel],
+            )
+            seg_count, n_pen = seg_count[sel], n_pen[sel]
+            cr = type(cr)(*(getattr(cr, f)[idx2] for f in cr.__dataclass_fields__))
+            m = len(sel)
+        if m == 0:
+            return Paths.empty(self.tx, self.rx, self.f, k + kmax)
+
+        seg = chain[:, 1:] - chain[:, :-1]  # (m, k+1, 3)
+        seg_len = np.linalg.norm(seg, axis=2)
+        dirs = seg / np.maximum(seg_len, 1e-300)[:, :, None]
+        total = seg_len.sum(axis=1)
+
+        # field vector: vertical polarisation perpendicular to the departure direction
+        e = _vertical_pol(dirs[:, 0]).astype(complex)
+        pen_obj = cr.object.reshape(m, k + 1, -1)
+        pen_nrm = cr.normal.reshape(m, k + 1, -1, 3)
+        pen_th = cr.thickness.reshape(m, k + 1, -1)
+        amp_scale = np.ones(m, dtype=complex)  # extra scalar factors (diffraction spreading)
+        for j in range(k + 1):
+            for s in range(pen_obj.shape[2]):
+                has = seg_count[:, j] > s
+                if has.any():
+                    o = pen_obj[has, j, s]
+                    mat = self.obj_material[o]
+                    cos_i = np.abs(np.einsum("ij,ij->i", pen_nrm[has, j, s], dirs[has, j]))
+                    _, _, t_te, t_tm = slab(self.eta[mat], cos_i, pen_th[has, j, s], self.f)
+                    e[has] = _apply_te_tm(
+                        e[has], dirs[has, j], dirs[has, j], pen_nrm[has, j, s], t_te, t_tm
+                    )
+            if j < k:
+                is_r = kinds[:, j] == REFLECTION
+                if is_r.any():
+                    fidx = facet[is_r, j]
+                    nrm = self.scene.facets.normal[fidx]
+                    mat = self.scene.facets.material[fidx]
+                    cos_i = np.abs(np.einsum("ij,ij->i", nrm, dirs[is_r, j]))
+                    r_te, r_tm = self._reflection(mat, cos_i, self.scene.facets.two_sided[fidx])
+                    e[is_r] = _apply_te_tm(
+                        e[is_r], dirs[is_r, j], dirs[is_r, j + 1], nrm, r_te, r_tm
+                    )
+                is_d = kinds[:, j] == DIFFRACTION
+                if is_d.any():
+                    if diffraction is None:
+                        raise RuntimeError("diffraction vertex without a diffraction model")
+                    e_d, scale = diffraction(
+                        facet[is_d, j], chain[is_d], j + 1, e[is_d], seg_len[is_d]
+                    )
+                    e[is_d] = e_d
+                    amp_scale[is_d] *= scale
+        a_rx = _vertical_pol(dirs[:, -1])
+        proj = np.einsum("ij,ij->i", e, a_rx)
+        has_d = (kinds == DIFFRACTION).any(axis=1)
+        # free-space spreading over the unfolded length (diffracted paths carry their own)
+        spread = np.where(has_d, 1.0, self.wavelength / (4 * np.pi * total))
+        gain = spread * amp_scale * np.exp(-1j * self.k0 * total) * proj
+        power_db = 20 * np.log10(np.maximum(np.abs(gain), 1e-300))
+        keep = power_db >= self.cfg.min_power_db
+        self.count("paths_dropped_no_power", int((~keep).sum()))
+
+        # interaction sequence: penetrations of segment j, then vertex j
+        depth = k + kmax
+        inter = np.zeros((m, depth), np.int8)
+        pts = np.full((m, depth, 3), np.nan)
+        objs = np.full((m, depth), -1, np.int64)
+        pen_pts = cr.point.reshape(m, k + 1, -1, 3)
+        pos = np.zeros(m, dtype=np.int64)
+        rows = np.arange(m)
+        vert_obj = np.where(
+            kinds == DIFFRACTION,
+            self._wedge_object(facet),
+            self.scene.facets.object[np.where(kinds == REFLECTION, facet, 0)],
+        )
+        for j in range(k + 1):
+            for s in range(pen_obj.shape[2]):
+                has = seg_count[:, j] > s
+                r = rows[has]
+                inter[r, pos[has]] = PENETRATION
+                pts[r, pos[has]] = pen_pts[has, j, s]
+                objs[r, pos[has]] = pen_obj[has, j, s]
+                pos[has] += 1
+            if j < k:
+                inter[rows, pos] = kinds[:, j]
+                pts[rows, pos] = verts[:, j]
+                objs[rows, pos] = vert_obj[:, j]
+                pos += 1
+        n_r = (kinds == REFLECTION).sum(axis=1).astype(np.int16)
+        n_d = (kinds == DIFFRACTION).sum(axis=1).astype(np.int16)
+        n_rx = len(self.rx)
+        paths = Paths(
+            tx=self.tx,
+            rx=self.rx,
+            frequency_hz=self.f,
+            link=t_idx * n_rx + r_idx,
+            tx_index=t_idx.astype(np.int64),
+            rx_index=r_idx.astype(np.int64),
+            delay_s=total / C0,
+            gain=gain,
+            n_reflections=n_r,
+            n_penetrations=n_pen.astype(np.int16),
+            n_diffractions=n_d,
+            interaction=inter,
+            points=pts,
+            objects=objs,
+        )
+        return paths.select(keep)
+
+    def _wedge_object(self, idx: np.ndarray) -> np.ndarray:
+        w = self.scene.wedges
+        if len(w) == 0:
+            return np.full(idx.shape, -1)
+        return w.object[np.clip(idx, 0, len(w) - 1)]
+
+    def _reflection(
+        self, mat: np.ndarray, cos_i: np.ndarray, two_sided: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """TE/TM reflection coefficients: a closed solid's face is a half-space interface
+        (Fresnel); an open sheet is a slab of its material's thickness (ITU-R P.2040 sec. 3)."""
+        eta = self.eta[mat]
+        r_te, r_tm, _, _ = fresnel(eta, cos_i)
+        r_te = np.asarray(r_te, dtype=complex).copy()
+        r_tm = np.asarray(r_tm, dtype=complex).copy()
+        if two_sided.any():
+            s_te, s_tm, _, _ = slab(
+                eta[two_sided], cos_i[two_sided], self.thickness[mat[two_sided]], self.f
+            )
+            r_te[two_sided] = s_te
+            r_tm[two_sided] = s_tm
+        return r_te, r_tm
+
+
+def _vertical_pol(direction: np.ndarray) -> np.ndarray:
+    """Unit vector of a vertically polarised antenna's field for a ray along ``direction``:
+    z made perpendicular to the ray (x for a vertical ray)."""
+    z = np.array([0.0, 0.0, 1.0])
+    v = z[None, :] - direction[:, 2:3] * direction
+    n = np.linalg.norm(v, axis=1)
+    vertical = n < 1e-9
+    if vertical.any():
+        x = np.array([1.0, 0.0, 0.0])
+        v[vertical] = x - direction[vertical, 0:1] * direction[vertical]
+        n[vertical] = np.linalg.norm(v[vertical], axis=1)
+    return v / n[:, None]
+
+
+def _apply_te_tm(
+    e: np.ndarray,
+    k_in: np.ndarray,
+    k_out: np.ndarray,
+    normal: np.ndarray,
+    c_te: np.ndarray,
+    c_tm: np.ndarray,
+) -> np.ndarray:
+    """Field after an interaction with TE/TM coefficients.
+
+    Basis: ``s = k_in x n`` (TE, perpendicular to the plane of incidence), ``p = s x k`` on each
+    side (TM). With this basis the P.2040 coefficients (R_TM -> +1 for a perfect conductor) map
+    the field directly; at normal incidence any ``s`` perpendicular to ``k_in`` serves.
+
+    Parameters
+    ----------
+    e : (n, 3) complex, incident field vector
+    k_in, k_out : (n, 3) float, unit propagation directions before and after
+    normal : (n, 3) float, unit surface normal
+    c_te, c_tm : (n,) complex
+    """
+    s = np.cross(k_in, normal)
+    ns = np.linalg.norm(s, axis=1)
+    normal_inc = ns < 1e-9
+    if normal_inc.any():
+        # any direction perpendicular to k_in
+        helper = np.where(np.abs(k_in[normal_inc, 0:1]) < 0.9, [[1.0, 0, 0]], [[0, 1.0, 0]])
+        s[normal_inc] = np.cross(k_in[normal_inc], helper)
+        ns[normal_inc] = np.linalg.norm(s[normal_inc], axis=1)
+    s = s / ns[:, None]
+    p_in = np.cross(s, k_in)
+    p_out = np.cross(s, k_out)
+    es = np.einsum("ij,ij->i", e, s)
+    ep = np.einsum("ij,ij->i", e, p_in)
+    return (c_te * es)[:, None] * s + (c_tm * ep)[:, None] * p_out

@@ -1,0 +1,48 @@
+"""Shared test helpers: small scenes built from code (independent of the bundled files)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from raytrace.materials import MaterialLibrary
+from raytrace.scene import Scene
+
+
+def quad(p0, u, v) -> trimesh.Trimesh:
+    """An open rectangle (two triangles) with corner p0 and sides u, v."""
+    p0, u, v = (np.asarray(x, dtype=float) for x in (p0, u, v))
+    verts = np.array([p0, p0 + u, p0 + u + v, p0 + v])
+    return trimesh.Trimesh(verts, [[0, 1, 2], [0, 2, 3]], process=False)
+
+
+def box(lo, hi) -> trimesh.Trimesh:
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    b = trimesh.creation.box(extents=hi - lo)
+    b.apply_translation((lo + hi) / 2)
+    return b
+
+
+def make_scene(objects, library: MaterialLibrary | None = None) -> Scene:
+    """Scene from ``(name, mesh, material)`` triples."""
+    return Scene.from_meshes(list(objects), library or MaterialLibrary.itu())
+
+
+def shoebox_sheets(size=(10.0, 8.0, 3.0), material="concrete"):
+    lx, ly, lz = size
+    ex, ey, ez = np.eye(3)
+    o = np.zeros(3)
+    return [
+        ("floor", quad(o, lx * ex, ly * ey), material),
+        ("ceiling", quad(lz * ez, lx * ex, ly * ey), material),
+        ("wall_y0", quad(o, lx * ex, lz * ez), material),
+        ("wall_y1", quad(ly * ey, lx * ex, lz * ez), material),
+        ("wall_x0", quad(o, ly * ey, lz * ez), material),
+        ("wall_x1", quad(lx * ex, ly * ey, lz * ez), material),
+    ]
+
+
+@pytest.fixture
+def shoebox() -> Scene:
+    return make_scene(shoebox_sheets())
