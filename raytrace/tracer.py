@@ -120,6 +120,7 @@ def trace(
     min_power_db: float = MIN_POWER_DB,
     extrapolate: bool = False,
     progress: bool | Callable[[int], None] = False,
+    stats: dict[str, int] | None = None,
 ) -> Paths:
     """Find every path between every transmitter and every receiver.
 
@@ -136,6 +137,7 @@ def trace(
     min_power_db : float, weaker paths are dropped (metal blocks: its transmission is ~0)
     extrapolate : bool, allow materials outside their valid frequency range (warns)
     progress : bool, show a progress bar over the mechanisms
+    stats : dict, optional, filled with counters (candidates, segments tested, dropped paths)
 
     Returns
     -------
@@ -183,6 +185,8 @@ def trace(
             progress(1)
     if bar is not None:
         bar.close()
+    if stats is not None:
+        stats.update(ctx.stats)
     return Paths.concatenate(parts).sorted()
 
 

@@ -1,0 +1,131 @@
+#!/usr/bin/env python3
+"""Benchmark: links traced per second on the bundled hall, and positions solved per second.
+
+Run from a checkout: ``python tools/bench.py [--json] [--repeat N] [--scene hall]``.
+Not a test: it prints figures to quote, it asserts nothing.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+from raytrace import load_scene, trace  # noqa: E402
+
+
+def _best_of(fn, repeat):
+    best, out = np.inf, None
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        out = fn()
+        best = min(best, time.perf_counter() - t0)
+    return best, out
+
+
+def bench_trace(scene_name: str, repeat: int) -> dict:
+    t0 = time.perf_counter()
+    scene = load_scene(scene_name)
+    load_s = time.perf_counter() - t0
+    meta = scene.metadata.get("hallray", {})
+    tx = np.array([b["xyz"] for b in meta["base_stations"]], float)
+    rx = np.array([p["xyz"] for p in meta["points"]], float)
+    n_links = len(tx) * len(rx)
+    configs = {
+        "los_only": dict(max_reflections=0, max_penetrations=0, max_diffractions=0),
+        "los_r2_t2": dict(max_reflections=2, max_penetrations=2, max_diffractions=0),
+        "los_r2_t2_d1_pure": dict(
+            max_reflections=2, max_penetrations=2, max_diffractions=1, max_interactions=1
+        ),
+        "los_r2_t2_d1_mixed": dict(
+            max_reflections=2, max_penetrations=2, max_diffractions=1, max_interactions=2
+        ),
+    }
+    out = {
+        "scene": scene_name,
+        "triangles": int(len(scene.faces)),
+        "facets": len(scene.facets),
+        "wedges": len(scene.wedges),
+        "links": n_links,
+        "load_s": round(load_s, 4),
+        "configs": {},
+    }
+    for name, kw in configs.items():
+        if kw["max_diffractions"] and not len(scene.wedges):
+            continue
+        stats: dict[str, int] = {}
+        best, paths = _best_of(lambda kw=kw: trace(scene, tx, rx, 3.775e9, **kw), repeat)
+        trace(scene, tx, rx, 3.775e9, stats=stats, **kw)
+        segs = int(stats.get("segments_tested", 0))
+        out["configs"][name] = {
+            "seconds": round(best, 4),
+            "links_per_s": round(n_links / best, 1),
+            "paths": paths.n_paths,
+            "segments_tested": segs,
+            "segments_per_s": round(segs / best, 0),
+        }
+    return out
+
+
+def bench_positioning(n_epochs: int) -> dict:
+    try:
+        sys.path.insert(0, str(Path(__file__).resolve().parent))
+        import bench_positioning
+
+        return bench_positioning.run(n_epochs=n_epochs)
+    except Exception as exc:
+        return {"error": f"{type(exc).__name__}: {exc}"}
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--scene", default="hall")
+    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument(
+        "--epochs", type=int, default=20000, help="epochs for the positioning benchmark"
+    )
+    ap.add_argument("--json", action="store_true")
+    args = ap.parse_args()
+    res = {
+        "machine": {
+            "cpus": os.cpu_count(),
+            "python": platform.python_version(),
+            "platform": platform.platform(),
+        },
+        "trace": bench_trace(args.scene, args.repeat),
+        "positioning": bench_positioning(args.epochs),
+    }
+    if args.json:
+        print(json.dumps(res, indent=1))
+        return 0
+    tr = res["trace"]
+    print(f"machine: {res['machine']['cpus']} cpus, Python {res['machine']['python']}")
+    print(
+        f"scene {tr['scene']}: {tr['triangles']} triangles, {tr['facets']} facets, {tr['wedges']} wedges; "
+        f"{tr['links']} links; load {tr['load_s']:.3f} s"
+    )
+    for name, r in tr["configs"].items():
+        print(
+            f"  {name:<22} {r['seconds']:.3f} s  {r['links_per_s']:>9.1f} links/s  {r['paths']:>6} paths  "
+            f"{r['segments_tested']:>8} segments ({r['segments_per_s']:.3g}/s)"
+        )
+    pos = res["positioning"]
+    if "error" in pos:
+        print(f"positioning: {pos['error']}")
+    else:
+        print("positioning (fixes per second, batched):")
+        for k, v in pos.items():
+            print(f"  {k}: {v}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
