@@ -119,7 +119,7 @@ def trace_scene_main(argv: Sequence[str] | None = None) -> int:
 def _trace_scene(args: argparse.Namespace) -> int:
     from .bands import get_band
     from .scene import load_scene
-    from .tracer import trace
+    from .tracer import check_positions, trace
 
     scene = load_scene(args.scene, args.materials, default_material=args.default_material)
     summary = scene.summary()
@@ -152,6 +152,8 @@ def _trace_scene(args: argparse.Namespace) -> int:
             _print_summary(summary)
         return 0
 
+    check_positions(scene, tx, "transmitter", strict=True)
+    check_positions(scene, rx, "receiver", strict=True)
     band = get_band(args.band)
     freq = float(args.frequency_hz) if args.frequency_hz is not None else band.center_frequency_hz
     t0 = time.perf_counter()

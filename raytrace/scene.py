@@ -77,6 +77,7 @@ class Wedges:
     length : (W,) float, metres
     normal0, normal1 : (W, 3) float, outward unit normals of the two faces (for the free edge of a
         sheet, the sheet normal and its opposite)
+    face0_dir : (W, 3) float, unit vector perpendicular to the edge, from the edge into face 0
     n : (W,) float, exterior wedge angle over pi (2 for a half-plane, 1.5 for a right-angle corner)
     object : (W,) int
     material : (W,) int
@@ -88,6 +89,7 @@ class Wedges:
     length: np.ndarray
     normal0: np.ndarray
     normal1: np.ndarray
+    face0_dir: np.ndarray
     n: np.ndarray
     object: np.ndarray
     material: np.ndarray
@@ -465,9 +467,11 @@ def _wedges_of(mesh: Any, obj_id: int, mat_id: int, closed: bool) -> dict[str, n
     """
     verts = np.asarray(mesh.vertices, dtype=float)
     fn = np.asarray(mesh.face_normals, dtype=float)
+    centroids = np.asarray(mesh.triangles_center, dtype=float)
     segs: list[np.ndarray] = []
     n0s: list[np.ndarray] = []
     n1s: list[np.ndarray] = []
+    c0s: list[np.ndarray] = []
     if len(mesh.face_adjacency):
         adj = np.asarray(mesh.face_adjacency)
         edges = np.asarray(mesh.face_adjacency_edges)
@@ -481,6 +485,7 @@ def _wedges_of(mesh: Any, obj_id: int, mat_id: int, closed: bool) -> dict[str, n
             segs.append(verts[edges[sel]])
             n0s.append(fn[adj[sel, 0]])
             n1s.append(fn[adj[sel, 1]])
+            c0s.append(centroids[adj[sel, 0]])
     if not closed:
         # free edges: used by one face only; the wedge is a half-plane (n = 2)
         edges_sorted = np.sort(np.asarray(mesh.edges), axis=1)
@@ -495,6 +500,7 @@ def _wedges_of(mesh: Any, obj_id: int, mat_id: int, closed: bool) -> dict[str, n
             segs.append(verts[e])
             n0s.append(fn[face_of_edge])
             n1s.append(-fn[face_of_edge])
+            c0s.append(centroids[face_of_edge])
     empty = {
         "start": np.zeros((0, 3)),
         "end": np.zeros((0, 3)),
@@ -502,6 +508,7 @@ def _wedges_of(mesh: Any, obj_id: int, mat_id: int, closed: bool) -> dict[str, n
         "length": np.zeros(0),
         "normal0": np.zeros((0, 3)),
         "normal1": np.zeros((0, 3)),
+        "face0_dir": np.zeros((0, 3)),
         "n": np.zeros(0),
         "object": np.zeros(0, dtype=np.int64),
         "material": np.zeros(0, dtype=np.int64),
@@ -511,11 +518,16 @@ def _wedges_of(mesh: Any, obj_id: int, mat_id: int, closed: bool) -> dict[str, n
     seg = np.concatenate(segs)
     n0 = np.concatenate(n0s)
     n1 = np.concatenate(n1s)
-    seg, n0, n1 = _merge_collinear(seg, n0, n1)
+    c0 = np.concatenate(c0s)
+    seg, n0, n1, c0 = _merge_collinear(seg, n0, n1, c0)
     d = seg[:, 1] - seg[:, 0]
     length = np.linalg.norm(d, axis=1)
     ok = length > 1e-9
-    seg, n0, n1, d, length = seg[ok], n0[ok], n1[ok], d[ok], length[ok]
+    seg, n0, n1, c0, d, length = seg[ok], n0[ok], n1[ok], c0[ok], d[ok], length[ok]
+    u = d / length[:, None]
+    into0 = c0 - seg[:, 0]
+    into0 -= np.einsum("ij,ij->i", into0, u)[:, None] * u
+    into0 /= np.linalg.norm(into0, axis=1, keepdims=True)
     cos_between = np.clip(np.einsum("ij,ij->i", n0, n1), -1.0, 1.0)
     # exterior angle = pi + angle between outward normals (half-plane: normals opposite -> 2 pi)
     n = (np.pi + np.arccos(cos_between)) / np.pi
@@ -527,6 +539,7 @@ def _wedges_of(mesh: Any, obj_id: int, mat_id: int, closed: bool) -> dict[str, n
         "length": length,
         "normal0": n0,
         "normal1": n1,
+        "face0_dir": into0,
         "n": n,
         "object": np.full(w, obj_id, dtype=np.int64),
         "material": np.full(w, mat_id, dtype=np.int64),
@@ -534,11 +547,11 @@ def _wedges_of(mesh: Any, obj_id: int, mat_id: int, closed: bool) -> dict[str, n
 
 
 def _merge_collinear(
-    seg: np.ndarray, n0: np.ndarray, n1: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    seg: np.ndarray, n0: np.ndarray, n1: np.ndarray, c0: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Merge edge pieces that lie on one line between the same pair of face planes."""
     if len(seg) < 2:
-        return seg, n0, n1
+        return seg, n0, n1, c0
     d = seg[:, 1] - seg[:, 0]
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     # canonical direction sign
@@ -556,7 +569,7 @@ def _merge_collinear(
     )
     _, group = np.unique(key, axis=0, return_inverse=True)
     group = group.reshape(-1)
-    out_seg, out_n0, out_n1 = [], [], []
+    out_seg, out_n0, out_n1, out_c0 = [], [], [], []
     t0 = np.einsum("ij,ij->i", seg[:, 0], d)
     t1 = np.einsum("ij,ij->i", seg[:, 1], d)
     lo, hi = np.minimum(t0, t1), np.maximum(t0, t1)
@@ -580,12 +593,19 @@ def _merge_collinear(
                 out_seg.append([p[first] + cur_lo * d[first], p[first] + cur_hi * d[first]])
                 out_n0.append(n0[first])
                 out_n1.append(n1[first])
+                out_c0.append(c0[first])
                 cur_lo, cur_hi, first = lo[k], hi[k], k
         out_seg.append([p[first] + cur_lo * d[first], p[first] + cur_hi * d[first]])
         out_n0.append(n0[first])
         out_n1.append(n1[first])
+        out_c0.append(c0[first])
         i = j
-    return np.asarray(out_seg, dtype=float), np.asarray(out_n0), np.asarray(out_n1)
+    return (
+        np.asarray(out_seg, dtype=float),
+        np.asarray(out_n0),
+        np.asarray(out_n1),
+        np.asarray(out_c0),
+    )
 
 
 def _lex_less_equal(a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -72,11 +72,14 @@ class TraceConfig:
             raise TraceInputError(f"max_interactions must be >= 0, got {self.max_interactions}")
 
 
-def check_positions(scene: Scene, points: np.ndarray, what: str) -> np.ndarray:
+def check_positions(
+    scene: Scene, points: np.ndarray, what: str, *, strict: bool = False
+) -> np.ndarray:
     """Validate transmitter or receiver positions: finite, near the scene, not inside a solid.
 
-    A point is outside the scene when it is farther from the scene's bounding box than 10% of
-    the box diagonal plus 1 m (a unit mistake, typically). Raises :class:`TraceInputError`.
+    A point is outside the scene when it is farther from the scene's bounding box than half the
+    box diagonal plus 1 m (a unit mistake, typically), or, with ``strict``, when it is outside
+    the bounding box at all (what an enclosed hall wants). Raises :class:`TraceInputError`.
     """
     p = np.asarray(points, dtype=float)
     if p.ndim == 1:
@@ -89,7 +92,7 @@ def check_positions(scene: Scene, points: np.ndarray, what: str) -> np.ndarray:
     if bad.any():
         raise TraceInputError(f"{what} {int(np.argmax(bad))} has a NaN or infinite coordinate")
     lo, hi = scene.bounds
-    slack = 0.1 * scene.extent + 1.0
+    slack = 1e-6 if strict else 0.5 * scene.extent + 1.0
     out = ((p < lo - slack) | (p > hi + slack)).any(axis=1)
     if out.any():
         i = int(np.argmax(out))

@@ -1,0 +1,312 @@
+"""Diffraction stage of the tracer: candidate paths over wedges, pure and mixed with reflections.
+
+What is traced (first-order diffraction, UTD field from :mod:`raytrace.diffraction`):
+
+* ``D``: tx -> edge -> rx, for every link and every wedge;
+* ``RD``: tx -> facet -> edge -> rx, and ``DR``: tx -> edge -> facet -> rx, when
+  ``max_reflections >= 1`` and ``max_interactions >= 2``;
+* ``RDR``: tx -> facet -> edge -> facet -> rx, when ``max_reflections >= 2`` and
+  ``max_interactions >= 3``.
+
+Reflections are unfolded by images: for ``RD`` the diffraction point is Keller's point between
+the image of the transmitter in the facet and the receiver, and the reflection point is where
+the segment image -> diffraction point crosses the facet. Candidates (tx, facet, wedge) are pruned
+exactly before receivers are considered: the transmitter on a reflecting side of the facet, the
+edge (clipped to that side) projected from the image onto the facet's plane must meet the facet's
+bounding box. Every segment is then checked with Embree (penetrations allowed up to the limit).
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from . import reflection as refl
+from .diffraction import diffracted_field, keller_points, wedge_geometry
+from .paths import DIFFRACTION, REFLECTION, Paths
+
+if TYPE_CHECKING:
+    from .tracer import _Context
+
+#: Work is split into chunks of about this many candidates.
+CHUNK = 300_000
+
+
+def trace_diffraction(ctx: _Context) -> list[Paths]:
+    """All diffraction paths allowed by the context's limits."""
+    out = [_pure(ctx)]
+    cfg = ctx.cfg
+    if cfg.max_reflections >= 1 and cfg.max_interactions >= 2:
+        out.extend(_one_reflection(ctx, before=True))
+        out.extend(_one_reflection(ctx, before=False))
+    if cfg.max_reflections >= 2 and cfg.max_interactions >= 3:
+        out.extend(_two_reflections(ctx))
+    return out
+
+
+def _field_model(ctx: _Context):
+    """The callback the tracer's back end applies at a diffraction vertex.
+
+    The unfolded source and receiver (images, for mixed paths) are recovered from the chain: the
+    unfolded path is straight on either side of the edge.
+    """
+    w = ctx.scene.wedges
+
+    def apply(wedge, chain, j, e, seg_len):
+        point = chain[:, j]
+        s_in = seg_len[:, :j].sum(axis=1)
+        s_out = seg_len[:, j:].sum(axis=1)
+        d_in = point - chain[:, j - 1]
+        d_in /= np.linalg.norm(d_in, axis=1, keepdims=True)
+        d_out = chain[:, j + 1] - point
+        d_out /= np.linalg.norm(d_out, axis=1, keepdims=True)
+        src = point - s_in[:, None] * d_in
+        dst = point + s_out[:, None] * d_out
+        geo = wedge_geometry(
+            src,
+            dst,
+            point,
+            w.direction[wedge],
+            w.normal0[wedge],
+            w.normal1[wedge],
+            w.face0_dir[wedge],
+        )
+        mat = w.material[wedge]
+        two = ~ctx.obj_closed[w.object[wedge]]
+        r0 = ctx._reflection(mat, geo.cos_theta_0, two)
+        rn = ctx._reflection(mat, geo.cos_theta_n, two)
+        fld = diffracted_field(geo, e, ctx.f, r_0=r0, r_n=rn, phase=False)
+        # incident spreading of the unfolded incident leg; the phase of the whole path is applied
+        # by the back end
+        scale = np.where(geo.valid, ctx.wavelength / (4 * np.pi * s_in), 0.0)
+        return fld.field, scale
+
+    return apply
+
+
+def _valid_geometry(ctx: _Context, wedge, src, dst, point) -> np.ndarray:
+    w = ctx.scene.wedges
+    geo = wedge_geometry(
+        src, dst, point, w.direction[wedge], w.normal0[wedge], w.normal1[wedge], w.face0_dir[wedge]
+    )
+    return geo.valid
+
+
+def _pure(ctx: _Context) -> Paths:
+    w = ctx.scene.wedges
+    n_t, n_r, n_w = len(ctx.tx), len(ctx.rx), len(w)
+    parts = []
+    total = n_t * n_w * n_r
+    ctx.count("candidates_d", total)
+    for c0 in range(0, total, CHUNK):
+        flat = np.arange(c0, min(total, c0 + CHUNK))
+        t_idx, rest = np.divmod(flat, n_w * n_r)
+        w_idx, r_idx = np.divmod(rest, n_r)
+        kp = keller_points(ctx.tx[t_idx], ctx.rx[r_idx], w.start[w_idx], w.end[w_idx])
+        ok = kp.on_edge
+        t_idx, w_idx, r_idx, pt = t_idx[ok], w_idx[ok], r_idx[ok], kp.point[ok]
+        ok = _valid_geometry(ctx, w_idx, ctx.tx[t_idx], ctx.rx[r_idx], pt)
+        t_idx, w_idx, r_idx, pt = t_idx[ok], w_idx[ok], r_idx[ok], pt[ok]
+        parts.append(
+            ctx.finish(
+                t_idx,
+                r_idx,
+                pt[:, None, :],
+                w_idx[:, None],
+                kinds=np.full((len(t_idx), 1), DIFFRACTION, np.int8),
+                diffraction=_field_model(ctx),
+            )
+        )
+    return Paths.concatenate(parts) if parts else Paths.empty(ctx.tx, ctx.rx, ctx.f, 1)
+
+
+def _facet_wedge_pairs(
+    ctx: _Context, ends: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(end point, facet, wedge) triples where a reflection in the facet can reach the edge.
+
+    ``ends`` are transmitters (for RD) or receivers (for DR). Exact necessary conditions: the end
+    on a reflecting side of the facet; the edge, clipped to that side, projected from the end's
+    image onto the facet's plane, meets the facet's (slightly grown) bounding box.
+
+    Returns
+    -------
+    e_idx, f_idx, w_idx : (M,) int
+    image : (M, 3) float, the end's image in the facet, metres
+    """
+    fc, w = ctx.scene.facets, ctx.scene.wedges
+    side = refl.reflecting_side(fc, ends)  # (E, K)
+    # facet bounding boxes
+    tri = fc.triangles
+    owner = np.repeat(np.arange(len(fc)), fc.tri_count)
+    lo = np.full((len(fc), 3), np.inf)
+    hi = np.full((len(fc), 3), -np.inf)
+    np.minimum.at(lo, owner, tri.min(axis=1))
+    np.maximum.at(hi, owner, tri.max(axis=1))
+    grow = ctx.scene.margin
+    lo -= grow
+    hi += grow
+    # signed distances of the edge end points from every facet plane: (W, K)
+    sa = w.start @ fc.normal.T - fc.offset
+    sb = w.end @ fc.normal.T - fc.offset
+    outs = []
+    for e in range(len(ends)):
+        f_ok = np.flatnonzero(side[e] != 0)
+        sgn = side[e, f_ok].astype(float)
+        # the edge must have a part strictly on the end's side of the facet plane
+        a_s = sa[:, f_ok] * sgn
+        b_s = sb[:, f_ok] * sgn
+        wi, fj = np.nonzero((a_s > refl.PLANE_TOL_M) | (b_s > refl.PLANE_TOL_M))
+        if len(wi) == 0:
+            continue
+        f_idx = f_ok[fj]
+        img = refl.mirror(
+            np.broadcast_to(ends[e], (len(f_idx), 3)), fc.normal[f_idx], fc.offset[f_idx]
+        )
+        # clip the edge to the end's side
+        a, b = w.start[wi].copy(), w.end[wi].copy()
+        da, db = a_s[wi, fj], b_s[wi, fj]
+        eps = refl.PLANE_TOL_M
+        cut_a = da <= eps
+        cut_b = db <= eps
+        u = np.where(cut_a | cut_b, (eps - da) / np.where(db != da, db - da, 1.0), 0.0)
+        pa = a + u[:, None] * (b - a)
+        a = np.where(cut_a[:, None], pa, a)
+        b = np.where(cut_b[:, None], pa, b)
+        # project from the image onto the facet plane (the image is on the other side)
+        _, qa = refl.segment_plane_point(img, a, fc.normal[f_idx], fc.offset[f_idx])
+        _, qb = refl.segment_plane_point(img, b, fc.normal[f_idx], fc.offset[f_idx])
+        ok = _segment_meets_box(qa, qb, lo[f_idx], hi[f_idx])
+        outs.append((np.full(int(ok.sum()), e), f_idx[ok], wi[ok], img[ok]))
+    if not outs:
+        z = np.zeros(0, np.int64)
+        return z, z, z, np.zeros((0, 3))
+    e_idx, f_idx, w_idx, img = (np.concatenate(x) for x in zip(*outs))
+    return e_idx, f_idx, w_idx, img
+
+
+def _segment_meets_box(a: np.ndarray, b: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """Whether segments a -> b meet axis-aligned boxes (slab test), vectorised."""
+    d = b - a
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t1 = (lo - a) / d
+        t2 = (hi - a) / d
+    tmin = np.where(d == 0, np.where((a >= lo) & (a <= hi), -np.inf, np.inf), np.minimum(t1, t2))
+    tmax = np.where(d == 0, np.where((a >= lo) & (a <= hi), np.inf, -np.inf), np.maximum(t1, t2))
+    enter = np.max(np.concatenate([tmin, np.zeros((len(a), 1))], axis=1), axis=1)
+    leave = np.min(np.concatenate([tmax, np.ones((len(a), 1))], axis=1), axis=1)
+    return enter <= leave
+
+
+def _one_reflection(ctx: _Context, before: bool) -> list[Paths]:
+    """RD (``before=True``: reflection at the transmitter's side) or DR paths."""
+    fc, w = ctx.scene.facets, ctx.scene.wedges
+    ends, others = (ctx.tx, ctx.rx) if before else (ctx.rx, ctx.tx)
+    e_idx, f_idx, w_idx, img = _facet_wedge_pairs(ctx, ends)
+    side_e = refl.reflecting_side(fc, ends)
+    out = []
+    n_o = len(others)
+    step = max(1, CHUNK // max(n_o, 1))
+    for c0 in range(0, len(e_idx), step):
+        rows = np.arange(c0, min(len(e_idx), c0 + step))
+        q = np.repeat(rows, n_o)
+        o_idx = np.tile(np.arange(n_o), len(rows))
+        ctx.count("candidates_rd" if before else "candidates_dr", len(q))
+        ee, ff, ww, im = e_idx[q], f_idx[q], w_idx[q], img[q]
+        kp = keller_points(im, others[o_idx], w.start[ww], w.end[ww])
+        ok = kp.on_edge
+        # the edge point must lie on the reflecting side (where the end is)
+        s_d = refl.signed_distance(kp.point, fc.normal[ff], fc.offset[ff])
+        ok &= np.sign(np.where(ok, s_d, 0.0)) == side_e[ee, ff]
+        q, ee, ff, ww, im, o_idx, dpt = (
+            q[ok],
+            ee[ok],
+            ff[ok],
+            ww[ok],
+            im[ok],
+            o_idx[ok],
+            kp.point[ok],
+        )
+        u, p = refl.segment_plane_point(im, dpt, fc.normal[ff], fc.offset[ff])
+        ok = (u > 0) & (u < 1)
+        ok[ok] = refl.points_in_facets(p[ok], ff[ok], fc)
+        q, ee, ff, ww, im, o_idx, dpt, p = (x[ok] for x in (q, ee, ff, ww, im, o_idx, dpt, p))
+        if before:
+            t_idx, r_idx = ee, o_idx
+            ok = _valid_geometry(ctx, ww, im, ctx.rx[r_idx], dpt)
+            verts = np.stack([p, dpt], axis=1)
+            fac = np.stack([ff, ww], axis=1)
+            kinds = np.array([[REFLECTION, DIFFRACTION]], np.int8)
+        else:
+            t_idx, r_idx = o_idx, ee
+            ok = _valid_geometry(ctx, ww, ctx.tx[t_idx], im, dpt)
+            verts = np.stack([dpt, p], axis=1)
+            fac = np.stack([ww, ff], axis=1)
+            kinds = np.array([[DIFFRACTION, REFLECTION]], np.int8)
+        if ok.any():
+            out.append(
+                ctx.finish(
+                    t_idx[ok],
+                    r_idx[ok],
+                    verts[ok],
+                    fac[ok],
+                    kinds=np.repeat(kinds, int(ok.sum()), axis=0),
+                    diffraction=_field_model(ctx),
+                )
+            )
+    return out
+
+
+def _two_reflections(ctx: _Context) -> list[Paths]:
+    """RDR paths: a reflection on each side of the edge (the two pruned sets joined on the wedge)."""
+    fc, w = ctx.scene.facets, ctx.scene.wedges
+    t_e, t_f, t_w, t_img = _facet_wedge_pairs(ctx, ctx.tx)
+    r_e, r_f, r_w, r_img = _facet_wedge_pairs(ctx, ctx.rx)
+    side_t = refl.reflecting_side(fc, ctx.tx)
+    side_r = refl.reflecting_side(fc, ctx.rx)
+    out = []
+    order = np.argsort(r_w, kind="stable")
+    r_w_sorted = r_w[order]
+    starts = np.searchsorted(r_w_sorted, t_w, side="left")
+    ends = np.searchsorted(r_w_sorted, t_w, side="right")
+    counts = ends - starts
+    a = np.repeat(np.arange(len(t_w)), counts)
+    b = order[
+        np.repeat(starts, counts)
+        + (np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts))
+    ]
+    ctx.count("candidates_rdr", len(a))
+    for c0 in range(0, len(a), CHUNK):
+        ia, ib = a[c0 : c0 + CHUNK], b[c0 : c0 + CHUNK]
+        ww = t_w[ia]
+        kp = keller_points(t_img[ia], r_img[ib], w.start[ww], w.end[ww])
+        ok = kp.on_edge
+        dpt = kp.point
+        f1, f2 = t_f[ia], r_f[ib]
+        s1 = refl.signed_distance(dpt, fc.normal[f1], fc.offset[f1])
+        s2 = refl.signed_distance(dpt, fc.normal[f2], fc.offset[f2])
+        ok &= (np.sign(np.where(ok, s1, 0)) == side_t[t_e[ia], f1]) & (
+            np.sign(np.where(ok, s2, 0)) == side_r[r_e[ib], f2]
+        )
+        u1, p1 = refl.segment_plane_point(t_img[ia], dpt, fc.normal[f1], fc.offset[f1])
+        u2, p2 = refl.segment_plane_point(r_img[ib], dpt, fc.normal[f2], fc.offset[f2])
+        ok &= (u1 > 0) & (u1 < 1) & (u2 > 0) & (u2 < 1)
+        ok[ok] = refl.points_in_facets(p1[ok], f1[ok], fc)
+        ok[ok] = refl.points_in_facets(p2[ok], f2[ok], fc)
+        ok[ok] = _valid_geometry(ctx, ww[ok], t_img[ia][ok], r_img[ib][ok], dpt[ok])
+        if ok.any():
+            n = int(ok.sum())
+            out.append(
+                ctx.finish(
+                    t_e[ia][ok],
+                    r_e[ib][ok],
+                    np.stack([p1[ok], dpt[ok], p2[ok]], axis=1),
+                    np.stack([f1[ok], ww[ok], f2[ok]], axis=1),
+                    kinds=np.repeat(
+                        np.array([[REFLECTION, DIFFRACTION, REFLECTION]], np.int8), n, axis=0
+                    ),
+                    diffraction=_field_model(ctx),
+                )
+            )
+    return out
