@@ -45,7 +45,7 @@ def trace_diffraction(ctx: _Context) -> list[Paths]:
     return out
 
 
-def _field_model(ctx: _Context):
+def field_model(ctx: _Context):
     """The callback the tracer's back end applies at a diffraction vertex.
 
     The unfolded source and receiver (images, for mixed paths) are recovered from the chain: the
@@ -103,6 +103,9 @@ def _pure(ctx: _Context) -> Paths:
         flat = np.arange(c0, min(total, c0 + CHUNK))
         t_idx, rest = np.divmod(flat, n_w * n_r)
         w_idx, r_idx = np.divmod(rest, n_r)
+        if ctx.wedge_mask is not None:
+            keep = ctx.wedge_mask[w_idx]
+            t_idx, w_idx, r_idx = t_idx[keep], w_idx[keep], r_idx[keep]
         kp = keller_points(ctx.tx[t_idx], ctx.rx[r_idx], w.start[w_idx], w.end[w_idx])
         ok = kp.on_edge
         t_idx, w_idx, r_idx, pt = t_idx[ok], w_idx[ok], r_idx[ok], kp.point[ok]
@@ -115,18 +118,19 @@ def _pure(ctx: _Context) -> Paths:
                 pt[:, None, :],
                 w_idx[:, None],
                 kinds=np.full((len(t_idx), 1), DIFFRACTION, np.int8),
-                diffraction=_field_model(ctx),
+                diffraction=field_model(ctx),
             )
         )
     return Paths.concatenate(parts) if parts else Paths.empty(ctx.tx, ctx.rx, ctx.f, 1)
 
 
 def _facet_wedge_pairs(
-    ctx: _Context, ends: np.ndarray
+    ctx: _Context, ends: np.ndarray, mixed_rdr: bool = False
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(end point, facet, wedge) triples where a reflection in the facet can reach the edge.
 
-    ``ends`` are transmitters (for RD) or receivers (for DR). Exact necessary conditions: the end
+    ``ends`` are transmitters (for RD) or receivers (for DR); ``mixed_rdr`` keeps every pair (the
+    restriction to some objects is applied to the joined RDR triples instead). Exact necessary conditions: the end
     on a reflecting side of the facet; the edge, clipped to that side, projected from the end's
     image onto the facet's plane, meets the facet's (slightly grown) bounding box.
 
@@ -157,7 +161,10 @@ def _facet_wedge_pairs(
         # the edge must have a part strictly on the end's side of the facet plane
         a_s = sa[:, f_ok] * sgn
         b_s = sb[:, f_ok] * sgn
-        wi, fj = np.nonzero((a_s > refl.PLANE_TOL_M) | (b_s > refl.PLANE_TOL_M))
+        reach = (a_s > refl.PLANE_TOL_M) | (b_s > refl.PLANE_TOL_M)
+        if ctx.facet_mask is not None and not mixed_rdr:
+            reach &= ctx.wedge_mask[:, None] | ctx.facet_mask[f_ok][None, :]
+        wi, fj = np.nonzero(reach)
         if len(wi) == 0:
             continue
         f_idx = f_ok[fj]
@@ -252,7 +259,7 @@ def _one_reflection(ctx: _Context, before: bool) -> list[Paths]:
                     verts[ok],
                     fac[ok],
                     kinds=np.repeat(kinds, int(ok.sum()), axis=0),
-                    diffraction=_field_model(ctx),
+                    diffraction=field_model(ctx),
                 )
             )
     return out
@@ -261,8 +268,8 @@ def _one_reflection(ctx: _Context, before: bool) -> list[Paths]:
 def _two_reflections(ctx: _Context) -> list[Paths]:
     """RDR paths: a reflection on each side of the edge (the two pruned sets joined on the wedge)."""
     fc, w = ctx.scene.facets, ctx.scene.wedges
-    t_e, t_f, t_w, t_img = _facet_wedge_pairs(ctx, ctx.tx)
-    r_e, r_f, r_w, r_img = _facet_wedge_pairs(ctx, ctx.rx)
+    t_e, t_f, t_w, t_img = _facet_wedge_pairs(ctx, ctx.tx, mixed_rdr=True)
+    r_e, r_f, r_w, r_img = _facet_wedge_pairs(ctx, ctx.rx, mixed_rdr=True)
     side_t = refl.reflecting_side(fc, ctx.tx)
     side_r = refl.reflecting_side(fc, ctx.rx)
     out = []
@@ -276,6 +283,9 @@ def _two_reflections(ctx: _Context) -> list[Paths]:
         np.repeat(starts, counts)
         + (np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts))
     ]
+    if ctx.facet_mask is not None:
+        keep = ctx.facet_mask[t_f[a]] | ctx.wedge_mask[t_w[a]] | ctx.facet_mask[r_f[b]]
+        a, b = a[keep], b[keep]
     ctx.count("candidates_rdr", len(a))
     for c0 in range(0, len(a), CHUNK):
         ia, ib = a[c0 : c0 + CHUNK], b[c0 : c0 + CHUNK]
@@ -306,7 +316,7 @@ def _two_reflections(ctx: _Context) -> list[Paths]:
                     kinds=np.repeat(
                         np.array([[REFLECTION, DIFFRACTION, REFLECTION]], np.int8), n, axis=0
                     ),
-                    diffraction=_field_model(ctx),
+                    diffraction=field_model(ctx),
                 )
             )
     return out

@@ -54,6 +54,8 @@ class Paths:
         2 penetration, 3 diffraction)
     points : (P, D, 3) float, interaction points, metres (NaN padded)
     objects : (P, D) int, object index of each interaction (-1 padded)
+    elements : (P, D) int, scene element of each interaction: facet index for a reflection, wedge
+        index for a diffraction, -1 for a penetration and padding
     """
 
     tx: np.ndarray
@@ -70,6 +72,7 @@ class Paths:
     interaction: np.ndarray
     points: np.ndarray
     objects: np.ndarray
+    elements: np.ndarray
 
     _PER_PATH = (
         "link",
@@ -83,6 +86,7 @@ class Paths:
         "interaction",
         "points",
         "objects",
+        "elements",
     )
 
     # -- construction -------------------------------------------------------------------------
@@ -104,6 +108,7 @@ class Paths:
             interaction=np.zeros((0, depth), np.int8),
             points=np.zeros((0, depth, 3)),
             objects=np.zeros((0, depth), np.int64),
+            elements=np.zeros((0, depth), np.int64),
         )
 
     @classmethod
@@ -129,6 +134,7 @@ class Paths:
                 "interaction": np.concatenate([self.interaction, np.zeros((n, extra), np.int8)], 1),
                 "points": np.concatenate([self.points, np.full((n, extra, 3), np.nan)], 1),
                 "objects": np.concatenate([self.objects, np.full((n, extra), -1, np.int64)], 1),
+                "elements": np.concatenate([self.elements, np.full((n, extra), -1, np.int64)], 1),
             }
         )
 
@@ -145,6 +151,25 @@ class Paths:
         return self.select(order)
 
     # -- derived ------------------------------------------------------------------------------
+    def vertices(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Reflection and diffraction vertices of every path, without penetrations.
+
+        Returns
+        -------
+        kinds : (P, k) int8, interaction codes (1 reflection, 3 diffraction; 0 padding)
+        points : (P, k, 3) float, metres
+        elements : (P, k) int, facet or wedge index
+        """
+        keep = (self.interaction == REFLECTION) | (self.interaction == DIFFRACTION)
+        k = int(keep.sum(axis=1).max()) if self.n_paths else 0
+        # stable compaction: the kept interactions first, in path order
+        order = np.argsort(~keep, axis=1, kind="stable")[:, :k]
+        rows = np.arange(self.n_paths)[:, None]
+        kinds = np.where(keep[rows, order], self.interaction[rows, order], 0).astype(np.int8)
+        pts = self.points[rows, order]
+        elem = np.where(keep[rows, order], self.elements[rows, order], -1)
+        return kinds, pts, elem
+
     @property
     def n_paths(self) -> int:
         return int(self.delay_s.shape[0])

@@ -124,6 +124,7 @@ def trace(
     extrapolate: bool = False,
     progress: bool | Callable[[int], None] = False,
     stats: dict[str, int] | None = None,
+    involving: np.ndarray | list[int] | None = None,
 ) -> Paths:
     """Find every path between every transmitter and every receiver.
 
@@ -141,6 +142,9 @@ def trace(
     extrapolate : bool, allow materials outside their valid frequency range (warns)
     progress : bool, show a progress bar over the mechanisms
     stats : dict, optional, filled with counters (candidates, segments tested, dropped paths)
+    involving : object indices, optional; only paths that reflect or diffract on at least one of
+        these objects (no line of sight). With :func:`reevaluate`, this is how a snapshot with
+        moving objects is traced without retracing the static scene.
 
     Returns
     -------
@@ -160,9 +164,11 @@ def trace(
         raise TraceInputError(f"frequency must be a positive number of Hz, got {frequency_hz}")
     tx = check_positions(scene, tx, "transmitter")
     rx = check_positions(scene, rx, "receiver")
-    ctx = _Context(scene, tx, rx, f, cfg)
+    ctx = _Context(scene, tx, rx, f, cfg, involving)
 
-    stages: list[tuple[str, Callable[[], list[Paths]]]] = [("line of sight", ctx.los)]
+    stages: list[tuple[str, Callable[[], list[Paths]]]] = []
+    if involving is None:
+        stages.append(("line of sight", ctx.los))
     if cfg.max_reflections >= 1 and cfg.max_interactions >= 1:
         stages.append(("1st-order reflections", ctx.reflections_1))
     if cfg.max_reflections >= 2 and cfg.max_interactions >= 2:
@@ -190,14 +196,87 @@ def trace(
         bar.close()
     if stats is not None:
         stats.update(ctx.stats)
+    if not parts:
+        return Paths.empty(
+            tx, rx, f, cfg.max_reflections + cfg.max_penetrations + cfg.max_diffractions
+        )
+    return Paths.concatenate(parts).sorted()
+
+
+def reevaluate(
+    scene: Scene,
+    paths: Paths,
+    *,
+    max_penetrations: int = 2,
+    min_power_db: float = MIN_POWER_DB,
+    extrapolate: bool = False,
+) -> Paths:
+    """Recompute visibility, penetrations and fields of given paths in another scene.
+
+    The paths keep their reflection and diffraction vertices and elements (facet and wedge
+    indices), so ``scene`` must index those elements as the scene they were traced in did; a
+    scene built from the same objects followed by more objects does. Paths that now cross more
+    objects than allowed, or carry no power, are dropped.
+
+    Parameters
+    ----------
+    scene : Scene
+    paths : Paths, from :func:`trace`
+    max_penetrations, min_power_db, extrapolate : as in :func:`trace`
+
+    Returns
+    -------
+    Paths, sorted like :func:`trace`'s.
+    """
+    cfg = TraceConfig(2, max_penetrations, 1, 3, min_power_db, extrapolate)
+    ctx = _Context(scene, paths.tx, paths.rx, paths.frequency_hz, cfg, None)
+    kinds, pts, elem = paths.vertices()
+    depth = max(kinds.shape[1], 1) + max_penetrations
+    parts = [Paths.empty(paths.tx, paths.rx, paths.frequency_hz, depth)]
+    if paths.n_paths:
+        from . import diffraction_paths
+
+        # one group per interaction sequence, so the back end sees rectangular arrays
+        seq, group = np.unique(kinds, axis=0, return_inverse=True)
+        for g, pattern in enumerate(seq):
+            sel = np.flatnonzero(group.reshape(-1) == g)
+            k = int((pattern > 0).sum())
+            has_d = bool((pattern == DIFFRACTION).any())
+            parts.append(
+                ctx.finish(
+                    paths.tx_index[sel],
+                    paths.rx_index[sel],
+                    pts[sel, :k],
+                    elem[sel, :k],
+                    kinds=kinds[sel, :k],
+                    diffraction=diffraction_paths.field_model(ctx) if has_d else None,
+                )
+            )
     return Paths.concatenate(parts).sorted()
 
 
 class _Context:
     """Per-call state shared by the path stages: scene, links, material constants."""
 
-    def __init__(self, scene: Scene, tx: np.ndarray, rx: np.ndarray, f: float, cfg: TraceConfig):
+    def __init__(
+        self,
+        scene: Scene,
+        tx: np.ndarray,
+        rx: np.ndarray,
+        f: float,
+        cfg: TraceConfig,
+        involving: np.ndarray | list[int] | None = None,
+    ):
         self.scene, self.tx, self.rx, self.f, self.cfg = scene, tx, rx, f, cfg
+        # which facets / wedges may take part (all, unless restricted to some objects)
+        if involving is None:
+            self.facet_mask = None
+            self.wedge_mask = None
+        else:
+            objs = np.zeros(len(scene.objects), dtype=bool)
+            objs[np.asarray(involving, dtype=np.int64)] = True
+            self.facet_mask = objs[scene.facets.object]
+            self.wedge_mask = objs[scene.wedges.object] if len(scene.wedges) else np.zeros(0, bool)
         self.k0 = 2 * np.pi * f / C0
         self.wavelength = C0 / f
         with warnings.catch_warnings():
@@ -229,9 +308,10 @@ class _Context:
         fc = self.scene.facets
         side_tx = refl.reflecting_side(fc, self.tx)  # (T, K)
         side_rx = refl.reflecting_side(fc, self.rx)  # (R, K)
-        t_idx, k_idx, r_idx = np.nonzero(
-            (side_tx[:, :, None] != 0) & (side_tx[:, :, None] == side_rx.T[None])
-        )
+        ok_tkr = (side_tx[:, :, None] != 0) & (side_tx[:, :, None] == side_rx.T[None])
+        if self.facet_mask is not None:
+            ok_tkr &= self.facet_mask[None, :, None]
+        t_idx, k_idx, r_idx = np.nonzero(ok_tkr)
         self.count("candidates_r1", len(t_idx))
         img = refl.mirror(self.tx[t_idx], fc.normal[k_idx], fc.offset[k_idx])
         u, p = refl.segment_plane_point(self.rx[r_idx], img, fc.normal[k_idx], fc.offset[k_idx])
@@ -240,8 +320,10 @@ class _Context:
         return [self.finish(t_idx[ok], r_idx[ok], p[ok][:, None, :], k_idx[ok][:, None])]
 
     def reflections_2(self) -> list[Paths]:
-        sc, fc = self.scene, self.scene.facets
+        fc = self.scene.facets
         pairs = refl.facing_pairs(fc)
+        if self.facet_mask is not None:
+            pairs &= self.facet_mask[:, None] | self.facet_mask[None, :]
         side_rx = refl.reflecting_side(fc, self.rx)  # (R, K)
         out: list[Paths] = []
         for t in range(len(self.tx)):
@@ -283,7 +365,6 @@ class _Context:
                     verts = np.stack([p1[ok], p2[ok]], axis=1)
                     fac = np.stack([ff1[ok], ff2[ok]], axis=1)
                     out.append(self.finish(np.full(int(ok.sum()), t), r_idx[ok], verts, fac))
-        del sc
         return out
 
     # -- common back end ----------------------------------------------------------------------
@@ -394,6 +475,7 @@ class _Context:
         inter = np.zeros((m, depth), np.int8)
         pts = np.full((m, depth, 3), np.nan)
         objs = np.full((m, depth), -1, np.int64)
+        elems = np.full((m, depth), -1, np.int64)
         pen_pts = cr.point.reshape(m, k + 1, -1, 3)
         pos = np.zeros(m, dtype=np.int64)
         rows = np.arange(m)
@@ -414,6 +496,7 @@ class _Context:
                 inter[rows, pos] = kinds[:, j]
                 pts[rows, pos] = verts[:, j]
                 objs[rows, pos] = vert_obj[:, j]
+                elems[rows, pos] = facet[:, j]
                 pos += 1
         n_r = (kinds == REFLECTION).sum(axis=1).astype(np.int16)
         n_d = (kinds == DIFFRACTION).sum(axis=1).astype(np.int16)
@@ -433,6 +516,7 @@ class _Context:
             interaction=inter,
             points=pts,
             objects=objs,
+            elements=elems,
         )
         return paths.select(keep)
 
