@@ -43,7 +43,18 @@ class Crossings:
     thickness: np.ndarray
 
 
-def segment_crossings(scene: Scene, a: np.ndarray, b: np.ndarray, max_crossings: int) -> Crossings:
+#: Hits on the object a segment starts or ends on (a reflection or diffraction vertex) closer
+#: than this many scene margins to that end are float32 noise of the vertex itself, not crossings.
+END_GUARD_MARGINS = 10.0
+
+
+def segment_crossings(
+    scene: Scene,
+    a: np.ndarray,
+    b: np.ndarray,
+    max_crossings: int,
+    end_objects: np.ndarray | None = None,
+) -> Crossings:
     """Objects crossed by the segments ``a -> b``, in order, with batched Embree queries.
 
     The segments' ends are shortened by ``scene.margin`` so that a segment that starts or ends on
@@ -54,6 +65,9 @@ def segment_crossings(scene: Scene, a: np.ndarray, b: np.ndarray, max_crossings:
     scene : Scene
     a, b : (n, 3) float, segment ends, metres
     max_crossings : int, K, the most penetrations kept per segment
+    end_objects : (n, 2) int, optional, the object each segment starts and ends on (-1 for none);
+        hits on it within ``END_GUARD_MARGINS`` margins of that end are ignored (a segment
+        that leaves or reaches a vertex on an edge may graze its object within float32 noise)
 
     Returns
     -------
@@ -95,9 +109,12 @@ def segment_crossings(scene: Scene, a: np.ndarray, b: np.ndarray, max_crossings:
         fn = scene.face_normal[face[~over]]
         normal[r, s] = fn
         cos_i = np.abs(np.einsum("ij,ij->i", fn, d[r]))
-        thick[r, s] = th[~over] * np.where(closed[o[~over]], cos_i, 1.0)
+        thick[r, s] = np.maximum(th[~over], 0.0) * np.where(closed[o[~over]], cos_i, 1.0)
         count[rows] += 1
 
+    guard = END_GUARD_MARGINS * margin
+    if end_objects is None:
+        end_objects = np.full((n, 2), -1, dtype=np.int64)
     t = np.full(n, margin)
     active = (tmax > t) & (length > 0)
     # each penetration of a solid takes two hits; one more round detects an excess
@@ -113,6 +130,14 @@ def segment_crossings(scene: Scene, a: np.ndarray, b: np.ndarray, max_crossings:
         active[done] = False
         rows, th, face, o = rows[hit], th[hit], face[hit], o[hit]
         t_hit = t[rows] + th
+        noise = ((o == end_objects[rows, 0]) & (t_hit < guard)) | (
+            (o == end_objects[rows, 1]) & (t_hit > length[rows] - guard)
+        )
+        if noise.any():
+            t[rows[noise]] = t_hit[noise] + margin
+            active[rows[noise]] &= t[rows[noise]] < tmax[rows[noise]]
+            keep = ~noise
+            rows, face, o, t_hit = rows[keep], face[keep], o[keep], t_hit[keep]
         is_closed = closed[o]
         cur = inside[rows]
         # open sheet: one penetration through the material's thickness

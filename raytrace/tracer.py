@@ -396,7 +396,17 @@ class _Context:
         a = chain[:, :-1].reshape(-1, 3)
         b = chain[:, 1:].reshape(-1, 3)
         kmax = self.cfg.max_penetrations
-        cr = segment_crossings(sc, a, b, kmax)
+        # the object under each vertex (tx and rx: none), so segments ignore their own vertices
+        vobj = np.where(
+            kinds == DIFFRACTION,
+            self._wedge_object(facet),
+            sc.facets.object[np.where(kinds == REFLECTION, facet, 0)]
+            if k
+            else np.zeros((m, 0), int),
+        )
+        chain_obj = np.concatenate([np.full((m, 1), -1), vobj, np.full((m, 1), -1)], axis=1)
+        ends = np.stack([chain_obj[:, :-1], chain_obj[:, 1:]], axis=2).reshape(-1, 2)
+        cr = segment_crossings(sc, a, b, kmax, ends)
         self.count("segments_tested", len(a))
         seg_count = cr.count.reshape(m, k + 1)
         n_pen = seg_count.sum(axis=1)
