@@ -18,6 +18,7 @@ bounding box. Every segment is then checked with Embree (penetrations allowed up
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -33,16 +34,21 @@ if TYPE_CHECKING:
 CHUNK = 300_000
 
 
-def trace_diffraction(ctx: _Context) -> list[Paths]:
-    """All diffraction paths allowed by the context's limits."""
-    out = [_pure(ctx)]
+def stages(ctx: _Context) -> list[tuple[str, Callable[[], list[Paths]]]]:
+    """The diffraction stages allowed by the context's limits, as (name, callable) pairs."""
+    out: list[tuple[str, Callable[[], list[Paths]]]] = [("diffraction", lambda: [_pure(ctx)])]
     cfg = ctx.cfg
     if cfg.max_reflections >= 1 and cfg.max_interactions >= 2:
-        out.extend(_one_reflection(ctx, before=True))
-        out.extend(_one_reflection(ctx, before=False))
+        out.append(("reflection-diffraction", lambda: _one_reflection(ctx, before=True)))
+        out.append(("diffraction-reflection", lambda: _one_reflection(ctx, before=False)))
     if cfg.max_reflections >= 2 and cfg.max_interactions >= 3:
-        out.extend(_two_reflections(ctx))
+        out.append(("reflection-diffraction-reflection", lambda: _two_reflections(ctx)))
     return out
+
+
+def trace_diffraction(ctx: _Context) -> list[Paths]:
+    """All diffraction paths allowed by the context's limits."""
+    return [p for _, stage in stages(ctx) for p in stage()]
 
 
 def field_model(ctx: _Context):
@@ -141,6 +147,9 @@ def _facet_wedge_pairs(
     """
     fc, w = ctx.scene.facets, ctx.scene.wedges
     side = refl.reflecting_side(fc, ends)  # (E, K)
+    f_centre, f_radius = refl.facet_spheres(fc)
+    w_mid = 0.5 * (w.start + w.end)
+    w_half = 0.5 * w.length * (1 + 1e-9) + 1e-9
     # facet bounding boxes
     tri = fc.triangles
     owner = np.repeat(np.arange(len(fc)), fc.tri_count)
@@ -162,6 +171,18 @@ def _facet_wedge_pairs(
         a_s = sa[:, f_ok] * sgn
         b_s = sb[:, f_ok] * sgn
         reach = (a_s > refl.PLANE_TOL_M) | (b_s > refl.PLANE_TOL_M)
+        # beam test: the edge's bounding sphere must meet the rays from the image through the
+        # facet's bounding sphere (necessary condition, cheap)
+        img_all = refl.mirror(
+            np.broadcast_to(ends[e], (len(f_ok), 3)), fc.normal[f_ok], fc.offset[f_ok]
+        )
+        reach &= refl.cone_reaches(
+            img_all[None, :, :],
+            f_centre[f_ok][None],
+            f_radius[f_ok][None],
+            w_mid[:, None, :],
+            w_half[:, None],
+        )
         if ctx.facet_mask is not None and not mixed_rdr:
             reach &= ctx.wedge_mask[:, None] | ctx.facet_mask[f_ok][None, :]
         wi, fj = np.nonzero(reach)

@@ -78,6 +78,19 @@ def points_in_facets(points: np.ndarray, facet: np.ndarray, facets: Facets) -> n
     n = len(points)
     if n == 0:
         return np.zeros(0, dtype=bool)
+    # cheap rejection by the facet's bounding box first: most candidates fail here
+    lo, hi = facet_boxes(facets)
+    near = np.all((points >= lo[facet]) & (points <= hi[facet]), axis=1)
+    out = np.zeros(n, dtype=bool)
+    if near.any():
+        idx = np.flatnonzero(near)
+        out[idx] = _in_triangles(points[idx], facet[idx], facets)
+    return out
+
+
+def _in_triangles(points: np.ndarray, facet: np.ndarray, facets: Facets) -> np.ndarray:
+    """Barycentric test of points against all triangles of their facets."""
+    n = len(points)
     counts = facets.tri_count[facet]
     rep = np.repeat(np.arange(n), counts)
     # index of each expanded triangle: tri_start[f] + 0..count-1
@@ -99,6 +112,66 @@ def points_in_facets(points: np.ndarray, facet: np.ndarray, facets: Facets) -> n
     out = np.zeros(n, dtype=bool)
     np.logical_or.at(out, rep, inside_tri)
     return out
+
+
+def facet_boxes(facets: Facets, grow: float = 1e-6) -> tuple[np.ndarray, np.ndarray]:
+    """(K, 3) lower and upper corners of each facet's axis-aligned bounding box, grown by
+    ``grow`` metres (cached on the facets)."""
+    cache = facets.__dict__.get("_boxes")
+    if cache is not None and cache[0] == grow:
+        return cache[1], cache[2]
+    owner = np.repeat(np.arange(len(facets)), facets.tri_count)
+    lo = np.full((len(facets), 3), np.inf)
+    hi = np.full((len(facets), 3), -np.inf)
+    np.minimum.at(lo, owner, facets.triangles.min(axis=1))
+    np.maximum.at(hi, owner, facets.triangles.max(axis=1))
+    lo -= grow
+    hi += grow
+    object.__setattr__(facets, "_boxes", (grow, lo, hi))
+    return lo, hi
+
+
+def facet_spheres(facets: Facets) -> tuple[np.ndarray, np.ndarray]:
+    """Bounding sphere of each facet: centre (K, 3) and radius (K,), metres (cached)."""
+    cache = facets.__dict__.get("_spheres")
+    if cache is not None:
+        return cache
+    lo, hi = facet_boxes(facets, 0.0)
+    centre = 0.5 * (lo + hi)
+    owner = np.repeat(np.arange(len(facets)), facets.tri_count * 3)
+    d = np.linalg.norm(facets.triangles.reshape(-1, 3) - centre[owner], axis=1)
+    radius = np.zeros(len(facets))
+    np.maximum.at(radius, owner, d)
+    out = (centre, radius * (1 + 1e-9) + 1e-9)
+    object.__setattr__(facets, "_spheres", out)
+    return out
+
+
+def cone_reaches(
+    apex: np.ndarray,
+    centre: np.ndarray,
+    radius: np.ndarray,
+    target_centre: np.ndarray,
+    target_radius: np.ndarray,
+) -> np.ndarray:
+    """Whether a target sphere can meet the cone of rays from ``apex`` through a sphere.
+
+    A conservative (necessary) test for beam tracing: every ray from the apex through the facet
+    bounded by (centre, radius) lies within the angle ``asin(radius / |centre - apex|)`` of the
+    axis; the target is reachable only if its own angular radius seen from the apex closes the
+    gap. All arguments broadcast; (..., 3) points, (...) radii, metres.
+    """
+    axis = centre - apex
+    to_t = target_centre - apex
+    da = np.linalg.norm(axis, axis=-1)
+    dt = np.linalg.norm(to_t, axis=-1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cos_ang = np.einsum("...j,...j->...", axis, to_t) / (da * dt)
+        half = np.arcsin(np.clip(radius / da, 0.0, 1.0))
+        half_t = np.arcsin(np.clip(target_radius / dt, 0.0, 1.0))
+    ang = np.arccos(np.clip(cos_ang, -1.0, 1.0))
+    inside = (da <= radius) | (dt <= target_radius)
+    return inside | (ang <= half + half_t + 1e-9)
 
 
 def reflecting_side(facets: Facets, points: np.ndarray) -> np.ndarray:

@@ -20,8 +20,11 @@ line of sight is exactly Friis: ``gain = lambda / (4 pi d) * exp(-j k d)``.
 
 from __future__ import annotations
 
+import os
+import threading
 import warnings
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -125,6 +128,7 @@ def trace(
     progress: bool | Callable[[int], None] = False,
     stats: dict[str, int] | None = None,
     involving: np.ndarray | list[int] | None = None,
+    threads: int | None = None,
 ) -> Paths:
     """Find every path between every transmitter and every receiver.
 
@@ -145,6 +149,8 @@ def trace(
     involving : object indices, optional; only paths that reflect or diffract on at least one of
         these objects (no line of sight). With :func:`reevaluate`, this is how a snapshot with
         moving objects is traced without retracing the static scene.
+    threads : int, optional, threads for the independent stages (default: all cores; 1 in a
+        process pool's workers avoids oversubscription)
 
     Returns
     -------
@@ -176,22 +182,27 @@ def trace(
     if cfg.max_diffractions >= 1 and cfg.max_interactions >= 1 and len(scene.wedges):
         from . import diffraction_paths
 
-        stages.append(("diffraction", lambda: diffraction_paths.trace_diffraction(ctx)))
+        stages.extend(diffraction_paths.stages(ctx))
 
     bar = None
     if progress is True:
         from tqdm import tqdm
 
         bar = tqdm(total=len(stages), desc="tracing", unit="stage", leave=False)
-    parts: list[Paths] = []
-    for name, stage in stages:
-        if bar is not None:
-            bar.set_postfix_str(name)
-        parts.extend(stage())
-        if bar is not None:
-            bar.update(1)
-        elif callable(progress):
-            progress(1)
+    n_threads = (os.cpu_count() or 1) if threads is None else max(1, int(threads))
+    results: list[list[Paths]] = []
+    # The stages are independent; their heavy parts (numpy on large arrays, Embree) release the
+    # GIL, so threads use the cores. Results are joined in stage order: output is deterministic.
+    with ThreadPoolExecutor(max_workers=min(n_threads, len(stages) or 1)) as pool:
+        futures = [pool.submit(stage) for _, stage in stages]
+        for (name, _), fut in zip(stages, futures):
+            results.append(fut.result())
+            if bar is not None:
+                bar.set_postfix_str(name)
+                bar.update(1)
+            elif callable(progress):
+                progress(1)
+    parts = [p for r in results for p in r]
     if bar is not None:
         bar.close()
     if stats is not None:
@@ -293,9 +304,11 @@ class _Context:
         self.obj_material = scene.object_material
         self.obj_closed = scene.object_closed
         self.stats: dict[str, int] = {}
+        self._lock = threading.Lock()
 
     def count(self, key: str, n: int) -> None:
-        self.stats[key] = self.stats.get(key, 0) + int(n)
+        with self._lock:
+            self.stats[key] = self.stats.get(key, 0) + int(n)
 
     # -- stages -------------------------------------------------------------------------------
     def los(self) -> list[Paths]:
@@ -325,6 +338,7 @@ class _Context:
         if self.facet_mask is not None:
             pairs &= self.facet_mask[:, None] | self.facet_mask[None, :]
         side_rx = refl.reflecting_side(fc, self.rx)  # (R, K)
+        centre, radius = refl.facet_spheres(fc)
         out: list[Paths] = []
         for t in range(len(self.tx)):
             side_t = refl.reflecting_side(fc, self.tx[t : t + 1])[0]  # (K,)
@@ -335,16 +349,29 @@ class _Context:
             # first images on a reflecting side of the second facet (exact necessary condition)
             side_img = refl.reflecting_side(fc, img1)  # (len(f1), K)
             a, f2 = np.nonzero((side_img != 0) & pairs[f1])
+            # beam test: the second facet must meet the rays from the first image through the
+            # first facet (bounding spheres: a necessary condition)
+            beam = refl.cone_reaches(img1[a], centre[f1[a]], radius[f1[a]], centre[f2], radius[f2])
+            a, f2 = a[beam], f2[beam]
             i1, f1a = a, f1[a]
             if len(f1a) == 0:
                 continue
             img2 = refl.mirror(img1[i1], fc.normal[f2], fc.offset[f2])
             s_img = side_img[i1, f2]
-            # receivers on the same side of the second facet as the first image
+            # receivers on the same side of the second facet as the first image, inside the
+            # beam from the second image through the second facet
             step = max(1, CHUNK // max(len(self.rx), 1))
             for c0 in range(0, len(f1a), step):
                 sl = slice(c0, c0 + step)
-                q, r_idx = np.nonzero(side_rx.T[f2[sl]] == s_img[sl, None])
+                ok_qr = side_rx.T[f2[sl]] == s_img[sl, None]
+                ok_qr &= refl.cone_reaches(
+                    img2[sl, None, :],
+                    centre[f2[sl], None, :],
+                    radius[f2[sl], None],
+                    self.rx[None],
+                    0.0,
+                )
+                q, r_idx = np.nonzero(ok_qr)
                 self.count("candidates_r2", len(q))
                 q = q + c0
                 ff1, ff2 = f1a[q], f2[q]
