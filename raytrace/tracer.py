@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import os
 import threading
+import time
 import warnings
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
@@ -146,6 +147,7 @@ def trace(
     extrapolate : bool, allow materials outside their valid frequency range (warns)
     progress : bool, show a progress bar over the mechanisms
     stats : dict, optional, filled with counters (candidates, segments tested, dropped paths)
+        and each stage's wall time in microseconds (``time_us[<stage>]``; stages overlap on threads)
     involving : object indices, optional; only paths that reflect or diffract on at least one of
         these objects (no line of sight). With :func:`reevaluate`, this is how a snapshot with
         moving objects is traced without retracing the static scene.
@@ -194,7 +196,7 @@ def trace(
     # The stages are independent; their heavy parts (numpy on large arrays, Embree) release the
     # GIL, so threads use the cores. Results are joined in stage order: output is deterministic.
     with ThreadPoolExecutor(max_workers=min(n_threads, len(stages) or 1)) as pool:
-        futures = [pool.submit(stage) for _, stage in stages]
+        futures = [pool.submit(ctx.timed, name, stage) for name, stage in stages]
         for (name, _), fut in zip(stages, futures):
             results.append(fut.result())
             if bar is not None:
@@ -305,6 +307,13 @@ class _Context:
         self.obj_closed = scene.object_closed
         self.stats: dict[str, int] = {}
         self._lock = threading.Lock()
+
+    def timed(self, name: str, stage: Callable[[], list[Paths]]) -> list[Paths]:
+        """Run a stage and record its wall time (microseconds) as ``time_us[<name>]``."""
+        t0 = time.perf_counter()
+        out = stage()
+        self.count(f"time_us[{name}]", int((time.perf_counter() - t0) * 1e6))
+        return out
 
     def count(self, key: str, n: int) -> None:
         with self._lock:

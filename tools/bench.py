@@ -42,9 +42,6 @@ def bench_trace(scene_name: str, repeat: int) -> dict:
     configs = {
         "los_only": dict(max_reflections=0, max_penetrations=0, max_diffractions=0),
         "los_r2_t2": dict(max_reflections=2, max_penetrations=2, max_diffractions=0),
-        "los_r2_t2_d1_pure": dict(
-            max_reflections=2, max_penetrations=2, max_diffractions=1, max_interactions=1
-        ),
         "los_r2_t2_d1_mixed": dict(
             max_reflections=2, max_penetrations=2, max_diffractions=1, max_interactions=2
         ),
@@ -69,10 +66,32 @@ def bench_trace(scene_name: str, repeat: int) -> dict:
             "seconds": round(best, 4),
             "links_per_s": round(n_links / best, 1),
             "paths": paths.n_paths,
+            "paths_by_kind": _kinds(paths),
             "segments_tested": segs,
             "segments_per_s": round(segs / best, 0),
+            "stage_seconds": {
+                k[len("time_us[") : -1]: round(v / 1e6, 4)
+                for k, v in stats.items()
+                if k.startswith("time_us[")
+            },
         }
     return out
+
+
+def _kinds(paths) -> dict[str, int]:
+    """Number of paths by mechanism group: LoS, reflections only, with penetrations only, pure
+    diffraction (D), diffraction mixed with reflections."""
+    pure_d = (paths.n_diffractions > 0) & (paths.n_reflections == 0)
+    mixed = (paths.n_diffractions > 0) & (paths.n_reflections > 0)
+    refl = (paths.n_diffractions == 0) & (paths.n_reflections > 0)
+    pen = (paths.n_diffractions == 0) & (paths.n_reflections == 0) & (paths.n_penetrations > 0)
+    return {
+        "los": int(paths.los.sum()),
+        "reflection": int(refl.sum()),
+        "penetration_only": int(pen.sum()),
+        "diffraction_pure": int(pure_d.sum()),
+        "diffraction_mixed": int(mixed.sum()),
+    }
 
 
 def bench_positioning(n_epochs: int) -> dict:
@@ -114,8 +133,13 @@ def main() -> int:
     )
     for name, r in tr["configs"].items():
         print(
-            f"  {name:<22} {r['seconds']:.3f} s  {r['links_per_s']:>9.1f} links/s  {r['paths']:>6} paths  "
+            f"  {name:<20} {r['seconds']:.3f} s  {r['links_per_s']:>9.1f} links/s  {r['paths']:>6} paths  "
             f"{r['segments_tested']:>8} segments ({r['segments_per_s']:.3g}/s)"
+        )
+        print("      paths: " + ", ".join(f"{k} {v}" for k, v in r["paths_by_kind"].items()))
+        print(
+            "      stages (s, overlapping on threads): "
+            + ", ".join(f"{k} {v:.3f}" for k, v in r["stage_seconds"].items())
         )
     pos = res["positioning"]
     if "error" in pos:
