@@ -1,0 +1,104 @@
+#!/usr/bin/env python
+"""Draw the top view of a hall (default: the reference hall) as a PNG.
+
+    python tools/plot_hall.py                       # scenes/hall.yaml -> docs/hall_top.png
+    python tools/plot_hall.py my_hall.yaml -o my_hall.png
+    python tools/plot_hall.py scenes/hall.glb -o hall.png   # from a built GLB's metadata
+
+Obstacles are coloured by material, base stations are triangles, points of interest numbered red
+squares, the area of interest a dashed green rectangle, forklift routes dashed arrows.
+"""
+
+from __future__ import annotations
+
+import argparse
+import io
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+import matplotlib  # noqa: E402
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import trimesh  # noqa: E402
+
+from raytrace.errors import HallrayError  # noqa: E402
+from raytrace.hallspec import load_hall_spec, plot_top_view, write_bytes_atomic  # noqa: E402
+
+#: Area names drawn on the reference hall's plan (x, y in m).
+REFERENCE_LABELS = {
+    "line 1": (18.0, 1.8),
+    "press": (30.0, 1.3),
+    "robot cell C": (37.0, 0.4),
+    "supermarket": (12.6, 11.8),
+    "AGV st.": (17.5, 12.7),
+    "line 2": (31.0, 11.3),
+    "robot cell A": (32.5, 15.9),
+    "robot cell B": (32.0, 28.3),
+    "machining\ncentre": (27.4, 31.5),
+    "workbenches": (12.6, 29.3),
+    "pallets": (18.2, 34.9),
+    "press ": (11.2, 35.0),
+    "line 3": (21.0, 40.3),
+    "office": (3.0, 41.0),
+    "air tank": (39.8, 40.9),
+    "pallet racks": (0.8, 11.3),
+    "pallet racks ": (41.2, 11.3),
+    "pallet stacks": (40.9, 7.0),
+}
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("hall", nargs="?", default=str(ROOT / "scenes" / "hall.yaml"))
+    parser.add_argument("-o", "--output", default=str(ROOT / "docs" / "hall_top.png"))
+    parser.add_argument("--dpi", type=int, default=150)
+    parser.add_argument("--labels", action="store_true", help="write object names on the plan")
+    args = parser.parse_args(argv)
+    try:
+        if args.hall.lower().endswith(".glb"):
+            source = trimesh.load(args.hall, file_type="glb")
+            if "hallray" not in source.metadata:
+                raise HallrayError(f"{args.hall} has no hallray metadata")
+        else:
+            source = load_hall_spec(args.hall)
+    except (HallrayError, OSError, ValueError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    meta = source.metadata["hallray"] if isinstance(source, trimesh.Scene) else None
+    name = (meta or {}).get("name") if meta else source.name
+    fig, ax = plt.subplots(figsize=(9.0, 8.4), layout="constrained")
+    plot_top_view(ax, source, label_objects=args.labels)
+    if name == "reference_hall":
+        for text, (x, y) in REFERENCE_LABELS.items():
+            ax.text(
+                x,
+                y,
+                text,
+                fontsize=6.5,
+                ha="center",
+                va="center",
+                color="0.1",
+                zorder=9,
+                bbox={"boxstyle": "round,pad=0.15", "fc": "white", "ec": "none", "alpha": 0.7},
+            )
+    size = meta["hall"]["size"] if meta else source.size
+    ax.set_title(f"{name}: {size[0]:g} m x {size[1]:g} m x {size[2]:g} m, top view", fontsize=10)
+    ax.set_xticks(range(0, int(size[0]) + 1, 5))
+    ax.set_yticks(range(0, int(size[1]) + 1, 5))
+    ax.grid(color="0.85", lw=0.5, zorder=0)
+    ax.set_axisbelow(True)
+    buf = io.BytesIO()
+    # fixed metadata: no software version or date in the PNG, so a rebuild gives the same bytes
+    fig.savefig(buf, format="png", dpi=args.dpi, metadata={"Software": None})
+    plt.close(fig)
+    write_bytes_atomic(buf.getvalue(), args.output)
+    print(f"wrote {args.output}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
