@@ -1,0 +1,273 @@
+"""Public entry point :func:`locate` and the table of positioning methods."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import Any, Literal, overload
+
+import numpy as np
+
+from . import irls as _irls
+from . import robust as _robust
+from .errors import PositioningError
+from .fixes import Fixes
+from .tdoa import Problem, make_problem
+
+#: Sentinel kinds of method parameters (used to validate and to parse CLI ``k=v`` strings).
+_POS_FLOAT = "positive float"
+_POS_INT = "positive int"
+_OPT_INDEX = "base-station index or none"
+_OPT_COUNT = "non-negative int or none"
+_COUNT = "non-negative int"
+_PROB = "probability in (0, 1)"
+
+
+@dataclass(frozen=True)
+class Method:
+    """One registered positioning method.
+
+    Attributes
+    ----------
+    name : str -- registry key (``ls``, ``irls``, ...)
+    func : ``func(problem, **params) -> dict`` of arrays (see :mod:`positioning.irls`)
+    params : mapping name -> (default, kind) where kind is a validation rule or a tuple of choices
+    summary : one-line description (shown by ``estimate-positions --list-methods``)
+    paper : True for the paper's own methods (LS, IRLS)
+    """
+
+    name: str
+    func: Callable[..., dict[str, np.ndarray]]
+    params: Mapping[str, tuple[Any, Any]]
+    summary: str
+    paper: bool = False
+
+
+METHODS: dict[str, Method] = {
+    m.name: m
+    for m in (
+        Method(
+            "ls",
+            _irls.least_squares,
+            {
+                "reference": (None, _OPT_INDEX),
+                "tol_m": (_irls.LS_TOL_M, _POS_FLOAT),
+                "max_iter": (_irls.LS_MAX_ITER, _POS_INT),
+            },
+            "paper eq. 7: least squares of signed TDoAs against one reference base station",
+            paper=True,
+        ),
+        Method(
+            "irls",
+            _irls.irls,
+            {
+                "u_max": (_irls.U_MAX_M, _POS_FLOAT),
+                "epsilon": (_irls.EPSILON_M, _POS_FLOAT),
+                "max_iter": (_irls.MAX_ITER, _POS_INT),
+                "ls_tol_m": (_irls.LS_TOL_M, _POS_FLOAT),
+                "ls_max_iter": (_irls.LS_MAX_ITER, _POS_INT),
+            },
+            "paper Algorithm 1: every base station the reference once, Andrews-sine weights",
+            paper=True,
+        ),
+        Method(
+            "m-estimator",
+            _robust.m_estimator,
+            {
+                "loss": ("tukey", ("tukey", "huber")),
+                "c": (None, "positive float or none"),
+                "scale_floor_m": (_robust.SCALE_FLOOR_M, _POS_FLOAT),
+                "tol_m": (1e-6, _POS_FLOAT),
+                "max_iter": (50, _POS_INT),
+                "gn_max_iter": (10, _POS_INT),
+                "region_margin": (_robust.REGION_MARGIN, _POS_FLOAT),
+            },
+            "reference-free MM-estimator: least-median start over subsets, Tukey IRLS at robust scale",
+        ),
+        Method(
+            "subset",
+            _robust.subset,
+            {
+                "sigma_m": (_robust.SIGMA_M, _POS_FLOAT),
+                "alpha": (0.01, _PROB),
+                "max_drop": (None, _OPT_COUNT),
+                "tol_m": (1e-9, _POS_FLOAT),
+                "max_iter": (50, _POS_INT),
+                "region_margin": (_robust.REGION_MARGIN, _POS_FLOAT),
+            },
+            "chi-square consistency test, drop the base station whose removal fits best",
+        ),
+        Method(
+            "nlos-aware",
+            _robust.nlos_aware,
+            {
+                "sigma_m": (_robust.SIGMA_M, _POS_FLOAT),
+                "k": (_robust.NLOS_K, _POS_FLOAT),
+                "max_drop": (1, _COUNT),
+                "tol_m": (1e-6, _POS_FLOAT),
+                "max_iter": (50, _POS_INT),
+                "gn_max_iter": (10, _POS_INT),
+                "region_margin": (_robust.REGION_MARGIN, _POS_FLOAT),
+            },
+            "one-sided loss (NLoS only delays): subset hypotheses scored, then IRLS",
+        ),
+    )
+}
+
+
+def method_names() -> list[str]:
+    """Registered method names, paper methods first."""
+    return list(METHODS)
+
+
+def _coerce(method: str, name: str, value: Any, kind: Any, n_bs: int | None) -> Any:
+    """Validate (and, for strings from the CLI, parse) one parameter value."""
+    where = f"method {method!r} parameter {name!r}"
+    if isinstance(kind, tuple):
+        if value not in kind:
+            raise PositioningError(f"{where} must be one of {', '.join(kind)}, got {value!r}")
+        return value
+    if isinstance(value, str) and value.strip().lower() in ("none", "null", ""):
+        value = None
+    if value is None:
+        if kind in (_OPT_INDEX, _OPT_COUNT, "positive float or none"):
+            return None
+        raise PositioningError(f"{where} must be a {kind}, got None")
+    try:
+        if kind in (_POS_INT, _OPT_INDEX, _OPT_COUNT, _COUNT):
+            if isinstance(value, (bool, np.bool_)):
+                raise ValueError
+            f = float(value)
+            if not f.is_integer():
+                raise ValueError
+            v: Any = int(f)
+        else:
+            v = float(value)
+    except (TypeError, ValueError):
+        raise PositioningError(f"{where} must be a {kind}, got {value!r}") from None
+    ok = {
+        _POS_FLOAT: lambda x: np.isfinite(x) and x > 0,
+        "positive float or none": lambda x: np.isfinite(x) and x > 0,
+        _POS_INT: lambda x: x > 0,
+        _OPT_COUNT: lambda x: x >= 0,
+        _COUNT: lambda x: x >= 0,
+        _PROB: lambda x: 0 < x < 1,
+        _OPT_INDEX: lambda x: x >= 0 and (n_bs is None or x < n_bs),
+    }[kind](v)
+    if not ok:
+        extra = f" (there are {n_bs} base stations)" if kind == _OPT_INDEX else ""
+        raise PositioningError(f"{where} must be a {kind}{extra}, got {value!r}")
+    return v
+
+
+def resolve_params(method: str, params: Mapping[str, Any], n_bs: int | None = None) -> dict:
+    """Defaults filled in and every value validated; unknown method or parameter raises.
+
+    Values may be strings (as from ``--param k=v``); they are parsed by the parameter's kind.
+    """
+    if method not in METHODS:
+        raise PositioningError(f"unknown method {method!r}; choose one of: {', '.join(METHODS)}")
+    spec = METHODS[method].params
+    unknown = sorted(set(params) - set(spec))
+    if unknown:
+        raise PositioningError(
+            f"method {method!r} has no parameter {unknown[0]!r}; "
+            f"parameters: {', '.join(spec) or '(none)'}"
+        )
+    out = {}
+    for name, (default, kind) in spec.items():
+        out[name] = _coerce(method, name, params[name], kind, n_bs) if name in params else default
+    return out
+
+
+def run_method(prob: Problem, method: str = "irls", **params: Any) -> Fixes:
+    """Solve a prepared :class:`~positioning.tdoa.Problem` with one registered method."""
+    p = resolve_params(method, params, prob.n_bs)
+    res = METHODS[method].func(prob, **p)
+    return Fixes(
+        xyz=res["xyz"],
+        status=np.asarray(res["status"], dtype=np.int64),
+        iterations=np.asarray(res["iterations"], dtype=np.int64),
+        weights=res["weights"],
+        n_used=prob.n_valid,
+        method=method,
+        params=p,
+    )
+
+
+@overload
+def locate(
+    toa_s: np.ndarray,
+    bs_xyz: np.ndarray,
+    method: str = ...,
+    *,
+    tx_offsets_s: np.ndarray | None = ...,
+    height_m: float | np.ndarray | None = ...,
+    return_info: Literal[False] = ...,
+    **params: Any,
+) -> np.ndarray: ...
+
+
+@overload
+def locate(
+    toa_s: np.ndarray,
+    bs_xyz: np.ndarray,
+    method: str = ...,
+    *,
+    tx_offsets_s: np.ndarray | None = ...,
+    height_m: float | np.ndarray | None = ...,
+    return_info: Literal[True],
+    **params: Any,
+) -> Fixes: ...
+
+
+def locate(
+    toa_s: np.ndarray,
+    bs_xyz: np.ndarray,
+    method: str = "irls",
+    *,
+    tx_offsets_s: np.ndarray | None = None,
+    height_m: float | np.ndarray | None = None,
+    return_info: bool = False,
+    **params: Any,
+) -> np.ndarray | Fixes:
+    """Position E epochs from the ToAs of N base stations.
+
+    Parameters
+    ----------
+    toa_s : (E, N) float, seconds
+        Measured ToA of the first-arriving path of each base station in the device clock (any
+        common offset per epoch, i.e. the unknown device clock offset, is allowed). NaN = not
+        received.
+    bs_xyz : (N, 3) float, metres
+        Base-station positions. Two base stations at the same position raise
+        :class:`PositioningError`.
+    method : str
+        One of :data:`METHODS`: ``ls``, ``irls`` (the paper's), ``m-estimator``, ``subset``,
+        ``nlos-aware``.
+    tx_offsets_s : (N,) float, seconds, optional
+        Transmission schedule to remove (base station n transmits ``tx_offsets_s[n]`` after the
+        first); default zeros.
+    height_m : float or (E,) float, metres, optional
+        Known device height: solve for (x, y) with 3-D distances (the "2D" solve of the paper,
+        done without ignoring the height difference). None: solve for (x, y, z).
+    return_info : bool
+        False (default): return only the positions. True: return a :class:`Fixes` with per-epoch
+        status, iterations, weights and ``n_unsolved``.
+    **params
+        Method parameters (see ``METHODS[method].params``), validated.
+
+    Returns
+    -------
+    (E, 3) float, metres (z = ``height_m`` in 2D), or :class:`Fixes`. An epoch with fewer than 3
+    (2D) or 4 (3D) received base stations gives a NaN row and is counted in
+    ``Fixes.n_unsolved``; it does not raise.
+
+    Raises
+    ------
+    PositioningError
+        Bad shapes or values, duplicate base-station positions, unknown method or parameter.
+    """
+    prob = make_problem(toa_s, bs_xyz, tx_offsets_s, height_m)
+    fixes = run_method(prob, method, **params)
+    return fixes if return_info else fixes.xyz

@@ -1,0 +1,114 @@
+"""Result container of :func:`positioning.locate`: positions plus per-epoch diagnostics."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from enum import IntFlag
+from typing import Any
+
+import numpy as np
+
+
+class Status(IntFlag):
+    """Per-epoch status bits of a fix (0 = ``OK``); several bits may be set at once.
+
+    ``UNSOLVED``
+        Fewer usable base stations than unknowns allow (3 in 2D, 4 in 3D): position is NaN.
+    ``NOT_CONVERGED``
+        An iteration hit its ``max_iter`` before its tolerance; the last estimate is returned.
+    ``ALL_WEIGHTS_ZERO``
+        IRLS: every reference's uncertainty exceeded ``u_max`` (eq. 11 gives all weights 0);
+        the previous weighted average is kept and the iteration stops.
+    ``REFERENCE_FALLBACK``
+        LS: the requested reference base station had no ToA in this epoch; the first base
+        station with a ToA was used instead.
+    ``NO_REDUNDANCY``
+        A robust estimator had too few base stations to identify an outlier, so its result is the
+        plain least-squares fit of the pseudo-range model: ``m-estimator`` and ``subset`` need
+        ``dims + 3`` received base stations (two spare measurements; 5 in 2D), ``nlos-aware``
+        ``dims + 2`` (one spare; it also uses the sign of the NLoS excess).
+    ``OUTLIER_REJECTED``
+        A robust estimator dropped (or weighted to zero) at least one base station.
+    ``INCONSISTENT``
+        ``subset``: the residuals still fail the consistency test after dropping every base station
+        that could be identified (or the outlier could not be isolated); the last fit is returned.
+    ``ILL_CONDITIONED``
+        The geometry is (nearly) degenerate at the solution (normal matrix condition number
+        above 1e10, e.g. collinear base stations): the position is returned but unreliable.
+    """
+
+    OK = 0
+    UNSOLVED = 1
+    NOT_CONVERGED = 2
+    ALL_WEIGHTS_ZERO = 4
+    REFERENCE_FALLBACK = 8
+    NO_REDUNDANCY = 16
+    OUTLIER_REJECTED = 32
+    INCONSISTENT = 64
+    ILL_CONDITIONED = 128
+
+
+def status_label(code: int) -> str:
+    """Text form of a status code: ``"ok"`` or flag names joined by ``|`` (lower case)."""
+    code = int(code)
+    if code == 0:
+        return "ok"
+    return "|".join(f.name.lower() for f in Status if f.value and code & f.value)
+
+
+@dataclass(frozen=True)
+class Fixes:
+    """Positions and diagnostics of E epochs solved by one method.
+
+    Attributes
+    ----------
+    xyz : (E, 3) float, metres
+        Estimated positions; in a 2D solve z is the known device height. NaN where unsolved.
+    status : (E,) int
+        Bit flags of :class:`Status` (0 = ok).
+    iterations : (E,) int
+        Outer iterations: Gauss-Newton/LM iterations for ``ls``, reweighting iterations of
+        Algorithm 1 for ``irls``, IRLS iterations for ``m-estimator`` and ``nlos-aware``, and the
+        Gauss-Newton iterations of the final fit for ``subset``.
+    weights : (E, N) float
+        Per base station: for ``irls`` the normalised weight of the estimate referenced to that base
+        station (eq. 9); for ``m-estimator``/``nlos-aware`` the final robust weight of its
+        measurement; for ``ls``/``subset`` 1 if used, 0 if missing or dropped.
+    n_used : (E,) int
+        Base stations with a finite ToA in the epoch.
+    method : str
+        Method name as registered in :data:`positioning.METHODS`.
+    params : dict
+        The method parameters actually used (defaults filled in).
+    """
+
+    xyz: np.ndarray
+    status: np.ndarray
+    iterations: np.ndarray
+    weights: np.ndarray
+    n_used: np.ndarray
+    method: str
+    params: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def n_epochs(self) -> int:
+        """Number of epochs E."""
+        return int(self.xyz.shape[0])
+
+    @property
+    def solved(self) -> np.ndarray:
+        """(E,) bool: True where a position was produced."""
+        return (self.status & Status.UNSOLVED) == 0
+
+    @property
+    def n_unsolved(self) -> int:
+        """Number of epochs without a position (NaN rows)."""
+        return int(np.count_nonzero(~self.solved))
+
+    def count(self, flag: Status) -> int:
+        """Number of epochs with ``flag`` set."""
+        return int(np.count_nonzero(self.status & int(flag)))
+
+    def labels(self) -> list[str]:
+        """Per-epoch status as text (see :func:`status_label`)."""
+        return [status_label(s) for s in self.status]

@@ -1,0 +1,245 @@
+"""The paper's estimators: reference-based least squares (eq. 7) and IRLS (Algorithm 1, eqs. 8-12).
+
+Both are batched over epochs. Results are returned as plain arrays; :func:`positioning.locate`
+wraps them in :class:`positioning.Fixes`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .fixes import Status
+from .tdoa import Problem, first_valid, solve_tdoa
+
+#: Default cut-off of the Andrews weight (eq. 11), metres. See :func:`irls` for the reasoning.
+U_MAX_M = 3.0
+#: Default convergence threshold on the move of the weighted average (eq. 12), metres.
+EPSILON_M = 1e-4
+#: Default maximum number of reweighting iterations of Algorithm 1.
+MAX_ITER = 100
+#: Default Gauss-Newton step tolerance (m) and iteration limit of each least-squares solve.
+LS_TOL_M = 1e-9
+LS_MAX_ITER = 50
+
+
+def andrews_weight(u: np.ndarray | float, u_max: float) -> np.ndarray:
+    """Andrews sine weight of eq. 11: ``(u_max / (pi u)) sin(pi u / u_max)`` for ``u <= u_max``.
+
+    Parameters
+    ----------
+    u : array of float, metres -- uncertainties ``u_e`` (eq. 10), non-negative
+    u_max : float, metres -- cut-off; ``u > u_max`` (and NaN) gives weight 0
+
+    Returns
+    -------
+    Weights in [0, 1], same shape as ``u``. At ``u = 0`` the weight is the limit 1; at
+    ``u = u_max`` it is ``sin(pi) / pi = 0``, so the function is continuous at the cut-off.
+    ``numpy.sinc(x) = sin(pi x) / (pi x)`` is exactly this form with ``x = u / u_max``.
+    """
+    u = np.asarray(u, dtype=float)
+    w = np.sinc(u / u_max)
+    return np.where(np.isfinite(u) & (u <= u_max), w, 0.0)
+
+
+def uncertainties(prob: Problem, q: np.ndarray) -> np.ndarray:
+    """Uncertainty ``u_e`` of every reference base station at positions ``q`` (eq. 10).
+
+    ``u_e = 1/(N_e - 1) sum_{n != e} |dd_ne - (|q - b_n| - |q - b_e|)|`` over the received base
+    stations (``N_e`` of them, the paper's N when none is missing). With pseudo-range residuals
+    ``s_n = rho_n - |q - b_n|`` each term is ``|s_n - s_e|``.
+
+    Parameters
+    ----------
+    prob : Problem
+    q : (E, 3) float, metres -- the current weighted average ``Q_WA``
+
+    Returns
+    -------
+    (E, N) float, metres; NaN for base stations not received.
+    """
+    R = np.linalg.norm(q[:, None, :] - prob.bs[None, :, :], axis=2)
+    s = np.where(prob.valid, prob.rho - R, 0.0)
+    diff = np.abs(s[:, :, None] - s[:, None, :])  # [E, e, n]
+    both = prob.valid[:, :, None] & prob.valid[:, None, :]
+    total = np.sum(np.where(both, diff, 0.0), axis=2)
+    n_other = np.maximum(prob.n_valid - 1, 1)[:, None]
+    return np.where(prob.valid, total / n_other, np.nan)
+
+
+def least_squares(
+    prob: Problem,
+    *,
+    reference: int | None = None,
+    tol_m: float = LS_TOL_M,
+    max_iter: int = LS_MAX_ITER,
+) -> dict[str, np.ndarray]:
+    """The paper's LS (eqs. 5-7): signed TDoAs against one reference base station.
+
+    Parameters
+    ----------
+    prob : Problem
+    reference : int, optional
+        Reference base station index. None: the first received base station of each epoch. If a
+        named reference is not received in an epoch, that epoch falls back to its first received
+        base station and is flagged ``REFERENCE_FALLBACK``.
+    tol_m, max_iter : Gauss-Newton/LM step tolerance (m) and iteration limit.
+
+    Returns
+    -------
+    dict with ``xyz`` (E, 3), ``status`` (E,), ``iterations`` (E,), ``weights`` (E, N).
+    """
+    E = prob.n_epochs
+    rows = prob.solvable
+    status = np.zeros(E, dtype=np.int64)
+    ref = first_valid(prob.valid)
+    if reference is not None:
+        has = prob.valid[:, reference]
+        ref = np.where(has, reference, ref)
+        status |= np.where(rows & ~has, int(Status.REFERENCE_FALLBACK), 0)
+    sol = solve_tdoa(prob, ref, rows, tol=tol_m, max_iter=max_iter)
+    status |= np.where(rows & ~sol.converged, int(Status.NOT_CONVERGED), 0)
+    status |= np.where(rows & sol.ill, int(Status.ILL_CONDITIONED), 0)
+    status |= np.where(rows, 0, int(Status.UNSOLVED))
+    return {
+        "xyz": sol.xyz,
+        "status": status,
+        "iterations": sol.iterations,
+        "weights": prob.valid.astype(float) * rows[:, None],
+    }
+
+
+def irls(
+    prob: Problem,
+    *,
+    u_max: float = U_MAX_M,
+    epsilon: float = EPSILON_M,
+    max_iter: int = MAX_ITER,
+    ls_tol_m: float = LS_TOL_M,
+    ls_max_iter: int = LS_MAX_ITER,
+) -> dict[str, np.ndarray]:
+    """IRLS positioning, the paper's Algorithm 1.
+
+    1. Every received base station ``e`` is the reference once: N position estimates ``q_e`` by
+       the least squares of eq. 7 (:func:`least_squares` machinery).
+    2. ``Q_WA`` = their average with equal weights (eq. 8, first iteration).
+    3. Repeat: uncertainties ``u_e`` at ``Q_WA`` (eq. 10); weights ``w_e`` = Andrews sine of
+       ``u_e`` (eq. 11); normalise (eq. 9); new ``Q_WA`` = weighted average of the ``q_e`` (eq. 8);
+       stop when it moved by ``S <= epsilon`` (eq. 12).
+
+    Guards the paper leaves open:
+
+    * **All weights zero** (every ``u_e > u_max``): eq. 9 would divide by zero. The epoch keeps the
+      previous ``Q_WA`` (at the first reweighting, the equal-weight average), stops iterating and
+      is flagged ``ALL_WEIGHTS_ZERO``; the reported weights are the (all zero) eq. 11 weights.
+    * **No convergence** within ``max_iter``: the last ``Q_WA`` is returned, flagged
+      ``NOT_CONVERGED`` (also set when one of the N least-squares solves did not converge).
+    * **A per-reference least squares that did not converge** (it typically runs off to infinity
+      along a hyperbola asymptote when the TDoAs are inconsistent, e.g. an NLoS excess beyond
+      the baseline): that estimate gets weight 0 throughout, unless no reference converged, and
+      the epoch is flagged ``NOT_CONVERGED``.
+    * **Missing ToAs**: only received base stations serve as references and enter eq. 10 (whose
+      ``1/(N-1)`` becomes ``1/(N_e-1)``); epochs with fewer than ``dims + 1`` received base
+      stations are ``UNSOLVED`` (NaN).
+
+    Parameters
+    ----------
+    prob : Problem
+    u_max : float, metres
+        Cut-off of eq. 11 (default 3 m). ``u_e`` is a mean absolute TDoA misfit. With LoS noise
+        of standard deviation ``sigma`` per range it is about ``1.13 sigma`` (mean of ``|N(0,
+        2 sigma^2)|``), i.e. centimetres to a few decimetres at 400/100 MHz, where the weight stays
+        above 0.99. An NLoS excess ``b`` on the reference gives ``u_e ~ b`` (all terms of eq. 10
+        carry it) but only ``~ b / (N - 1)`` for the other references. 3 m (the range resolution
+        ``c / B`` at 100 MHz) therefore rejects a reference with a metre-scale NLoS bias (weight
+        0.39 at 1.5 m, 0 from 3 m) while a bias up to about ``(N - 1) u_max`` (9 m with 4 base
+        stations) does not drive every weight to zero.
+    epsilon : float, metres
+        Threshold on ``S`` of eq. 12 (default 1e-4 m: three orders of magnitude below the ranging
+        errors of either band, while the reweighting, a fixed-point iteration that converges only
+        linearly, needs about twice as many iterations for 1e-6 m).
+    max_iter : int
+        Maximum reweighting iterations (default 100; typically fewer than 10 are needed).
+    ls_tol_m, ls_max_iter : Gauss-Newton/LM settings of the N least-squares solves.
+
+    Returns
+    -------
+    dict with ``xyz`` (E, 3), ``status`` (E,), ``iterations`` (E,), ``weights`` (E, N) (the
+    normalised eq. 9 weights of the estimate referenced to each base station) and
+    ``estimates`` (E, N, 3) (the N per-reference positions ``q_e``, NaN where not received).
+    """
+    E, N = prob.rho.shape
+    rows = prob.solvable
+    status = np.zeros(E, dtype=np.int64)
+    q = np.full((E, N, 3), np.nan)
+    conv = np.zeros((E, N), dtype=bool)
+    ill = np.zeros(E, dtype=bool)
+    for e in range(N):
+        sub = rows & prob.valid[:, e]
+        if not sub.any():
+            continue
+        sol = solve_tdoa(prob, np.full(E, e), sub, tol=ls_tol_m, max_iter=ls_max_iter)
+        q[sub, e] = sol.xyz[sub]
+        conv[:, e] = sub & sol.converged
+        ill |= sub & sol.ill
+    has_q = np.isfinite(q).all(axis=2)
+    # A per-reference LS that did not converge has usually run off along a hyperbola asymptote
+    # (an inconsistent TDoA set has its LS optimum at infinity); it takes no part unless no
+    # reference converged at all.
+    ls_bad = rows & (has_q & ~conv).any(axis=1)
+    usable = has_q & conv
+    has_q = np.where(usable.any(axis=1)[:, None], usable, has_q)
+    q0 = np.where(has_q[..., None], q, 0.0)
+
+    def average(w: np.ndarray) -> np.ndarray:
+        return np.sum(w[..., None] * q0, axis=1) / np.maximum(np.sum(w, axis=1), 1e-300)[:, None]
+
+    w_norm = has_q / np.maximum(has_q.sum(axis=1), 1)[:, None]
+    Q = average(has_q.astype(float))  # equal weights at iteration 0
+    iterations = np.zeros(E, dtype=np.int64)
+    act = np.flatnonzero(rows)
+    zero_w = np.zeros(E, dtype=bool)
+    converged = np.zeros(E, dtype=bool)
+    for _ in range(max_iter):
+        if act.size == 0:
+            break
+        sub = _take(prob, act)
+        u = uncertainties(sub, Q[act])
+        w = andrews_weight(u, u_max) * has_q[act]
+        wsum = w.sum(axis=1)
+        iterations[act] += 1
+        dead = wsum <= 0.0
+        zero_w[act[dead]] = True
+        w_norm[act[dead]] = 0.0
+        live = act[~dead]
+        wl = w[~dead] / wsum[~dead, None]
+        Q_new = np.sum(wl[..., None] * q0[live], axis=1)
+        S = np.linalg.norm(Q_new - Q[live], axis=1)
+        Q[live] = Q_new
+        w_norm[live] = wl
+        done = S <= epsilon
+        converged[live[done]] = True
+        act = live[~done]
+    status |= np.where(rows & zero_w, int(Status.ALL_WEIGHTS_ZERO), 0)
+    status |= np.where(rows & ~zero_w & ~converged, int(Status.NOT_CONVERGED), 0)
+    status |= np.where(rows & ls_bad, int(Status.NOT_CONVERGED), 0)
+    status |= np.where(rows & ill, int(Status.ILL_CONDITIONED), 0)
+    status |= np.where(rows, 0, int(Status.UNSOLVED))
+    Q[~rows] = np.nan
+    w_norm[~rows] = 0.0
+    return {
+        "xyz": Q,
+        "status": status,
+        "iterations": iterations,
+        "weights": w_norm,
+        "estimates": q,
+    }
+
+
+def _take(prob: Problem, idx: np.ndarray) -> Problem:
+    """The sub-problem of epochs ``idx``."""
+    return Problem(
+        rho=prob.rho[idx],
+        valid=prob.valid[idx],
+        bs=prob.bs,
+        height=None if prob.height is None else prob.height[idx],
+    )
