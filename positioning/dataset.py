@@ -1,0 +1,230 @@
+"""Reader of the ToA dataset format (``DIR/toa.csv`` + ``DIR/meta.json``, schema version 1).
+
+``toa.csv`` has one row per (epoch, point, base station)::
+
+    epoch,time_s,point,bs,toa_s,x_true,y_true,z_true,distance_m,los,first_kind,snr_db,
+    tx_offset_s,clock_offset_s
+
+``toa_s`` is empty when the link had no detectable path. One *fix* is one (epoch, point) pair.
+Only ``epoch, point, bs, toa_s, x_true, y_true, z_true`` are required; ``tx_offset_s`` is taken
+from the row when present and non-empty, else from ``meta.json`` ``schedule_s``, else 0;
+``time_s`` is optional. ``meta.json`` must list ``base_stations`` (name, xyz); ``scenario``,
+``band``, ``points``, ``hall_xy`` and ``obstacles_2d`` are used when present.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .errors import PositioningError
+
+REQUIRED_COLUMNS = ("epoch", "point", "bs", "toa_s", "x_true", "y_true", "z_true")
+
+
+@dataclass(frozen=True)
+class ToaDataset:
+    """A ToA dataset pivoted to one row per fix (F fixes, N base stations).
+
+    Attributes
+    ----------
+    path : Path -- the dataset directory
+    meta : dict -- parsed ``meta.json``
+    bs_names : list of N str; bs_xyz : (N, 3) float, metres (order of ``meta.json``)
+    epoch : (F,) int; time_s : (F,) float, seconds (NaN if absent); point : (F,) str
+    true_xyz : (F, 3) float, metres
+    toa_s : (F, N) float, seconds, device clock, NaN = not received
+    tx_offset_s : (F, N) float, seconds -- transmission schedule of each measurement
+    """
+
+    path: Path
+    meta: dict[str, Any]
+    bs_names: list[str]
+    bs_xyz: np.ndarray
+    epoch: np.ndarray
+    time_s: np.ndarray
+    point: np.ndarray
+    true_xyz: np.ndarray
+    toa_s: np.ndarray
+    tx_offset_s: np.ndarray
+
+    @property
+    def n_fixes(self) -> int:
+        return int(self.epoch.size)
+
+    @property
+    def scenario(self) -> str:
+        return str(self.meta.get("scenario", "unknown"))
+
+    @property
+    def band(self) -> str:
+        return str(self.meta.get("band", "unknown"))
+
+    @property
+    def name(self) -> str:
+        return self.path.resolve().name
+
+    @property
+    def toa_unscheduled_s(self) -> np.ndarray:
+        """(F, N) ToAs with each measurement's schedule offset removed, seconds."""
+        return self.toa_s - self.tx_offset_s
+
+
+def _float(text: str, what: str, line: int, allow_empty: bool = False) -> float:
+    t = text.strip()
+    if t == "" and allow_empty:
+        return math.nan
+    try:
+        v = float(t)
+    except ValueError:
+        raise PositioningError(f"toa.csv line {line}: bad number in {what}: {text!r}") from None
+    if not math.isfinite(v):
+        raise PositioningError(f"toa.csv line {line}: non-finite {what}: {text!r}")
+    return v
+
+
+def _read_meta(path: Path) -> dict[str, Any]:
+    if not path.is_file():
+        raise PositioningError(f"{path}: file not found")
+    try:
+        meta = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise PositioningError(f"{path}: cannot read JSON ({msg})") from None
+    if not isinstance(meta, dict):
+        raise PositioningError(f"{path}: top level must be an object")
+    bss = meta.get("base_stations")
+    if not isinstance(bss, list) or not bss:
+        raise PositioningError(f"{path}: 'base_stations' must be a non-empty list")
+    for i, b in enumerate(bss):
+        ok = isinstance(b, dict) and isinstance(b.get("name"), str)
+        xyz = b.get("xyz") if isinstance(b, dict) else None
+        ok = ok and isinstance(xyz, list) and len(xyz) == 3
+        if ok:
+            try:
+                ok = all(math.isfinite(float(v)) for v in xyz)
+            except (TypeError, ValueError):
+                ok = False
+        if not ok:
+            raise PositioningError(
+                f"{path}: base_stations[{i}] needs a 'name' and a finite 'xyz' [x, y, z]"
+            )
+    names = [b["name"] for b in bss]
+    if len(set(names)) != len(names):
+        raise PositioningError(f"{path}: duplicate base-station names")
+    return meta
+
+
+def load_dataset(directory: str | Path) -> ToaDataset:
+    """Read and validate a dataset directory.
+
+    Raises
+    ------
+    PositioningError
+        Missing directory or file, unreadable JSON, missing columns, bad numbers, unknown
+        base-station names, duplicate (epoch, point, bs) rows, or no rows at all.
+    """
+    d = Path(directory)
+    if not d.is_dir():
+        raise PositioningError(f"{d}: dataset directory not found")
+    meta = _read_meta(d / "meta.json")
+    bs_names = [b["name"] for b in meta["base_stations"]]
+    bs_xyz = np.array([[float(v) for v in b["xyz"]] for b in meta["base_stations"]])
+    col = {n: i for i, n in enumerate(bs_names)}
+    schedule = meta.get("schedule_s") or {}
+    csv_path = d / "toa.csv"
+    if not csv_path.is_file():
+        raise PositioningError(f"{csv_path}: file not found")
+    fixes: dict[tuple[int, str], int] = {}
+    epochs: list[int] = []
+    times: list[float] = []
+    points: list[str] = []
+    truth: list[tuple[float, float, float]] = []
+    toa_rows: list[list[float]] = []
+    off_rows: list[list[float]] = []
+    seen: set[tuple[int, int]] = set()
+    try:
+        with csv_path.open(newline="", encoding="utf-8") as fh:
+            reader = csv.reader(fh)
+            header = next(reader, None)
+            if header is None:
+                raise PositioningError(f"{csv_path}: empty file")
+            header = [h.strip() for h in header]
+            missing = [c for c in REQUIRED_COLUMNS if c not in header]
+            if missing:
+                raise PositioningError(f"{csv_path}: missing columns: {', '.join(missing)}")
+            ix = {h: i for i, h in enumerate(header)}
+            i_time = ix.get("time_s")
+            i_off = ix.get("tx_offset_s")
+            for line, row in enumerate(reader, start=2):
+                if not row or all(not c.strip() for c in row):
+                    continue
+                if len(row) != len(header):
+                    raise PositioningError(
+                        f"toa.csv line {line}: {len(row)} fields, header has {len(header)}"
+                    )
+                try:
+                    ep = int(row[ix["epoch"]].strip())
+                except ValueError:
+                    raise PositioningError(
+                        f"toa.csv line {line}: bad epoch {row[ix['epoch']]!r}"
+                    ) from None
+                pt = row[ix["point"]].strip()
+                bsn = row[ix["bs"]].strip()
+                if bsn not in col:
+                    raise PositioningError(
+                        f"toa.csv line {line}: base station {bsn!r} is not in meta.json"
+                    )
+                toa = _float(row[ix["toa_s"]], "toa_s", line, allow_empty=True)
+                off = math.nan
+                if i_off is not None:
+                    off = _float(row[i_off], "tx_offset_s", line, allow_empty=True)
+                if math.isnan(off):
+                    off = float(schedule.get(bsn, 0.0))
+                key = (ep, pt)
+                f = fixes.get(key)
+                if f is None:
+                    f = fixes[key] = len(epochs)
+                    epochs.append(ep)
+                    t = math.nan
+                    if i_time is not None:
+                        t = _float(row[i_time], "time_s", line, allow_empty=True)
+                    times.append(t)
+                    points.append(pt)
+                    truth.append(
+                        tuple(_float(row[ix[c]], c, line) for c in ("x_true", "y_true", "z_true"))
+                    )
+                    toa_rows.append([math.nan] * len(bs_names))
+                    off_rows.append([0.0] * len(bs_names))
+                j = col[bsn]
+                if (f, j) in seen:
+                    raise PositioningError(
+                        f"toa.csv line {line}: duplicate row for epoch {ep}, point {pt!r}, "
+                        f"bs {bsn!r}"
+                    )
+                seen.add((f, j))
+                toa_rows[f][j] = toa
+                off_rows[f][j] = off
+    except (OSError, UnicodeDecodeError, csv.Error) as exc:
+        raise PositioningError(f"{csv_path}: cannot read ({exc})") from None
+    if not epochs:
+        raise PositioningError(f"{csv_path}: no data rows")
+    off_arr = np.array(off_rows, dtype=float)
+    return ToaDataset(
+        path=d,
+        meta=meta,
+        bs_names=bs_names,
+        bs_xyz=bs_xyz,
+        epoch=np.array(epochs, dtype=np.int64),
+        time_s=np.array(times, dtype=float),
+        point=np.array(points, dtype=object),
+        true_xyz=np.array(truth, dtype=float),
+        toa_s=np.array(toa_rows, dtype=float),
+        tx_offset_s=off_arr,
+    )

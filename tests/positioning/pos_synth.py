@@ -1,0 +1,103 @@
+"""Synthetic ToA datasets in the contract's format (toa.csv + meta.json) for the positioning tests.
+
+Not a test module itself (no ``test_`` prefix); imported by the CLI tests and the benchmark.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+import numpy as np
+
+C0 = 299_792_458.0
+#: Base stations at the corners of a 29 m x 25 m area at 4 m, as in the paper.
+PAPER_BS = np.array([[0.0, 0.0, 4.0], [29.0, 0.0, 4.0], [29.0, 25.0, 4.0], [0.0, 25.0, 4.0]])
+#: Transmission schedule: base station k transmits at k * 10 ms (paper, section II).
+SCHEDULE_STEP_S = 0.01
+
+HEADER = (
+    "epoch,time_s,point,bs,toa_s,x_true,y_true,z_true,distance_m,los,first_kind,snr_db,"
+    "tx_offset_s,clock_offset_s"
+).split(",")
+
+
+def write_dataset(
+    directory: str | Path,
+    *,
+    points: np.ndarray,
+    bs: np.ndarray = PAPER_BS,
+    n_epochs: int = 3,
+    sigma_m: float = 0.05,
+    nlos: Mapping[tuple[int, int], float] | None = None,
+    missing: Sequence[tuple[int, int, int]] = (),
+    scenario: str = "static",
+    band: str = "c-band",
+    seed: int = 0,
+    extra_meta: Mapping | None = None,
+) -> Path:
+    """Write a dataset; returns the directory.
+
+    ``points`` (P, 3) true positions; ``nlos[(point, bs)] = bias_m`` adds a positive excess range;
+    ``missing`` lists (epoch, point, bs) links written with an empty ``toa_s``.
+    """
+    d = Path(directory)
+    d.mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(seed)
+    nlos = dict(nlos or {})
+    miss = set(missing)
+    names = [f"BS{i + 1}" for i in range(len(bs))]
+    pnames = [f"P{i + 1:02d}" for i in range(len(points))]
+    meta = {
+        "schema_version": 1,
+        "scenario": scenario,
+        "band": band,
+        "base_stations": [{"name": n, "xyz": b.tolist()} for n, b in zip(names, bs, strict=True)],
+        "points": [{"name": n, "xyz": p.tolist()} for n, p in zip(pnames, points, strict=True)],
+        "schedule_s": {n: i * SCHEDULE_STEP_S for i, n in enumerate(names)},
+        "seed": seed,
+        "scene_sha256": "0" * 64,
+        "version": "test",
+        "hall_xy": [[-2.0, -2.0], [31.0, 27.0]],
+        "obstacles_2d": [
+            {
+                "name": "shelf",
+                "material": "metal",
+                "polygon": [[10, 10], [14, 10], [14, 12], [10, 12]],
+            }
+        ],
+    }
+    meta.update(extra_meta or {})
+    (d / "meta.json").write_text(json.dumps(meta, indent=1))
+    with (d / "toa.csv").open("w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(HEADER)
+        for e in range(n_epochs):
+            for i, p in enumerate(points):
+                clk = rng.uniform(-1e-3, 1e-3)
+                for j, b in enumerate(bs):
+                    dist = float(np.linalg.norm(p - b))
+                    bias = nlos.get((i, j), 0.0)
+                    off = j * SCHEDULE_STEP_S
+                    rng_err = rng.normal(0.0, sigma_m) + bias
+                    toa = clk + off + (dist + rng_err) / C0
+                    toa_s = "" if (e, i, j) in miss else repr(toa)
+                    w.writerow(
+                        [
+                            e,
+                            0.1 * e,
+                            pnames[i],
+                            names[j],
+                            toa_s,
+                            *p.tolist(),
+                            dist,
+                            int(bias == 0),
+                            "LoS" if bias == 0 else "R",
+                            30.0,
+                            off,
+                            clk,
+                        ]
+                    )
+    return d
