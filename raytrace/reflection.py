@@ -165,13 +165,20 @@ def cone_reaches(
     to_t = target_centre - apex
     da = np.linalg.norm(axis, axis=-1)
     dt = np.linalg.norm(to_t, axis=-1)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        cos_ang = np.einsum("...j,...j->...", axis, to_t) / (da * dt)
-        half = np.arcsin(np.clip(radius / da, 0.0, 1.0))
-        half_t = np.arcsin(np.clip(target_radius / dt, 0.0, 1.0))
-    ang = np.arccos(np.clip(cos_ang, -1.0, 1.0))
     inside = (da <= radius) | (dt <= target_radius)
-    return inside | (ang <= half + half_t + 1e-9)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        # angle(axis, to_t) <= a + b, with sin a = radius / da, sin b = target_radius / dt,
+        # written without trigonometric functions: cos(angle) >= cos(a + b)
+        cos_ang = np.einsum("...j,...j->...", axis, to_t) / (da * dt)
+        sa = np.clip(radius / da, 0.0, 1.0)
+        sb = np.clip(target_radius / dt, 0.0, 1.0)
+        ca = np.sqrt(1.0 - sa * sa)
+        cb = np.sqrt(1.0 - sb * sb)
+        cos_sum = ca * cb - sa * sb
+        # a + b >= pi/2 ... pi: cos_sum <= 0 covers it, and a + b can exceed pi only if both
+        # spheres subtend half-angles near pi/2, where everything is reachable
+        reach = cos_ang >= cos_sum - 1e-7
+    return inside | reach
 
 
 def reflecting_side(facets: Facets, points: np.ndarray) -> np.ndarray:

@@ -31,6 +31,9 @@ from .materials import MaterialLibrary
 DEGENERATE_AREA_M2 = 1e-10
 #: Two adjacent faces whose normals differ by less than this (rad) are coplanar (no wedge).
 WEDGE_MIN_ANGLE_RAD = np.deg2rad(1.0)
+#: Distance (m) from an edge along its outward bisector at which a wedge is probed for being
+#: buried in another solid (then it is not a free, diffracting edge).
+BURIED_PROBE_M = 5e-3
 #: Mesh formats read through trimesh.
 MESH_SUFFIXES = (".glb", ".gltf", ".obj", ".ply", ".stl", ".off")
 
@@ -142,6 +145,7 @@ class Scene:
     metadata: dict[str, Any] = field(default_factory=dict)
     source: str = ""
     n_degenerate_dropped: int = 0
+    n_buried_wedges: int = 0
     _embree: Any = field(default=None, repr=False)
 
     # -- construction -------------------------------------------------------------------------
@@ -233,7 +237,31 @@ class Scene:
             n_degenerate_dropped=n_dropped,
         )
         scene._build_embree()
+        scene._drop_buried_wedges()
         return scene
+
+    def _drop_buried_wedges(self) -> None:
+        """Remove edges that are not free: a convex edge whose outward bisector enters another
+        solid right away (a box's bottom edges on a floor slab, racks side by side). The wedge
+        there is really the concave junction of two objects, and nothing can reach its edge
+        from outside. Half-plane edges of sheets are kept."""
+        w = self.wedges
+        if len(w) == 0:
+            return
+        bis = w.normal0 + w.normal1
+        nb = np.linalg.norm(bis, axis=1)
+        probe_ok = nb > 1e-6
+        if not probe_ok.any():
+            return
+        mid = 0.5 * (w.start + w.end)
+        probe = mid[probe_ok] + (BURIED_PROBE_M * bis[probe_ok] / nb[probe_ok, None])
+        inside = self.inside_solid(probe)
+        buried = np.zeros(len(w), dtype=bool)
+        buried[np.flatnonzero(probe_ok)] = (inside >= 0) & (inside != w.object[probe_ok])
+        if buried.any():
+            keep = ~buried
+            self.wedges = Wedges(**{k: v[keep] for k, v in w.__dict__.items()})
+            self.n_buried_wedges = int(buried.sum())
 
     def _build_embree(self) -> None:
         from embreex import rtcore_scene as rtcs
@@ -417,6 +445,7 @@ class Scene:
             "facets": len(self.facets),
             "wedges": len(self.wedges),
             "degenerate_triangles_dropped": self.n_degenerate_dropped,
+            "buried_wedges_dropped": self.n_buried_wedges,
         }
 
 

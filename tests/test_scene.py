@@ -212,3 +212,15 @@ def test_summary_counts(shoebox):
     assert s["objects"] == 6 and s["open_sheets"] == 6 and s["triangles"] == 12
     assert s["facets"] == 6 and s["wedges"] == 24
     assert s["size_m"] == [10.0, 8.0, 3.0]
+
+
+def test_edges_buried_against_another_solid_are_not_wedges():
+    floor = box((-5, -5, -0.3), (5, 5, 0.0))
+    crate = box((0, 0, 0), (1, 1, 1))
+    sc = make_scene([("floor", floor, "concrete"), ("crate", crate, "wood")])
+    crate_w = sc.wedges.object == 1
+    # the crate's four bottom edges rest on the floor slab; its 8 other edges are free
+    assert crate_w.sum() == 8
+    assert (sc.wedges.start[crate_w, 2] + sc.wedges.end[crate_w, 2] > 0).all()
+    assert (sc.wedges.object == 0).sum() == 12
+    assert sc.n_buried_wedges == 4

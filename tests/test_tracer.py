@@ -204,3 +204,36 @@ def test_bad_positions(shoebox):
     sc = _box_scene("concrete")
     with pytest.raises(TraceInputError, match="inside the solid 'block'"):
         trace(sc, [[4.5, 0, 1]], [[10, 0, 1]], F_C)
+
+
+def test_beam_pruning_loses_no_path(monkeypatch):
+    """The cone pre-tests are necessary conditions: switching them off changes nothing."""
+    import raytrace.reflection as refl_mod
+
+    rng = np.random.default_rng(3)
+    objs = [("floor", box((-1, -1, -0.3), (21, 21, 0.0)), "concrete")]
+    for i in range(12):
+        lo = np.append(rng.uniform(1, 17, 2), 0.0)
+        objs.append(
+            (
+                f"b{i}",
+                box(lo, lo + np.append(rng.uniform(0.5, 2.5, 2), rng.uniform(0.5, 4))),
+                "metal",
+            )
+        )
+    sc = make_scene(objs)
+    tx = np.array([[0.5, 0.5, 4.5], [19.5, 19.5, 4.5]])
+    rx = np.array([[10.0, 0.5, 1.0], [0.5, 19.5, 1.5], [19.5, 0.5, 0.8]])
+    rx = rx[sc.inside_solid(rx) < 0]
+    pruned = trace(sc, tx, rx, F_C)
+
+    def everything(apex, centre, radius, tc, tr):
+        shape = np.broadcast(
+            np.asarray(apex)[..., 0], np.asarray(centre)[..., 0], radius, np.asarray(tc)[..., 0], tr
+        )
+        return np.ones(shape.shape, dtype=bool)
+
+    monkeypatch.setattr(refl_mod, "cone_reaches", everything)
+    full = trace(sc, tx, rx, F_C)
+    assert pruned.n_paths == full.n_paths > 0
+    np.testing.assert_array_equal(pruned.delay_s, full.delay_s)
