@@ -563,6 +563,31 @@ def _points(
 # --------------------------------------------------------------------------------------------
 
 
+def _layout(
+    p: InFParams,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[str], np.ndarray]:
+    """Base stations, clutter footprints, heights, materials and points of a hall."""
+    layout_ss, points_ss = np.random.SeedSequence(p.seed).spawn(2)
+    rng_layout = np.random.default_rng(layout_ss)
+    rng_points = np.random.default_rng(points_ss)
+    bs = _bs_positions(p)
+    footprints, heights, mats = _place_clutter(rng_layout, p, bs[:, :2])
+    pts = _points(rng_points, p, footprints, bs[:, :2])
+    return bs, footprints, heights, mats, pts
+
+
+def check_hall(
+    profile: str, size: str | Sequence[float] | None = None, seed: int = 0, **kwargs: Any
+) -> InFParams:
+    """Validate the arguments of :func:`generate_hall` and lay the hall out (clutter and points,
+    milliseconds) without building it: raises the same one-line errors, including clutter or
+    points that cannot be placed. Returns the resolved parameters."""
+    kwargs.pop("los_notes", None)
+    p = resolve_params(profile, size, seed, **kwargs)
+    _layout(p)
+    return p
+
+
 def generate_hall(
     profile: str,
     size: str | Sequence[float] | None = None,
@@ -630,13 +655,8 @@ def generate_hall(
         n_points=n_points,
         materials=materials,
     )
-    layout_ss, points_ss = np.random.SeedSequence(p.seed).spawn(2)
-    rng_layout = np.random.default_rng(layout_ss)
-    rng_points = np.random.default_rng(points_ss)
     lx, ly, lz = p.size
-    bs = _bs_positions(p)
-    footprints, heights, mats = _place_clutter(rng_layout, p, bs[:, :2])
-    pts = _points(rng_points, p, footprints, bs[:, :2])
+    bs, footprints, heights, mats, pts = _layout(p)
 
     width = max(4, len(str(len(footprints))))
     objects = []
@@ -724,11 +744,72 @@ def hall_yaml(spec: Mapping[str, Any]) -> str:
 # --------------------------------------------------------------------------------------------
 
 
+class ConvexSolidScene(Scene):
+    """A :class:`Scene` whose closed solids are all convex (what a hall spec builds: boxes and
+    prisms), with an exact point-in-solid test.
+
+    :meth:`Scene.inside_solid` counts ray crossings per object; where two solids share a face
+    (the hall shell's wall and ceiling slabs touch along the top of every wall) the ray's exit
+    from one is hidden behind the entry into the other, and points in a band below the wall tops
+    come out "inside the wall" (for example (10, 19.7, 1.5) in an empty 30 x 24 x 8 m hall). For
+    a convex solid, a point is inside exactly when it is on the inner side of every face plane;
+    that test is used here.
+    """
+
+    def inside_solid(self, points: np.ndarray) -> np.ndarray:
+        """Index of the closed (convex) solid that strictly contains each point, or -1.
+
+        Parameters
+        ----------
+        points : (n, 3) float, m
+
+        Returns
+        -------
+        (n,) int, the lowest such object index
+        """
+        pts = np.asarray(points, dtype=float).reshape(-1, 3)
+        out = np.full(len(pts), -1, dtype=np.int64)
+        closed = np.flatnonzero(self.object_closed)
+        if len(pts) == 0 or len(closed) == 0:
+            return out
+        counts = np.array([self.objects[i].face_count for i in closed])
+        starts = np.array([self.objects[i].face_start for i in closed])
+        f_max = int(counts.max())
+        # padded face planes per solid: n . x <= offset inside; padding n = 0, offset = 1
+        idx = starts[:, None] + np.arange(f_max)[None, :]
+        valid = np.arange(f_max)[None, :] < counts[:, None]
+        idx = np.where(valid, idx, 0)
+        normal = np.where(valid[..., None], self.face_normal[idx], 0.0)
+        v0 = self.vertices[self.faces[idx, 0]]
+        offset = np.where(valid, np.einsum("ofk,ofk->of", normal, v0), 1.0)
+        lo = np.full((len(closed), 3), np.inf)
+        hi = np.full((len(closed), 3), -np.inf)
+        for j, i in enumerate(closed):
+            obj = self.objects[i]
+            v = self.vertices[self.faces[obj.face_start : obj.face_start + obj.face_count]]
+            lo[j], hi[j] = v.reshape(-1, 3).min(axis=0), v.reshape(-1, 3).max(axis=0)
+        chunk = max(1, (1 << 22) // len(closed))
+        for a in range(0, len(pts), chunk):
+            p = pts[a : a + chunk]
+            cand = np.all((p[:, None, :] > lo[None]) & (p[:, None, :] < hi[None]), axis=2)
+            pi, oj = np.nonzero(cand)
+            if not len(pi):
+                continue
+            s = np.einsum("kfd,kd->kf", normal[oj], p[pi]) - offset[oj]
+            inside = np.all(s < 0.0, axis=1)
+            hit = np.full(len(p), np.iinfo(np.int64).max)
+            np.minimum.at(hit, pi[inside], closed[oj[inside]])
+            found = hit != np.iinfo(np.int64).max
+            out[a : a + chunk][found] = hit[found]
+        return out
+
+
 def scene_from_spec(spec: HallSpec | Mapping[str, Any]) -> Scene:
     """The tracer's :class:`Scene` of a hall spec, built in memory (no GLB round trip).
 
     Objects are named and ordered as :func:`raytrace.scene.load_scene` would name and order them
-    from the GLB; vertices stay float64 (the GLB stores float32, a difference of < 1e-5 m).
+    from the GLB; vertices stay float64 (the GLB stores float32, a difference of < 1e-5 m). The
+    scene is a :class:`ConvexSolidScene` (exact point-in-solid test).
     """
     import trimesh
 
@@ -738,7 +819,7 @@ def scene_from_spec(spec: HallSpec | Mapping[str, Any]) -> Scene:
         v, f = prim.mesh_arrays()
         meshes.append((hall.node_name(prim), trimesh.Trimesh(v, f, process=False), prim.material))
     meshes.sort(key=lambda m: m[0])
-    return Scene.from_meshes(
+    return ConvexSolidScene.from_meshes(
         meshes, hall.material_library, metadata={"hallray": hall_metadata(hall)}, source=hall.name
     )
 

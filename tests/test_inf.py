@@ -325,6 +325,25 @@ def test_embree_los_matches_independent_slab_test(halls, profile):
             k += 1
 
 
+def test_convex_scene_inside_solid_is_exact(halls):
+    """scene_from_spec's point-in-solid test agrees with the primitives' closed-form containment,
+    also in the band below the wall tops where the generic ray-parity test miscounts (the exit
+    from a wall slab hides behind the entry into the ceiling slab that shares its top face)."""
+    hall = parse_hall_spec(split_spec(halls["InF-DL"])[0])
+    scene = scene_from_spec(hall)
+    rng = np.random.default_rng(0)
+    lx, ly, lz = hall.size
+    p = rng.uniform([-0.5, -0.5, -0.5], [lx + 0.5, ly + 0.5, lz + 0.5], (20000, 3))
+    prims = {hall.node_name(q): q for q in hall.shell() + hall.objects}
+    ref = np.full(len(p), -1)
+    for i, name in enumerate(scene.object_names):
+        ref = np.where((ref < 0) & prims[name].contains(p), i, ref)
+    np.testing.assert_array_equal(scene.inside_solid(p), ref)
+    empty = scene_from_spec(parse_hall_spec({"hall": {"size": [30.0, 24.0, 8.0]}}))
+    band = np.column_stack([np.full(13, 10.0), np.linspace(19.0, 20.2, 13), np.full(13, 1.5)])
+    np.testing.assert_array_equal(empty.inside_solid(band), -1)
+
+
 def test_high_bs_blocked_only_near_the_ut(halls):
     """SH/DH: the BS is above the clutter, so a blocking box lies within the horizontal distance
     d (h_c - h_UT) / (h_BS - h_UT) of the device (the geometry behind the 3GPP k scaling)."""
