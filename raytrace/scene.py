@@ -394,7 +394,10 @@ class Scene:
     def inside_solid(self, points: np.ndarray) -> np.ndarray:
         """Index of the closed solid that contains each point, or -1.
 
-        Counts crossings of a ray from the point per object (parity), with Embree.
+        Counts crossings of a ray from the point per object (parity), with Embree, along three
+        directions, and takes the majority: one ray can miscount where it grazes an edge or
+        leaves two overlapping solids through a shared plane (the hall shell's slabs), which
+        Embree reports as one hit.
 
         Parameters
         ----------
@@ -407,23 +410,27 @@ class Scene:
         pts = np.asarray(points, dtype=float).reshape(-1, 3)
         n = len(pts)
         closed = self.object_closed
-        # an irrational-ish direction avoids running along edges of axis-aligned boxes
-        d = np.array([0.27216553, 0.54433105, 0.79349205])
-        d = d / np.linalg.norm(d)
-        counts = np.zeros((n, len(self.objects)), dtype=np.int64)
-        origin = pts.copy()
-        active = np.ones(n, dtype=bool)
+        # component ratios golden (badly approximable by fractions), so that rays from points on
+        # a decimetre grid do not pass exactly through edges of boxes on that grid
+        g = 0.5 * (1.0 + np.sqrt(5.0))
+        dirs = np.array([[1.0, g, g * g], [-g * g, 1.0, g], [g, -g * g, 1.0]])
+        votes = np.zeros((n, len(self.objects)), dtype=np.int64)
         step = self.margin
-        for _ in range(4 * len(self.objects) + 8):
-            if not active.any():
-                break
-            idx = np.flatnonzero(active)
-            t, _, obj = self.intersect(origin[idx], np.broadcast_to(d, (len(idx), 3)))
-            hit = obj >= 0
-            counts[idx[hit], obj[hit]] += 1
-            origin[idx[hit]] += (t[hit] + step)[:, None] * d
-            active[idx[~hit]] = False
-        odd = (counts % 2 == 1) & closed[None, :]
+        for d in dirs / np.linalg.norm(dirs, axis=1, keepdims=True):
+            counts = np.zeros((n, len(self.objects)), dtype=np.int64)
+            origin = pts.copy()
+            active = np.ones(n, dtype=bool)
+            for _ in range(4 * len(self.objects) + 8):
+                if not active.any():
+                    break
+                idx = np.flatnonzero(active)
+                t, _, obj = self.intersect(origin[idx], np.broadcast_to(d, (len(idx), 3)))
+                hit = obj >= 0
+                counts[idx[hit], obj[hit]] += 1
+                origin[idx[hit]] += (t[hit] + step)[:, None] * d
+                active[idx[~hit]] = False
+            votes += counts % 2
+        odd = (votes >= 2) & closed[None, :]
         return np.where(odd.any(axis=1), np.argmax(odd, axis=1), -1)
 
     def summary(self) -> dict[str, Any]:

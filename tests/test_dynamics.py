@@ -414,3 +414,16 @@ def test_incremental_equals_full_retrace_hall_all_links_both_bands():
         snap = st.scene_at(t)
         for a, b in zip(st.paths_at(t, snap), st.full_retrace(t, snap)):
             assert_same_paths(a, b, scene, snap)
+
+
+def test_points_beside_a_forklift_are_not_inside_it():
+    """Regression: at t = 37.9 s forklift_2's box (x 23.4..24.6, y 10.3..12.8) is 0.4 m from P03
+    (23, 12, 1); a parity ray with an x:y slope of 1:2 grazed its vertical edge and reported P03
+    inside. Also a point just outside a cabinet whose ray left the hall through the overlapping,
+    coplanar top faces of two shell slabs."""
+    scene, tx, rx, routes = _hall_links(True)
+    st = SnapshotTracer(scene, tx, rx, routes, [F_C], static_paths=[Paths.empty(tx, rx, F_C)])
+    snap = st.scene_at(37.9)
+    assert not st.boxes_at(37.9).contains(rx, grow=0.39).any()
+    np.testing.assert_array_equal(snap.inside_solid(np.vstack([tx, rx])), -1)
+    assert scene.inside_solid(np.array([[39.1965, 1.1965, 1.0]]))[0] == -1
