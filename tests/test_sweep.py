@@ -297,6 +297,13 @@ def test_dask_local_cluster_in_process(tmp_path):
         assert _stable(ref.results[key]) == _stable(res.results[key])
 
 
+@pytest.mark.skipif(not os.uname().sysname == "Linux", reason="glibc mallopt")
+def test_tune_malloc_applies_on_glibc():
+    from raytrace.sweep import tune_malloc
+
+    assert tune_malloc() is True
+
+
 @pytest.mark.slow
 def test_dask_local_cluster_two_worker_processes(tmp_path):
     """Two worker processes on 127.0.0.1 (tcp), as on a real cluster: same results."""
