@@ -549,16 +549,19 @@ class SnapshotTracer:
         # paths on the forklifts: geometry once (no power cut), fields per frequency below
         new = self._trace(snap, self.frequencies_hz[0], -np.inf, involving=self.moving_objects)
         t0 = self._tick("involving_s", t0)
+        cut = self.settings.min_power_db
         out = []
-        for f, static, aff in zip(self.frequencies_hz, self.static_paths, affected):
-            redo = Paths.concatenate([static.select(aff), new])
-            redone = reevaluate(
-                snap,
-                _at_frequency(redo, f),
-                max_penetrations=self.settings.max_penetrations,
-                min_power_db=self.settings.min_power_db,
-            )
-            out.append(Paths.concatenate([static.select(~aff), redone]).sorted())
+        for k, (f, static, aff) in enumerate(zip(self.frequencies_hz, self.static_paths, affected)):
+            kw = {"max_penetrations": self.settings.max_penetrations, "min_power_db": cut}
+            if k == 0:
+                # the new paths' fields are already those of this frequency: only the power cut
+                # (the tracer's own expression) remains
+                power_db = 20 * np.log10(np.maximum(np.abs(new.gain), 1e-300))
+                parts = [reevaluate(snap, static.select(aff), **kw), new.select(power_db >= cut)]
+            else:
+                redo = Paths.concatenate([static.select(aff), new])
+                parts = [reevaluate(snap, _at_frequency(redo, f), **kw)]
+            out.append(Paths.concatenate([static.select(~aff), *parts]).sorted())
             self.stats["affected_paths"] = self.stats.get("affected_paths", 0) + int(aff.sum())
         self._tick("reevaluate_s", t0)
         self.stats["snapshots"] = self.stats.get("snapshots", 0) + 1

@@ -396,8 +396,8 @@ class Scene:
 
         Counts crossings of a ray from the point per object (parity), with Embree, along three
         directions, and takes the majority: one ray can miscount where it grazes an edge or
-        leaves two overlapping solids through a shared plane (the hall shell's slabs), which
-        Embree reports as one hit.
+        passes from one solid into another through a face they share (the hall shell's slabs
+        touch), two crossings that Embree reports as one hit.
 
         Parameters
         ----------
