@@ -716,6 +716,8 @@ def _execute_local(
     tasks: list[dict[str, Any]], workers: int
 ) -> Iterable[tuple[dict[str, Any], dict[str, Any] | None, str | None]]:
     """Yield ``(task, result, error)`` as cells finish, in this process or on a process pool."""
+    if not tasks:
+        return
     if workers <= 1:
         for t in tasks:
             try:
@@ -774,28 +776,34 @@ def tune_malloc() -> bool:
     )
 
 
-def _execute_dask(
-    tasks: list[dict[str, Any]], scheduler: Any
-) -> Iterable[tuple[dict[str, Any], dict[str, Any] | None, str | None]]:
-    """The same on a Dask distributed cluster (``scheduler``: address or a Client)."""
+def _connect_dask(scheduler: Any) -> tuple[Any, bool]:
+    """``(client, own)`` for a scheduler address or an existing ``distributed.Client``."""
     try:
-        from distributed import Client, as_completed
+        from distributed import Client
     except ImportError:
         raise HallrayError(
             "--scheduler needs dask.distributed: pip install 'hallray[cluster]' "
             "(or 'dask[distributed]')"
         ) from None
-    own = not isinstance(scheduler, Client)
-    if own:
-        try:
-            client = Client(scheduler, timeout=f"{CONNECT_TIMEOUT_S}s")
-        except (OSError, TimeoutError, ValueError) as exc:
-            raise HallrayError(
-                f"cannot connect to the Dask scheduler {scheduler!r}: {str(exc).splitlines()[0]}"
-            ) from None
-    else:
-        client = scheduler
+    if isinstance(scheduler, Client):
+        return scheduler, False
     try:
+        return Client(scheduler, timeout=f"{CONNECT_TIMEOUT_S}s"), True
+    except (OSError, TimeoutError, ValueError) as exc:
+        raise HallrayError(
+            f"cannot connect to the Dask scheduler {scheduler!r}: {str(exc).splitlines()[0]}"
+        ) from None
+
+
+def _execute_dask(
+    tasks: list[dict[str, Any]], client: Any, own: bool
+) -> Iterable[tuple[dict[str, Any], dict[str, Any] | None, str | None]]:
+    """The same on a Dask distributed cluster; closes the client if ``own``."""
+    from distributed import as_completed
+
+    try:
+        if not tasks:
+            return
         client.run(tune_malloc)  # see tune_malloc: the workers' allocator setting costs 2x
         futures = client.map(
             run_cell, tasks, key=[f"hallray-cell-{t['key']}" for t in tasks], pure=False
@@ -864,6 +872,8 @@ def run_sweep(
     skipped = list(results)
     if limit is not None:
         todo = todo[: max(0, int(limit))]
+    # connect before writing anything: an unreachable scheduler leaves no output behind
+    dask_client = _connect_dask(scheduler) if scheduler is not None and todo else None
     out.mkdir(exist_ok=True)
     n_workers = workers if workers is not None else (os.cpu_count() or 1)
     mode = "dask" if scheduler is not None else ("local" if n_workers <= 1 else f"pool:{n_workers}")
@@ -877,8 +887,8 @@ def run_sweep(
         bar = tqdm(total=len(tasks), desc=f"sweep {cfg.name}", unit="cell", file=sys.stderr)
     t0 = time.perf_counter()
     runner = (
-        _execute_dask(tasks, scheduler)
-        if scheduler is not None
+        _execute_dask(tasks, *dask_client)
+        if dask_client is not None
         else _execute_local(tasks, n_workers)
     )
     try:
