@@ -150,42 +150,44 @@ def _facet_wedge_pairs(
     f_centre, f_radius = refl.facet_spheres(fc)
     w_mid = 0.5 * (w.start + w.end)
     w_half = 0.5 * w.length * (1 + 1e-9) + 1e-9
-    # facet bounding boxes
-    tri = fc.triangles
-    owner = np.repeat(np.arange(len(fc)), fc.tri_count)
-    lo = np.full((len(fc), 3), np.inf)
-    hi = np.full((len(fc), 3), -np.inf)
-    np.minimum.at(lo, owner, tri.min(axis=1))
-    np.maximum.at(hi, owner, tri.max(axis=1))
-    grow = ctx.scene.margin
-    lo -= grow
-    hi += grow
+    lo, hi = refl.facet_boxes(fc, ctx.scene.margin)
     # signed distances of the edge end points from every facet plane: (W, K)
     sa = w.start @ fc.normal.T - fc.offset
     sb = w.end @ fc.normal.T - fc.offset
     outs = []
+    restricted = ctx.facet_mask is not None and not mixed_rdr
+    if restricted:
+        w_in = np.flatnonzero(ctx.wedge_mask)
     for e in range(len(ends)):
         f_ok = np.flatnonzero(side[e] != 0)
         sgn = side[e, f_ok].astype(float)
+        if restricted:
+            # only pairs with the wedge or the facet on a chosen object: two blocks of the
+            # (wedge, facet) matrix instead of all of it
+            f_in = np.flatnonzero(ctx.facet_mask[f_ok])
+            w_rest = np.flatnonzero(~ctx.wedge_mask)
+            wi_a, fj_a = np.meshgrid(w_in, np.arange(len(f_ok)), indexing="ij")
+            wi_b, fj_b = np.meshgrid(w_rest, f_in, indexing="ij")
+            wi = np.concatenate([wi_a.ravel(), wi_b.ravel()])
+            fj = np.concatenate([fj_a.ravel(), fj_b.ravel()])
+        else:
+            wi, fj = np.nonzero(np.ones((len(w), len(f_ok)), dtype=bool))
         # the edge must have a part strictly on the end's side of the facet plane
-        a_s = sa[:, f_ok] * sgn
-        b_s = sb[:, f_ok] * sgn
-        reach = (a_s > refl.PLANE_TOL_M) | (b_s > refl.PLANE_TOL_M)
+        da_all = sa[wi, f_ok[fj]] * sgn[fj]
+        db_all = sb[wi, f_ok[fj]] * sgn[fj]
+        keep = (da_all > refl.PLANE_TOL_M) | (db_all > refl.PLANE_TOL_M)
+        wi, fj, da_all, db_all = wi[keep], fj[keep], da_all[keep], db_all[keep]
+        if len(wi) == 0:
+            continue
         # beam test: the edge's bounding sphere must meet the rays from the image through the
-        # facet's bounding sphere (necessary condition, cheap)
-        img_all = refl.mirror(
+        # facet's bounding sphere (necessary condition, cheap), on the surviving pairs only
+        img_f = refl.mirror(
             np.broadcast_to(ends[e], (len(f_ok), 3)), fc.normal[f_ok], fc.offset[f_ok]
         )
-        reach &= refl.cone_reaches(
-            img_all[None, :, :],
-            f_centre[f_ok][None],
-            f_radius[f_ok][None],
-            w_mid[:, None, :],
-            w_half[:, None],
+        beam = refl.cone_reaches(
+            img_f[fj], f_centre[f_ok[fj]], f_radius[f_ok[fj]], w_mid[wi], w_half[wi]
         )
-        if ctx.facet_mask is not None and not mixed_rdr:
-            reach &= ctx.wedge_mask[:, None] | ctx.facet_mask[f_ok][None, :]
-        wi, fj = np.nonzero(reach)
+        wi, fj, da_all, db_all = wi[beam], fj[beam], da_all[beam], db_all[beam]
         if len(wi) == 0:
             continue
         f_idx = f_ok[fj]
@@ -194,7 +196,7 @@ def _facet_wedge_pairs(
         )
         # clip the edge to the end's side
         a, b = w.start[wi].copy(), w.end[wi].copy()
-        da, db = a_s[wi, fj], b_s[wi, fj]
+        da, db = da_all, db_all
         eps = refl.PLANE_TOL_M
         cut_a = da <= eps
         cut_b = db <= eps

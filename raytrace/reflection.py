@@ -120,13 +120,9 @@ def facet_boxes(facets: Facets, grow: float = 1e-6) -> tuple[np.ndarray, np.ndar
     cache = facets.__dict__.get("_boxes")
     if cache is not None and cache[0] == grow:
         return cache[1], cache[2]
-    owner = np.repeat(np.arange(len(facets)), facets.tri_count)
-    lo = np.full((len(facets), 3), np.inf)
-    hi = np.full((len(facets), 3), -np.inf)
-    np.minimum.at(lo, owner, facets.triangles.min(axis=1))
-    np.maximum.at(hi, owner, facets.triangles.max(axis=1))
-    lo -= grow
-    hi += grow
+    # a facet's triangles are contiguous, starting at tri_start
+    lo = np.minimum.reduceat(facets.triangles.min(axis=1), facets.tri_start, axis=0) - grow
+    hi = np.maximum.reduceat(facets.triangles.max(axis=1), facets.tri_start, axis=0) + grow
     object.__setattr__(facets, "_boxes", (grow, lo, hi))
     return lo, hi
 
@@ -140,8 +136,7 @@ def facet_spheres(facets: Facets) -> tuple[np.ndarray, np.ndarray]:
     centre = 0.5 * (lo + hi)
     owner = np.repeat(np.arange(len(facets)), facets.tri_count * 3)
     d = np.linalg.norm(facets.triangles.reshape(-1, 3) - centre[owner], axis=1)
-    radius = np.zeros(len(facets))
-    np.maximum.at(radius, owner, d)
+    radius = np.maximum.reduceat(d, 3 * facets.tri_start)
     out = (centre, radius * (1 + 1e-9) + 1e-9)
     object.__setattr__(facets, "_spheres", out)
     return out
@@ -181,22 +176,27 @@ def cone_reaches(
     return inside | reach
 
 
-def reflecting_side(facets: Facets, points: np.ndarray) -> np.ndarray:
+def reflecting_side(
+    facets: Facets, points: np.ndarray, cols: np.ndarray | None = None
+) -> np.ndarray:
     """Side (+1, -1) from which each facet can reflect a source at each point, 0 if it cannot.
 
     Parameters
     ----------
     points : (m, 3) float, metres
+    cols : (c,) int, optional, only these facets
 
     Returns
     -------
-    (m, K) int8: +1 in front, -1 behind (open sheets only), 0 on the plane or behind a closed
+    (m, K) int8 (or (m, c)): +1 in front, -1 behind (open sheets only), 0 on the plane or behind a closed
     solid's face.
     """
-    s = points @ facets.normal.T - facets.offset[None, :]
+    idx = slice(None) if cols is None else cols
+    s = points @ facets.normal[idx].T - facets.offset[idx][None, :]
     side = np.sign(s).astype(np.int8)
     side[np.abs(s) <= PLANE_TOL_M] = 0
-    side[:, ~facets.two_sided] = np.maximum(side[:, ~facets.two_sided], 0)
+    closed = ~facets.two_sided[idx]
+    side[:, closed] = np.maximum(side[:, closed], 0)
     return side
 
 
@@ -204,23 +204,23 @@ def facing_pairs(facets: Facets) -> np.ndarray:
     """(K, K) bool: facet j can receive a reflection from facet i (necessary condition).
 
     Some part of facet i must lie strictly on a reflecting side of facet j and vice versa
-    (closed solids reflect outward only). Excludes i == j and facets in the same plane.
+    (closed solids reflect outward only). Excludes i == j and facets in the same plane. The result
+    is cached on the facets and read-only.
     """
-    k = len(facets)
-    tri = facets.triangles
-    # every facet vertex, tagged with its facet
-    owner = np.repeat(np.arange(k), facets.tri_count)
-    verts = tri.reshape(-1, 3)
-    vowner = np.repeat(owner, 3)
+    cache = facets.__dict__.get("_facing")
+    if cache is not None:
+        return cache
+    verts = facets.triangles.reshape(-1, 3)
     s = verts @ facets.normal.T - facets.offset[None, :]  # (nv, K)
     pos = s > PLANE_TOL_M
     neg = s < -PLANE_TOL_M
-    # any vertex of facet i in front of (behind) facet j
-    front = np.zeros((k, k), dtype=bool)
-    back = np.zeros((k, k), dtype=bool)
-    np.logical_or.at(front, vowner, pos)
-    np.logical_or.at(back, vowner, neg)
+    # any vertex of facet i in front of (behind) facet j; a facet's vertices are contiguous
+    starts = 3 * (np.cumsum(facets.tri_count) - facets.tri_count)
+    front = np.logical_or.reduceat(pos, starts, axis=0)
+    back = np.logical_or.reduceat(neg, starts, axis=0)
     sees = front | (back & facets.two_sided[None, :])  # [i, j]: part of i on a reflecting side of j
     ok = sees & sees.T
     np.fill_diagonal(ok, False)
+    ok.setflags(write=False)
+    object.__setattr__(facets, "_facing", ok)
     return ok

@@ -193,17 +193,26 @@ def trace(
         bar = tqdm(total=len(stages), desc="tracing", unit="stage", leave=False)
     n_threads = (os.cpu_count() or 1) if threads is None else max(1, int(threads))
     results: list[list[Paths]] = []
+
     # The stages are independent; their heavy parts (numpy on large arrays, Embree) release the
     # GIL, so threads use the cores. Results are joined in stage order: output is deterministic.
-    with ThreadPoolExecutor(max_workers=min(n_threads, len(stages) or 1)) as pool:
-        futures = [pool.submit(ctx.timed, name, stage) for name, stage in stages]
-        for (name, _), fut in zip(stages, futures):
-            results.append(fut.result())
-            if bar is not None:
-                bar.set_postfix_str(name)
-                bar.update(1)
-            elif callable(progress):
-                progress(1)
+    def report(name: str) -> None:
+        if bar is not None:
+            bar.set_postfix_str(name)
+            bar.update(1)
+        elif callable(progress):
+            progress(1)
+
+    if n_threads == 1 or len(stages) <= 1:
+        for name, stage in stages:
+            results.append(ctx.timed(name, stage))
+            report(name)
+    else:
+        with ThreadPoolExecutor(max_workers=min(n_threads, len(stages))) as pool:
+            futures = [pool.submit(ctx.timed, name, stage) for name, stage in stages]
+            for (name, _), fut in zip(stages, futures):
+                results.append(fut.result())
+                report(name)
     parts = [p for r in results for p in r]
     if bar is not None:
         bar.close()
@@ -345,7 +354,7 @@ class _Context:
         fc = self.scene.facets
         pairs = refl.facing_pairs(fc)
         if self.facet_mask is not None:
-            pairs &= self.facet_mask[:, None] | self.facet_mask[None, :]
+            pairs = pairs & (self.facet_mask[:, None] | self.facet_mask[None, :])
         side_rx = refl.reflecting_side(fc, self.rx)  # (R, K)
         centre, radius = refl.facet_spheres(fc)
         out: list[Paths] = []
@@ -355,18 +364,23 @@ class _Context:
             img1 = refl.mirror(
                 np.broadcast_to(self.tx[t], (len(f1), 3)), fc.normal[f1], fc.offset[f1]
             )
+            # only first facets with some partner, and side tests only on possible partners
+            rows = pairs[f1].any(axis=1)
+            f1, img1 = f1[rows], img1[rows]
+            cols = np.flatnonzero(pairs[f1].any(axis=0))
             # first images on a reflecting side of the second facet (exact necessary condition)
-            side_img = refl.reflecting_side(fc, img1)  # (len(f1), K)
-            a, f2 = np.nonzero((side_img != 0) & pairs[f1])
+            side_img = refl.reflecting_side(fc, img1, cols)  # (len(f1), len(cols))
+            a, jc = np.nonzero((side_img != 0) & pairs[f1][:, cols])
+            f2 = cols[jc]
             # beam test: the second facet must meet the rays from the first image through the
             # first facet (bounding spheres: a necessary condition)
             beam = refl.cone_reaches(img1[a], centre[f1[a]], radius[f1[a]], centre[f2], radius[f2])
-            a, f2 = a[beam], f2[beam]
+            a, f2, jc = a[beam], f2[beam], jc[beam]
             i1, f1a = a, f1[a]
             if len(f1a) == 0:
                 continue
             img2 = refl.mirror(img1[i1], fc.normal[f2], fc.offset[f2])
-            s_img = side_img[i1, f2]
+            s_img = side_img[i1, jc]
             # receivers on the same side of the second facet as the first image, inside the
             # beam from the second image through the second facet
             step = max(1, CHUNK // max(len(self.rx), 1))
