@@ -11,6 +11,22 @@ import numpy as np
 from .fixes import Status
 from .tdoa import Problem, first_valid, solve_tdoa
 
+
+def plausible(prob: Problem, xyz: np.ndarray, margin: float) -> np.ndarray:
+    """(n,) bool: ``xyz`` lies within the base stations' horizontal bounding box grown on every
+    side by ``margin`` times its diagonal.
+
+    TDoA least squares can converge far outside the deployment, on a hyperbola asymptote or where
+    the base stations look collinear from the device; such a fit is not a position estimate.
+    """
+    lo = prob.bs[:, :2].min(axis=0)
+    hi = prob.bs[:, :2].max(axis=0)
+    grow = margin * float(np.linalg.norm(hi - lo))
+    xy = xyz[:, :2]
+    with np.errstate(invalid="ignore"):
+        return np.all((xy >= lo - grow) & (xy <= hi + grow), axis=1)
+
+
 #: Default cut-off of the Andrews weight (eq. 11), metres. See :func:`irls` for the reasoning.
 U_MAX_M = 3.0
 #: Default convergence threshold on the move of the weighted average (eq. 12), metres.
@@ -116,6 +132,7 @@ def irls(
     max_iter: int = MAX_ITER,
     ls_tol_m: float = LS_TOL_M,
     ls_max_iter: int = LS_MAX_ITER,
+    region_margin: float = 1.0,
 ) -> dict[str, np.ndarray]:
     """IRLS positioning, the paper's Algorithm 1.
 
@@ -136,7 +153,10 @@ def irls(
     * **A per-reference least squares that did not converge** (it typically runs off to infinity
       along a hyperbola asymptote when the TDoAs are inconsistent, e.g. an NLoS excess beyond
       the baseline): that estimate gets weight 0 throughout, unless no reference converged, and
-      the epoch is flagged ``NOT_CONVERGED``.
+      the epoch is flagged ``NOT_CONVERGED``. So does an estimate that converged outside the
+      plausible region (the base stations' horizontal box grown by ``region_margin`` times its
+      diagonal): a far point on an asymptote passes eq. 10, which tests reference ``e``'s
+      measurements at ``Q_WA`` and not ``q_e`` itself, and would drag the average away.
     * **Missing ToAs**: only received base stations serve as references and enter eq. 10 (whose
       ``1/(N-1)`` becomes ``1/(N_e-1)``); epochs with fewer than ``dims + 1`` received base
       stations are ``UNSOLVED`` (NaN).
@@ -160,6 +180,8 @@ def irls(
     max_iter : int
         Maximum reweighting iterations (default 100; typically fewer than 10 are needed).
     ls_tol_m, ls_max_iter : Gauss-Newton/LM settings of the N least-squares solves.
+    region_margin : float, plausible region of the per-reference estimates (default 1: the
+        base stations' box grown by one diagonal on every side)
 
     Returns
     -------
@@ -185,6 +207,15 @@ def irls(
     # A per-reference LS that did not converge has usually run off along a hyperbola asymptote
     # (an inconsistent TDoA set has its LS optimum at infinity); it takes no part unless no
     # reference converged at all.
+    # A solve can also converge to a far-away point on an asymptote; eq. 10 judges reference e's
+    # measurements at Q_WA, not q_e itself, so such an estimate could keep a large weight and
+    # drag the average away. Estimates outside the plausible region (the base stations' box
+    # grown by region_margin times its diagonal) count as not converged.
+    far = np.zeros((E, N), dtype=bool)
+    for e in range(N):
+        ok_e = has_q[:, e]
+        far[ok_e, e] = ~plausible(prob, q[ok_e, e], region_margin)
+    conv &= ~far
     ls_bad = rows & (has_q & ~conv).any(axis=1)
     usable = has_q & conv
     has_q = np.where(usable.any(axis=1)[:, None], usable, has_q)

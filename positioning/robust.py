@@ -34,6 +34,7 @@ import numpy as np
 from scipy.stats import chi2
 
 from .fixes import Status
+from .irls import plausible
 from .tdoa import (
     Problem,
     levenberg_marquardt,
@@ -153,22 +154,6 @@ def _finish(
     xyz[~rows] = np.nan
     weights = np.where(rows[:, None], weights, 0.0)
     return {"xyz": xyz, "status": status, "iterations": iterations, "weights": weights}
-
-
-def plausible(prob: Problem, xyz: np.ndarray, margin: float) -> np.ndarray:
-    """(E,) bool: ``xyz`` lies within the base stations' horizontal bounding box grown on every
-    side by ``margin`` times its diagonal.
-
-    Used to discard subset hypotheses that fit a few base stations well only far outside the
-    deployment, where TDoA geometry is degenerate (near-collinear base stations as seen from the
-    device); such a fit is not evidence that the left-out base station is the outlier.
-    """
-    lo = prob.bs[:, :2].min(axis=0)
-    hi = prob.bs[:, :2].max(axis=0)
-    grow = margin * float(np.linalg.norm(hi - lo))
-    xy = xyz[:, :2]
-    with np.errstate(invalid="ignore"):
-        return np.all((xy >= lo - grow) & (xy <= hi + grow), axis=1)
 
 
 def _candidates(prob: Problem, rows: np.ndarray, max_drop: int, margin: float):

@@ -209,3 +209,22 @@ def test_fixes_container_and_status_labels():
     )
     xyz = locate(t, SQUARE, "irls", height_m=1.0)
     np.testing.assert_array_equal(xyz, f.xyz)
+
+
+def test_irls_ignores_a_per_reference_solve_that_converged_far_away():
+    """An epoch of the hall's mmWave dataset where one reference's least squares converged on an
+    asymptote millions of metres away: the average must stay inside the deployment."""
+    import positioning
+
+    toa = np.array(
+        [6.6787641987511e-4, 0.01066783353996238, 0.02066794502550181, 0.03066791389432037]
+    )
+    bs = np.array([[6.5, 10.5, 4.0], [35.5, 10.5, 4.0], [35.5, 35.5, 4.0], [6.5, 35.5, 4.0]])
+    true_xy = np.array([27.6, 10.9])
+    fixes = positioning.locate(
+        toa[None], bs, "irls", tx_offsets_s=[0.0, 0.01, 0.02, 0.03], height_m=1.0, return_info=True
+    )
+    err = np.linalg.norm(fixes.xyz[0, :2] - true_xy)
+    # the deployment spans 29 m x 25 m: a bounded, flagged estimate, not 10^6 m
+    assert err < 15.0
+    assert "not_converged" in fixes.labels()[0]
