@@ -44,11 +44,7 @@ from .errors import HallrayError
 
 #: Bumped when the pipeline's results change for the same parameters (old cell files are then
 #: not reused: their keys differ).
-PIPELINE_VERSION = 1
-#: Seconds between two base stations' transmissions (paper, section II).
-DELTA_S = 0.01
-#: Device clock offsets of a fix are uniform in [0, this), s.
-CLOCK_OFFSET_MAX_S = 1e-3
+PIPELINE_VERSION = 2
 #: Seconds to wait for a Dask scheduler before giving up.
 CONNECT_TIMEOUT_S = 10.0
 #: Characters of the parameter hash used as a cell key.
@@ -88,9 +84,20 @@ TOA_KEYS: dict[str, Any] = {
     "height": "known",
 }
 CELL_KEYS: dict[str, Any] = {**HALL_KEYS, **TRACE_KEYS, **TOA_KEYS}
+#: Files of a cell's ToA dataset (``datasets: true``), written to ``OUT/datasets/<key>/``.
+DATASET_FILES = ("toa.csv", "meta.json")
 #: Positioning methods of a sweep unless the config says otherwise (the paper's two).
 DEFAULT_METHODS = ("ls", "irls")
-_TOP_KEYS = ("name", "description", "grid", "fixed", "methods", "method_params", "output")
+_TOP_KEYS = (
+    "name",
+    "description",
+    "grid",
+    "fixed",
+    "methods",
+    "method_params",
+    "output",
+    "datasets",
+)
 
 
 # --------------------------------------------------------------------------------------------
@@ -135,10 +142,16 @@ class Cell:
     params: dict[str, Any]
     methods: dict[str, dict[str, Any]]
     key: str
+    datasets: bool = False
 
     def task(self) -> dict[str, Any]:
         """What a worker needs (plain data, picklable)."""
-        return {"key": self.key, "params": self.params, "methods": self.methods}
+        return {
+            "key": self.key,
+            "params": self.params,
+            "methods": self.methods,
+            "datasets": self.datasets,
+        }
 
 
 @dataclass(frozen=True)
@@ -152,6 +165,7 @@ class SweepConfig:
     description: str = ""
     output: str | None = None
     source: str = ""
+    datasets: bool = False
 
     def cells(self) -> list[Cell]:
         """Every combination of the grid values (the first grid key varies slowest)."""
@@ -169,7 +183,7 @@ class SweepConfig:
                     params[k] = v
             methods = _resolve_methods(methods, self.source)
             params = _canonical(params)
-            out.append(Cell(i, params, methods, cell_key(params, methods)))
+            out.append(Cell(i, params, methods, cell_key(params, methods), self.datasets))
         return out
 
     @property
@@ -264,6 +278,9 @@ def parse_sweep_config(data: Any, *, source: str = "") -> SweepConfig:
     output = data.get("output")
     if output is not None and not isinstance(output, str):
         _fail(source, f"output: expected a directory name, got {output!r}")
+    datasets = data.get("datasets", False)
+    if not isinstance(datasets, bool):
+        _fail(source, f"datasets: expected true or false, got {datasets!r}")
     cfg = SweepConfig(
         name=name,
         grid={k: list(v) for k, v in grid.items()},
@@ -272,6 +289,7 @@ def parse_sweep_config(data: Any, *, source: str = "") -> SweepConfig:
         description=str(data.get("description", "")),
         output=output,
         source=source,
+        datasets=datasets,
     )
     cells = cfg.cells()
     seen: dict[str, int] = {}
@@ -320,8 +338,10 @@ def _hall_kwargs(params: Mapping[str, Any]) -> dict[str, Any]:
 
 
 def n_epochs(params: Mapping[str, Any]) -> int:
-    """Epochs of a cell: ``round(duration_s * rate_hz)``, at least 1."""
-    return max(1, int(round(float(params["duration_s"]) * float(params["rate_hz"]))))
+    """Epochs of a cell: ``floor(duration_s * rate_hz)``, as the dataset writer counts them."""
+    from .dynamics import snapshot_times
+
+    return len(snapshot_times(params["duration_s"], params["rate_hz"]))
 
 
 def validate_cell(params: Mapping[str, Any]) -> None:
@@ -352,6 +372,7 @@ def validate_cell(params: Mapping[str, Any]) -> None:
             raise HallrayError(f"{k} must be a finite number >= 0, got {v!r}")
     if params["duration_s"] <= 0 or params["rate_hz"] <= 0:
         raise HallrayError("duration_s and rate_hz must be > 0")
+    n_epochs(params)  # at least one epoch
     if params["inject_nlos_fraction"] > 1:
         raise HallrayError(
             f"inject_nlos_fraction must be in [0, 1], got {params['inject_nlos_fraction']!r}"
@@ -384,6 +405,7 @@ class CellData:
     true_xyz : (E * N, 3) float, m
     k_3gpp_m : float; n_clutter : int; achieved_density : float; n_paths : int
     timing_s : dict stage -> seconds
+    dataset_max_diff_s : float, s, see :func:`simulate_cell` (NaN when no dataset was written)
     """
 
     bs_xyz: np.ndarray
@@ -403,6 +425,7 @@ class CellData:
     achieved_density: float
     n_paths: int
     timing_s: dict[str, float] = field(default_factory=dict)
+    dataset_max_diff_s: float = math.nan
 
     def errors_2d(self, method: str) -> np.ndarray:
         """(E * N,) float, m, horizontal error of each fix (NaN where unsolved)."""
@@ -416,18 +439,24 @@ def simulate_cell(
     methods: Mapping[str, Mapping[str, Any]],
     *,
     threads: int | None = 1,
+    dataset_dir: str | os.PathLike[str] | None = None,
 ) -> CellData:
     """Run the pipeline of one cell and keep the arrays (see :class:`CellData`).
 
     Random streams: the hall from ``seed`` (:func:`raytrace.inf.generate_hall`); epoch ``e``
-    draws its clock offsets, estimation noise and NLoS injection from
-    ``SeedSequence([seed, e]).spawn(3)``, as the dataset writer draws the first two.
+    draws its clock offsets and estimation noise from :func:`raytrace.dataset.epoch_rngs` (the
+    dataset writer's streams) and the NLoS injection from ``SeedSequence([seed, e]).spawn(3)[2]``.
+
+    With ``dataset_dir``, the cell's ToA dataset is also written there by
+    :func:`raytrace.dataset.make_dataset` (static scenario; it traces the scene again) and read
+    back with :func:`positioning.dataset.load_dataset`; ``CellData.dataset_max_diff_s`` is the
+    largest difference between its ToAs and the in-memory ones before injection (0 expected).
     """
     from positioning import locate
 
     from .bands import get_band
-    from .channel import estimate_toa
     from .constants import C0
+    from .dataset import CLOCK_OFFSET_MAX_S, DELTA_S, emulate_toa, epoch_rngs
     from .hallspec import parse_hall_spec
     from .inf import generate_hall, scene_from_spec, split_spec
     from .tracer import trace
@@ -465,23 +494,16 @@ def simulate_cell(
     sigma = np.full((n_bs, n_pts), np.nan)
     tx_offset = DELTA_S * np.arange(n_bs)
     frac, bias = float(params["inject_nlos_fraction"]), float(params["inject_nlos_bias_m"])
+    seed = int(params["seed"])
     for e in range(n_ep):
-        rng_clock, rng_noise, rng_nlos = (
-            np.random.default_rng(s)
-            for s in np.random.SeedSequence([int(params["seed"]), e]).spawn(3)
-        )
+        # the dataset writer's streams (clock, noise), and a third one for the injection
+        rng_clock, rng_noise = epoch_rngs(seed, e)
+        rng_nlos = np.random.default_rng(np.random.SeedSequence([seed, e]).spawn(3)[2])
         clock[e] = rng_clock.uniform(0.0, CLOCK_OFFSET_MAX_S, n_pts)
-        est = estimate_toa(
-            paths.link,
-            paths.delay_s,
-            paths.gain,
-            n_links,
-            band,
-            method=params["toa_method"],
-            rng=rng_noise,
-            noise=bool(params["noise"]),
+        est = emulate_toa(
+            paths, band, method=params["toa_method"], rng=rng_noise, noise=bool(params["noise"])
         )
-        prop[e] = np.asarray(est.toa_s, dtype=float).reshape(n_bs, n_pts).T
+        prop[e] = np.where(est.detected, est.toa_s, np.nan).reshape(n_bs, n_pts).T
         if e == 0:
             sigma = np.asarray(est.sigma_s, dtype=float).reshape(n_bs, n_pts)
         if frac > 0 and bias > 0:
@@ -498,6 +520,13 @@ def simulate_cell(
         for m, p in methods.items()
     }
     t4 = time.perf_counter()
+    timing = {"generate": t1 - t0, "trace": t2 - t1, "toa": t3 - t2, "locate": t4 - t3}
+    diff = math.nan
+    if dataset_dir is not None:
+        diff = _write_dataset(
+            dataset_dir, scene, params, [q.name for q in hall.points], toa - injected / C0
+        )
+        timing["dataset"] = time.perf_counter() - t4
     return CellData(
         bs_xyz=bs,
         point_xyz=pts,
@@ -515,8 +544,44 @@ def simulate_cell(
         n_clutter=int(info["n_clutter"]),
         achieved_density=float(info["achieved_density"]),
         n_paths=int(paths.n_paths),
-        timing_s={"generate": t1 - t0, "trace": t2 - t1, "toa": t3 - t2, "locate": t4 - t3},
+        timing_s=timing,
+        dataset_max_diff_s=diff,
     )
+
+
+def _write_dataset(
+    out: str | os.PathLike[str],
+    scene: Any,
+    params: Mapping[str, Any],
+    point_names: Sequence[str],
+    toa_s: np.ndarray,
+) -> float:
+    """Write the cell's dataset with make_dataset; return max |dataset ToA - toa_s| (s)."""
+    from positioning.dataset import load_dataset
+
+    from .dataset import make_dataset
+    from .dynamics import TraceSettings
+
+    make_dataset(
+        out,
+        "static",
+        params["band"],
+        scene=scene,
+        duration_s=float(params["duration_s"]),
+        rate_hz=float(params["rate_hz"]),
+        seed=int(params["seed"]),
+        toa_method=params["toa_method"],
+        noise=bool(params["noise"]),
+        trace_settings=TraceSettings(*(params[k] for k in TRACE_KEYS)),
+        force=True,
+    )
+    ds = load_dataset(out)
+    col = {name: i for i, name in enumerate(point_names)}
+    mine = toa_s[ds.epoch, [col[p] for p in ds.point]]  # (F, N), the dataset's fix order
+    both = np.isfinite(mine) & np.isfinite(ds.toa_s)
+    if not np.array_equal(np.isfinite(mine), np.isfinite(ds.toa_s)):
+        return math.inf
+    return float(np.max(np.abs(mine[both] - ds.toa_s[both]), initial=0.0))
 
 
 def _finite(x: float) -> float | None:
@@ -526,16 +591,25 @@ def _finite(x: float) -> float | None:
 def run_cell(task: Mapping[str, Any]) -> dict[str, Any]:
     """Run one cell (``Cell.task()``) and return its JSON-able result.
 
-    This is the function the local pool and the Dask workers call; it touches no file.
+    This is the function the local pool and the Dask workers call. It writes nothing the driver
+    sees: with ``datasets`` the dataset is written to a temporary directory of the worker and its
+    files come back in the result (``"_files"``), which :func:`write_cell_result` writes.
     """
+    import tempfile
+
     from positioning import summarize
 
     from .inf import los_probability_3gpp
 
     t0 = time.perf_counter()
     params, methods = task["params"], task["methods"]
+    files: dict[str, str] = {}
     # one tracer thread in pool and cluster workers (no oversubscription); all cores in process
-    data = simulate_cell(params, methods, threads=task.get("threads", 1))
+    with tempfile.TemporaryDirectory(prefix="hallray-cell-") as tmp:
+        ds_dir = Path(tmp) / "dataset" if task.get("datasets") else None
+        data = simulate_cell(params, methods, threads=task.get("threads", 1), dataset_dir=ds_dir)
+        if ds_dir is not None:
+            files = {n: (ds_dir / n).read_text(encoding="utf-8") for n in DATASET_FILES}
     errors = {}
     for m in methods:
         s = summarize(data.errors_2d(m))
@@ -561,10 +635,12 @@ def run_cell(task: Mapping[str, Any]) -> dict[str, Any]:
             "los_fraction_3gpp": float(np.mean(los_probability_3gpp(d2d, data.k_3gpp_m))),
             "detected_fraction": float(np.mean(received)),
             "injected_fraction": float(np.mean(data.injected_m > 0)),
+            "dataset_max_diff_s": _finite(data.dataset_max_diff_s),
         },
         "errors": errors,
         "timing_s": timing,
         "host": platform.node(),
+        **({"_files": files} if files else {}),
     }
 
 
@@ -577,10 +653,22 @@ def cell_path(out_dir: str | os.PathLike[str], key: str) -> Path:
     return Path(out_dir) / "cells" / f"{key}.json"
 
 
+def dataset_dir(out_dir: str | os.PathLike[str], key: str) -> Path:
+    return Path(out_dir) / "datasets" / key
+
+
 def write_cell_result(out_dir: str | os.PathLike[str], result: Mapping[str, Any]) -> Path:
-    """Write a cell's result atomically to ``OUT/cells/<key>.json``."""
+    """Write a cell's result atomically to ``OUT/cells/<key>.json`` (and, first, its dataset
+    files to ``OUT/datasets/<key>/``, so a cell file implies complete dataset files)."""
     from .hallspec import write_bytes_atomic
 
+    result = dict(result)
+    files = result.pop("_files", None) or {}
+    if files:
+        d = dataset_dir(out_dir, result["key"])
+        d.mkdir(parents=True, exist_ok=True)
+        for name, text in files.items():
+            write_bytes_atomic(text.encode("utf-8"), d / name)
     path = cell_path(out_dir, result["key"])
     path.parent.mkdir(parents=True, exist_ok=True)
     write_bytes_atomic((json.dumps(result, indent=1, sort_keys=True) + "\n").encode(), path)
@@ -597,6 +685,10 @@ def read_cell_result(out_dir: str | os.PathLike[str], cell: Cell) -> dict[str, A
     if not isinstance(result, dict) or result.get("key") != cell.key:
         return None
     if result.get("params") != cell.params or result.get("methods") != cell.methods:
+        return None
+    if cell.datasets and not all(
+        (dataset_dir(out_dir, cell.key) / n).is_file() for n in DATASET_FILES
+    ):
         return None
     return result
 
@@ -725,9 +817,12 @@ def _execute_local(
             except HallrayError as exc:
                 yield t, None, str(exc)
         return
+    import multiprocessing
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
-    pool = ProcessPoolExecutor(max_workers=workers)
+    # spawn, not fork: Embree's threads (alive in this process once it has traced anything) do
+    # not survive a fork, and a child's first scene build could wait for them forever
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"))
     try:
         futures = {pool.submit(run_cell, t): t for t in tasks}
         for fut in as_completed(futures):
@@ -895,6 +990,7 @@ def run_sweep(
         for task, result, error in runner:
             if result is not None:
                 write_cell_result(out, result)
+                result.pop("_files", None)
                 results[task["key"]] = result
                 computed.append(task["key"])
             else:
@@ -916,6 +1012,7 @@ def run_sweep(
             "fixed": _canonical(cfg.fixed),
             "methods": cfg.methods,
             "pipeline_version": PIPELINE_VERSION,
+            "datasets": cfg.datasets,
             "n_cells": len(cells),
             "n_finished": len(results),
             "last_run": {

@@ -272,6 +272,47 @@ def test_resume_recomputes_only_missing_cells(tmp_path):
     assert summary["n_finished"] == 4 and summary["last_run"]["computed"] == 1
 
 
+def test_datasets_are_the_dataset_writers_and_give_the_same_fixes(tmp_path):
+    """``datasets: true``: every cell's ToA dataset is written by raytrace.dataset.make_dataset;
+    its ToAs equal the sweep's in-memory ones exactly, and positioning the dataset file gives the
+    cell's errors. A missing dataset makes its cell count as not done."""
+    from positioning import error_2d, locate, summarize
+    from positioning.dataset import load_dataset
+    from raytrace.sweep import dataset_dir
+
+    cfg = parse_sweep_config(small_config(grid={"profile": ["InF-SL", "InF-SH"]}, datasets=True))
+    out = tmp_path / "out"
+    rep = run_sweep(cfg, out, workers=1)
+    assert len(rep.computed) == 2
+    for cell in cfg.cells():
+        res = json.loads(cell_path(out, cell.key).read_text())
+        assert res["stats"]["dataset_max_diff_s"] == 0.0
+        assert "_files" not in res
+        ds = load_dataset(dataset_dir(out, cell.key))
+        assert ds.n_fixes == res["stats"]["n_fixes"]
+        for m, p in cell.methods.items():
+            xyz = locate(
+                ds.toa_s,
+                ds.bs_xyz,
+                m,
+                tx_offsets_s=ds.tx_offset_s[0],
+                height_m=ds.true_xyz[:, 2],
+                **p,
+            )
+            got = summarize(error_2d(xyz, ds.true_xyz))
+            for k in ("n", "n_unsolved"):
+                assert got[k] == res["errors"][m][k]
+            for k in ("mean_m", "median_m", "p90_m"):
+                assert got[k] == pytest.approx(res["errors"][m][k], rel=1e-9, abs=1e-12)
+    victim = cfg.cells()[1].key
+    (dataset_dir(out, victim) / "toa.csv").unlink()
+    again = run_sweep(cfg, out, workers=1)
+    assert again.computed == [victim] and len(again.skipped) == 1
+    assert (dataset_dir(out, victim) / "toa.csv").is_file()
+    with pytest.raises(HallrayError, match="datasets"):
+        parse_sweep_config(small_config(datasets="yes"))
+
+
 def test_local_pool_matches_in_process(tmp_path):
     cfg = parse_sweep_config(small_config())
     a = run_sweep(cfg, tmp_path / "a", workers=1)
