@@ -26,10 +26,11 @@ def resolve_scene(name_or_path: str | Path) -> Path:
     """Path of a scene given as a file path or as a bundled name.
 
     ``"hall"`` is the bundled reference hall (``hall.glb``); ``"canonical/shoebox"`` a canonical
-    scene. A path that exists is returned unchanged.
+    scene. An existing file is returned unchanged (a directory of the same name as a bundled
+    scene does not hide it).
     """
     path = Path(name_or_path)
-    if path.exists():
+    if path.is_file():
         return path
     base = scenes_dir()
     for candidate in (base / f"{name_or_path}.glb", base / str(name_or_path)):

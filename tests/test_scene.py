@@ -224,3 +224,11 @@ def test_edges_buried_against_another_solid_are_not_wedges():
     assert (sc.wedges.start[crate_w, 2] + sc.wedges.end[crate_w, 2] > 0).all()
     assert (sc.wedges.object == 0).sum() == 12
     assert sc.n_buried_wedges == 4
+
+
+def test_bundled_name_is_not_hidden_by_a_directory(tmp_path, monkeypatch):
+    from raytrace.bundled import resolve_scene
+
+    (tmp_path / "hall").mkdir()
+    monkeypatch.chdir(tmp_path)
+    assert resolve_scene("hall").name == "hall.glb"
