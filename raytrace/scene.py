@@ -391,13 +391,33 @@ class Scene:
         face = np.where(hit, self.object_face_start[np.maximum(obj, 0)] + prim, -1)
         return t, face, np.where(hit, obj, -1)
 
+    def convex_objects(self) -> np.ndarray:
+        """(O,) bool: closed solids that are convex (every vertex on or behind every facet plane
+        of the object). Cached."""
+        cache = self.__dict__.get("_convex")
+        if cache is not None:
+            return cache
+        fc = self.facets
+        tol = 1e-9 * max(self.extent, 1.0) + 1e-9
+        convex = self.object_closed.copy()
+        for o in np.flatnonzero(convex):
+            obj = self.objects[o]
+            v = self.vertices[
+                np.unique(self.faces[obj.face_start : obj.face_start + obj.face_count])
+            ]
+            k = fc.object == o
+            convex[o] = bool(np.all(v @ fc.normal[k].T - fc.offset[k] <= tol))
+        self.__dict__["_convex"] = convex
+        return convex
+
     def inside_solid(self, points: np.ndarray) -> np.ndarray:
         """Index of the closed solid that contains each point, or -1.
 
-        Counts crossings of a ray from the point per object (parity), with Embree, along three
-        directions, and takes the majority: one ray can miscount where it grazes an edge or
-        passes from one solid into another through a face they share (the hall shell's slabs
-        touch), two crossings that Embree reports as one hit.
+        Convex solids (boxes, prisms: all of a typical hall) are tested exactly: a point is inside
+        when it lies strictly behind every facet plane of the object. Other closed solids count
+        the crossings of rays from the point (parity, with Embree) along three directions and
+        take the majority: one ray can miscount where it grazes an edge or passes from one solid
+        into another through a face they share.
 
         Parameters
         ----------
@@ -409,7 +429,32 @@ class Scene:
         """
         pts = np.asarray(points, dtype=float).reshape(-1, 3)
         n = len(pts)
-        closed = self.object_closed
+        out = np.full(n, -1, dtype=np.int64)
+        convex = self.convex_objects()
+        fc = self.facets
+        tol = 1e-9 * max(self.extent, 1.0)
+        conv_ids = np.flatnonzero(convex)
+        if conv_ids.size:
+            sel = np.flatnonzero(convex[fc.object])  # facets of convex objects, grouped by object
+            owner = fc.object[sel]
+            starts = np.flatnonzero(np.r_[True, owner[1:] != owner[:-1]])
+            objs = owner[starts]
+            for c0 in range(0, n, 20_000):
+                p = pts[c0 : c0 + 20_000]
+                behind = (p @ fc.normal[sel].T - fc.offset[sel]) < -tol
+                inside = np.logical_and.reduceat(behind, starts, axis=1)  # (chunk, n_convex)
+                hit = inside.any(axis=1)
+                out[c0 : c0 + 20_000][hit] = objs[np.argmax(inside[hit], axis=1)]
+        others = self.object_closed & ~convex
+        if others.any():
+            todo = np.flatnonzero(out < 0)
+            if todo.size:
+                found = self._inside_by_parity(pts[todo], others)
+                out[todo] = found
+        return out
+
+    def _inside_by_parity(self, pts: np.ndarray, candidates: np.ndarray) -> np.ndarray:
+        n = len(pts)
         # component ratios golden (badly approximable by fractions), so that rays from points on
         # a decimetre grid do not pass exactly through edges of boxes on that grid
         g = 0.5 * (1.0 + np.sqrt(5.0))
@@ -430,7 +475,7 @@ class Scene:
                 origin[idx[hit]] += (t[hit] + step)[:, None] * d
                 active[idx[~hit]] = False
             votes += counts % 2
-        odd = (votes >= 2) & closed[None, :]
+        odd = (votes >= 2) & candidates[None, :]
         return np.where(odd.any(axis=1), np.argmax(odd, axis=1), -1)
 
     def summary(self) -> dict[str, Any]:

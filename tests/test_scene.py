@@ -232,3 +232,23 @@ def test_bundled_name_is_not_hidden_by_a_directory(tmp_path, monkeypatch):
     (tmp_path / "hall").mkdir()
     monkeypatch.chdir(tmp_path)
     assert resolve_scene("hall").name == "hall.glb"
+
+
+def test_inside_solid_exact_for_convex_solids_sharing_faces():
+    """Slabs that touch along a face (a hall's shell): parity rays can miss an exit hidden
+    behind the next entry; the half-space test for convex solids cannot."""
+    slabs = [
+        ("floor", box((-0.3, -0.3, -0.3), (10.3, 8.3, 0.0)), "concrete"),
+        ("ceiling", box((-0.3, -0.3, 4.0), (10.3, 8.3, 4.3)), "concrete"),
+        ("wall_w", box((-0.3, -0.3, 0.0), (0.0, 8.3, 4.0)), "concrete"),
+        ("wall_e", box((10.0, -0.3, 0.0), (10.3, 8.3, 4.0)), "concrete"),
+        ("wall_s", box((0.0, -0.3, 0.0), (10.0, 0.0, 4.0)), "concrete"),
+        ("wall_n", box((0.0, 8.0, 0.0), (10.0, 8.3, 4.0)), "concrete"),
+    ]
+    sc = make_scene(slabs)
+    assert sc.convex_objects().all()
+    rng = np.random.default_rng(5)
+    interior = rng.uniform([0, 0, 0], [10, 8, 4], (20_000, 3))
+    assert (sc.inside_solid(interior) == -1).all()
+    in_walls = np.array([[-0.15, 4.0, 2.0], [5.0, 8.15, 3.9], [5.0, 4.0, 4.2], [10.1, 8.1, 1.0]])
+    assert sc.inside_solid(in_walls).tolist() == [2, 5, 1, 3]
