@@ -19,12 +19,19 @@ def plausible(prob: Problem, xyz: np.ndarray, margin: float) -> np.ndarray:
     TDoA least squares can converge far outside the deployment, on a hyperbola asymptote or where
     the base stations look collinear from the device; such a fit is not a position estimate.
     """
+    lo, hi = region_box(prob, margin)
+    xy = xyz[:, :2]
+    with np.errstate(invalid="ignore"):
+        return np.all((xy >= lo) & (xy <= hi), axis=1)
+
+
+def region_box(prob: Problem, margin: float) -> tuple[np.ndarray, np.ndarray]:
+    """(2,), (2,) corners of the plausible region: the base stations' horizontal bounding box
+    grown on every side by ``margin`` times its diagonal, metres."""
     lo = prob.bs[:, :2].min(axis=0)
     hi = prob.bs[:, :2].max(axis=0)
     grow = margin * float(np.linalg.norm(hi - lo))
-    xy = xyz[:, :2]
-    with np.errstate(invalid="ignore"):
-        return np.all((xy >= lo - grow) & (xy <= hi + grow), axis=1)
+    return lo - grow, hi + grow
 
 
 #: Default cut-off of the Andrews weight (eq. 11), metres. See :func:`irls` for the reasoning.
@@ -156,7 +163,9 @@ def irls(
       the epoch is flagged ``NOT_CONVERGED``. So does an estimate that converged outside the
       plausible region (the base stations' horizontal box grown by ``region_margin`` times its
       diagonal): a far point on an asymptote passes eq. 10, which tests reference ``e``'s
-      measurements at ``Q_WA`` and not ``q_e`` itself, and would drag the average away.
+      measurements at ``Q_WA`` and not ``q_e`` itself, and would drag the average away. If no
+      estimate converged inside the region, the plausible ones are averaged; if none is
+      plausible, the average is clamped into the region (and flagged ``NOT_CONVERGED``).
     * **Missing ToAs**: only received base stations serve as references and enter eq. 10 (whose
       ``1/(N-1)`` becomes ``1/(N_e-1)``); epochs with fewer than ``dims + 1`` received base
       stations are ``UNSOLVED`` (NaN).
@@ -218,7 +227,13 @@ def irls(
     conv &= ~far
     ls_bad = rows & (has_q & ~conv).any(axis=1)
     usable = has_q & conv
-    has_q = np.where(usable.any(axis=1)[:, None], usable, has_q)
+    plaus = has_q & ~far
+    # nothing converged inside the region: the plausible ones; nothing plausible: all of them,
+    # and the result is clamped into the region below
+    nowhere = rows & ~plaus.any(axis=1)
+    has_q = np.where(
+        usable.any(axis=1)[:, None], usable, np.where(plaus.any(axis=1)[:, None], plaus, has_q)
+    )
     q0 = np.where(has_q[..., None], q, 0.0)
 
     def average(w: np.ndarray) -> np.ndarray:
@@ -250,6 +265,9 @@ def irls(
         done = S <= epsilon
         converged[live[done]] = True
         act = live[~done]
+    if nowhere.any():
+        lo, hi = region_box(prob, region_margin)
+        Q[nowhere, :2] = np.clip(Q[nowhere, :2], lo, hi)
     status |= np.where(rows & zero_w, int(Status.ALL_WEIGHTS_ZERO), 0)
     status |= np.where(rows & ~zero_w & ~converged, int(Status.NOT_CONVERGED), 0)
     status |= np.where(rows & ls_bad, int(Status.NOT_CONVERGED), 0)

@@ -228,3 +228,18 @@ def test_irls_ignores_a_per_reference_solve_that_converged_far_away():
     # the deployment spans 29 m x 25 m: a bounded, flagged estimate, not 10^6 m
     assert err < 15.0
     assert "not_converged" in fixes.labels()[0]
+
+
+def test_irls_stays_in_the_region_when_every_reference_diverges():
+    """A 6 m NLoS excess on one of 4 base stations: every per-reference least squares runs off
+    hundreds of km; IRLS must return a bounded, flagged estimate."""
+    import positioning
+    from positioning.tdoa import C0 as C
+
+    bs = np.array([[7.5, 6.0, 7.5], [22.5, 6.0, 7.5], [7.5, 18.0, 7.5], [22.5, 18.0, 7.5]])
+    ranges = np.array([27.7857, 15.5070, 16.6372, 6.4333])
+    fixes = positioning.locate((ranges / C)[None], bs, "irls", height_m=1.5, return_info=True)
+    xy = fixes.xyz[0, :2]
+    diag = np.hypot(15.0, 12.0)
+    assert np.all(xy >= bs[:, :2].min(axis=0) - diag) and np.all(xy <= bs[:, :2].max(axis=0) + diag)
+    assert "not_converged" in fixes.labels()[0]
