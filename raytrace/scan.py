@@ -57,6 +57,11 @@ MAX_PLANE_MISSES = 30
 #: Points near a plane's edge join its outline unless their normals are this close to
 #: perpendicular to it (|cos| below): clean normals of another surface running past the edge.
 EDGE_MIN_COS = 0.2
+#: A plane piece filling at least this share of its (spur-free) minimum rotated rectangle is
+#: taken to be that rectangle.
+RECT_FILL = 0.9
+#: Polygons are snapped to this grid before triangulation, m.
+TIDY_GRID_M = 1e-4
 #: Smallest dimension given to a box or slab made from a flat cluster, m.
 MIN_OBJECT_THICKNESS_M = 0.02
 #: Default material rules (``docs/scan.md``).
@@ -609,6 +614,33 @@ def _clean_polygon(poly: Any, *, fill_all: bool, max_hole_area: float, simplify:
     return out
 
 
+def _tidy(poly: Any) -> Any:
+    """A polygon ready to triangulate: vertices on a 0.1 mm grid, nearly collinear vertices
+    (within 0.1 mm) removed, so that no sliver triangle (which the scene loader would drop as
+    degenerate, opening a closed slab) comes out."""
+    import shapely
+
+    out = shapely.set_precision(poly, TIDY_GRID_M)
+    out = out.simplify(TIDY_GRID_M, preserve_topology=True)
+    parts = _polygon_parts(out)
+    return max(parts, key=lambda p: p.area) if parts else shapely.Polygon()
+
+
+def _rectangle_fit(poly: Any, cell: float) -> Any:
+    """The polygon's rectangle when it is one (raster outlines zig-zag by a cell along straight
+    edges): the minimum rotated rectangle of the polygon opened by 1.5 cells (spurs gone), if
+    the polygon fills at least RECT_FILL of it; otherwise the polygon itself."""
+    if len(poly.interiors):
+        return poly
+    opened = poly.buffer(-1.5 * cell, join_style="mitre").buffer(1.5 * cell, join_style="mitre")
+    if opened.is_empty or opened.geom_type != "Polygon":
+        return poly
+    rect = opened.minimum_rotated_rectangle
+    if rect.geom_type != "Polygon" or poly.area < RECT_FILL * rect.area:
+        return poly
+    return rect
+
+
 def _triangulate(poly: Any) -> tuple[np.ndarray, np.ndarray]:
     """Constrained Delaunay triangulation of a polygon (with holes): vertices (V, 2) and
     counter-clockwise faces (F, 3), vertices shared (exactly the polygon's vertices)."""
@@ -633,7 +665,7 @@ def _sheet_mesh(poly: Any, origin: np.ndarray, u: np.ndarray, v: np.ndarray) -> 
     """An open, flat mesh of a polygon lying in the plane (origin, u, v)."""
     import trimesh
 
-    v2, f = _triangulate(poly)
+    v2, f = _triangulate(_tidy(poly))
     v3 = origin + v2[:, :1] * u + v2[:, 1:] * v
     return trimesh.Trimesh(v3, f, process=True)
 
@@ -642,6 +674,7 @@ def _slab_mesh(poly: Any, origin: np.ndarray, u: np.ndarray, v: np.ndarray, t: n
     """A closed slab: the polygon in the plane (origin, u, v) extruded by the vector ``t``."""
     import trimesh
 
+    poly = _tidy(poly)
     v2, f = _triangulate(poly)
     top = origin + v2[:, :1] * u + v2[:, 1:] * v
     nv = len(v2)
@@ -743,29 +776,40 @@ def _upright_box(pts: np.ndarray, min_thickness: float) -> tuple[np.ndarray, flo
     return np.array(out), z0, z1
 
 
-def _shrink_box(
-    rect: np.ndarray, z0: float, z1: float, by: float, thick: float
+def _fit_box_sides(
+    pts: np.ndarray, rect: np.ndarray, noise: float, thick: float
 ) -> tuple[np.ndarray, float, float]:
-    """An upright box (footprint (4, 2), z range) pulled in by ``by`` m on every side (the
-    outermost points lie about one noise deviation outside the surfaces), not below ``thick``."""
+    """An upright box in the frame of ``rect`` (4, 2) with each side at the median of the points
+    within four noise deviations of the outermost one: on a scanned face that is the face
+    itself (the outermost points lie about two deviations beyond it), at an edge seen only
+    from one side about the edge. Returns the footprint (4, 2) and the z range, no side
+    shorter than ``thick``."""
     c = rect.mean(axis=0)
     e1, e2 = rect[1] - rect[0], rect[3] - rect[0]
-    l1, l2 = np.linalg.norm(e1), np.linalg.norm(e2)
-    h1 = max(0.5 * l1 - by, 0.5 * min(l1, thick)) / l1 * e1
-    h2 = max(0.5 * l2 - by, 0.5 * min(l2, thick)) / l2 * e2
-    out = np.array([c - h1 - h2, c + h1 - h2, c + h1 + h2, c - h1 + h2])
-    zc, hz = 0.5 * (z0 + z1), max(0.5 * (z1 - z0) - by, 0.5 * min(z1 - z0, thick))
-    return out, zc - hz, zc + hz
+    a1, a2 = e1 / np.linalg.norm(e1), e2 / np.linalg.norm(e2)
+    coords = np.column_stack([(pts[:, :2] - c) @ a1, (pts[:, :2] - c) @ a2, pts[:, 2]])
+    band = 4.0 * max(noise, 0.005)
+    lo, hi = np.empty(3), np.empty(3)
+    for k in range(3):
+        x = coords[:, k]
+        lo[k] = np.median(x[x < x.min() + band])
+        hi[k] = np.median(x[x > x.max() - band])
+        if hi[k] - lo[k] < thick:
+            mid = 0.5 * (lo[k] + hi[k])
+            lo[k], hi[k] = mid - 0.5 * thick, mid + 0.5 * thick
+    corners = [c + lo[0] * a1 + lo[1] * a2, c + hi[0] * a1 + lo[1] * a2]
+    corners += [c + hi[0] * a1 + hi[1] * a2, c + lo[0] * a1 + hi[1] * a2]
+    return np.array(corners), float(lo[2]), float(hi[2])
 
 
 def _height_fill(
     pts: np.ndarray, frame: tuple[np.ndarray, np.ndarray, np.ndarray], cell: float
 ) -> float:
     """How much of an upright box the points explain: the volume under their height map (the
-    highest point per footprint cell, enclosed cells counted at the box top) over the box
-    volume. ``frame`` is (centre (2,), axis a1 (2,), axis a2 (2,)) of the box footprint."""
-    from scipy import ndimage
-
+    highest point per footprint cell) over the box volume. ``frame`` is (centre (2,), axis a1
+    (2,), axis a2 (2,)) of the box footprint. Cells without points count as empty, also when
+    enclosed: a fence around a robot cell is not a solid block (a cabinet seen only from its
+    sides comes out as its sides, which block the same rays)."""
     c, a1, a2 = frame
     st = np.column_stack([(pts[:, :2] - c) @ a1, (pts[:, :2] - c) @ a2])
     z0, z1 = pts[:, 2].min(), pts[:, 2].max()
@@ -774,9 +818,7 @@ def _height_fill(
     shape = tuple(ij.max(axis=0) + 1)
     top = np.full(shape, -np.inf)
     np.maximum.at(top, (ij[:, 0], ij[:, 1]), pts[:, 2])
-    occupied = np.isfinite(top)
-    enclosed = ndimage.binary_fill_holes(ndimage.binary_closing(np.pad(occupied, 1)))[1:-1, 1:-1]
-    height = np.where(occupied, top, np.where(enclosed, z1, z0)) - z0
+    height = np.where(np.isfinite(top), top, z0) - z0
     extent = (st.max(axis=0) - lo).clip(min=cell)
     box = extent[0] * extent[1] * max(z1 - z0, cell)
     return float(min(1.0, height.sum() * cell * cell / box))
@@ -791,7 +833,7 @@ def _box_decomposition(
     Returns (box mesh, number of points) pairs; sibling boxes do not overlap."""
     thick = max(MIN_OBJECT_THICKNESS_M, 0.5 * opt.voxel_size_m)
     rect, z0, z1 = _upright_box(pts, thick)
-    whole = [(_box_mesh(*_shrink_box(rect, z0, z1, noise, thick)), len(pts))]
+    whole = [(_box_mesh(*_fit_box_sides(pts, rect, noise, thick)), len(pts))]
     if depth >= opt.max_box_depth or len(pts) < 2 * opt.object_min_points:
         return whole
     c = rect.mean(axis=0)
@@ -1189,6 +1231,7 @@ def _split_plane(
             poly = _clean_polygon(
                 poly, fill_all=False, max_hole_area=opt.max_hole_area_m2, simplify=opt.simplify_m
             )
+            poly = _rectangle_fit(poly, cell)
             shrunk = poly.buffer(-shrink, join_style="mitre")
             polys.extend(
                 q for q in _polygon_parts(shrunk) if q.area >= 0.25 * opt.plane_min_area_m2

@@ -306,6 +306,24 @@ def test_readers_agree(tmp_path):
         assert got.shape == (50, 3) and np.allclose(got, pts, atol=1e-6), suffix
 
 
+def test_las_reader(tmp_path):
+    try:
+        import laspy
+    except ImportError as exc:  # pragma: no cover - part of the scan extra
+        pytest.fail(f"laspy is required for the .las reader (the scan extra): {exc}", pytrace=False)
+    pts = np.random.default_rng(1).uniform(-5, 5, (50, 3))
+    header = laspy.LasHeader(point_format=3, version="1.2")
+    header.scales = np.full(3, 0.001)
+    header.offsets = np.zeros(3)
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = pts[:, 0], pts[:, 1], pts[:, 2]
+    las.write(str(tmp_path / "a.las"))
+    assert np.allclose(read_cloud(tmp_path / "a.las"), pts, atol=0.0005 + 1e-9)  # LAS scale
+    (tmp_path / "bad.las").write_bytes(b"LASFxxxx")
+    with pytest.raises(HallrayError, match="cannot read bad.las"):
+        read_cloud(tmp_path / "bad.las")
+
+
 def test_nonfinite_points_are_dropped_and_counted():
     pts = room_cloud(density=100.0)
     pts[:7] = np.nan
