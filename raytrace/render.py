@@ -282,7 +282,7 @@ def render_scene(
     fig = plt.figure(figsize=(w / dpi, h / dpi), dpi=dpi)
     fs = 7.5
     ax2 = fig.add_axes((0.045, 0.17, 0.40, 0.70))
-    ax3 = fig.add_axes((0.46, 0.10, 0.54, 0.82), projection="3d")
+    ax3 = fig.add_axes((0.46, 0.08, 0.54, 0.78), projection="3d")
 
     # -- top view -----------------------------------------------------------------------------
     shown = [o for o in objs if o["lo"][2] < cut]
@@ -449,7 +449,7 @@ def render_scene(
             )
             for lk in links
         ]
-        fig.text(0.46, 0.965, "\n".join(lines), fontsize=fs, va="top", family="monospace")
+        fig.text(0.47, 0.925, "\n".join(lines), fontsize=fs, va="top", family="monospace")
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=dpi)
     plt.close(fig)

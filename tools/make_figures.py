@@ -50,8 +50,8 @@ def main(argv: list[str] | None = None) -> int:
         glb = Path(tmp) / "hall_scan.glb"
         summary = scan_to_scene(cloud, glb, ScanOptions(), positions=hall.source)
         title = (
-            f"Reconstructed from a simulated scan: {summary['planes']} planes, "
-            f"{summary['objects']} objects, {summary['triangles']} triangles"
+            f"Reference hall from a simulated laser scan ({summary['planes']} planes, "
+            f"{summary['objects']} objects)"
         )
         code = render_scene_main(
             [str(glb), "-o", str(out / "hall_scan.png"), "--title", title, *link_args]

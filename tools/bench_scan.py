@@ -1,0 +1,102 @@
+"""Time and memory of scan-to-scene on a simulated scan of the bundled hall (needs open3d).
+
+    python tools/bench_scan.py                 # about one million points (the default)
+    python tools/bench_scan.py --points 300000 --json
+
+A scan of the hall is simulated (``raytrace.scan.simulate_scan``: 16 stations, 2 cm noise, 30
+drop-out holes) until it holds the requested number of points, written as a .ply, and
+reconstructed in a fresh process with the default options; the report has the wall time per
+stage, the peak resident memory of that process (``resource.getrusage``: open3d's C++ memory
+included) and the peak of Python's own allocations (``tracemalloc``: numpy arrays included,
+open3d's not).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+
+CHILD = """
+import json, resource, sys, time, tracemalloc
+sys.path.insert(0, {root!r})
+from raytrace.scan import ScanOptions, scan_to_scene
+tracemalloc.start()
+t0 = time.perf_counter()
+s = scan_to_scene({cloud!r}, {out!r}, ScanOptions())
+wall = time.perf_counter() - t0
+_, py_peak = tracemalloc.get_traced_memory()
+rss_kib = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+s.pop("elements", None)
+print(json.dumps({{"summary": s, "wall_s": wall, "peak_rss_mib": rss_kib / 1024,
+                  "peak_python_mib": py_peak / 2**20}}))
+"""
+
+
+def main(argv: list[str] | None = None) -> int:
+    sys.path.insert(0, str(ROOT))
+    import numpy as np
+
+    from raytrace.scan import simulate_scan
+    from raytrace.scene import load_scene
+
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--points", type=int, default=1_000_000, help="points in the cloud [1e6]")
+    p.add_argument("--seed", type=int, default=11)
+    p.add_argument("--json", action="store_true")
+    args = p.parse_args(argv)
+
+    hall = load_scene("hall")
+    t0 = time.perf_counter()
+    # about 42 % of the points drawn on the hall's triangles are seen from inside
+    draw = int(args.points / 0.42)
+    pts = simulate_scan(hall, draw, noise_m=0.02, n_gaps=30, seed=args.seed)
+    while len(pts) < args.points:
+        draw = int(draw * 1.1 * args.points / len(pts))
+        pts = simulate_scan(hall, draw, noise_m=0.02, n_gaps=30, seed=args.seed)
+    pts = pts[np.random.default_rng(args.seed).permutation(len(pts))[: args.points]]
+    t_sim = time.perf_counter() - t0
+    with tempfile.TemporaryDirectory() as tmp:
+        import open3d as o3d
+
+        cloud = str(Path(tmp) / "hall.ply")
+        o3d.io.write_point_cloud(cloud, o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts)))
+        code = CHILD.format(root=str(ROOT), cloud=cloud, out=str(Path(tmp) / "hall.glb"))
+        res = subprocess.run(
+            [sys.executable, "-c", code], capture_output=True, text=True, check=False
+        )
+    if res.returncode:
+        print(res.stderr, file=sys.stderr)
+        return res.returncode
+    r = json.loads(res.stdout.strip().splitlines()[-1])
+    r["points"] = len(pts)
+    r["simulate_s"] = round(t_sim, 2)
+    if args.json:
+        print(json.dumps(r, indent=1))
+        return 0
+    s = r["summary"]
+    print(f"cloud      {len(pts)} points (simulated in {t_sim:.1f} s)")
+    print(
+        f"wall time  {r['wall_s']:.1f} s (read + reconstruct + write), stages: "
+        + ", ".join(f"{k[:-2]} {v:.1f} s" for k, v in s["time_s"].items())
+    )
+    print(
+        f"memory     peak RSS {r['peak_rss_mib']:.0f} MiB, "
+        f"peak Python allocations {r['peak_python_mib']:.0f} MiB"
+    )
+    print(
+        f"result     {s['planes']} planes ({s['bounding_planes']} bounding), {s['objects']} objects, "
+        f"{s['triangles']} triangles, residual mean {s['residual_mean_m'] * 100:.1f} cm, "
+        f"p95 {s['residual_p95_m'] * 100:.1f} cm"
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
