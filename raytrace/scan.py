@@ -60,6 +60,10 @@ EDGE_MIN_COS = 0.2
 #: A plane piece filling at least this share of its (spur-free) minimum rotated rectangle is
 #: taken to be that rectangle.
 RECT_FILL = 0.9
+#: A cloud larger than this (bounding-box diagonal, m) is refused: not metres, or not a hall.
+MAX_EXTENT_M = 5000.0
+#: Largest raster (cells) for one plane's outline: a 500 m x 500 m plane at 0.1 m.
+MAX_GRID_CELLS = 25_000_000
 #: Polygons are snapped to this grid before triangulation, m.
 TIDY_GRID_M = 1e-4
 #: Smallest dimension given to a box or slab made from a flat cluster, m.
@@ -945,6 +949,9 @@ def reconstruct(
     pts_in = pts_in[finite]
     if len(pts_in) == 0:
         raise HallrayError("the point cloud has no (finite) points")
+    extent = float(np.linalg.norm(pts_in.max(axis=0) - pts_in.min(axis=0)))
+    if extent > MAX_EXTENT_M:
+        raise HallrayError(f"the point cloud spans {extent:.0f} m; are the coordinates in metres?")
 
     # -- 2. downsample, outliers, normals ------------------------------------------------------
     pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts_in))
@@ -1189,6 +1196,11 @@ def _split_plane(
     lo = uv.min(axis=0) - pad * cell
     ij = np.floor((uv - lo) / cell).astype(np.int64)
     shape = (int(ij[:, 1].max()) + pad + 1, int(ij[:, 0].max()) + pad + 1)
+    if shape[0] * shape[1] > MAX_GRID_CELLS:
+        raise HallrayError(
+            f"a plane of {shape[1] * cell:.0f} m x {shape[0] * cell:.0f} m is too large for "
+            f"outline cells of {cell} m; are the coordinates in metres? (else use a larger voxel)"
+        )
     grid = np.zeros(shape, dtype=bool)
     grid[ij[:, 1], ij[:, 0]] = True
     # near the edges the normals are blurred (they mix both faces), so the normal test leaves a

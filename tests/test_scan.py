@@ -324,6 +324,21 @@ def test_las_reader(tmp_path):
         read_cloud(tmp_path / "bad.las")
 
 
+def test_millimetre_coordinates_are_refused():
+    # a cloud in millimetres: the floor would need a raster of 10^10 cells at 0.1 m
+    with pytest.raises(HallrayError, match="are the coordinates in metres"):
+        reconstruct(room_cloud(density=30.0) * 1000.0, ScanOptions(voxel_size_m=0.1))
+
+
+def test_huge_plane_is_refused_not_rasterised():
+    # 2 km x 200 m of flat ground at 0.1 m cells would be 4 * 10^7 cells: refused in one line
+    rng = np.random.default_rng(2)
+    pts = np.column_stack([rng.uniform(0, 2000, 20_000), rng.uniform(0, 200, 20_000)])
+    pts = np.column_stack([pts, rng.normal(0, 0.005, 20_000)])
+    with pytest.raises(HallrayError, match="too large for outline cells"):
+        reconstruct(pts, ScanOptions(voxel_size_m=0.1))
+
+
 def test_nonfinite_points_are_dropped_and_counted():
     pts = room_cloud(density=100.0)
     pts[:7] = np.nan
