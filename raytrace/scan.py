@@ -5,7 +5,8 @@ Pipeline (details, options and limits in ``docs/scan.md``):
 1. read the cloud (.ply, .pcd, .xyz, .pts; .las/.laz with laspy), drop non-finite points;
 2. voxel downsampling, statistical outlier removal, normals (open3d);
 3. planes, largest first: RANSAC (open3d ``segment_plane``) on a random subsample of the points
-   not yet explained, inliers by distance *and* normal agreement, a least-squares refit, then
+   not yet explained that share the dominant normal orientation, inliers by distance *and*
+   normal agreement, a least-squares refit, then
    the inliers rasterised in the plane, gaps closed, split into connected pieces, each piece's
    outline traced (marching squares), small holes filled, simplified (Douglas-Peucker) -> planar
    polygons with their true outlines. Pieces smaller than ``plane_min_area_m2`` go back to the
@@ -14,8 +15,9 @@ Pipeline (details, options and limits in ``docs/scan.md``):
    filled: a scan cannot see under the machines), extended to meet each other and extruded
    outward into closed slabs of ``wall_thickness_m``; other planes become open sheets;
 5. residual points near a plane polygon join it (edge points whose normals were blurred);
-   the rest is clustered (DBSCAN) into objects: upright oriented boxes, convex hulls or
-   simplified alpha-shape meshes (quadric decimation);
+   the rest is clustered (DBSCAN) into objects: upright oriented boxes (a cluster a box fits
+   poorly is cut in two, recursively), convex hulls or simplified alpha-shape meshes
+   (decimated);
 6. materials by rules (YAML, first match wins: bounding -> concrete, floor-to-ceiling ->
    concrete, by size or height, then a default), names carrying them
    (``plane_03_itu_concrete``, ``object_12_itu_metal``), written as a GLB that
