@@ -41,6 +41,7 @@ from typing import Any
 import numpy as np
 
 from .errors import SceneError
+from .hallspec import route_pose
 from .paths import Paths
 from .scene import Scene
 from .scene_dynamic import extend_scene, posed, yaw_rotations
@@ -156,26 +157,7 @@ class Route:
         xy : (T, 2) float, metres, the box centre in the floor plane
         heading_rad : (T,) float, driving direction counter-clockwise from +x, in (-pi, pi]
         """
-        t = np.atleast_1d(np.asarray(t_s, dtype=float))
-        poly = self.polyline
-        seg = np.diff(poly, axis=0)
-        seg_len = np.linalg.norm(seg, axis=1)
-        cum = np.concatenate([[0.0], np.cumsum(seg_len)])
-        total = cum[-1]
-        s = self.speed * t
-        back = np.zeros(t.shape, dtype=bool)
-        if self.mode == "loop":
-            s = np.mod(s, total)
-        else:
-            s = np.mod(s, 2.0 * total)
-            back = s > total
-            s = np.where(back, 2.0 * total - s, s)
-        i = np.clip(np.searchsorted(cum, s, side="right") - 1, 0, len(seg) - 1)
-        frac = (s - cum[i]) / seg_len[i]
-        xy = poly[i] + frac[:, None] * seg[i]
-        heading = np.arctan2(seg[i, 1], seg[i, 0]) + np.where(back, np.pi, 0.0)
-        heading = np.where(heading > np.pi, heading - 2 * np.pi, heading)
-        return xy, heading
+        return route_pose(self.polyline, self.speed, self.mode, t_s)
 
 
 def routes_from_metadata(metadata: Mapping[str, Any]) -> list[Route]:

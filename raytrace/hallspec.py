@@ -339,6 +339,45 @@ class PointOfInterest:
     note: str = ""
 
 
+def route_pose(
+    polyline: np.ndarray, speed: float, mode: str, t_s: np.ndarray | float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Position and heading of a vehicle driving a polyline at constant speed.
+
+    Parameters
+    ----------
+    polyline : (K, 2) float, waypoints, metres
+    speed : float, m/s
+    mode : ``"loop"`` (back to the first waypoint, then again) or ``"back_and_forth"``
+    t_s : (T,) float, seconds (t = 0 at the first waypoint)
+
+    Returns
+    -------
+    xy : (T, 2) float, metres
+    heading_rad : (T,) float, driving direction counter-clockwise from +x, in (-pi, pi]
+    """
+    t = np.atleast_1d(np.asarray(t_s, dtype=float))
+    poly = np.asarray(polyline, dtype=float)
+    seg = np.diff(poly, axis=0)
+    seg_len = np.linalg.norm(seg, axis=1)
+    cum = np.concatenate([[0.0], np.cumsum(seg_len)])
+    total = cum[-1]
+    s = speed * t
+    back = np.zeros(t.shape, dtype=bool)
+    if mode == "loop":
+        s = np.mod(s, total)
+    else:
+        s = np.mod(s, 2.0 * total)
+        back = s > total
+        s = np.where(back, 2.0 * total - s, s)
+    i = np.clip(np.searchsorted(cum, s, side="right") - 1, 0, len(seg) - 1)
+    frac = (s - cum[i]) / seg_len[i]
+    xy = poly[i] + frac[:, None] * seg[i]
+    heading = np.arctan2(seg[i, 1], seg[i, 0]) + np.where(back, np.pi, 0.0)
+    heading = np.where(heading > np.pi, heading - 2 * np.pi, heading)
+    return xy, heading
+
+
 @dataclass(frozen=True)
 class Route:
     """A forklift route: a box ``size`` (l, w, h) m of ``material`` driving at ``speed`` m/s along
@@ -373,25 +412,7 @@ class Route:
         Returns ``xy`` (T, 2) float64 m of the forklift's centre and ``heading_rad`` (T,) float64,
         the driving direction (counter-clockwise from +x).
         """
-        t = np.atleast_1d(np.asarray(t_s, dtype=float))
-        poly = self._polyline()
-        seg = np.diff(poly, axis=0)
-        seg_len = np.linalg.norm(seg, axis=1)
-        cum = np.concatenate([[0.0], np.cumsum(seg_len)])
-        total = cum[-1]
-        s = self.speed * t
-        backwards = np.zeros(t.shape, dtype=bool)
-        if self.mode == "loop":
-            s = np.mod(s, total)
-        else:
-            s = np.mod(s, 2.0 * total)
-            backwards = s > total
-            s = np.where(backwards, 2.0 * total - s, s)
-        idx = np.clip(np.searchsorted(cum, s, side="right") - 1, 0, len(seg) - 1)
-        frac = (s - cum[idx]) / seg_len[idx]
-        xy = poly[idx] + frac[:, None] * seg[idx]
-        heading = np.arctan2(seg[idx, 1], seg[idx, 0]) + np.where(backwards, np.pi, 0.0)
-        return xy, np.mod(heading + np.pi, 2.0 * np.pi) - np.pi
+        return route_pose(self._polyline(), self.speed, self.mode, t_s)
 
 
 @dataclass(frozen=True)
