@@ -252,3 +252,25 @@ def test_inside_solid_exact_for_convex_solids_sharing_faces():
     assert (sc.inside_solid(interior) == -1).all()
     in_walls = np.array([[-0.15, 4.0, 2.0], [5.0, 8.15, 3.9], [5.0, 4.0, 4.2], [10.1, 8.1, 1.0]])
     assert sc.inside_solid(in_walls).tolist() == [2, 5, 1, 3]
+
+
+@pytest.mark.parametrize(
+    "name, facets, wedges, wedge_n",
+    [
+        ("one_wall", 6, 12, {1.5}),
+        ("one_sheet", 1, 4, {2.0}),
+        ("floor", 1, 4, {2.0}),
+        ("shoebox", 6, 24, {2.0}),
+        # a sheet is not a solid, so the box's bottom edges on the floor sheet are not buried:
+        # the box's 12 edges and the sheet's 4 free edges
+        ("box_on_floor", 7, 16, {1.5, 2.0}),
+        ("half_plane", 1, 4, {2.0}),
+        ("two_boxes", 12, 24, {1.5}),
+    ],
+)
+def test_canonical_scenes_load_with_their_facets_and_wedges(name, facets, wedges, wedge_n):
+    sc = load_scene(f"canonical/{name}")
+    assert len(sc.facets) == facets
+    assert set(np.round(sc.wedges.n, 9)) == wedge_n
+    assert len(sc.wedges) == wedges
+    np.testing.assert_allclose(np.linalg.norm(sc.facets.normal, axis=1), 1.0, atol=1e-12)
