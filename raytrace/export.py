@@ -7,7 +7,8 @@ from pathlib import Path
 import numpy as np
 
 from .errors import HallrayError
-from .paths import Paths, write_atomic
+from .fileio import write_atomic
+from .paths import Paths
 from .scene import Scene
 
 #: RGBA colour of a path by its main mechanism.

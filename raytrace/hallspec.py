@@ -21,7 +21,6 @@ import math
 import os
 import re
 import sys
-import tempfile
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -32,6 +31,7 @@ import trimesh
 import yaml
 
 from raytrace.errors import HallrayError, MaterialError, SceneError
+from raytrace.fileio import write_atomic
 from raytrace.materials import MaterialLibrary
 
 #: Version of the hall YAML schema and of the ``metadata["hallray"]`` block of the built GLB.
@@ -1153,29 +1153,8 @@ def glb_bytes(scene: trimesh.Scene) -> bytes:
 
 
 def write_bytes_atomic(data: bytes, path: str | os.PathLike[str]) -> None:
-    """Write ``data`` to ``path`` via a temporary file in the same directory and ``os.replace``."""
-    path = Path(path)
-    if not path.parent.is_dir():
-        raise SceneError(f"output directory {path.parent} does not exist")
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        # mkstemp creates 0600; give the file the mode an ordinary open() would (or the old one)
-        if path.exists():
-            mode = path.stat().st_mode & 0o777
-        else:
-            umask = os.umask(0)
-            os.umask(umask)
-            mode = 0o666 & ~umask
-        os.chmod(tmp, mode)
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    """Write ``data`` to ``path`` atomically (see :func:`raytrace.fileio.write_atomic`)."""
+    write_atomic(path, data)
 
 
 def write_glb(spec_or_scene: HallSpec | trimesh.Scene, path: str | os.PathLike[str]) -> bytes:

@@ -17,8 +17,6 @@ from __future__ import annotations
 import csv
 import io
 import json
-import os
-import tempfile
 from dataclasses import dataclass, fields
 from pathlib import Path
 
@@ -26,6 +24,7 @@ import numpy as np
 
 from .constants import linear_power_to_db
 from .errors import HallrayError
+from .fileio import write_atomic
 
 #: Interaction codes in :attr:`Paths.interaction`.
 NONE, REFLECTION, PENETRATION, DIFFRACTION = 0, 1, 2, 3
@@ -374,20 +373,3 @@ class Paths:
                     row += ["", "", "", ""]
             w.writerow(row)
         return out.getvalue()
-
-
-def write_atomic(path: str | Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` through a temporary file in the same directory and a rename,
-    so that a reader never sees a half-written file."""
-    p = Path(path)
-    if p.parent and not p.parent.exists():
-        raise HallrayError(f"output directory does not exist: {p.parent}")
-    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=p.parent or ".")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-        os.replace(tmp, p)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
