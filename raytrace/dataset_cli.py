@@ -16,24 +16,16 @@ import argparse
 import sys
 import warnings
 from collections.abc import Sequence
-from typing import NoReturn
 
 from .channel import TOA_METHODS
+from .cli import OneLineParser
 from .errors import HallrayError
 
 EXIT_BAD_INPUT = 2
 
 
-class _Parser(argparse.ArgumentParser):
-    """argparse with a one-line error message (no usage dump)."""
-
-    def error(self, message: str) -> NoReturn:
-        print(f"error: {message}", file=sys.stderr)
-        raise SystemExit(EXIT_BAD_INPUT)
-
-
 def make_dataset_parser() -> argparse.ArgumentParser:
-    p = _Parser(
+    p = OneLineParser(
         prog="make-dataset",
         description=(
             "Emulate the ToA measurements of the paper's scenarios: trace the scene (and, for "

@@ -15,6 +15,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from .cli import OneLineParser
 from .errors import HallrayError
 
 EXIT_BAD_INPUT = 2
@@ -22,12 +23,6 @@ EXIT_BAD_INPUT = 2
 HALL_YAML = "hall.yaml"
 HALL_GLB = "hall.glb"
 INF_JSON = "inf.json"
-
-
-class _Parser(argparse.ArgumentParser):
-    def error(self, message: str) -> None:  # one line, exit 2, as for every other bad input
-        print(f"error: {message}", file=sys.stderr)
-        raise SystemExit(EXIT_BAD_INPUT)
 
 
 def _parse(parser: argparse.ArgumentParser, argv: Sequence[str] | None) -> Any:
@@ -73,7 +68,7 @@ def _generator_kwargs(args: argparse.Namespace) -> dict[str, Any]:
 
 # -- make-hall --------------------------------------------------------------------------------
 def make_hall_parser() -> argparse.ArgumentParser:
-    p = _Parser(
+    p = OneLineParser(
         prog="make-hall",
         description=(
             "Generate a synthetic indoor-factory hall after 3GPP TR 38.901 InF: clutter boxes of "
@@ -151,7 +146,7 @@ def make_hall(
 
 # -- hall-los-check ---------------------------------------------------------------------------
 def hall_los_check_parser() -> argparse.ArgumentParser:
-    p = _Parser(
+    p = OneLineParser(
         prog="hall-los-check",
         description=(
             "Compare the line-of-sight fraction of generated InF halls (Embree segment tests "

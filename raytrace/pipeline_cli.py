@@ -15,7 +15,7 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
-from .cli import _run
+from .cli import OneLineParser, _run
 
 PAIRS = (
     ("static", "c-band"),
@@ -26,7 +26,7 @@ PAIRS = (
 
 
 def parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
+    p = OneLineParser(
         prog="reproduce-paper",
         description=(
             "Trace the hall, write the paper's four ToA datasets (static / semi-dynamic x C-band / "

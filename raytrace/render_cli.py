@@ -12,9 +12,9 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from .cli import _parse_links, parse_xyz
+from .cli import OneLineParser, _parse_links, parse_xyz
 from .errors import HallrayError
-from .scan_cli import OneLineParser, run_tool
+from .scan_cli import run_tool
 
 
 def _size(text: str) -> tuple[int, int]:

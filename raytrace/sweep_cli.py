@@ -11,6 +11,7 @@ import argparse
 import sys
 from collections.abc import Sequence
 
+from .cli import OneLineParser
 from .errors import HallrayError
 
 EXIT_BAD_INPUT = 2
@@ -18,14 +19,8 @@ EXIT_CELLS_FAILED = 1
 EXIT_INTERRUPTED = 130
 
 
-class _Parser(argparse.ArgumentParser):
-    def error(self, message: str) -> None:  # one line, exit 2, as for every other bad input
-        print(f"error: {message}", file=sys.stderr)
-        raise SystemExit(EXIT_BAD_INPUT)
-
-
 def run_sweep_parser() -> argparse.ArgumentParser:
-    p = _Parser(
+    p = OneLineParser(
         prog="run-sweep",
         description=(
             "Run the pipeline (InF hall -> trace -> ToA -> positioning) over a grid of "

@@ -98,8 +98,16 @@ def test_bad_input_one_line_error(scene_file, tmp_path, capsys, args, message):
     assert not list(tmp_path.glob("*.tmp")) and not (tmp_path / "p.txt").exists()
 
 
+def test_unwritable_output_is_one_line_error(scene_file, capsys):
+    # /proc refuses new files even to root
+    assert trace_scene_main([str(scene_file), "-q", "-o", "/proc/hallray-paths.npz"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and err.count("\n") == 1 and "Traceback" not in err
+
+
 def test_bad_coordinates_are_rejected_by_argparse(scene_file, capsys):
     with pytest.raises(SystemExit) as exc:
         trace_scene_main([str(scene_file), "--tx", "0,0", "--rx", "1,1,1"])
     assert exc.value.code == 2
-    assert "expected X,Y,Z" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "expected X,Y,Z" in err and err.startswith("error: ") and err.count("\n") == 1
