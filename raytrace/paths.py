@@ -197,11 +197,12 @@ class Paths:
     @property
     def kind_label(self) -> np.ndarray:
         """(P,) str, the interaction sequence (``"LoS"``, ``"R"``, ``"RT"``, ``"DR"``, ...)."""
-        out = np.empty(self.n_paths, dtype=object)
-        for i, row in enumerate(self.interaction):
-            s = "".join(_LETTER[c] for c in row if c)
-            out[i] = s or "LoS"
-        return out.astype(str)
+        if self.n_paths == 0:
+            return np.zeros(0, dtype=str)
+        # few distinct interaction sequences: label each once
+        patterns, inverse = np.unique(self.interaction, axis=0, return_inverse=True)
+        labels = np.array(["".join(_LETTER[int(c)] for c in row if c) or "LoS" for row in patterns])
+        return labels[inverse.reshape(-1)]
 
     def first_arrival(self, mask: np.ndarray | None = None) -> np.ndarray:
         """Index of the earliest path of every link, -1 for links without a path.

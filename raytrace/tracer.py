@@ -464,13 +464,14 @@ class _Context:
         if not ok.all():
             sel = np.flatnonzero(ok)
             idx2 = (sel[:, None] * (k + 1) + np.arange(k + 1)[None]).reshape(-1)
-            t_idx, r_idx, verts, facet, kinds, chain = (
+            t_idx, r_idx, verts, facet, kinds, chain, vobj = (
                 t_idx[sel],
                 r_idx[sel],
                 verts[sel],
                 facet[sel],
                 kinds[sel],
                 chain[sel],
+                vobj[sel],
             )
             seg_count, n_pen = seg_count[sel], n_pen[sel]
             cr = type(cr)(*(getattr(cr, f)[idx2] for f in cr.__dataclass_fields__))
@@ -539,11 +540,7 @@ class _Context:
         pen_pts = cr.point.reshape(m, k + 1, -1, 3)
         pos = np.zeros(m, dtype=np.int64)
         rows = np.arange(m)
-        vert_obj = np.where(
-            kinds == DIFFRACTION,
-            self._wedge_object(facet),
-            self.scene.facets.object[np.where(kinds == REFLECTION, facet, 0)],
-        )
+        vert_obj = vobj
         for j in range(k + 1):
             for s in range(pen_obj.shape[2]):
                 has = seg_count[:, j] > s
