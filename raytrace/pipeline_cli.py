@@ -67,19 +67,26 @@ def _main(args: argparse.Namespace) -> int:
     report_dir = out / "report"
     if out.exists() and any(out.iterdir()) and not args.force:
         raise HallrayError(f"output directory {out} is not empty (use --force to replace it)")
+    created = not out.exists()
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    summaries = make_datasets(
-        data_dir,
-        PAIRS,
-        scene=args.scene,
-        duration_s=args.duration,
-        rate_hz=args.rate,
-        seed=args.seed,
-        workers=args.workers,
-        force=args.force,
-        progress=not args.quiet,
-    )
+    try:
+        summaries = make_datasets(
+            data_dir,
+            PAIRS,
+            scene=args.scene,
+            duration_s=args.duration,
+            rate_hz=args.rate,
+            seed=args.seed,
+            workers=args.workers,
+            force=args.force,
+            progress=not args.quiet,
+        )
+    except BaseException:
+        # leave nothing behind that this run created
+        if created and out.is_dir() and not any(out.iterdir()):
+            out.rmdir()
+        raise
     t_data = time.perf_counter() - t0
     print(f"datasets written to {data_dir} in {t_data:.1f} s:")
     for s in summaries:
