@@ -32,6 +32,9 @@ if TYPE_CHECKING:
 
 #: Work is split into chunks of about this many candidates.
 CHUNK = 300_000
+#: Padding (m) of the visible part of an edge used to prune diffraction points before the exact
+#: point-in-facet test: far above rounding, so the pruning never drops a valid path.
+SPAN_PAD_M = 1e-6
 
 
 def stages(ctx: _Context) -> list[tuple[str, Callable[[], list[Paths]]]]:
@@ -136,68 +139,76 @@ def _facet_wedge_pairs(
     """(end point, facet, wedge) triples where a reflection in the facet can reach the edge.
 
     ``ends`` are transmitters (for RD) or receivers (for DR); ``mixed_rdr`` keeps every pair (the
-    restriction to some objects is applied to the joined RDR triples instead). Exact necessary conditions: the end
-    on a reflecting side of the facet; the edge, clipped to that side, projected from the end's
-    image onto the facet's plane, meets the facet's (slightly grown) bounding box.
+    restriction to some objects is applied to the joined RDR triples instead). Exact necessary
+    conditions, cheapest first: per object, the bounding sphere of its edges must reach the end's
+    side of the facet plane and the beam from the end's image through the facet's bounding sphere;
+    per edge, the same with the edge's own sphere; then the edge, clipped to the end's side and
+    projected from the image onto the facet's plane, must meet the facet's (slightly grown)
+    bounding box.
 
     Returns
     -------
     e_idx, f_idx, w_idx : (M,) int
     image : (M, 3) float, the end's image in the facet, metres
+    t_lo, t_hi : (M,) float, metres from the wedge's start: the part of the edge seen from the
+        image through the facet's bounding box, padded by :data:`SPAN_PAD_M`. A diffraction
+        point of this reflection lies in it (necessary condition).
     """
     fc, w = ctx.scene.facets, ctx.scene.wedges
     side = refl.reflecting_side(fc, ends)  # (E, K)
     f_centre, f_radius = refl.facet_spheres(fc)
+    g_order, g_start, g_count, g_centre, g_radius = _wedge_groups(w)
     w_mid = 0.5 * (w.start + w.end)
     w_half = 0.5 * w.length * (1 + 1e-9) + 1e-9
     lo, hi = refl.facet_boxes(fc, ctx.scene.margin)
-    # signed distances of the edge end points from every facet plane: (W, K)
-    sa = w.start @ fc.normal.T - fc.offset
-    sb = w.end @ fc.normal.T - fc.offset
-    outs = []
+    eps = refl.PLANE_TOL_M
     restricted = ctx.facet_mask is not None and not mixed_rdr
     if restricted:
-        w_in = np.flatnonzero(ctx.wedge_mask)
+        g_in = ctx.wedge_mask[g_order[g_start]]  # a group is one object's wedges
+    outs = []
     for e in range(len(ends)):
         f_ok = np.flatnonzero(side[e] != 0)
         sgn = side[e, f_ok].astype(float)
+        nrm, off = fc.normal[f_ok], fc.offset[f_ok]
+        img_f = refl.mirror(np.broadcast_to(ends[e], (len(f_ok), 3)), nrm, off)
+        # object level: (group, facet) matrix, dense
+        near = (g_centre @ nrm.T - off) * sgn + g_radius[:, None] > eps
+        near &= refl.cone_reaches(
+            img_f[None],
+            f_centre[f_ok][None],
+            f_radius[f_ok][None],
+            g_centre[:, None],
+            g_radius[:, None],
+        )
         if restricted:
-            # only pairs with the wedge or the facet on a chosen object: two blocks of the
-            # (wedge, facet) matrix instead of all of it
-            f_in = np.flatnonzero(ctx.facet_mask[f_ok])
-            w_rest = np.flatnonzero(~ctx.wedge_mask)
-            wi_a, fj_a = np.meshgrid(w_in, np.arange(len(f_ok)), indexing="ij")
-            wi_b, fj_b = np.meshgrid(w_rest, f_in, indexing="ij")
-            wi = np.concatenate([wi_a.ravel(), wi_b.ravel()])
-            fj = np.concatenate([fj_a.ravel(), fj_b.ravel()])
-        else:
-            wi, fj = np.nonzero(np.ones((len(w), len(f_ok)), dtype=bool))
-        # the edge must have a part strictly on the end's side of the facet plane
-        da_all = sa[wi, f_ok[fj]] * sgn[fj]
-        db_all = sb[wi, f_ok[fj]] * sgn[fj]
-        keep = (da_all > refl.PLANE_TOL_M) | (db_all > refl.PLANE_TOL_M)
-        wi, fj, da_all, db_all = wi[keep], fj[keep], da_all[keep], db_all[keep]
-        if len(wi) == 0:
+            # only pairs with the wedge or the facet on a chosen object
+            near &= g_in[:, None] | ctx.facet_mask[f_ok][None, :]
+        gi, fj = np.nonzero(near)
+        if len(gi) == 0:
             continue
-        # beam test: the edge's bounding sphere must meet the rays from the image through the
-        # facet's bounding sphere (necessary condition, cheap), on the surviving pairs only
-        img_f = refl.mirror(
-            np.broadcast_to(ends[e], (len(f_ok), 3)), fc.normal[f_ok], fc.offset[f_ok]
-        )
-        beam = refl.cone_reaches(
-            img_f[fj], f_centre[f_ok[fj]], f_radius[f_ok[fj]], w_mid[wi], w_half[wi]
-        )
-        wi, fj, da_all, db_all = wi[beam], fj[beam], da_all[beam], db_all[beam]
-        if len(wi) == 0:
-            continue
+        cnt = g_count[gi]
+        first = np.cumsum(cnt) - cnt
+        wi = g_order[np.repeat(g_start[gi] - first, cnt) + np.arange(int(cnt.sum()))]
+        fj = np.repeat(fj, cnt)
         f_idx = f_ok[fj]
-        img = refl.mirror(
-            np.broadcast_to(ends[e], (len(f_idx), 3)), fc.normal[f_idx], fc.offset[f_idx]
+        # the edge must have a part strictly on the end's side of the facet plane
+        da = (np.einsum("ij,ij->i", w.start[wi], fc.normal[f_idx]) - fc.offset[f_idx]) * sgn[fj]
+        db = (np.einsum("ij,ij->i", w.end[wi], fc.normal[f_idx]) - fc.offset[f_idx]) * sgn[fj]
+        keep = (da > eps) | (db > eps)
+        # beam test with the edge's own bounding sphere
+        keep[keep] = refl.cone_reaches(
+            img_f[fj[keep]],
+            f_centre[f_idx[keep]],
+            f_radius[f_idx[keep]],
+            w_mid[wi[keep]],
+            w_half[wi[keep]],
         )
+        wi, fj, f_idx, da, db = wi[keep], fj[keep], f_idx[keep], da[keep], db[keep]
+        if len(wi) == 0:
+            continue
+        img = img_f[fj]
         # clip the edge to the end's side
-        a, b = w.start[wi].copy(), w.end[wi].copy()
-        da, db = da_all, db_all
-        eps = refl.PLANE_TOL_M
+        a, b = w.start[wi], w.end[wi]
         cut_a = da <= eps
         cut_b = db <= eps
         u = np.where(cut_a | cut_b, (eps - da) / np.where(db != da, db - da, 1.0), 0.0)
@@ -207,41 +218,95 @@ def _facet_wedge_pairs(
         # project from the image onto the facet plane (the image is on the other side)
         _, qa = refl.segment_plane_point(img, a, fc.normal[f_idx], fc.offset[f_idx])
         _, qb = refl.segment_plane_point(img, b, fc.normal[f_idx], fc.offset[f_idx])
-        ok = _segment_meets_box(qa, qb, lo[f_idx], hi[f_idx])
-        outs.append((np.full(int(ok.sum()), e), f_idx[ok], wi[ok], img[ok]))
+        s_in, s_out = _segment_box_span(qa, qb, lo[f_idx], hi[f_idx])
+        ok = s_in <= s_out
+        # the part of the edge that projects into the box: the projection is a perspective map,
+        # so with D = (distance of the image + distance of the point) from the plane, the edge
+        # parameter of projected parameter s is s D_a / (s D_a + (1 - s) D_b)
+        h_end = np.abs(refl.signed_distance(ends[e], nrm[fj[ok]], off[fj[ok]]))
+        d_a = h_end + np.maximum(np.where(cut_a, eps, da), eps)[ok]
+        d_b = h_end + np.maximum(np.where(cut_b, eps, db), eps)[ok]
+        lam = [s * d_a / (s * d_a + (1 - s) * d_b) for s in (s_in[ok], s_out[ok])]
+        w_ok = wi[ok]
+        t_a = np.einsum("ij,ij->i", a[ok] - w.start[w_ok], w.direction[w_ok])
+        t_b = np.einsum("ij,ij->i", b[ok] - w.start[w_ok], w.direction[w_ok])
+        t_lo = t_a + lam[0] * (t_b - t_a) - SPAN_PAD_M
+        t_hi = t_a + lam[1] * (t_b - t_a) + SPAN_PAD_M
+        outs.append((np.full(len(w_ok), e), f_idx[ok], w_ok, img[ok], t_lo, t_hi))
     if not outs:
         z = np.zeros(0, np.int64)
-        return z, z, z, np.zeros((0, 3))
-    e_idx, f_idx, w_idx, img = (np.concatenate(x) for x in zip(*outs))
-    return e_idx, f_idx, w_idx, img
+        return z, z, z, np.zeros((0, 3)), np.zeros(0), np.zeros(0)
+    return tuple(np.concatenate(x) for x in zip(*outs))
 
 
-def _segment_meets_box(a: np.ndarray, b: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-    """Whether segments a -> b meet axis-aligned boxes (slab test), vectorised."""
+def _wedge_groups(w) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Wedges grouped by object, with each group's bounding sphere (cached on the wedges).
+
+    Returns
+    -------
+    order : (W,) int, wedge indices sorted by object
+    start, count : (G,) int, each group's slice of ``order``
+    centre : (G, 3) float, metres
+    radius : (G,) float, metres (grown by a relative 1e-9)
+    """
+    cache = w.__dict__.get("_groups")
+    if cache is not None:
+        return cache
+    order = np.argsort(w.object, kind="stable")
+    _, start, count = np.unique(w.object[order], return_index=True, return_counts=True)
+    a, b = w.start[order], w.end[order]
+    lo = np.minimum.reduceat(np.minimum(a, b), start, axis=0)
+    hi = np.maximum.reduceat(np.maximum(a, b), start, axis=0)
+    centre = 0.5 * (lo + hi)
+    owner = np.repeat(np.arange(len(start)), count)
+    d = np.maximum(
+        np.linalg.norm(a - centre[owner], axis=1), np.linalg.norm(b - centre[owner], axis=1)
+    )
+    radius = np.maximum.reduceat(d, start) * (1 + 1e-9) + 1e-9
+    out = (order, start, count, centre, radius)
+    object.__setattr__(w, "_groups", out)
+    return out
+
+
+def _segment_box_span(
+    a: np.ndarray, b: np.ndarray, lo: np.ndarray, hi: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Parameters ``[s_in, s_out]`` (within [0, 1]) of the part of segments a -> b inside
+    axis-aligned boxes (slab test), vectorised; ``s_in > s_out`` where they miss."""
     d = b - a
+    inside = (a >= lo) & (a <= hi)
     with np.errstate(divide="ignore", invalid="ignore"):
         t1 = (lo - a) / d
         t2 = (hi - a) / d
-    tmin = np.where(d == 0, np.where((a >= lo) & (a <= hi), -np.inf, np.inf), np.minimum(t1, t2))
-    tmax = np.where(d == 0, np.where((a >= lo) & (a <= hi), np.inf, -np.inf), np.maximum(t1, t2))
-    enter = np.max(np.concatenate([tmin, np.zeros((len(a), 1))], axis=1), axis=1)
-    leave = np.min(np.concatenate([tmax, np.ones((len(a), 1))], axis=1), axis=1)
-    return enter <= leave
+    flat = d == 0
+    tmin = np.where(flat, np.where(inside, -np.inf, np.inf), np.minimum(t1, t2))
+    tmax = np.where(flat, np.where(inside, np.inf, -np.inf), np.maximum(t1, t2))
+    return np.maximum(tmin.max(axis=1), 0.0), np.minimum(tmax.min(axis=1), 1.0)
 
 
 def _one_reflection(ctx: _Context, before: bool) -> list[Paths]:
     """RD (``before=True``: reflection at the transmitter's side) or DR paths."""
     fc, w = ctx.scene.facets, ctx.scene.wedges
     ends, others = (ctx.tx, ctx.rx) if before else (ctx.rx, ctx.tx)
-    e_idx, f_idx, w_idx, img = _facet_wedge_pairs(ctx, ends)
+    e_idx, f_idx, w_idx, img, t_lo, t_hi = _facet_wedge_pairs(ctx, ends)
     side_e = refl.reflecting_side(fc, ends)
+    # Keller's point in scalar form (see keller_points): t = ts + (td - ts) rho_s / (rho_s + rho_d)
+    # with the end's image (ts, rho_s) per triple and the other end (td, rho_d) per wedge, so
+    # that the expansion over the other ends is a cheap (triples, others) matrix
+    ts, rho_s = _along_and_off(img, w.start[w_idx], w.direction[w_idx])
+    td_w, rho_w = _along_and_off(
+        others[None, :, :], w.start[:, None, :], w.direction[:, None, :]
+    )  # (W, O)
     out = []
     n_o = len(others)
     step = max(1, CHUNK // max(n_o, 1))
     for c0 in range(0, len(e_idx), step):
-        rows = np.arange(c0, min(len(e_idx), c0 + step))
-        q = np.repeat(rows, n_o)
-        o_idx = np.tile(np.arange(n_o), len(rows))
+        sl = slice(c0, min(len(e_idx), c0 + step))
+        td, rd = td_w[w_idx[sl]], rho_w[w_idx[sl]]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = ts[sl, None] + (td - ts[sl, None]) * rho_s[sl, None] / (rho_s[sl, None] + rd)
+        q, o_idx = np.nonzero((t >= t_lo[sl, None]) & (t <= t_hi[sl, None]))
+        q += c0
         ctx.count("candidates_rd" if before else "candidates_dr", len(q))
         ee, ff, ww, im = e_idx[q], f_idx[q], w_idx[q], img[q]
         kp = keller_points(im, others[o_idx], w.start[ww], w.end[ww])
@@ -288,11 +353,21 @@ def _one_reflection(ctx: _Context, before: bool) -> list[Paths]:
     return out
 
 
+def _along_and_off(
+    p: np.ndarray, start: np.ndarray, direction: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Position along edge lines (m from ``start``) of the foot of points, and their distance
+    from the lines (m); broadcasts over leading axes of (..., 3) arrays."""
+    rel = p - start
+    t = np.einsum("...j,...j->...", rel, direction)
+    return t, np.linalg.norm(rel - t[..., None] * direction, axis=-1)
+
+
 def _two_reflections(ctx: _Context) -> list[Paths]:
     """RDR paths: a reflection on each side of the edge (the two pruned sets joined on the wedge)."""
     fc, w = ctx.scene.facets, ctx.scene.wedges
-    t_e, t_f, t_w, t_img = _facet_wedge_pairs(ctx, ctx.tx, mixed_rdr=True)
-    r_e, r_f, r_w, r_img = _facet_wedge_pairs(ctx, ctx.rx, mixed_rdr=True)
+    t_e, t_f, t_w, t_img, t_lo, t_hi = _facet_wedge_pairs(ctx, ctx.tx, mixed_rdr=True)
+    r_e, r_f, r_w, r_img, r_lo, r_hi = _facet_wedge_pairs(ctx, ctx.rx, mixed_rdr=True)
     side_t = refl.reflecting_side(fc, ctx.tx)
     side_r = refl.reflecting_side(fc, ctx.rx)
     out = []
@@ -306,9 +381,11 @@ def _two_reflections(ctx: _Context) -> list[Paths]:
         np.repeat(starts, counts)
         + (np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts))
     ]
+    # the diffraction point lies in the part of the edge seen through both facets
+    keep = np.maximum(t_lo[a], r_lo[b]) <= np.minimum(t_hi[a], r_hi[b])
     if ctx.facet_mask is not None:
-        keep = ctx.facet_mask[t_f[a]] | ctx.wedge_mask[t_w[a]] | ctx.facet_mask[r_f[b]]
-        a, b = a[keep], b[keep]
+        keep &= ctx.facet_mask[t_f[a]] | ctx.wedge_mask[t_w[a]] | ctx.facet_mask[r_f[b]]
+    a, b = a[keep], b[keep]
     ctx.count("candidates_rdr", len(a))
     for c0 in range(0, len(a), CHUNK):
         ia, ib = a[c0 : c0 + CHUNK], b[c0 : c0 + CHUNK]

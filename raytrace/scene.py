@@ -263,6 +263,12 @@ class Scene:
             self.wedges = Wedges(**{k: v[keep] for k, v in w.__dict__.items()})
             self.n_buried_wedges = int(buried.sum())
 
+    def __getstate__(self) -> dict[str, Any]:
+        # the per-subset Embree scenes are a cache of native objects: rebuilt on demand
+        state = self.__dict__.copy()
+        state.pop("_subset_embree", None)
+        return state
+
     def _build_embree(self) -> None:
         from embreex import rtcore_scene as rtcs
         from embreex.mesh_construction import TriangleMesh
@@ -356,6 +362,59 @@ class Scene:
             )
             hit[ok] = np.asarray(res) != -1
         return hit
+
+    def first_hit_among(
+        self,
+        objects: np.ndarray,
+        origins: np.ndarray,
+        directions: np.ndarray,
+        length: np.ndarray,
+    ) -> np.ndarray:
+        """The first of some objects that rays hit within a distance (one Embree query).
+
+        The subset gets its own Embree scene, built on first use and cached per subset.
+
+        Parameters
+        ----------
+        objects : (O,) bool, the objects that count
+        origins : (n, 3) float, metres
+        directions : (n, 3) float, unit vectors
+        length : (n,) float, metres; rays with ``length <= 0`` hit nothing
+
+        Returns
+        -------
+        (n,) int, object index of the first hit among ``objects``, -1 for none
+        """
+        objects = np.asarray(objects, dtype=bool)
+        out = np.full(len(origins), -1, dtype=np.int64)
+        ok = np.asarray(length) > 0
+        if not objects.any() or not ok.any():
+            return out
+        cache = self.__dict__.setdefault("_subset_embree", {})
+        key = objects.tobytes()
+        if key not in cache:
+            from embreex import rtcore_scene as rtcs
+            from embreex.mesh_construction import TriangleMesh
+
+            es = rtcs.EmbreeScene()
+            members = np.flatnonzero(objects)
+            # geometry id == position in ``members``
+            for i in members:
+                obj = self.objects[i]
+                f = self.faces[obj.face_start : obj.face_start + obj.face_count]
+                TriangleMesh(es, self.vertices[f].astype(np.float32))
+            cache[key] = (es, members)
+        es, members = cache[key]
+        res = es.run(
+            np.asarray(origins[ok], dtype=np.float32),
+            np.asarray(directions[ok], dtype=np.float32),
+            dists=np.asarray(length[ok], dtype=np.float32),
+            query="INTERSECT",
+            output=1,
+        )
+        geom = np.asarray(res["geomID"], dtype=np.int64)
+        out[ok] = np.where(geom >= 0, members[np.maximum(geom, 0)], -1)
+        return out
 
     def intersect(
         self, origins: np.ndarray, directions: np.ndarray, max_dist: np.ndarray | float = np.inf

@@ -42,6 +42,13 @@ from .scene import Scene
 MIN_POWER_DB = -250.0
 #: Work is split into chunks of about this many candidate paths to bound memory.
 CHUNK = 400_000
+#: An object is opaque when its slab loss at normal incidence, through its sheet thickness (open
+#: sheets) or through this chord (closed solids, m), is more than ``OPAQUE_MARGIN_DB`` below
+#: ``min_power_db``: metals at these frequencies (skin depth ~1 um). A path that crosses an
+#: opaque object is dropped by one Embree occlusion query before the crossing analysis.
+OPAQUE_CHORD_M = 1e-3
+#: dB of headroom for the other factors of a path (oblique incidence, diffraction coefficients).
+OPAQUE_MARGIN_DB = 100.0
 
 
 @dataclass(frozen=True)
@@ -314,6 +321,7 @@ class _Context:
         self.thickness = scene.material_thickness()
         self.obj_material = scene.object_material
         self.obj_closed = scene.object_closed
+        self.opaque = opaque_objects(scene, self.eta, f, cfg.min_power_db)
         self.stats: dict[str, int] = {}
         self._lock = threading.Lock()
 
@@ -443,8 +451,6 @@ class _Context:
         if m == 0:
             return Paths.empty(self.tx, self.rx, self.f, k + self.cfg.max_penetrations)
         chain = np.concatenate([self.tx[t_idx][:, None], verts, self.rx[r_idx][:, None]], axis=1)
-        a = chain[:, :-1].reshape(-1, 3)
-        b = chain[:, 1:].reshape(-1, 3)
         kmax = self.cfg.max_penetrations
         # the object under each vertex (tx and rx: none), so segments ignore their own vertices
         vobj = np.where(
@@ -456,6 +462,19 @@ class _Context:
         )
         chain_obj = np.concatenate([np.full((m, 1), -1), vobj, np.full((m, 1), -1)], axis=1)
         ends = np.stack([chain_obj[:, :-1], chain_obj[:, 1:]], axis=2).reshape(-1, 2)
+        blocked = self._blocked_by_opaque(chain, ends)
+        if blocked.any():
+            self.count("paths_blocked_opaque", int(blocked.sum()))
+            sel = np.flatnonzero(~blocked)
+            t_idx, r_idx, verts, facet, kinds, chain, vobj = (
+                x[sel] for x in (t_idx, r_idx, verts, facet, kinds, chain, vobj)
+            )
+            ends = ends.reshape(m, k + 1, 2)[sel].reshape(-1, 2)
+            m = len(sel)
+            if m == 0:
+                return Paths.empty(self.tx, self.rx, self.f, k + kmax)
+        a = chain[:, :-1].reshape(-1, 3)
+        b = chain[:, 1:].reshape(-1, 3)
         cr = segment_crossings(sc, a, b, kmax, ends)
         self.count("segments_tested", len(a))
         seg_count = cr.count.reshape(m, k + 1)
@@ -577,6 +596,30 @@ class _Context:
         )
         return paths.select(keep)
 
+    def _blocked_by_opaque(self, chain: np.ndarray, ends: np.ndarray) -> np.ndarray:
+        """(M,) bool: paths with a segment that crosses an opaque object.
+
+        Parameters
+        ----------
+        chain : (M, k + 2, 3) float, path vertices from transmitter to receiver, metres
+        ends : (M * (k + 1), 2) int, object under each segment's start and end (-1 for none)
+
+        Conservative: a segment whose first opaque hit is the object under one of its own ends
+        (a ray grazing the face of the object it diffracts on, within float32 noise) is left to
+        :func:`segment_crossings`, which records exactly what it crosses.
+        """
+        m = chain.shape[0]
+        if not self.opaque.any() or m == 0:
+            return np.zeros(m, dtype=bool)
+        a = chain[:, :-1].reshape(-1, 3)
+        v = chain[:, 1:].reshape(-1, 3) - a
+        length = np.linalg.norm(v, axis=1)
+        d = np.divide(v, length[:, None], out=np.zeros_like(v), where=length[:, None] > 0)
+        margin = self.scene.margin
+        hit = self.scene.first_hit_among(self.opaque, a + margin * d, d, length - 2 * margin)
+        blocked = (hit >= 0) & (hit != ends[:, 0]) & (hit != ends[:, 1])
+        return blocked.reshape(m, -1).any(axis=1)
+
     def _wedge_object(self, idx: np.ndarray) -> np.ndarray:
         w = self.scene.wedges
         if len(w) == 0:
@@ -599,6 +642,34 @@ class _Context:
             r_te[two_sided] = s_te
             r_tm[two_sided] = s_tm
         return r_te, r_tm
+
+
+def opaque_objects(
+    scene: Scene, eta: np.ndarray, frequency_hz: float, min_power_db: float
+) -> np.ndarray:
+    """(O,) bool: objects through which no path can carry power above ``min_power_db``.
+
+    An object is opaque when its slab loss (ITU-R P.2040 eqs. 37-39 via :func:`slab`) at normal
+    incidence, through its sheet thickness (open sheets) or :data:`OPAQUE_CHORD_M` (closed
+    solids), is below ``min_power_db - OPAQUE_MARGIN_DB``: metals, whose skin depth is about a
+    micrometre. A chord through a metal solid shorter than that (a ray grazing a corner by
+    less than a millimetre) is blocked too, which is what the edge's diffraction accounts for.
+
+    Parameters
+    ----------
+    scene : Scene
+    eta : (n_materials,) complex, relative permittivity of each used material at the frequency
+    frequency_hz : float
+    min_power_db : float
+    """
+    mat = scene.object_material
+    if len(mat) == 0:
+        return np.zeros(0, dtype=bool)
+    th = np.where(scene.object_closed, OPAQUE_CHORD_M, scene.material_thickness()[mat])
+    _, _, t_te, t_tm = slab(eta[mat], np.ones(len(mat)), th, frequency_hz)
+    amp = np.maximum(np.abs(t_te), np.abs(t_tm))
+    loss_db = 20 * np.log10(np.maximum(amp, 1e-300))
+    return loss_db < min_power_db - OPAQUE_MARGIN_DB
 
 
 def _vertical_pol(direction: np.ndarray) -> np.ndarray:

@@ -114,3 +114,91 @@ def test_half_plane_shadow_matches_knife_edge(rx_z):
     free = 20 * np.log10(lam / (4 * np.pi * dist))
     expected_db = free - knife_edge_loss_db(v)
     assert abs(d.power_db[0] - expected_db) < KNIFE_EDGE_TOL_DB
+
+
+def _cluttered_scene(seed: int):
+    """Floor, a two-sided screen and boxes of mixed materials at random places (no two touch)."""
+    rng = np.random.default_rng(seed)
+    objs = [
+        ("floor", box((-1, -1, -0.3), (21, 21, 0.0)), "concrete"),
+        ("screen", quad((10.0, 2.0, 0.0), (0.0, 6.0, 0.0), (0.0, 0.0, 2.5)), "glass"),
+    ]
+    materials = ["metal", "wood", "concrete", "metal", "glass", "metal"]
+    placed = []
+    while len(placed) < 9:
+        lo = np.append(rng.uniform(1, 17, 2), 0.0)
+        hi = lo + np.append(rng.uniform(0.6, 2.5, 2), rng.uniform(0.5, 4))
+        # keep boxes apart (and off the screen): touching faces are a separate matter
+        if any((lo[:2] < h[:2] + 0.2).all() and (l[:2] < hi[:2] + 0.2).all() for l, h in placed):
+            continue
+        if lo[0] < 10.2 and hi[0] > 9.8 and lo[1] < 8.2 and hi[1] > 1.8:
+            continue
+        placed.append((lo, hi))
+        objs.append((f"b{len(placed)}", box(lo, hi), materials[len(placed) % len(materials)]))
+    sc = make_scene(objs)
+    tx = np.array([[0.5, 0.5, 4.5], [19.5, 19.5, 3.5], [0.5, 19.0, 2.0]])
+    rx = rng.uniform((0.5, 0.5, 0.5), (19.5, 19.5, 2.0), size=(12, 3))
+    rx = rx[sc.inside_solid(rx) < 0]
+    return sc, tx, rx
+
+
+def _same_paths(a, b):
+    assert a.n_paths == b.n_paths > 0
+    np.testing.assert_array_equal(a.link, b.link)
+    np.testing.assert_array_equal(a.interaction, b.interaction)
+    np.testing.assert_array_equal(a.elements, b.elements)
+    np.testing.assert_array_equal(a.delay_s, b.delay_s)
+    np.testing.assert_array_equal(a.gain, b.gain)
+
+
+@pytest.mark.parametrize("seed", [5, 11])
+def test_mixed_path_pruning_loses_no_path(monkeypatch, seed):
+    """The candidate pruning of RD, DR and RDR paths (object and edge beams, the visible part of
+    each edge) only drops candidates that fail later anyway: switching it off changes nothing."""
+    import raytrace.diffraction_paths as dp
+    import raytrace.reflection as refl_mod
+
+    sc, tx, rx = _cluttered_scene(seed)
+    kw = dict(max_reflections=2, max_penetrations=2, max_diffractions=1, max_interactions=3)
+    pruned = trace(sc, tx, rx, F_C, **kw)
+    assert {"RD", "DR", "RDR"} <= set(pruned.kind_label)
+
+    def everything(apex, centre, radius, tc, tr):
+        shape = np.broadcast(
+            np.asarray(apex)[..., 0], np.asarray(centre)[..., 0], radius, np.asarray(tc)[..., 0], tr
+        )
+        return np.ones(shape.shape, dtype=bool)
+
+    def whole_edge(a, b, lo, hi):
+        return np.zeros(len(a)), np.ones(len(a))
+
+    monkeypatch.setattr(refl_mod, "cone_reaches", everything)
+    monkeypatch.setattr(dp, "_segment_box_span", whole_edge)
+    monkeypatch.setattr(dp, "SPAN_PAD_M", np.inf)
+    _same_paths(pruned, trace(sc, tx, rx, F_C, **kw))
+
+
+def test_segment_box_span_against_sampling():
+    rng = np.random.default_rng(2)
+    n = 400
+    a = rng.uniform(-2, 2, (n, 3))
+    b = rng.uniform(-2, 2, (n, 3))
+    b[:40, 1] = a[:40, 1]  # segments parallel to a slab
+    lo = rng.uniform(-1.5, 0.0, (n, 3))
+    hi = lo + rng.uniform(0.2, 1.5, (n, 3))
+    from raytrace.diffraction_paths import _segment_box_span
+
+    s_in, s_out = _segment_box_span(a, b, lo, hi)
+    s = np.linspace(0, 1, 4001)
+    pts = a[:, None] + s[None, :, None] * (b - a)[:, None]
+    inside = ((pts >= lo[:, None]) & (pts <= hi[:, None])).all(axis=2)
+    step = s[1] - s[0]
+    for i in range(n):
+        if inside[i].any():
+            assert s_in[i] <= s_out[i]
+            assert s_in[i] <= s[inside[i]].min() + 1e-12
+            assert s_out[i] >= s[inside[i]].max() - 1e-12
+            # and not much larger than the sampled span
+            assert s_in[i] >= s[inside[i]].min() - step and s_out[i] <= s[inside[i]].max() + step
+        else:
+            assert s_in[i] > s_out[i] or s_out[i] - s_in[i] < step

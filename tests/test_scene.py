@@ -274,3 +274,22 @@ def test_canonical_scenes_load_with_their_facets_and_wedges(name, facets, wedges
     assert set(np.round(sc.wedges.n, 9)) == wedge_n
     assert len(sc.wedges) == wedges
     np.testing.assert_allclose(np.linalg.norm(sc.facets.normal, axis=1), 1.0, atol=1e-12)
+
+
+def test_first_hit_among_a_subset_of_objects():
+    sc = make_scene(
+        [
+            ("near", box((2, -1, -1), (3, 1, 1)), "wood"),
+            ("far", box((6, -1, -1), (7, 1, 1)), "metal"),
+        ]
+    )
+    o = np.array([[0.0, 0, 0], [0.0, 5, 0], [0.0, 0, 0]])
+    d = np.array([[1.0, 0, 0], [1.0, 0, 0], [1.0, 0, 0]])
+    length = np.array([10.0, 10.0, 4.0])
+    np.testing.assert_array_equal(sc.first_hit_among([True, True], o, d, length), [0, -1, 0])
+    # only the far box counts: the near one is transparent to this query
+    np.testing.assert_array_equal(sc.first_hit_among([False, True], o, d, length), [1, -1, -1])
+    np.testing.assert_array_equal(sc.first_hit_among([False, False], o, d, length), [-1, -1, -1])
+    # the cached subset scenes (native Embree objects) are left out of a pickled scene's state
+    assert "_subset_embree" in sc.__dict__
+    assert "_subset_embree" not in sc.__getstate__()

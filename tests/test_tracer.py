@@ -237,3 +237,47 @@ def test_beam_pruning_loses_no_path(monkeypatch):
     full = trace(sc, tx, rx, F_C)
     assert pruned.n_paths == full.n_paths > 0
     np.testing.assert_array_equal(pruned.delay_s, full.delay_s)
+
+
+def test_opaque_objects_are_metals_of_realistic_thickness():
+    from raytrace.tracer import TraceConfig, _Context, opaque_objects
+
+    lib = MaterialLibrary.itu().with_yaml(
+        {"materials": {"foil": {"eta_real": 1.0, "sigma": 1e7, "thickness": 1e-8}}}
+    )
+    sc = make_scene(
+        [
+            ("metal_box", box((0, 0, 0), (1, 1, 1)), "metal"),
+            ("metal_sheet", quad((3, 0, 0), (0, 1, 0), (0, 0, 1)), "metal"),
+            ("foil_sheet", quad((4, 0, 0), (0, 1, 0), (0, 0, 1)), "foil"),
+            ("concrete_box", box((5, 0, 0), (6, 1, 1)), "concrete"),
+            ("glass_sheet", quad((7, 0, 0), (0, 1, 0), (0, 0, 1)), "glass"),
+        ],
+        lib,
+    )
+    for f in (F_C, 26.85e9):
+        ctx = _Context(sc, np.array([[2.0, 3, 0.5]]), np.array([[2.0, 4, 0.5]]), f, TraceConfig())
+        op = opaque_objects(sc, ctx.eta, f, -250.0)
+        # a 10 nm foil transmits: what decides is the slab loss, not the material's name
+        np.testing.assert_array_equal(op, [True, True, False, False, False])
+
+
+def test_opaque_prepass_changes_no_path(monkeypatch):
+    """Dropping paths through metal before the crossing analysis is what the slab model gives
+    (zero transmission): switching the pre-pass off changes nothing."""
+    from test_diffraction_paths import _cluttered_scene
+
+    import raytrace.tracer as tracer_mod
+
+    sc, tx, rx = _cluttered_scene(7)
+    stats: dict[str, int] = {}
+    with_prepass = trace(sc, tx, rx, F_C, stats=stats)
+    assert stats["paths_blocked_opaque"] > 0
+    monkeypatch.setattr(
+        tracer_mod, "opaque_objects", lambda scene, *a: np.zeros(len(scene.objects), bool)
+    )
+    without = trace(sc, tx, rx, F_C)
+    assert with_prepass.n_paths == without.n_paths > 0
+    np.testing.assert_array_equal(with_prepass.delay_s, without.delay_s)
+    np.testing.assert_array_equal(with_prepass.elements, without.elements)
+    np.testing.assert_array_equal(with_prepass.gain, without.gain)
