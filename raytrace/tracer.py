@@ -51,6 +51,16 @@ OPAQUE_CHORD_M = 1e-3
 OPAQUE_MARGIN_DB = 100.0
 
 
+#: Relative cost of the stages on a hall-like scene (the thread pool starts the costliest first).
+_STAGE_COST = {
+    "diffraction-reflection": 6,
+    "reflection-diffraction": 5,
+    "reflection-diffraction-reflection": 7,
+    "2nd-order reflections": 2,
+    "diffraction": 1,
+}
+
+
 @dataclass(frozen=True)
 class TraceConfig:
     """Tracer settings.
@@ -216,7 +226,11 @@ def trace(
             report(name)
     else:
         with ThreadPoolExecutor(max_workers=min(n_threads, len(stages))) as pool:
-            futures = [pool.submit(ctx.timed, name, stage) for name, stage in stages]
+            # the costliest stages first, so the short ones fill in beside them
+            order = sorted(range(len(stages)), key=lambda i: -_STAGE_COST.get(stages[i][0], 0))
+            futures: list = [None] * len(stages)
+            for i in order:
+                futures[i] = pool.submit(ctx.timed, *stages[i])
             for (name, _), fut in zip(stages, futures):
                 results.append(fut.result())
                 report(name)
