@@ -163,27 +163,43 @@ def _facet_wedge_pairs(
     lo, hi = refl.facet_boxes(fc, ctx.scene.margin)
     eps = refl.PLANE_TOL_M
     restricted = ctx.facet_mask is not None and not mixed_rdr
+    all_groups = np.arange(len(g_start))
     if restricted:
         g_in = ctx.wedge_mask[g_order[g_start]]  # a group is one object's wedges
+        g_chosen, g_other = np.flatnonzero(g_in), np.flatnonzero(~g_in)
     outs = []
     for e in range(len(ends)):
         f_ok = np.flatnonzero(side[e] != 0)
         sgn = side[e, f_ok].astype(float)
         nrm, off = fc.normal[f_ok], fc.offset[f_ok]
         img_f = refl.mirror(np.broadcast_to(ends[e], (len(f_ok), 3)), nrm, off)
-        # object level: (group, facet) matrix, dense
-        near = (g_centre @ nrm.T - off) * sgn + g_radius[:, None] > eps
-        near &= refl.cone_reaches(
-            img_f[None],
-            f_centre[f_ok][None],
-            f_radius[f_ok][None],
-            g_centre[:, None],
-            g_radius[:, None],
-        )
         if restricted:
-            # only pairs with the wedge or the facet on a chosen object
-            near &= g_in[:, None] | ctx.facet_mask[f_ok][None, :]
-        gi, fj = np.nonzero(near)
+            # only pairs with the wedge or the facet on a chosen object: two blocks of the
+            # (group, facet) matrix
+            f_all = np.arange(len(f_ok))
+            blocks = [(g_chosen, f_all), (g_other, np.flatnonzero(ctx.facet_mask[f_ok]))]
+        else:
+            blocks = [(all_groups, np.arange(len(f_ok)))]
+        gi_parts, fj_parts = [], []
+        for gs, fs in blocks:
+            if len(gs) == 0 or len(fs) == 0:
+                continue
+            # object level, dense: the group's sphere reaches the end's side and the beam
+            c, r = g_centre[gs], g_radius[gs]
+            near = (c @ nrm[fs].T - off[fs]) * sgn[fs] + r[:, None] > eps
+            near &= refl.cone_reaches(
+                img_f[fs][None],
+                f_centre[f_ok[fs]][None],
+                f_radius[f_ok[fs]][None],
+                c[:, None],
+                r[:, None],
+            )
+            gb, fb = np.nonzero(near)
+            gi_parts.append(gs[gb])
+            fj_parts.append(fs[fb])
+        if not gi_parts:
+            continue
+        gi, fj = np.concatenate(gi_parts), np.concatenate(fj_parts)
         if len(gi) == 0:
             continue
         cnt = g_count[gi]

@@ -26,7 +26,8 @@ reflects or diffracts on, so a path on static elements only is one of the static
 adding objects only adds crossings to its segments; a segment that does not meet a box cannot
 cross it. To stay exact whatever the materials, the static candidates are kept without the
 power cut (``min_power_db = -inf``, geometry only) and the power cut of each band is applied when
-fields are evaluated, so one geometric trace per snapshot serves every band.
+fields are evaluated, so one geometric trace per snapshot serves every band. Only objects opaque in
+every band (metal) are dropped in that geometric trace (:func:`raytrace.tracer.opaque_objects`).
 """
 
 from __future__ import annotations
@@ -45,7 +46,7 @@ from .hallspec import route_pose
 from .paths import Paths
 from .scene import Scene
 from .scene_dynamic import extend_scene, posed, yaw_rotations
-from .tracer import MIN_POWER_DB, reevaluate, trace
+from .tracer import MIN_POWER_DB, opaque_objects, reevaluate, trace
 
 #: Height of the forklift box's underside above the floor plane z = 0, m. Keeps the box from
 #: sharing a plane with the floor (coplanar faces are ambiguous for a ray caster) and clears the
@@ -528,14 +529,20 @@ class SnapshotTracer:
         t0 = self._tick("scene_s", t0)
         affected = [seg.affected(boxes, self.grow_m) for seg in self._segments]
         t0 = self._tick("affected_s", t0)
-        # paths on the forklifts: geometry once (no power cut), fields per frequency below
-        new = self._trace(snap, self.frequencies_hz[0], -np.inf, involving=self.moving_objects)
-        t0 = self._tick("involving_s", t0)
+        # paths on the forklifts: geometry once (no power cut), fields per frequency below.
+        # Objects opaque in every band block in the geometric trace too (what they block carries
+        # no power in any band).
         cut = self.settings.min_power_db
+        opaque = [opaque_objects(snap, f, cut) for f in self.frequencies_hz]
+        common = np.logical_and.reduce(opaque)
+        new = self._trace(
+            snap, self.frequencies_hz[0], -np.inf, involving=self.moving_objects, opaque=common
+        )
+        t0 = self._tick("involving_s", t0)
         out = []
         for k, (f, static, aff) in enumerate(zip(self.frequencies_hz, self.static_paths, affected)):
             kw = {"max_penetrations": self.settings.max_penetrations, "min_power_db": cut}
-            if k == 0:
+            if k == 0 and np.array_equal(opaque[0], common):
                 # the new paths' fields are already those of this frequency: only the power cut
                 # (the tracer's own expression) remains
                 power_db = 20 * np.log10(np.maximum(np.abs(new.gain), 1e-300))

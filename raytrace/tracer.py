@@ -147,6 +147,7 @@ def trace(
     stats: dict[str, int] | None = None,
     involving: np.ndarray | list[int] | None = None,
     threads: int | None = None,
+    opaque: np.ndarray | None = None,
 ) -> Paths:
     """Find every path between every transmitter and every receiver.
 
@@ -170,6 +171,10 @@ def trace(
         moving objects is traced without retracing the static scene.
     threads : int, optional, threads for the independent stages (default: all cores; 1 in a
         process pool's workers avoids oversubscription)
+    opaque : (O,) bool, optional, objects that block: a path through one is dropped before the
+        crossing analysis (default :func:`opaque_objects` at this frequency and power cut; give
+        the objects opaque at every band when tracing geometry once for several bands with
+        ``min_power_db=-inf``)
 
     Returns
     -------
@@ -189,7 +194,7 @@ def trace(
         raise TraceInputError(f"frequency must be a positive number of Hz, got {frequency_hz}")
     tx = check_positions(scene, tx, "transmitter")
     rx = check_positions(scene, rx, "receiver")
-    ctx = _Context(scene, tx, rx, f, cfg, involving)
+    ctx = _Context(scene, tx, rx, f, cfg, involving, opaque)
 
     stages: list[tuple[str, Callable[[], list[Paths]]]] = []
     if involving is None:
@@ -309,6 +314,7 @@ class _Context:
         f: float,
         cfg: TraceConfig,
         involving: np.ndarray | list[int] | None = None,
+        opaque: np.ndarray | None = None,
     ):
         self.scene, self.tx, self.rx, self.f, self.cfg = scene, tx, rx, f, cfg
         # which facets / wedges may take part (all, unless restricted to some objects)
@@ -335,7 +341,15 @@ class _Context:
         self.thickness = scene.material_thickness()
         self.obj_material = scene.object_material
         self.obj_closed = scene.object_closed
-        self.opaque = opaque_objects(scene, self.eta, f, cfg.min_power_db)
+        if opaque is None:
+            self.opaque = opaque_objects(scene, f, cfg.min_power_db, eta=self.eta)
+        else:
+            self.opaque = np.asarray(opaque, dtype=bool).reshape(-1)
+            if self.opaque.shape != (len(scene.objects),):
+                raise TraceInputError(
+                    f"opaque must have one flag per object ({len(scene.objects)}), "
+                    f"got {self.opaque.shape[0]}"
+                )
         self.stats: dict[str, int] = {}
         self._lock = threading.Lock()
 
@@ -659,7 +673,12 @@ class _Context:
 
 
 def opaque_objects(
-    scene: Scene, eta: np.ndarray, frequency_hz: float, min_power_db: float
+    scene: Scene,
+    frequency_hz: float,
+    min_power_db: float = MIN_POWER_DB,
+    *,
+    eta: np.ndarray | None = None,
+    extrapolate: bool = False,
 ) -> np.ndarray:
     """(O,) bool: objects through which no path can carry power above ``min_power_db``.
 
@@ -672,10 +691,26 @@ def opaque_objects(
     Parameters
     ----------
     scene : Scene
-    eta : (n_materials,) complex, relative permittivity of each used material at the frequency
     frequency_hz : float
     min_power_db : float
+    eta : (n_materials,) complex, optional, relative permittivity of each used material at the
+        frequency (computed when not given)
+    extrapolate : bool, allow materials outside their valid frequency range
+
+    Returns
+    -------
+    (O,) bool
     """
+    if eta is None:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            eta = np.array(
+                [
+                    scene.materials[m].permittivity(frequency_hz, extrapolate=extrapolate)
+                    for m in scene.material_names
+                ],
+                dtype=complex,
+            )
     mat = scene.object_material
     if len(mat) == 0:
         return np.zeros(0, dtype=bool)

@@ -364,6 +364,39 @@ def test_incremental_equals_full_retrace_small_scene(t):
     assert 0 < aff.sum() < st.static_paths[0].n_paths
 
 
+def test_incremental_equals_full_retrace_when_bands_block_differently(monkeypatch):
+    """Objects opaque in one band only (a material that blocks at mmWave but not at C-band) do
+    not block the shared geometric trace; each band still equals its full retrace."""
+    import raytrace.dynamics as dyn
+    import raytrace.tracer as tracer_mod
+
+    real = tracer_mod.opaque_objects
+
+    def mmwave_only(scene, frequency_hz, *a, **kw):
+        return real(scene, frequency_hz, *a, **kw) & (frequency_hz > 10e9)
+
+    monkeypatch.setattr(tracer_mod, "opaque_objects", mmwave_only)
+    monkeypatch.setattr(dyn, "opaque_objects", mmwave_only)
+    scene = make_scene(_static_objects())
+    route = Route.from_dict(
+        {
+            "name": "forklift_1",
+            "size": [2.0, 1.0, 2.0],
+            "material": "metal",
+            "waypoints": [[2.0, 3.5], [10.0, 3.5], [10.0, 8.5], [3.0, 8.5]],
+            "speed": 1.5,
+            "mode": "loop",
+        }
+    )
+    tx = np.array([[1.0, 1.0, 3.0], [11.0, 9.0, 3.0]])
+    rx = np.array([[11.0, 5.5, 1.0], [4.0, 9.5, 1.0], [6.0, 2.0, 1.0]])
+    for bands in ([F_C, F_MM], [F_MM, F_C]):
+        st = SnapshotTracer(scene, tx, rx, [route], bands)
+        snap = st.scene_at(3.9)
+        for a, b in zip(st.paths_at(3.9, snap), st.full_retrace(3.9, snap)):
+            assert_same_paths(a, b, scene, snap)
+
+
 def test_no_routes_gives_the_static_paths(shoebox):
     tx = np.array([[2.0, 3.0, 1.5]])
     rx = np.array([[7.0, 5.0, 1.2]])

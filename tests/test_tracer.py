@@ -257,27 +257,25 @@ def test_opaque_objects_are_metals_of_realistic_thickness():
     )
     for f in (F_C, 26.85e9):
         ctx = _Context(sc, np.array([[2.0, 3, 0.5]]), np.array([[2.0, 4, 0.5]]), f, TraceConfig())
-        op = opaque_objects(sc, ctx.eta, f, -250.0)
+        op = opaque_objects(sc, f, -250.0)
+        np.testing.assert_array_equal(op, ctx.opaque)
         # a 10 nm foil transmits: what decides is the slab loss, not the material's name
         np.testing.assert_array_equal(op, [True, True, False, False, False])
 
 
-def test_opaque_prepass_changes_no_path(monkeypatch):
+def test_opaque_prepass_changes_no_path():
     """Dropping paths through metal before the crossing analysis is what the slab model gives
     (zero transmission): switching the pre-pass off changes nothing."""
     from test_diffraction_paths import _cluttered_scene
-
-    import raytrace.tracer as tracer_mod
 
     sc, tx, rx = _cluttered_scene(7)
     stats: dict[str, int] = {}
     with_prepass = trace(sc, tx, rx, F_C, stats=stats)
     assert stats["paths_blocked_opaque"] > 0
-    monkeypatch.setattr(
-        tracer_mod, "opaque_objects", lambda scene, *a: np.zeros(len(scene.objects), bool)
-    )
-    without = trace(sc, tx, rx, F_C)
+    without = trace(sc, tx, rx, F_C, opaque=np.zeros(len(sc.objects), bool))
     assert with_prepass.n_paths == without.n_paths > 0
     np.testing.assert_array_equal(with_prepass.delay_s, without.delay_s)
     np.testing.assert_array_equal(with_prepass.elements, without.elements)
     np.testing.assert_array_equal(with_prepass.gain, without.gain)
+    with pytest.raises(TraceInputError, match="one flag per object"):
+        trace(sc, tx, rx, F_C, opaque=[True])
