@@ -5,6 +5,11 @@ one penetration through the traversed chord; crossing an open sheet is one penet
 its material's thickness. The field loss (slab transmission of ITU-R P.2040 section 3 at the
 incidence angle) is applied by the tracer; metal transmits nothing, so it blocks in effect.
 
+Entering or leaving a closed solid is read from the outward normal of the hit face, so that
+touching solids (a face shared by two boxes) each get their chord although the second's entry is
+stepped over with the first's exit; a solid left without a seen entry began at the previous
+boundary or at the segment's start.
+
 The equivalent slab thickness of a chord through a solid is the chord length times the cosine of
 the incidence angle on the entry face: exact for a slab with parallel faces, an approximation for
 a chord that leaves through another face.
@@ -93,6 +98,7 @@ def segment_crossings(
     inside = np.full(n, -1, dtype=np.int64)  # closed solid the segment is inside of
     t_in = np.zeros(n)
     face_in = np.zeros(n, dtype=np.int64)
+    t_last = np.zeros(n)  # distance of the last boundary crossed (0: the segment's start)
 
     closed = scene.object_closed
     sheet_thickness = scene.material_thickness()[scene.object_material]
@@ -140,18 +146,32 @@ def segment_crossings(
             rows, face, o, t_hit = rows[keep], face[keep], o[keep], t_hit[keep]
         is_closed = closed[o]
         cur = inside[rows]
+        # closed solids face outward: the hit face's orientation says whether the segment enters
+        # or leaves (the bookkeeping alone would miss an entry through a face coincident with
+        # the previous exit, two solids stacked, since each hit is stepped over by the margin)
+        dn = np.einsum("ij,ij->i", scene.face_normal[face], d[rows])
+        grazing = dn == 0.0
+        leave = is_closed & ((dn > 0) | (grazing & (cur == o)))
+        enter = is_closed & ~leave
         # open sheet: one penetration through the material's thickness
         m = ~is_closed
         if m.any():
             record(rows[m], t_hit[m], o[m], face[m], sheet_thickness[o[m]])
         # leaving the solid we are inside of: one penetration through the chord
-        m = is_closed & (cur == o)
+        m = leave & (cur == o)
         if m.any():
             r = rows[m]
             record(r, t_in[r], o[m], face_in[r], t_hit[m] - t_in[r])
             inside[r] = -1
+        # leaving a solid we did not see entering, outside any other: it began at the previous
+        # boundary (a face coincident with it) or at the segment's start. (Leaving a solid while
+        # inside another is the end of an overlap, whose chord was closed on entering the other.)
+        m = leave & (cur < 0)
+        if m.any():
+            r = rows[m]
+            record(r, t_last[r], o[m], face[m], t_hit[m] - t_last[r])
         # entering a solid (closing an overlapping one first)
-        m = is_closed & (cur != o)
+        m = enter
         if m.any():
             r = rows[m]
             ov = inside[r] >= 0
@@ -161,6 +181,7 @@ def segment_crossings(
             inside[r] = o[m]
             t_in[r] = t_hit[m]
             face_in[r] = face[m]
+        t_last[rows] = t_hit
         t[rows] = t_hit + margin
         active[rows] &= (t[rows] < tmax[rows]) & ~exceeded[rows]
     else:
