@@ -167,12 +167,24 @@ def _facet_wedge_pairs(
     if restricted:
         g_in = ctx.wedge_mask[g_order[g_start]]  # a group is one object's wedges
         g_chosen, g_other = np.flatnonzero(g_in), np.flatnonzero(~g_in)
+    # signed distances of the edges' end points from every facet plane: (W, K)
+    dist_a = w.start @ fc.normal.T - fc.offset
+    dist_b = w.end @ fc.normal.T - fc.offset
     outs = []
     for e in range(len(ends)):
         f_ok = np.flatnonzero(side[e] != 0)
         sgn = side[e, f_ok].astype(float)
         nrm, off = fc.normal[f_ok], fc.offset[f_ok]
-        img_f = refl.mirror(np.broadcast_to(ends[e], (len(f_ok), 3)), nrm, off)
+        h_f = np.abs(ends[e] @ nrm.T - off)  # the end's distance from each plane
+        img_f = ends[e] - 2.0 * (sgn * h_f)[:, None] * nrm
+        # the beam from the image through each facet's bounding sphere: axis and half-angle
+        axis = f_centre[f_ok] - img_f
+        d_axis = np.sqrt(np.einsum("ij,ij->i", axis, axis))
+        near_f = d_axis <= f_radius[f_ok]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            axis_u = axis / d_axis[:, None]
+            sin_a = np.minimum(f_radius[f_ok] / d_axis, 1.0)
+        cos_a = np.sqrt(1.0 - sin_a * sin_a)
         if restricted:
             # only pairs with the wedge or the facet on a chosen object: two blocks of the
             # (group, facet) matrix
@@ -208,16 +220,13 @@ def _facet_wedge_pairs(
         fj = np.repeat(fj, cnt)
         f_idx = f_ok[fj]
         # the edge must have a part strictly on the end's side of the facet plane
-        da = (np.einsum("ij,ij->i", w.start[wi], fc.normal[f_idx]) - fc.offset[f_idx]) * sgn[fj]
-        db = (np.einsum("ij,ij->i", w.end[wi], fc.normal[f_idx]) - fc.offset[f_idx]) * sgn[fj]
+        da = dist_a[wi, f_idx] * sgn[fj]
+        db = dist_b[wi, f_idx] * sgn[fj]
         keep = (da > eps) | (db > eps)
+        wi, fj, f_idx, da, db = wi[keep], fj[keep], f_idx[keep], da[keep], db[keep]
         # beam test with the edge's own bounding sphere
-        keep[keep] = refl.cone_reaches(
-            img_f[fj[keep]],
-            f_centre[f_idx[keep]],
-            f_radius[f_idx[keep]],
-            w_mid[wi[keep]],
-            w_half[wi[keep]],
+        keep = _in_beam(
+            img_f[fj], axis_u[fj], cos_a[fj], sin_a[fj], near_f[fj], w_mid[wi], w_half[wi]
         )
         wi, fj, f_idx, da, db = wi[keep], fj[keep], f_idx[keep], da[keep], db[keep]
         if len(wi) == 0:
@@ -231,18 +240,19 @@ def _facet_wedge_pairs(
         pa = a + u[:, None] * (b - a)
         a = np.where(cut_a[:, None], pa, a)
         b = np.where(cut_b[:, None], pa, b)
-        # project from the image onto the facet plane (the image is on the other side)
-        _, qa = refl.segment_plane_point(img, a, fc.normal[f_idx], fc.offset[f_idx])
-        _, qb = refl.segment_plane_point(img, b, fc.normal[f_idx], fc.offset[f_idx])
+        # project from the image onto the facet plane: the image is at distance h on the other
+        # side, a point at distance s on this side projects at u = h / (h + s) from the image
+        h = h_f[fj]
+        d_a = h + np.maximum(da, eps)  # clipped ends sit at eps
+        d_b = h + np.maximum(db, eps)
+        qa = img + (h / d_a)[:, None] * (a - img)
+        qb = img + (h / d_b)[:, None] * (b - img)
         s_in, s_out = _segment_box_span(qa, qb, lo[f_idx], hi[f_idx])
         ok = s_in <= s_out
         # the part of the edge that projects into the box: the projection is a perspective map,
-        # so with D = (distance of the image + distance of the point) from the plane, the edge
-        # parameter of projected parameter s is s D_a / (s D_a + (1 - s) D_b)
-        h_end = np.abs(refl.signed_distance(ends[e], nrm[fj[ok]], off[fj[ok]]))
-        d_a = h_end + np.maximum(np.where(cut_a, eps, da), eps)[ok]
-        d_b = h_end + np.maximum(np.where(cut_b, eps, db), eps)[ok]
-        lam = [s * d_a / (s * d_a + (1 - s) * d_b) for s in (s_in[ok], s_out[ok])]
+        # so the edge parameter of projected parameter s is s D_a / (s D_a + (1 - s) D_b)
+        d_a, d_b = d_a[ok], d_b[ok]
+        lam = [x * d_a / (x * d_a + (1 - x) * d_b) for x in (s_in[ok], s_out[ok])]
         w_ok = wi[ok]
         t_a = np.einsum("ij,ij->i", a[ok] - w.start[w_ok], w.direction[w_ok])
         t_b = np.einsum("ij,ij->i", b[ok] - w.start[w_ok], w.direction[w_ok])
@@ -284,20 +294,51 @@ def _wedge_groups(w) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np
     return out
 
 
+def _in_beam(
+    apex: np.ndarray,
+    axis_u: np.ndarray,
+    cos_a: np.ndarray,
+    sin_a: np.ndarray,
+    apex_inside: np.ndarray,
+    target: np.ndarray,
+    target_radius: np.ndarray,
+) -> np.ndarray:
+    """:func:`raytrace.reflection.cone_reaches` with the cone given by its unit axis and
+    half-angle (computed once per facet rather than per candidate).
+
+    Parameters
+    ----------
+    apex : (n, 3) float, metres
+    axis_u : (n, 3) float, unit axis of the cone
+    cos_a, sin_a : (n,) float, cosine and sine of the cone's half-angle
+    apex_inside : (n,) bool, the apex is inside the facet's sphere (everything is reachable)
+    target : (n, 3) float, centre of the target sphere, metres
+    target_radius : (n,) float, metres
+    """
+    v = target - apex
+    dt = np.sqrt(np.einsum("ij,ij->i", v, v))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cos_ang = np.einsum("ij,ij->i", axis_u, v) / dt
+        sb = np.minimum(target_radius / dt, 1.0)
+    # angle(axis, v) <= a + b, as cos(angle) >= cos(a + b) (same tolerance as cone_reaches)
+    reach = cos_ang >= cos_a * np.sqrt(1.0 - sb * sb) - sin_a * sb - 1e-7
+    return reach | apex_inside | (dt <= target_radius)
+
+
 def _segment_box_span(
     a: np.ndarray, b: np.ndarray, lo: np.ndarray, hi: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
     """Parameters ``[s_in, s_out]`` (within [0, 1]) of the part of segments a -> b inside
     axis-aligned boxes (slab test), vectorised; ``s_in > s_out`` where they miss."""
     d = b - a
-    inside = (a >= lo) & (a <= hi)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t1 = (lo - a) / d
-        t2 = (hi - a) / d
-    flat = d == 0
-    tmin = np.where(flat, np.where(inside, -np.inf, np.inf), np.minimum(t1, t2))
-    tmax = np.where(flat, np.where(inside, np.inf, -np.inf), np.maximum(t1, t2))
-    return np.maximum(tmin.max(axis=1), 0.0), np.minimum(tmax.min(axis=1), 1.0)
+    # a component parallel to a slab: dividing by a tiny step gives +-huge (in or out of the
+    # slab) or 0 (on its boundary, which counts as inside)
+    inv = 1.0 / np.where(d == 0.0, 1e-300, d)
+    t1 = (lo - a) * inv
+    t2 = (hi - a) * inv
+    s_in = np.minimum(t1, t2).max(axis=1)
+    s_out = np.maximum(t1, t2).min(axis=1)
+    return np.maximum(s_in, 0.0), np.minimum(s_out, 1.0)
 
 
 def _one_reflection(ctx: _Context, before: bool) -> list[Paths]:
