@@ -167,9 +167,19 @@ def _facet_wedge_pairs(
     if restricted:
         g_in = ctx.wedge_mask[g_order[g_start]]  # a group is one object's wedges
         g_chosen, g_other = np.flatnonzero(g_in), np.flatnonzero(~g_in)
-    # signed distances of the edges' end points from every facet plane: (W, K)
-    dist_a = w.start @ fc.normal.T - fc.offset
-    dist_b = w.end @ fc.normal.T - fc.offset
+    edge_ends = (w.start, w.end)
+    if restricted:
+        # few candidates: distances per candidate
+        def plane_dist(k, wi, f_idx):
+            return np.einsum("ij,ij->i", edge_ends[k][wi], fc.normal[f_idx]) - fc.offset[f_idx]
+
+    else:
+        # signed distances of the edges' end points from every facet plane: (W, K) each
+        dist = [x @ fc.normal.T - fc.offset for x in edge_ends]
+
+        def plane_dist(k, wi, f_idx):
+            return dist[k][wi, f_idx]
+
     outs = []
     for e in range(len(ends)):
         f_ok = np.flatnonzero(side[e] != 0)
@@ -220,8 +230,8 @@ def _facet_wedge_pairs(
         fj = np.repeat(fj, cnt)
         f_idx = f_ok[fj]
         # the edge must have a part strictly on the end's side of the facet plane
-        da = dist_a[wi, f_idx] * sgn[fj]
-        db = dist_b[wi, f_idx] * sgn[fj]
+        da = plane_dist(0, wi, f_idx) * sgn[fj]
+        db = plane_dist(1, wi, f_idx) * sgn[fj]
         keep = (da > eps) | (db > eps)
         wi, fj, f_idx, da, db = wi[keep], fj[keep], f_idx[keep], da[keep], db[keep]
         # beam test with the edge's own bounding sphere

@@ -200,26 +200,52 @@ def reflecting_side(
     return side
 
 
-def facing_pairs(facets: Facets) -> np.ndarray:
+def facing_pairs(facets: Facets, known: np.ndarray | None = None) -> np.ndarray:
     """(K, K) bool: facet j can receive a reflection from facet i (necessary condition).
 
     Some part of facet i must lie strictly on a reflecting side of facet j and vice versa
     (closed solids reflect outward only). Excludes i == j and facets in the same plane. The result
     is cached on the facets and read-only.
+
+    Parameters
+    ----------
+    facets : Facets
+    known : (k0, k0) bool, optional, the result for the first k0 facets (the same facets in the
+        same order, e.g. a static scene that moving objects are appended to): only the rows and
+        columns of the others are computed
     """
     cache = facets.__dict__.get("_facing")
     if cache is not None:
         return cache
-    verts = facets.triangles.reshape(-1, 3)
-    s = verts @ facets.normal.T - facets.offset[None, :]  # (nv, K)
-    pos = s > PLANE_TOL_M
-    neg = s < -PLANE_TOL_M
-    # any vertex of facet i in front of (behind) facet j; a facet's vertices are contiguous
+    k = len(facets)
+    k0 = 0 if known is None else int(known.shape[0])
+    # sees[i, j]: any vertex of facet i on a reflecting side of facet j; a facet's vertices are
+    # contiguous, so one reduceat per block
     starts = 3 * (np.cumsum(facets.tri_count) - facets.tri_count)
-    front = np.logical_or.reduceat(pos, starts, axis=0)
-    back = np.logical_or.reduceat(neg, starts, axis=0)
-    sees = front | (back & facets.two_sided[None, :])  # [i, j]: part of i on a reflecting side of j
-    ok = sees & sees.T
+    verts = facets.triangles.reshape(-1, 3)
+
+    def sees(rows: slice, cols: slice) -> np.ndarray:
+        v0 = starts[rows.start] if rows.start < k else len(verts)
+        s = verts[v0 : starts[rows.stop] if rows.stop < k else len(verts)]
+        s = s @ facets.normal[cols].T - facets.offset[None, cols]
+        first = starts[rows] - v0
+        front = np.logical_or.reduceat(s > PLANE_TOL_M, first, axis=0)
+        back = np.logical_or.reduceat(s < -PLANE_TOL_M, first, axis=0)
+        return front | (back & facets.two_sided[None, cols])
+
+    every = slice(0, k)
+    if k0 == 0:
+        both = sees(every, every)
+        ok = both & both.T
+    else:
+        ok = np.zeros((k, k), dtype=bool)
+        ok[:k0, :k0] = known
+    if 0 < k0 < k:
+        new = slice(k0, k)
+        s_new_all = sees(new, every)  # (k - k0, k)
+        s_all_new = sees(every, new)  # (k, k - k0)
+        ok[k0:, :] = s_new_all & s_all_new.T
+        ok[:, k0:] = s_all_new & s_new_all.T
     np.fill_diagonal(ok, False)
     ok.setflags(write=False)
     object.__setattr__(facets, "_facing", ok)

@@ -21,6 +21,7 @@ import dataclasses
 import numpy as np
 
 from .errors import SceneError
+from .reflection import facing_pairs
 from .scene import Facets, Scene, SceneObject, Wedges
 
 
@@ -96,6 +97,8 @@ def extend_scene(base: Scene, extra: Scene) -> Scene:
     )
     if hasattr(base, "n_buried_wedges"):
         scene.n_buried_wedges = base.n_buried_wedges + getattr(extra, "n_buried_wedges", 0)
+    # second-order reflections need the facet pair matrix: the static block is the base's
+    facing_pairs(facets, known=facing_pairs(bf))
     scene._build_embree()
     return scene
 

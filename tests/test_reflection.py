@@ -1,0 +1,76 @@
+"""Image-method geometry of raytrace.reflection against closed forms and brute force."""
+
+from __future__ import annotations
+
+import numpy as np
+from conftest import box, make_scene, quad
+
+from raytrace import reflection as refl
+from raytrace.scene import Facets
+from raytrace.scene_dynamic import extend_scene
+
+GEOM_TOL_M = 1e-12
+
+
+def test_image_point_of_a_plane():
+    rng = np.random.default_rng(0)
+    n = rng.normal(size=(50, 3))
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    off = rng.uniform(-3, 3, 50)
+    p = rng.uniform(-5, 5, (50, 3))
+    img = refl.mirror(p, n, off)
+    # the midpoint lies on the plane and the displacement is along the normal
+    np.testing.assert_allclose(refl.signed_distance(0.5 * (p + img), n, off), 0.0, atol=GEOM_TOL_M)
+    np.testing.assert_allclose(np.cross(img - p, n), 0.0, atol=GEOM_TOL_M)
+    np.testing.assert_allclose(refl.mirror(img, n, off), p, atol=GEOM_TOL_M)
+
+
+def test_cone_reaches_is_conservative():
+    """Every sampled ray from the apex through the facet's sphere that meets the target sphere
+    is admitted by the cone test."""
+    rng = np.random.default_rng(1)
+    for _ in range(200):
+        apex = rng.uniform(-4, 4, 3)
+        centre = rng.uniform(-4, 4, 3)
+        radius = rng.uniform(0.1, 1.5)
+        target = rng.uniform(-6, 6, 3)
+        t_radius = rng.uniform(0.0, 1.0)
+        pts = centre + radius * rng.uniform(-1, 1, (400, 3)) / np.sqrt(3)
+        d = pts - apex
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        v = target - apex
+        along = d @ v
+        miss = np.linalg.norm(v[None] - along[:, None] * d, axis=1)
+        hits = ((along > 0) & (miss <= t_radius)).any()
+        if hits:
+            assert refl.cone_reaches(apex, centre, radius, target, t_radius)
+
+
+def _fresh(facets: Facets) -> Facets:
+    return Facets(**{k: v for k, v in facets.__dict__.items() if not k.startswith("_")})
+
+
+def test_facing_pairs_extended_equals_recomputed():
+    base = make_scene(
+        [
+            ("floor", quad((0, 0, 0), (10, 0, 0), (0, 10, 0)), "concrete"),
+            ("wall", box((0, 9.5, 0), (10, 10, 3)), "concrete"),
+            ("crate", box((2, 2, 0), (3, 3, 1)), "wood"),
+            ("screen", quad((6, 1, 0), (0, 3, 0), (0, 0, 2)), "glass"),
+        ]
+    )
+    extra = make_scene(
+        [
+            ("cart", box((4, 5, 0.05), (6, 6, 1.5)), "metal"),
+            ("board", quad((8, 2, 0.5), (1, 0, 0), (0, 0, 1)), "wood"),
+        ]
+    )
+    joined = extend_scene(base, extra)
+    got = refl.facing_pairs(joined.facets)  # filled by extend_scene from the base's block
+    want = refl.facing_pairs(_fresh(joined.facets))
+    assert got is not want
+    np.testing.assert_array_equal(got, want)
+    assert got[: len(base.facets), len(base.facets) :].any()
+    # symmetric, no facet faces itself
+    np.testing.assert_array_equal(got, got.T)
+    assert not got.diagonal().any()
