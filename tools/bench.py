@@ -1,7 +1,8 @@
 #!/usr/bin/env python3
 """Benchmark: links traced per second on the bundled hall, and positions solved per second.
 
-Run from a checkout: ``python tools/bench.py [--json] [--repeat N] [--scene hall]``.
+Run from a checkout: ``python tools/bench.py [--json] [--repeat N] [--scene hall] [--snapshots N]``.
+Also times the incremental retrace of forklift snapshots against a full retrace.
 Not a test: it prints figures to quote, it asserts nothing.
 """
 
@@ -94,6 +95,43 @@ def _kinds(paths) -> dict[str, int]:
     }
 
 
+def bench_snapshots(scene_name: str, n: int) -> dict:
+    """Incremental retrace of ``n`` snapshots with the hall's forklifts (both bands, one thread,
+    as in a dataset worker) against a full retrace of the same snapshots."""
+    from raytrace.bands import get_band
+    from raytrace.dynamics import SnapshotTracer, routes_from_metadata
+
+    scene = load_scene(scene_name)
+    meta = scene.metadata.get("hallray", {})
+    routes = routes_from_metadata(scene.metadata)
+    if not routes or n <= 0:
+        return {}
+    tx = np.array([b["xyz"] for b in meta["base_stations"]], float)
+    rx = np.array([p["xyz"] for p in meta["points"]], float)
+    freqs = [get_band(b).center_frequency_hz for b in ("c-band", "mmwave")]
+    st = SnapshotTracer(scene, tx, rx, routes, freqs, threads=1)
+    times = np.linspace(0.0, 60.0, n, endpoint=False) + 0.37
+    snaps = [st.scene_at(float(t)) for t in times]
+
+    def timed(fn):
+        w0, c0 = time.perf_counter(), time.process_time()
+        for t, s in zip(times, snaps):
+            fn(float(t), s)
+        return (time.perf_counter() - w0) / n, (time.process_time() - c0) / n
+
+    inc_wall, inc_cpu = timed(st.paths_at)
+    stats = {k: round(v / n, 4) for k, v in st.stats.items() if k.endswith("_s")}
+    st.threads = 1
+    full_wall, full_cpu = timed(st.full_retrace)
+    return {
+        "snapshots": n,
+        "incremental_s": {"wall": round(inc_wall, 4), "cpu": round(inc_cpu, 4)},
+        "full_s": {"wall": round(full_wall, 4), "cpu": round(full_cpu, 4)},
+        "speedup_cpu": round(full_cpu / inc_cpu, 1),
+        "incremental_stages_s": stats,
+    }
+
+
 def bench_positioning(n_epochs: int) -> dict:
     try:
         sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -111,6 +149,12 @@ def main() -> int:
     ap.add_argument(
         "--epochs", type=int, default=20000, help="epochs for the positioning benchmark"
     )
+    ap.add_argument(
+        "--snapshots",
+        type=int,
+        default=4,
+        help="forklift snapshots for the incremental-retrace benchmark (0: skip)",
+    )
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args()
     res = {
@@ -120,6 +164,7 @@ def main() -> int:
             "platform": platform.platform(),
         },
         "trace": bench_trace(args.scene, args.repeat),
+        "snapshots": bench_snapshots(args.scene, args.snapshots),
         "positioning": bench_positioning(args.epochs),
     }
     if args.json:
@@ -140,6 +185,19 @@ def main() -> int:
         print(
             "      stages (s, overlapping on threads): "
             + ", ".join(f"{k} {v:.3f}" for k, v in r["stage_seconds"].items())
+        )
+    sn = res["snapshots"]
+    if sn:
+        print(
+            f"snapshots with forklifts, both bands, 1 thread ({sn['snapshots']} snapshots): "
+            f"incremental {sn['incremental_s']['cpu']:.3f} s CPU "
+            f"({sn['incremental_s']['wall']:.3f} s wall), full retrace "
+            f"{sn['full_s']['cpu']:.3f} s CPU ({sn['full_s']['wall']:.3f} s wall), "
+            f"speed-up {sn['speedup_cpu']}x"
+        )
+        print(
+            "      incremental stages (s): "
+            + ", ".join(f"{k} {v:.3f}" for k, v in sn["incremental_stages_s"].items())
         )
     pos = res["positioning"]
     if "error" in pos:
