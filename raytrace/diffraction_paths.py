@@ -135,7 +135,7 @@ def _pure(ctx: _Context) -> Paths:
 
 def _facet_wedge_pairs(
     ctx: _Context, ends: np.ndarray, mixed_rdr: bool = False
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, ...]:
     """(end point, facet, wedge) triples where a reflection in the facet can reach the edge.
 
     ``ends`` are transmitters (for RD) or receivers (for DR); ``mixed_rdr`` keeps every pair (the
@@ -164,11 +164,11 @@ def _facet_wedge_pairs(
     eps = refl.PLANE_TOL_M
     restricted = ctx.facet_mask is not None and not mixed_rdr
     all_groups = np.arange(len(g_start))
+    edge_ends = (w.start, w.end)
     if restricted:
         g_in = ctx.wedge_mask[g_order[g_start]]  # a group is one object's wedges
         g_chosen, g_other = np.flatnonzero(g_in), np.flatnonzero(~g_in)
-    edge_ends = (w.start, w.end)
-    if restricted:
+
         # few candidates: distances per candidate
         def plane_dist(k, wi, f_idx):
             return np.einsum("ij,ij->i", edge_ends[k][wi], fc.normal[f_idx]) - fc.offset[f_idx]

@@ -45,7 +45,7 @@ CHUNK = 400_000
 #: An object is opaque when its slab loss at normal incidence, through its sheet thickness (open
 #: sheets) or through this chord (closed solids, m), is more than ``OPAQUE_MARGIN_DB`` below
 #: ``min_power_db``: metals at these frequencies (skin depth ~1 um). A path that crosses an
-#: opaque object is dropped by one Embree occlusion query before the crossing analysis.
+#: opaque object is dropped by one Embree query before the crossing analysis.
 OPAQUE_CHORD_M = 1e-3
 #: dB of headroom for the other factors of a path (oblique incidence, diffraction coefficients).
 OPAQUE_MARGIN_DB = 100.0
