@@ -187,14 +187,8 @@ def _facet_wedge_pairs(
         nrm, off = fc.normal[f_ok], fc.offset[f_ok]
         h_f = np.abs(ends[e] @ nrm.T - off)  # the end's distance from each plane
         img_f = ends[e] - 2.0 * (sgn * h_f)[:, None] * nrm
-        # the beam from the image through each facet's bounding sphere: axis and half-angle
-        axis = f_centre[f_ok] - img_f
-        d_axis = np.sqrt(np.einsum("ij,ij->i", axis, axis))
-        near_f = d_axis <= f_radius[f_ok]
-        with np.errstate(invalid="ignore", divide="ignore"):
-            axis_u = axis / d_axis[:, None]
-            sin_a = np.minimum(f_radius[f_ok] / d_axis, 1.0)
-        cos_a = np.sqrt(1.0 - sin_a * sin_a)
+        # the beam from the image through each facet's bounding sphere
+        f_beam = refl.beam(img_f, f_centre[f_ok], f_radius[f_ok])
         if restricted:
             # only pairs with the wedge or the facet on a chosen object: two blocks of the
             # (group, facet) matrix
@@ -209,12 +203,8 @@ def _facet_wedge_pairs(
             # object level, dense: the group's sphere reaches the end's side and the beam
             c, r = g_centre[gs], g_radius[gs]
             near = (c @ nrm[fs].T - off[fs]) * sgn[fs] + r[:, None] > eps
-            near &= refl.cone_reaches(
-                img_f[fs][None],
-                f_centre[f_ok[fs]][None],
-                f_radius[f_ok[fs]][None],
-                c[:, None],
-                r[:, None],
+            near &= refl.beam_reaches(
+                refl.Beam(*(x[fs][None] for x in f_beam)), c[:, None], r[:, None]
             )
             gb, fb = np.nonzero(near)
             gi_parts.append(gs[gb])
@@ -235,9 +225,7 @@ def _facet_wedge_pairs(
         keep = (da > eps) | (db > eps)
         wi, fj, f_idx, da, db = wi[keep], fj[keep], f_idx[keep], da[keep], db[keep]
         # beam test with the edge's own bounding sphere
-        keep = _in_beam(
-            img_f[fj], axis_u[fj], cos_a[fj], sin_a[fj], near_f[fj], w_mid[wi], w_half[wi]
-        )
+        keep = refl.beam_reaches(f_beam.take(fj), w_mid[wi], w_half[wi])
         wi, fj, f_idx, da, db = wi[keep], fj[keep], f_idx[keep], da[keep], db[keep]
         if len(wi) == 0:
             continue
@@ -302,37 +290,6 @@ def _wedge_groups(w) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np
     out = (order, start, count, centre, radius)
     object.__setattr__(w, "_groups", out)
     return out
-
-
-def _in_beam(
-    apex: np.ndarray,
-    axis_u: np.ndarray,
-    cos_a: np.ndarray,
-    sin_a: np.ndarray,
-    apex_inside: np.ndarray,
-    target: np.ndarray,
-    target_radius: np.ndarray,
-) -> np.ndarray:
-    """:func:`raytrace.reflection.cone_reaches` with the cone given by its unit axis and
-    half-angle (computed once per facet rather than per candidate).
-
-    Parameters
-    ----------
-    apex : (n, 3) float, metres
-    axis_u : (n, 3) float, unit axis of the cone
-    cos_a, sin_a : (n,) float, cosine and sine of the cone's half-angle
-    apex_inside : (n,) bool, the apex is inside the facet's sphere (everything is reachable)
-    target : (n, 3) float, centre of the target sphere, metres
-    target_radius : (n,) float, metres
-    """
-    v = target - apex
-    dt = np.sqrt(np.einsum("ij,ij->i", v, v))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        cos_ang = np.einsum("ij,ij->i", axis_u, v) / dt
-        sb = np.minimum(target_radius / dt, 1.0)
-    # angle(axis, v) <= a + b, as cos(angle) >= cos(a + b) (same tolerance as cone_reaches)
-    reach = cos_ang >= cos_a * np.sqrt(1.0 - sb * sb) - sin_a * sb - 1e-7
-    return reach | apex_inside | (dt <= target_radius)
 
 
 def _segment_box_span(

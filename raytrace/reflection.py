@@ -9,6 +9,8 @@ A facet of a closed solid reflects only on its outward side; a facet of an open 
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 from .scene import Facets
@@ -142,6 +144,57 @@ def facet_spheres(facets: Facets) -> tuple[np.ndarray, np.ndarray]:
     return out
 
 
+class Beam(NamedTuple):
+    """Cones of rays from apexes through bounding spheres (see :func:`beam`); (...) shaped.
+
+    Attributes
+    ----------
+    apex : (..., 3) float, metres
+    axis : (..., 3) float, unit axis (NaN where the apex is the sphere's centre)
+    cos_a, sin_a : (...) float, cosine and sine of the half-angle
+    apex_inside : (...) bool, the apex is inside the sphere: every direction is in the beam
+    """
+
+    apex: np.ndarray
+    axis: np.ndarray
+    cos_a: np.ndarray
+    sin_a: np.ndarray
+    apex_inside: np.ndarray
+
+    def take(self, idx: np.ndarray) -> Beam:
+        """The beams at ``idx`` along the first axis."""
+        return Beam(*(x[idx] for x in self))
+
+
+def beam(apex: np.ndarray, centre: np.ndarray, radius: np.ndarray) -> Beam:
+    """The cone of rays from ``apex`` through the sphere (centre, radius): every such ray lies
+    within the half-angle ``asin(radius / |centre - apex|)`` of the axis. Broadcasts."""
+    axis = centre - apex
+    da = np.sqrt(np.einsum("...j,...j->...", axis, axis))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        unit = axis / da[..., None]
+        sin_a = np.minimum(radius / da, 1.0)
+    return Beam(apex, unit, np.sqrt(1.0 - sin_a * sin_a), sin_a, da <= radius)
+
+
+def beam_reaches(b: Beam, target_centre: np.ndarray, target_radius: np.ndarray) -> np.ndarray:
+    """Whether target spheres can meet beams (a conservative, necessary test). Broadcasts.
+
+    The angle between the axis and the target's centre must be at most the beam's half-angle
+    ``a`` plus the target's angular radius ``b`` (``sin b = target_radius / distance``),
+    written without trigonometric functions as ``cos(angle) >= cos(a + b)``; ``a + b`` beyond
+    pi needs both half-angles near pi/2, where ``cos(a + b) <= 0`` already admits everything in
+    front and the apex is almost inside anyway.
+    """
+    v = target_centre - b.apex
+    dt = np.sqrt(np.einsum("...j,...j->...", v, v))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cos_ang = np.einsum("...j,...j->...", b.axis, v) / dt
+        sb = np.minimum(target_radius / dt, 1.0)
+    reach = cos_ang >= b.cos_a * np.sqrt(1.0 - sb * sb) - b.sin_a * sb - 1e-7
+    return reach | b.apex_inside | (dt <= target_radius)
+
+
 def cone_reaches(
     apex: np.ndarray,
     centre: np.ndarray,
@@ -151,29 +204,10 @@ def cone_reaches(
 ) -> np.ndarray:
     """Whether a target sphere can meet the cone of rays from ``apex`` through a sphere.
 
-    A conservative (necessary) test for beam tracing: every ray from the apex through the facet
-    bounded by (centre, radius) lies within the angle ``asin(radius / |centre - apex|)`` of the
-    axis; the target is reachable only if its own angular radius seen from the apex closes the
-    gap. All arguments broadcast; (..., 3) points, (...) radii, metres.
+    :func:`beam` then :func:`beam_reaches`; all arguments broadcast; (..., 3) points, (...)
+    radii, metres.
     """
-    axis = centre - apex
-    to_t = target_centre - apex
-    da = np.linalg.norm(axis, axis=-1)
-    dt = np.linalg.norm(to_t, axis=-1)
-    inside = (da <= radius) | (dt <= target_radius)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        # angle(axis, to_t) <= a + b, with sin a = radius / da, sin b = target_radius / dt,
-        # written without trigonometric functions: cos(angle) >= cos(a + b)
-        cos_ang = np.einsum("...j,...j->...", axis, to_t) / (da * dt)
-        sa = np.clip(radius / da, 0.0, 1.0)
-        sb = np.clip(target_radius / dt, 0.0, 1.0)
-        ca = np.sqrt(1.0 - sa * sa)
-        cb = np.sqrt(1.0 - sb * sb)
-        cos_sum = ca * cb - sa * sb
-        # a + b >= pi/2 ... pi: cos_sum <= 0 covers it, and a + b can exceed pi only if both
-        # spheres subtend half-angles near pi/2, where everything is reachable
-        reach = cos_ang >= cos_sum - 1e-7
-    return inside | reach
+    return beam_reaches(beam(apex, centre, radius), target_centre, target_radius)
 
 
 def reflecting_side(

@@ -46,3 +46,14 @@ def shoebox_sheets(size=(10.0, 8.0, 3.0), material="concrete"):
 @pytest.fixture
 def shoebox() -> Scene:
     return make_scene(shoebox_sheets())
+
+
+def admit_every_beam(monkeypatch) -> None:
+    """Switch the beam (cone) pruning of the tracer off: every target is reachable."""
+    import raytrace.reflection as refl
+
+    def everything(b, target_centre, target_radius):
+        shape = np.broadcast(b.apex[..., 0], np.asarray(target_centre)[..., 0], target_radius)
+        return np.ones(shape.shape, dtype=bool)
+
+    monkeypatch.setattr(refl, "beam_reaches", everything)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import box, make_scene, quad
+from conftest import admit_every_beam, box, make_scene, quad
 from scipy.optimize import minimize_scalar
 
 from raytrace.constants import C0
@@ -156,49 +156,19 @@ def test_mixed_path_pruning_loses_no_path(monkeypatch, seed):
     """The candidate pruning of RD, DR and RDR paths (object and edge beams, the visible part of
     each edge) only drops candidates that fail later anyway: switching it off changes nothing."""
     import raytrace.diffraction_paths as dp
-    import raytrace.reflection as refl_mod
 
     sc, tx, rx = _cluttered_scene(seed)
     kw = dict(max_reflections=2, max_penetrations=2, max_diffractions=1, max_interactions=3)
     pruned = trace(sc, tx, rx, F_C, **kw)
     assert {"RD", "DR", "RDR"} <= set(pruned.kind_label)
 
-    def everything(apex, centre, radius, tc, tr):
-        shape = np.broadcast(
-            np.asarray(apex)[..., 0], np.asarray(centre)[..., 0], radius, np.asarray(tc)[..., 0], tr
-        )
-        return np.ones(shape.shape, dtype=bool)
-
     def whole_edge(a, b, lo, hi):
         return np.zeros(len(a)), np.ones(len(a))
 
-    monkeypatch.setattr(refl_mod, "cone_reaches", everything)
-    monkeypatch.setattr(dp, "_in_beam", lambda apex, *a: np.ones(len(apex), dtype=bool))
+    admit_every_beam(monkeypatch)
     monkeypatch.setattr(dp, "_segment_box_span", whole_edge)
     monkeypatch.setattr(dp, "SPAN_PAD_M", np.inf)
     _same_paths(pruned, trace(sc, tx, rx, F_C, **kw))
-
-
-def test_in_beam_is_cone_reaches():
-    import raytrace.diffraction_paths as dp
-    from raytrace.reflection import cone_reaches
-
-    rng = np.random.default_rng(4)
-    n = 2000
-    apex = rng.uniform(-5, 5, (n, 3))
-    centre = rng.uniform(-5, 5, (n, 3))
-    radius = rng.uniform(0.01, 3, n)
-    target = rng.uniform(-5, 5, (n, 3))
-    t_radius = rng.uniform(0.0, 2, n)
-    axis = centre - apex
-    d = np.linalg.norm(axis, axis=1)
-    sin_a = np.minimum(radius / d, 1.0)
-    got = dp._in_beam(
-        apex, axis / d[:, None], np.sqrt(1 - sin_a**2), sin_a, d <= radius, target, t_radius
-    )
-    want = cone_reaches(apex, centre, radius, target, t_radius)
-    np.testing.assert_array_equal(got, want)
-    assert 0.1 < want.mean() < 0.9
 
 
 def test_segment_box_span_against_sampling():

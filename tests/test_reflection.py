@@ -29,6 +29,7 @@ def test_cone_reaches_is_conservative():
     """Every sampled ray from the apex through the facet's sphere that meets the target sphere
     is admitted by the cone test."""
     rng = np.random.default_rng(1)
+    rejected = 0
     for _ in range(200):
         apex = rng.uniform(-4, 4, 3)
         centre = rng.uniform(-4, 4, 3)
@@ -42,8 +43,12 @@ def test_cone_reaches_is_conservative():
         along = d @ v
         miss = np.linalg.norm(v[None] - along[:, None] * d, axis=1)
         hits = ((along > 0) & (miss <= t_radius)).any()
+        admitted = refl.cone_reaches(apex, centre, radius, target, t_radius)
         if hits:
-            assert refl.cone_reaches(apex, centre, radius, target, t_radius)
+            assert admitted
+        rejected += not admitted
+    # and it does prune
+    assert rejected > 50
 
 
 def _fresh(facets: Facets) -> Facets:

@@ -6,7 +6,7 @@ import itertools
 
 import numpy as np
 import pytest
-from conftest import box, make_scene, quad, shoebox_sheets
+from conftest import admit_every_beam, box, make_scene, quad, shoebox_sheets
 
 from raytrace.constants import C0
 from raytrace.errors import TraceInputError
@@ -208,7 +208,6 @@ def test_bad_positions(shoebox):
 
 def test_beam_pruning_loses_no_path(monkeypatch):
     """The cone pre-tests are necessary conditions: switching them off changes nothing."""
-    import raytrace.reflection as refl_mod
 
     rng = np.random.default_rng(3)
     objs = [("floor", box((-1, -1, -0.3), (21, 21, 0.0)), "concrete")]
@@ -227,13 +226,7 @@ def test_beam_pruning_loses_no_path(monkeypatch):
     rx = rx[sc.inside_solid(rx) < 0]
     pruned = trace(sc, tx, rx, F_C)
 
-    def everything(apex, centre, radius, tc, tr):
-        shape = np.broadcast(
-            np.asarray(apex)[..., 0], np.asarray(centre)[..., 0], radius, np.asarray(tc)[..., 0], tr
-        )
-        return np.ones(shape.shape, dtype=bool)
-
-    monkeypatch.setattr(refl_mod, "cone_reaches", everything)
+    admit_every_beam(monkeypatch)
     full = trace(sc, tx, rx, F_C)
     assert pruned.n_paths == full.n_paths > 0
     np.testing.assert_array_equal(pruned.delay_s, full.delay_s)
