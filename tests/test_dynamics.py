@@ -338,9 +338,8 @@ def test_forklift_blocks_line_of_sight_exactly_when_in_the_way():
     np.testing.assert_allclose(v.max(axis=0), [x[40, 0] + 1.0, 10.5, 2.0], atol=1e-12)
 
 
-@pytest.mark.parametrize("t", [0.0, 3.9, 7.2, 9.95, 13.3])
-def test_incremental_equals_full_retrace_small_scene(t):
-    scene = make_scene(_static_objects())
+def _loop_route_and_links():
+    """A forklift looping around the small scene's machine, 2 base stations, 3 points."""
     route = Route.from_dict(
         {
             "name": "forklift_1",
@@ -353,6 +352,13 @@ def test_incremental_equals_full_retrace_small_scene(t):
     )
     tx = np.array([[1.0, 1.0, 3.0], [11.0, 9.0, 3.0]])
     rx = np.array([[11.0, 5.5, 1.0], [4.0, 9.5, 1.0], [6.0, 2.0, 1.0]])
+    return route, tx, rx
+
+
+@pytest.mark.parametrize("t", [0.0, 3.9, 7.2, 9.95, 13.3])
+def test_incremental_equals_full_retrace_small_scene(t):
+    scene = make_scene(_static_objects())
+    route, tx, rx = _loop_route_and_links()
     st = SnapshotTracer(scene, tx, rx, [route], [F_C, F_MM])
     snap = st.scene_at(t)
     inc = st.paths_at(t, snap)
@@ -378,18 +384,7 @@ def test_incremental_equals_full_retrace_when_bands_block_differently(monkeypatc
     monkeypatch.setattr(tracer_mod, "opaque_objects", mmwave_only)
     monkeypatch.setattr(dyn, "opaque_objects", mmwave_only)
     scene = make_scene(_static_objects())
-    route = Route.from_dict(
-        {
-            "name": "forklift_1",
-            "size": [2.0, 1.0, 2.0],
-            "material": "metal",
-            "waypoints": [[2.0, 3.5], [10.0, 3.5], [10.0, 8.5], [3.0, 8.5]],
-            "speed": 1.5,
-            "mode": "loop",
-        }
-    )
-    tx = np.array([[1.0, 1.0, 3.0], [11.0, 9.0, 3.0]])
-    rx = np.array([[11.0, 5.5, 1.0], [4.0, 9.5, 1.0], [6.0, 2.0, 1.0]])
+    route, tx, rx = _loop_route_and_links()
     for bands in ([F_C, F_MM], [F_MM, F_C]):
         st = SnapshotTracer(scene, tx, rx, [route], bands)
         snap = st.scene_at(3.9)
