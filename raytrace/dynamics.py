@@ -477,6 +477,7 @@ class SnapshotTracer:
             raise SceneError("one static path set per frequency is needed")
         self.static_paths = list(static_paths)
         self._segments = [PathSegments(p) for p in self.static_paths]
+        self._opaque: list[np.ndarray] | None = None  # per frequency, over a snapshot's objects
         self.stats: dict[str, float] = {}
 
     # -- helpers --------------------------------------------------------------------------
@@ -533,7 +534,10 @@ class SnapshotTracer:
         # Objects opaque in every band block in the geometric trace too (what they block carries
         # no power in any band).
         cut = self.settings.min_power_db
-        opaque = [opaque_objects(snap, f, cut) for f in self.frequencies_hz]
+        if self._opaque is None:
+            # every snapshot has the same objects and materials: computed once
+            self._opaque = [opaque_objects(snap, f, cut) for f in self.frequencies_hz]
+        opaque = self._opaque
         common = np.logical_and.reduce(opaque)
         new = self._trace(
             snap, self.frequencies_hz[0], -np.inf, involving=self.moving_objects, opaque=common

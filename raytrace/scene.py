@@ -386,6 +386,10 @@ class Scene:
         (n,) int, object index of the first hit among ``objects``, -1 for none
         """
         objects = np.asarray(objects, dtype=bool)
+        if objects.shape != (len(self.objects),):
+            raise SceneError(
+                f"one flag per object is needed ({len(self.objects)}), got shape {objects.shape}"
+            )
         out = np.full(len(origins), -1, dtype=np.int64)
         ok = np.asarray(length) > 0
         if not objects.any() or not ok.any():

@@ -290,6 +290,8 @@ def test_first_hit_among_a_subset_of_objects():
     # only the far box counts: the near one is transparent to this query
     np.testing.assert_array_equal(sc.first_hit_among([False, True], o, d, length), [1, -1, -1])
     np.testing.assert_array_equal(sc.first_hit_among([False, False], o, d, length), [-1, -1, -1])
+    with pytest.raises(SceneError, match="one flag per object"):
+        sc.first_hit_among([True], o, d, length)
     # the cached subset scenes (native Embree objects) are left out of a pickled scene's state
     assert "_subset_embree" in sc.__dict__
     assert "_subset_embree" not in sc.__getstate__()
