@@ -374,6 +374,7 @@ class TraceSettings:
     max_diffractions: int = 1
     max_interactions: int = 2
     min_power_db: float = MIN_POWER_DB
+    slab_delay: bool = True
 
     def trace_kwargs(self) -> dict[str, Any]:
         return {
@@ -381,6 +382,7 @@ class TraceSettings:
             "max_penetrations": self.max_penetrations,
             "max_diffractions": self.max_diffractions,
             "max_interactions": self.max_interactions,
+            "slab_delay": self.slab_delay,
         }
 
 
@@ -545,7 +547,11 @@ class SnapshotTracer:
         t0 = self._tick("involving_s", t0)
         out = []
         for k, (f, static, aff) in enumerate(zip(self.frequencies_hz, self.static_paths, affected)):
-            kw = {"max_penetrations": self.settings.max_penetrations, "min_power_db": cut}
+            kw = {
+                "max_penetrations": self.settings.max_penetrations,
+                "min_power_db": cut,
+                "slab_delay": self.settings.slab_delay,
+            }
             if k == 0 and np.array_equal(opaque[0], common):
                 # the new paths' fields are already those of this frequency: only the power cut
                 # (the tracer's own expression) remains

@@ -43,6 +43,7 @@ __all__ = [
     "permittivity",
     "slab",
     "slab_excess_delay",
+    "slab_group_delay",
 ]
 
 #: Revision of the recommendation whose Table 3 the built-in materials follow.
@@ -207,6 +208,17 @@ class Material:
         eta : complex, or (...) complex128 array for array input; ``Im(eta) <= 0``.
         """
         return self._permittivity(frequency_hz, extrapolate, stacklevel=4)
+
+    def permittivity_slope(
+        self, frequency_hz: float | np.ndarray, extrapolate: bool = False
+    ) -> complex | np.ndarray:
+        """``f d eta / d f`` of the power-law model, for group delays (:func:`slab_group_delay`).
+
+        ``eta' = a f^b`` gives ``b eta'``; ``eta'' = sigma / (2 pi f eps0)`` with ``sigma = c f^d``
+        gives ``(d - 1) eta''``: ``f d eta / d f = b eta' - j (d - 1) eta''``.
+        """
+        eta = self._permittivity(frequency_hz, extrapolate, stacklevel=4)
+        return self.b * np.real(eta) + 1j * (self.d - 1.0) * np.imag(eta)
 
     def _permittivity(
         self, frequency_hz: float | np.ndarray, extrapolate: bool, stacklevel: int
@@ -729,6 +741,46 @@ def slab(
     return r_te, r_tm, t_te, t_tm
 
 
+def slab_group_delay(
+    eta: complex | np.ndarray,
+    cos_theta: float | np.ndarray,
+    thickness_m: float | np.ndarray,
+    eta_slope: complex | np.ndarray = 0.0,
+) -> Any:
+    """Group delay of the ray straight through a slab, relative to free space over the same line.
+
+    The through-ray carries ``exp(-j k0 d (s - cos theta))`` with ``s = sqrt(eta - sin^2 theta)``
+    (the phase of :func:`slab`'s ``T`` with ``reference="free_space"``, without the interface
+    factors); its group delay ``-d phase / d omega`` is
+
+        ``tau = (d / c) [Re(s + f (d eta / d f) / (2 s)) - cos theta]``,
+
+    since ``d(omega s)/d omega = s + omega (d s / d omega)`` and ``d s / d eta = 1 / (2 s)``. With
+    ``eta`` real and constant it is the optical path excess ``d (n cos theta_t - cos theta) / c`` of
+    geometric optics. Multiple internal reflections (Fabry-Perot ripple, damped out in any lossy
+    wall) are neglected.
+
+    Parameters
+    ----------
+    eta : complex or (...) complex array, relative permittivity of the slab
+    cos_theta : float or (...) float array, cosine of the incidence angle (sign ignored, <= 1)
+    thickness_m : float or (...) float array, m
+    eta_slope : complex or (...) complex array
+        ``f d eta / d f`` at the carrier (:meth:`Material.permittivity_slope`); 0 for a
+        frequency-independent permittivity.
+
+    Returns
+    -------
+    tau : float or (...) float64, seconds (>= 0 for the building materials of P.2040)
+    """
+    e = np.asarray(eta, dtype=complex)
+    c = np.minimum(np.abs(np.asarray(cos_theta, dtype=float)), 1.0)
+    s = np.sqrt(e - (1.0 - c * c))  # principal branch: Re(s) >= 0, Im(s) <= 0 for Im(eta) <= 0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        slope = np.where(s != 0, np.asarray(eta_slope, dtype=complex) / (2.0 * s), 0.0)
+    return _out(np.asarray(thickness_m, dtype=float) * (np.real(s + slope) - c) / C0)
+
+
 def slab_excess_delay(
     eta: complex | np.ndarray, cos_theta: float | np.ndarray, thickness_m: float | np.ndarray
 ) -> Any:
@@ -736,10 +788,9 @@ def slab_excess_delay(
 
     ``tau = d (Re sqrt(eta' - sin^2 theta) - cos theta) / c`` (optical path ``d (n cos theta_t -
     cos theta)`` of geometric optics). It is the group delay of the through-ray when ``eta'`` does not
-    depend on frequency (all P.2040-3 building materials except the grounds have ``b = 0``);
-    multiple internal reflections and the dispersion of the conductivity term are neglected. The
-    narrow-band phase of ``slab(..., reference="free_space")`` carries the same excess path as a
-    phase; a tracer that wants penetrated paths to arrive late adds ``tau`` to their delay.
+    depend on frequency (all P.2040-3 building materials except the grounds have ``b = 0``) and
+    the slab is lossless; :func:`slab_group_delay` is the general form (loss and dispersion), of
+    which this is the limit for ``Im(eta) = 0``.
 
     Parameters
     ----------
@@ -753,7 +804,4 @@ def slab_excess_delay(
     -------
     tau : float or (...) float64, seconds (>= 0 for ``eta' >= 1``)
     """
-    eta_r = np.real(np.asarray(eta, dtype=complex))
-    c = np.minimum(np.abs(np.asarray(cos_theta, dtype=float)), 1.0)
-    n_cos_t = np.sqrt(np.maximum(eta_r - (1.0 - c * c), 0.0))
-    return _out(np.asarray(thickness_m, dtype=float) * (n_cos_t - c) / C0)
+    return slab_group_delay(np.real(np.asarray(eta, dtype=complex)), cos_theta, thickness_m)

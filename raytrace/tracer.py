@@ -33,7 +33,7 @@ import numpy as np
 from . import reflection as refl
 from .constants import C0
 from .errors import TraceInputError
-from .materials import fresnel, slab
+from .materials import fresnel, slab, slab_group_delay
 from .paths import DIFFRACTION, PENETRATION, REFLECTION, Paths
 from .penetration import segment_crossings
 from .scene import Scene
@@ -73,6 +73,8 @@ class TraceConfig:
     max_interactions : int, reflections plus diffractions on one path (penetrations apart)
     min_power_db : float, paths weaker than this are dropped
     extrapolate : bool, allow materials outside their ITU-R P.2040 frequency range (warns)
+    slab_delay : bool, a penetrated slab delays the path by its group delay
+        (:func:`raytrace.materials.slab_group_delay`), not only its phase
     """
 
     max_reflections: int = 2
@@ -81,6 +83,7 @@ class TraceConfig:
     max_interactions: int = 2
     min_power_db: float = MIN_POWER_DB
     extrapolate: bool = False
+    slab_delay: bool = True
 
     def validate(self) -> None:
         if not 0 <= self.max_reflections <= 2:
@@ -143,6 +146,7 @@ def trace(
     max_interactions: int = 2,
     min_power_db: float = MIN_POWER_DB,
     extrapolate: bool = False,
+    slab_delay: bool = True,
     progress: bool | Callable[[int], None] = False,
     stats: dict[str, int] | None = None,
     involving: np.ndarray | list[int] | None = None,
@@ -163,6 +167,8 @@ def trace(
     max_interactions : int, reflections plus diffractions on one path
     min_power_db : float, weaker paths are dropped (metal blocks: its transmission is ~0)
     extrapolate : bool, allow materials outside their valid frequency range (warns)
+    slab_delay : bool, add the group delay of penetrated slabs to the path delays (default True;
+        False: free-space delays, the slab's phase only)
     progress : bool, show a progress bar over the mechanisms
     stats : dict, optional, filled with counters (candidates, segments tested, dropped paths)
         and each stage's wall time in microseconds (``time_us[<stage>]``; stages overlap on threads)
@@ -187,6 +193,7 @@ def trace(
         max_interactions,
         min_power_db,
         extrapolate,
+        bool(slab_delay),
     )
     cfg.validate()
     f = float(frequency_hz)
@@ -258,6 +265,7 @@ def reevaluate(
     max_penetrations: int = 2,
     min_power_db: float = MIN_POWER_DB,
     extrapolate: bool = False,
+    slab_delay: bool = True,
 ) -> Paths:
     """Recompute visibility, penetrations and fields of given paths in another scene.
 
@@ -270,13 +278,13 @@ def reevaluate(
     ----------
     scene : Scene
     paths : Paths, from :func:`trace`
-    max_penetrations, min_power_db, extrapolate : as in :func:`trace`
+    max_penetrations, min_power_db, extrapolate, slab_delay : as in :func:`trace`
 
     Returns
     -------
     Paths, sorted like :func:`trace`'s.
     """
-    cfg = TraceConfig(2, max_penetrations, 1, 3, min_power_db, extrapolate)
+    cfg = TraceConfig(2, max_penetrations, 1, 3, min_power_db, extrapolate, bool(slab_delay))
     ctx = _Context(scene, paths.tx, paths.rx, paths.frequency_hz, cfg, None)
     kinds, pts, elem = paths.vertices()
     depth = max(kinds.shape[1], 1) + max_penetrations
@@ -334,6 +342,13 @@ class _Context:
             self.eta = np.array(
                 [
                     scene.materials[m].permittivity(f, extrapolate=cfg.extrapolate)
+                    for m in scene.material_names
+                ],
+                dtype=complex,
+            )
+            self.eta_slope = np.array(
+                [
+                    scene.materials[m].permittivity_slope(f, extrapolate=cfg.extrapolate)
                     for m in scene.material_names
                 ],
                 dtype=complex,
@@ -537,6 +552,7 @@ class _Context:
         pen_nrm = cr.normal.reshape(m, k + 1, -1, 3)
         pen_th = cr.thickness.reshape(m, k + 1, -1)
         amp_scale = np.ones(m, dtype=complex)  # extra scalar factors (diffraction spreading)
+        slab_delay = np.zeros(m)  # group delay of the penetrated slabs, s
         for j in range(k + 1):
             for s in range(pen_obj.shape[2]):
                 has = seg_count[:, j] > s
@@ -545,6 +561,10 @@ class _Context:
                     mat = self.obj_material[o]
                     cos_i = np.abs(np.einsum("ij,ij->i", pen_nrm[has, j, s], dirs[has, j]))
                     _, _, t_te, t_tm = slab(self.eta[mat], cos_i, pen_th[has, j, s], self.f)
+                    if self.cfg.slab_delay:
+                        slab_delay[has] += slab_group_delay(
+                            self.eta[mat], cos_i, pen_th[has, j, s], self.eta_slope[mat]
+                        )
                     e[has] = _apply_te_tm(
                         e[has], dirs[has, j], dirs[has, j], pen_nrm[has, j, s], t_te, t_tm
                     )
@@ -612,7 +632,7 @@ class _Context:
             link=t_idx * n_rx + r_idx,
             tx_index=t_idx.astype(np.int64),
             rx_index=r_idx.astype(np.int64),
-            delay_s=total / C0,
+            delay_s=total / C0 + slab_delay,
             gain=gain,
             n_reflections=n_r,
             n_penetrations=n_pen.astype(np.int16),

@@ -29,6 +29,7 @@ from raytrace.materials import (
     permittivity,
     slab,
     slab_excess_delay,
+    slab_group_delay,
 )
 
 F_C = 3.775e9  # C-band carrier of the paper, Hz
@@ -43,6 +44,8 @@ BOUNDARY_TOL = 1e-12  # tangential field continuity residual
 GRAZING_TOL = 1e-6  # r_te -> -1 as cos(theta) -> 0
 DELAY_TOL_S = 1e-18  # excess delay, seconds (values ~1e-9 s)
 THICK_T_MAX = 1e-20  # |T| of a slab many skin depths thick
+GROUP_DELAY_RTOL = 1e-7  # closed-form group delay vs central difference of the phase (h^2 error)
+WALL_GROUP_DELAY_RTOL = 0.01  # single-pass group delay vs the full slab T of a thick lossy wall
 
 ITU_NAMES = {
     "concrete",
@@ -447,6 +450,68 @@ def test_slab_excess_delay_matches_ray_geometry():
     got = slab_excess_delay(eta_r - 0.6j, np.cos(theta), d)
     np.testing.assert_allclose(got, expected, atol=DELAY_TOL_S)
     assert slab_excess_delay(eta_r, 1.0, d) == pytest.approx((np.sqrt(eta_r) - 1) * d / C0)
+
+
+def test_slab_group_delay_lossless_closed_forms():
+    # normal incidence: (n - 1) d / c; oblique: the optical path excess of geometric optics
+    assert slab_group_delay(2.25, 1.0, 0.3) == pytest.approx(0.5 * 0.3 / C0, rel=1e-14)
+    eta_r, d = 3.1, 0.05
+    theta = np.deg2rad(np.array([0.0, 30.0, 60.0, 85.0]))
+    theta_t = np.arcsin(np.sin(theta) / np.sqrt(eta_r))
+    inside = d / np.cos(theta_t)
+    expected = (np.sqrt(eta_r) * inside - inside * np.cos(theta - theta_t)) / C0
+    np.testing.assert_allclose(
+        slab_group_delay(eta_r, np.cos(theta), d), expected, atol=DELAY_TOL_S
+    )
+    assert slab_group_delay(4.0, 0.5, 0.0) == 0.0  # no slab, no delay
+    # the lossless limit is slab_excess_delay's (which ignores Im(eta))
+    assert slab_group_delay(eta_r, 0.7, d) == slab_excess_delay(eta_r - 2j, 0.7, d)
+
+
+@pytest.mark.parametrize("name", ["concrete", "glass", "wood", "brick", "medium_dry_ground"])
+@pytest.mark.parametrize("f", [F_C, 5e9])
+def test_slab_group_delay_is_the_phase_slope_of_the_through_ray(itu, name, f):
+    """-d(phase)/d(omega) of exp(-j k0 d (s - cos)) by a central difference on the material's own
+    permittivity model, against the closed form with ``f d eta/d f``."""
+    mat, d = itu[name], 0.2
+    for cos in (1.0, 0.6, 0.15):
+
+        def phase(ff, cos=cos):
+            s = np.sqrt(mat.permittivity(ff) - (1 - cos**2))
+            return -np.real(2 * np.pi * ff / C0 * d * (s - cos))
+
+        h = f * 1e-5
+        numeric = -(phase(f + h) - phase(f - h)) / (2 * np.pi * 2 * h)
+        got = slab_group_delay(mat.permittivity(f), cos, d, mat.permittivity_slope(f))
+        assert got == pytest.approx(numeric, rel=GROUP_DELAY_RTOL)
+
+
+def test_permittivity_slope_of_the_power_law(itu):
+    # concrete: b = 0, so f d eta / d f = -j (d - 1) eta'' with eta'' = -Im(eta)
+    con = itu["concrete"]
+    eta = con.permittivity(F_C)
+    assert con.permittivity_slope(F_C) == pytest.approx(1j * (0.7822 - 1) * eta.imag, rel=1e-12)
+    ground = itu["medium_dry_ground"]  # b = -0.1: the real part disperses too
+    h = 1e-6 * F_C
+    numeric = F_C * (ground.permittivity(F_C + h) - ground.permittivity(F_C - h)) / (2 * h)
+    assert abs(ground.permittivity_slope(F_C) - numeric) < 1e-6 * abs(numeric)
+
+
+def test_thick_lossy_wall_group_delay_matches_the_full_slab(itu):
+    """A 0.2 m concrete wall damps the internal reflections: the group delay of P.2040's full
+    slab transmission (with them) equals the single-pass one to 1 %."""
+    mat, d = itu["concrete"], 0.2
+    for f in (F_C, F_MM):
+        for cos in (1.0, 0.5):
+            h = f * 1e-5
+
+            def t_te(ff, cos=cos):
+                return slab(mat.permittivity(ff), cos, d, ff)[2]
+
+            full = -np.angle(t_te(f + h) / t_te(f - h)) / (2 * np.pi * 2 * h)
+            single = slab_group_delay(mat.permittivity(f), cos, d, mat.permittivity_slope(f))
+            assert single == pytest.approx(full, rel=WALL_GROUP_DELAY_RTOL)
+            assert single > 0.8e-9  # ~26 cm of extra path at normal incidence
 
 
 # --------------------------------------------------------------------------------------------------

@@ -10,7 +10,7 @@ from conftest import admit_every_beam, box, make_scene, quad, shoebox_sheets
 
 from raytrace.constants import C0
 from raytrace.errors import TraceInputError
-from raytrace.materials import MaterialLibrary, fresnel, slab
+from raytrace.materials import Material, MaterialLibrary, fresnel, slab, slab_group_delay
 from raytrace.tracer import trace
 
 DELAY_TOL_S = 1e-12
@@ -155,7 +155,14 @@ def test_penetrable_box_one_penetration_through_the_chord():
     t = p.select(p.n_penetrations == 1)
     assert t.n_paths == 1
     d = np.linalg.norm(rx[0] - tx[0])
-    assert abs(t.delay_s[0] - d / C0) < DELAY_TOL_S
+    cos_i = (rx[0] - tx[0])[0] / d
+    # group delay of the 1 m equivalent slab (closed form tested in test_materials)
+    mat = MaterialLibrary.itu()["concrete"]
+    tau = slab_group_delay(mat.permittivity(F_C), cos_i, 1.0, mat.permittivity_slope(F_C))
+    assert abs(t.delay_s[0] - d / C0 - tau) < DELAY_TOL_S
+    free = trace(sc, tx, rx, F_C, max_reflections=0, max_diffractions=0, slab_delay=False)
+    assert abs(free.delay_s[0] - d / C0) < DELAY_TOL_S  # switched off: the geometric delay
+    np.testing.assert_allclose(free.gain, t.gain, rtol=1e-12)  # the field is the same
     # entry point on the face x = 4
     direction = (rx[0] - tx[0]) / d
     entry = tx[0] + (4.0 - tx[0, 0]) / direction[0] * direction
@@ -166,6 +173,35 @@ def test_penetrable_box_one_penetration_through_the_chord():
     _, _, t_te, _ = slab(eta, cos_i, 1.0, F_C)
     # tx, rx at one height: the field is vertical = TE for the vertical entry face
     assert abs(db(t.gain[0]) - db(friis(d) * t_te)) < GAIN_TOL_DB
+
+
+def test_lossless_slab_delays_a_penetrating_path_as_geometric_optics():
+    """A lossless dielectric block (n = 1.5) between tx and rx at oblique incidence: the path is
+    late by the optical path excess of the refracted ray through it, ``(n L_in - L_free) / c``,
+    built here from Snell's law (independent of the tracer's formula)."""
+    n, d_slab = 1.5, 0.6
+    plastic = Material("lossless_plastic", n * n, 0.0, 0.0, 0.0, 1e6, 1e12, 0.01)
+    lib = MaterialLibrary.itu()
+    lib = MaterialLibrary({**{k: lib[k] for k in lib}, plastic.name: plastic})
+    sc = make_scene(
+        [
+            ("floor", quad((-50, -50, -10), (100, 0, 0), (0, 100, 0)), "concrete"),
+            ("block", box((4.0, -3.0, 0.0), (4.0 + d_slab, 3.0, 3.0)), plastic.name),
+        ],
+        lib,
+    )
+    tx = np.array([[0.0, 0.0, 1.5]])
+    rx = np.array([[10.0, 2.5, 1.5]])
+    p = trace(sc, tx, rx, F_C, max_reflections=0, max_penetrations=1, max_diffractions=0)
+    assert p.n_paths == 1 and p.n_penetrations[0] == 1
+    d = np.linalg.norm(rx[0] - tx[0])
+    theta = np.arccos((rx[0] - tx[0])[0] / d)
+    theta_t = np.arcsin(np.sin(theta) / n)
+    inside = d_slab / np.cos(theta_t)
+    free = inside * np.cos(theta - theta_t)  # the same stretch of wave front in free space
+    expected = d / C0 + (n * inside - free) / C0
+    assert abs(p.delay_s[0] - expected) < DELAY_TOL_S
+    assert p.delay_s[0] - d / C0 > 0.1e-9  # visibly late: ~3 cm
 
 
 def test_metal_box_carries_no_penetration_power():
