@@ -326,6 +326,65 @@ class Scene:
         """(n_materials,) float, slab thickness (m) of each used material, for open sheets."""
         return np.array([self.materials[m].thickness_m for m in self.material_names], dtype=float)
 
+    def floor_outline(
+        self, min_fraction: float = 0.25, wall_fraction: float = 0.8
+    ) -> np.ndarray | None:
+        """Outline of the floor area inside the walls: ``(K, 2)`` float, metres, counter-clockwise,
+        first vertex not repeated; None if the scene has no floor.
+
+        The floor is the lowest level of upward-facing horizontal facets (either face of an open
+        sheet, the top face of a solid slab) covering at least ``min_fraction`` of the scene's
+        horizontal bounding box. From it the footprints of walls are removed: closed solids that
+        stand on it and rise at least ``wall_fraction`` of the way to the top of the scene (walls
+        and pillars). The exterior of the largest remaining piece is the outline, so an L-shaped
+        hall gives an L and the pillars inside it leave no holes.
+        """
+        from shapely import union_all
+        from shapely.geometry import Polygon
+
+        fc = self.facets
+        if len(fc) == 0:
+            return None
+        nz = fc.normal[:, 2]
+        up = np.where(fc.two_sided, np.abs(nz), nz) > 1.0 - 1e-6
+        if not up.any():
+            return None
+        level = fc.offset / np.where(np.abs(nz) > 0, nz, 1.0)  # z of the plane n.x = offset
+        lo, hi = self.bounds
+        box = float(np.prod(hi[:2] - lo[:2]))
+        tol = 10 * self.margin
+
+        def shadow(tris: np.ndarray) -> Any:
+            polys = [Polygon(t[:, :2]) for t in tris]
+            return union_all([q for q in polys if q.area > 1e-12]).buffer(0)
+
+        for z in np.unique(np.round(level[up], 6)):
+            on = np.flatnonzero(up & (np.abs(level - z) <= tol))
+            if fc.area[on].sum() < min_fraction * box:
+                continue
+            area = shadow(np.concatenate([
+                fc.triangles[fc.tri_start[k] : fc.tri_start[k] + fc.tri_count[k]] for k in on
+            ]))  # fmt: skip
+            walls = []
+            for i, obj in enumerate(self.objects):
+                if not obj.closed:
+                    continue
+                v = self.vertices[self.faces[self.face_object == i]]
+                zmin, zmax = v[..., 2].min(), v[..., 2].max()
+                if zmin <= z + tol and zmax - z >= wall_fraction * (hi[2] - z):
+                    walls.append(shadow(v))
+            if walls:
+                area = area.difference(union_all(walls))
+            parts = [g for g in getattr(area, "geoms", [area]) if g.area > 0]
+            if not parts:
+                return None
+            best = max(parts, key=lambda g: g.area).simplify(tol)
+            ring = np.asarray(best.exterior.coords)[:-1]
+            if not best.exterior.is_ccw:
+                ring = ring[::-1]
+            return np.ascontiguousarray(ring, dtype=float)
+        return None
+
     def content_hash(self) -> str:
         """SHA-256 of the geometry and material binding (independent of the file format)."""
         h = hashlib.sha256()

@@ -295,3 +295,39 @@ def test_first_hit_among_a_subset_of_objects():
     # the cached subset scenes (native Embree objects) are left out of a pickled scene's state
     assert "_subset_embree" in sc.__dict__
     assert "_subset_embree" not in sc.__getstate__()
+
+
+def _ring_area(ring: np.ndarray) -> float:
+    """Signed area of a polygon ring (shoelace): positive when counter-clockwise."""
+    x, y = ring[:, 0], ring[:, 1]
+    return 0.5 * float(np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y))
+
+
+def test_floor_outline_inside_the_walls():
+    """An L-shaped concrete slab (top at z = 0) with a wall solid along one side, a pillar inside
+    and a low machine: the outline is the L minus the wall's footprint, counter-clockwise, with
+    no hole for the pillar and nothing removed for the machine."""
+    slab = [box((0, 0, -0.3), (20, 10, 0)), box((0, 10, -0.3), (8, 25, 0))]
+    objects = [
+        ("floor_a", slab[0], "concrete"),
+        ("floor_b", slab[1], "concrete"),
+        ("wall_south", box((0, 0, 0), (20, 0.5, 6)), "concrete"),  # full height: removed
+        ("pillar", box((4, 4, 0), (4.5, 4.5, 6)), "concrete"),  # inside: no hole
+        ("machine", box((12, 4, 0), (14, 6, 2)), "metal"),  # low: kept
+    ]
+    ring = make_scene(objects).floor_outline()
+    assert ring is not None and _ring_area(ring) > 0
+    expected_area = 20 * 9.5 + 8 * 15  # the L above y = 0.5
+    assert _ring_area(ring) == pytest.approx(expected_area, rel=1e-6)
+    assert ring[:, 1].min() == pytest.approx(0.5)
+    assert ring[:, 1].max() == pytest.approx(25.0)
+    # an open sheet floor counts with either orientation; a scene without a floor has no outline
+    sheet = make_scene([("floor", quad((0, 0, 0), (0, 5, 0), (5, 0, 0)), "concrete")])
+    assert _ring_area(sheet.floor_outline()) == pytest.approx(25.0)
+    wall = make_scene([("wall", box((0, 0, 0), (5, 0.2, 3)), "concrete")])
+    assert wall.floor_outline() is None
+
+
+def test_floor_outline_of_the_bundled_hall():
+    ring = load_scene("hall").floor_outline()
+    np.testing.assert_allclose(ring, [[0, 0], [42, 0], [42, 46], [0, 46]], atol=1e-5)
