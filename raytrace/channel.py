@@ -1,4 +1,4 @@
-"""Link budget, channel impulse response, raised-cosine pulse and ToA estimation (paper eqs. 1-3).
+"""Link budget, channel impulse response, raised-cosine pulse and the pulse-shaped response (eqs. 1-3).
 
 Everything here works on plain path arrays (the fields of :class:`raytrace.paths.Paths`, without
 importing it): for P paths, ``link (P,) int`` in ``[0, n_links)``, ``delay_s (P,) float`` seconds
@@ -16,9 +16,10 @@ Model, in one paragraph (details and reasons in ``docs/channel.md``):
   ``P_tx G_t G_r |gain|^2 / N``. Correlating over ``t_s`` gains ``t_s B`` (= number of subcarriers
   for one OFDM symbol, 35.2 dB); a path is *detectable* when ``SNR t_s B`` reaches the SNR a
   square-law detector needs for ``P_d = 0.9`` at ``P_fa = 1e-6`` (13.2 dB).
-* ToA estimators: ``first-path`` (the paper's, default): delay of the first detectable path plus
-  Gaussian noise of eq. 3 with that path's SNR; ``peak``: peak of ``|pulse-shaped CIR + noise|``;
-  ``leading-edge``: first threshold crossing of that response, refined to the peak of its lobe.
+* The response of whole links, sampled (:func:`band_limited_response`) and with correlator noise,
+  serves the reference estimators ``peak`` and ``leading-edge`` (:func:`pulse_toa`); the ToA
+  estimators themselves, the default first-lobe receiver among them, are in
+  :mod:`raytrace.receivers`.
 """
 
 from __future__ import annotations
@@ -42,21 +43,20 @@ __all__ = [
     "LinkBudget",
     "PulseShape",
     "SampledResponse",
-    "TOA_METHODS",
-    "ToAEstimate",
     "band_limited_response",
+    "check_paths",
+    "concat_ranges",
+    "correlator_noise",
     "detection_snr_db",
     "discrete_cir",
-    "estimate_toa",
     "first_detectable_path",
+    "pulse_toa",
     "raised_cosine",
     "raised_cosine_spectrum",
     "thermal_noise_power_w",
     "toa_std_eq3_s",
 ]
 
-#: Names accepted by :func:`estimate_toa` ``method``; the first is the default (the paper's).
-TOA_METHODS = ("first-path", "peak", "leading-edge")
 #: Default raised-cosine roll-off (see :class:`PulseShape`).
 DEFAULT_ROLL_OFF = 0.25
 #: Golden-section iterations of the sub-sample peak refinement: the bracket of 2 samples shrinks
@@ -419,7 +419,7 @@ class PulseShape:
 # --------------------------------------------------------------------------------------------
 
 
-def _check_paths(
+def check_paths(
     link: np.ndarray, delay_s: np.ndarray, gain: np.ndarray, n_links: int
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
     link = np.asarray(link)
@@ -491,7 +491,7 @@ def discrete_cir(
 
     Ties in delay keep the callers' order.
     """
-    link, delay_s, gain, n_links = _check_paths(link, delay_s, gain, n_links)
+    link, delay_s, gain, n_links = check_paths(link, delay_s, gain, n_links)
     order = np.lexsort((np.arange(link.size), delay_s, link))
     offsets = np.searchsorted(link[order], np.arange(n_links + 1), side="left").astype(np.int64)
     return DiscreteCIR(offsets, order.astype(np.int64), delay_s[order], gain[order])
@@ -524,13 +524,79 @@ def first_detectable_path(
 # --------------------------------------------------------------------------------------------
 
 
-def _concat_ranges(starts: np.ndarray, counts: np.ndarray) -> np.ndarray:
-    """Concatenation of ``arange(s, s + c)`` for each (s, c), vectorised."""
+def concat_ranges(starts: np.ndarray, counts: np.ndarray) -> np.ndarray:
+    """Concatenation of ``arange(s, s + c)`` for each (s, c), vectorised; ``(sum counts,) int64``."""
     total = int(counts.sum())
     if total == 0:
         return np.zeros(0, dtype=np.int64)
     shift = np.repeat(starts - np.cumsum(counts) + counts, counts)
     return np.arange(total, dtype=np.int64) + shift
+
+
+def _noise_spectrum(
+    rng: np.random.Generator,
+    rows: int,
+    length: int,
+    dt: float,
+    period: float,
+    roll_off: float,
+    noise_std: float,
+) -> tuple[np.ndarray, int, np.ndarray]:
+    """Frequency-domain draw of correlator-output noise on ``rows`` grids of ``length`` samples.
+
+    The noise after correlation (matched filtering) is complex Gaussian with power spectrum
+    proportional to the pulse's, so its autocorrelation is the pulse itself and samples T apart
+    are uncorrelated. Returns the FFT bins it occupies (ascending signed frequency), the signed
+    number of the first, and the ``(rows, n_bins)`` coefficients ``X``, scaled so that
+    ``E|n_k|^2 = noise_std^2`` for ``n = ifft(X)`` (``n = (1/L) sum X e^{...}``).
+    """
+    freq = np.fft.fftfreq(length, dt)
+    spec = raised_cosine_spectrum(freq, period, roll_off)
+    bins = np.flatnonzero(spec > 0)
+    # Signed bin numbers, ascending: a contiguous run -K..K (the spectrum is an even interval).
+    signed = np.rint(freq[bins] * length * dt).astype(np.int64)
+    order = np.argsort(signed)
+    bins = bins[order]
+    shape = (rows, bins.size)
+    white = (rng.standard_normal(shape) + 1j * rng.standard_normal(shape)) / math.sqrt(2.0)
+    scale = noise_std * length / math.sqrt(float(spec[bins].sum()))
+    return bins, int(signed[order][0]), scale * np.sqrt(spec[bins]) * white
+
+
+def correlator_noise(
+    rng: np.random.Generator,
+    rows: int,
+    width: int,
+    dt: float,
+    period: float,
+    roll_off: float,
+    noise_std: float,
+    *,
+    guard: int = 0,
+) -> np.ndarray:
+    """Correlator-output noise on ``rows`` windows of ``width`` samples ``dt`` apart.
+
+    Drawn on a circular grid of at least ``width + guard`` samples (an FFT) and cut to the window:
+    with ``guard`` samples beyond it, the circular wrap leaves the correlation inside the window
+    that of the pulse up to its value at ``guard * dt``.
+
+    Parameters
+    ----------
+    rng : numpy.random.Generator
+    rows, width, guard : int
+    dt, period : float, seconds, sample spacing and pulse period T
+    roll_off : float
+    noise_std : float, per-sample standard deviation (units of the response, 1/s)
+
+    Returns
+    -------
+    (rows, width) complex
+    """
+    length = scipy.fft.next_fast_len(int(width + guard))
+    bins, _, x = _noise_spectrum(rng, rows, length, dt, period, roll_off, noise_std)
+    full = np.zeros((rows, length), dtype=complex)
+    full[:, bins] = x
+    return scipy.fft.ifft(full, axis=1)[:, :width]
 
 
 class _ResponseChunk:
@@ -554,7 +620,7 @@ class _ResponseChunk:
         self.half_width = pulse.span * period
         self.dt = period / pulse.oversampling
         lo, hi = cir.offsets[links], cir.offsets[links + 1]
-        sel = _concat_ranges(lo, hi - lo)
+        sel = concat_ranges(lo, hi - lo)
         self.row = np.repeat(np.arange(links.size), hi - lo)
         self.tau, self.amp = cir.delay_s[sel], cir.gain[sel]
         self.t0 = cir.delay_s[lo] - self.half_width
@@ -580,21 +646,9 @@ class _ResponseChunk:
         return (re + 1j * im).reshape(n_rows, self.length)
 
     def _add_noise(self, rng: np.random.Generator, noise_std: float) -> None:
-        # Correlator-output noise: complex Gaussian with power spectrum proportional to the pulse's
-        # (matched filtering; its autocorrelation is the pulse itself, so samples T apart are
-        # uncorrelated). Drawn per frequency bin and brought to the time grid by an inverse FFT.
-        freq = np.fft.fftfreq(self.length, self.dt)
-        spec = raised_cosine_spectrum(freq, self.period, self.roll_off)
-        bins = np.flatnonzero(spec > 0)
-        # Signed bin numbers, ascending: a contiguous run -K..K (the spectrum is an even interval).
-        signed = np.rint(freq[bins] * self.length * self.dt).astype(np.int64)
-        order = np.argsort(signed)
-        self.noise_bins, self.noise_k0 = bins[order], int(signed[order][0])
-        shape = (self.samples.shape[0], self.noise_bins.size)
-        white = (rng.standard_normal(shape) + 1j * rng.standard_normal(shape)) / math.sqrt(2.0)
-        # Scale so that E|n_k|^2 = noise_std^2 for the ifft convention n = (1/L) sum X e^{...}.
-        scale = noise_std * self.length / math.sqrt(float(spec[self.noise_bins].sum()))
-        self.noise_x = scale * np.sqrt(spec[self.noise_bins]) * white
+        self.noise_bins, self.noise_k0, self.noise_x = _noise_spectrum(
+            rng, self.samples.shape[0], self.length, self.dt, self.period, self.roll_off, noise_std
+        )
         full = np.zeros(self.samples.shape, dtype=complex)
         full[:, self.noise_bins] = self.noise_x
         self.samples = self.samples + np.fft.ifft(full, axis=1)
@@ -758,42 +812,7 @@ def band_limited_response(
     return SampledResponse(links, chunk.t0, chunk.dt, chunk.n_samples, chunk.samples, period)
 
 
-# --------------------------------------------------------------------------------------------
-# ToA estimation
-# --------------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class ToAEstimate:
-    """Per-link ToA estimates.
-
-    Attributes
-    ----------
-    toa_s : (L,) float, seconds
-        Estimated time of arrival (propagation delay, transmit time 0); NaN where not detected.
-    detected : (L,) bool
-        True where ``toa_s`` is a number. ``first-path``: the link has a detectable path.
-        ``peak`` / ``leading-edge``: additionally the response crossed the detector threshold.
-    first_path : (L,) int64
-        Index (into the caller's path arrays) of the first detectable path, -1 if none.
-    snr_db : (L,) float, dB
-        SNR of that path before processing gain (``P_rx / N``); NaN if none. The SNR of eq. 3.
-    sigma_s : (L,) float, seconds
-        Eq. 3 standard deviation at that SNR: the noise ``first-path`` adds (0 with noise off), a
-        reference for the others; NaN if none.
-    method : str
-        Estimator name.
-    """
-
-    toa_s: np.ndarray
-    detected: np.ndarray
-    first_path: np.ndarray
-    snr_db: np.ndarray
-    sigma_s: np.ndarray
-    method: str
-
-
-def _pulse_toa(
+def pulse_toa(
     cir: DiscreteCIR,
     links: np.ndarray,
     band: Band,
@@ -803,7 +822,18 @@ def _pulse_toa(
     method: str,
     leading_edge_db: float,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """ToA (s, NaN if not detected) of the given links by ``peak`` or ``leading-edge``."""
+    """ToA of ``links`` by ``peak`` or ``leading-edge`` on their whole pulse-shaped response.
+
+    ``peak``: time of the maximum of ``|r(t)|``; ``leading-edge``: first sample at or above
+    ``max(peak * 10**(leading_edge_db/20), noise threshold)``, then the top of its lobe; both
+    refined between samples (golden section on the continuous response). The noise threshold is
+    ``sqrt(-ln P_fa)`` times the correlator noise std (the noise power known).
+
+    Returns
+    -------
+    toa_s : (M,) float, seconds, NaN where ``|r|`` never reaches the noise threshold
+    found : (M,) bool
+    """
     period = pulse.period_s(band)
     noise_std = budget.correlator_noise_std(band, pulse)
     # Noise-only threshold: |n|^2 exceeds gamma sigma^2 with probability P_fa per sample.
@@ -832,105 +862,3 @@ def _pulse_toa(
         toa[pos : pos + group.size] = np.where(found, t, np.nan)
         pos += group.size
     return toa, np.isfinite(toa)
-
-
-def estimate_toa(
-    link: np.ndarray,
-    delay_s: np.ndarray,
-    gain: np.ndarray,
-    n_links: int,
-    band: Band | str,
-    *,
-    method: str = "first-path",
-    budget: LinkBudget | None = None,
-    pulse: PulseShape | None = None,
-    rng: np.random.Generator | None = None,
-    noise: bool = True,
-    leading_edge_db: float = -12.0,
-) -> ToAEstimate:
-    """Time of arrival of every link from its paths.
-
-    Methods
-    -------
-    ``first-path`` (default, the paper's)
-        Delay of the first *detectable* path plus zero-mean Gaussian error of eq. 3,
-        ``sigma^2 = 1 / ((2 pi B)^2 t_s B SNR)`` s^2, with ``t_s`` =
-        :meth:`LinkBudget.integration_time_s` and SNR that path's ``P_rx / N``.
-    ``peak``
-        Time of the maximum of ``|r(t)|``, the pulse-shaped response of all paths of the link plus
-        correlator noise (:func:`band_limited_response`), refined between samples.
-    ``leading-edge``
-        First sample of ``|r(t)|`` at or above ``max(peak * 10**(leading_edge_db/20), noise
-        threshold)``, searching from the start of the window, then the top of that lobe (refined):
-        finds a weak first path before a stronger later one.
-
-    Detectability is that of :meth:`LinkBudget.detectable`; a link without a detectable path gets
-    NaN. The pulse methods also return NaN when the response never exceeds the noise threshold
-    ``sqrt(-ln P_fa)`` times the noise std.
-
-    Parameters
-    ----------
-    link : (P,) int
-        Link of each path, in ``[0, n_links)``.
-    delay_s : (P,) float, seconds
-    gain : (P,) complex
-        Field amplitude relative to transmitted, between isotropic antennas.
-    n_links : int
-    band : Band or str
-        Band or band name (:func:`raytrace.bands.get_band`).
-    method : {"first-path", "peak", "leading-edge"}
-    budget : LinkBudget, optional
-        Default :class:`LinkBudget()`.
-    pulse : PulseShape, optional
-        Default :class:`PulseShape()` (beta = 0.25, T = 1.25 / B).
-    rng : numpy.random.Generator
-        Noise source; required when ``noise`` is True. Links are processed in index order, so the
-        same seed and inputs give the same estimates.
-    noise : bool
-        False: no estimation noise (``first-path`` returns the exact first detectable delay);
-        detectability and thresholds still follow the link budget.
-    leading_edge_db : float, dB
-        Threshold of the leading-edge detector relative to the strongest sample (default -12 dB,
-        2.3 dB above the first sidelobe of the beta = 0.25 pulse, so a lone strong path does not
-        trigger on its own precursor ringing).
-
-    Returns
-    -------
-    ToAEstimate
-    """
-    if method not in TOA_METHODS:
-        raise HallrayError(f"unknown ToA method {method!r}; known: {', '.join(TOA_METHODS)}")
-    if noise and not isinstance(rng, np.random.Generator):
-        raise HallrayError("estimate_toa: noise=True needs rng=numpy.random.default_rng(seed)")
-    if not (isinstance(leading_edge_db, (int, float)) and leading_edge_db < 0):
-        raise HallrayError(f"leading_edge_db must be a negative number, got {leading_edge_db!r}")
-    band = get_band(band)
-    budget = budget or LinkBudget()
-    pulse = pulse or PulseShape()
-    link, delay_s, gain, n_links = _check_paths(link, delay_s, gain, n_links)
-
-    ok = budget.detectable(gain, band, link, n_links)
-    first = first_detectable_path(link, delay_s, ok, n_links)
-    has = first >= 0
-    snr = np.full(n_links, np.nan)
-    snr[has] = budget.path_snr(gain[first[has]], band)
-    sigma = np.full(n_links, np.nan)
-    sigma[has] = toa_std_eq3_s(snr[has], band.bandwidth_hz, budget.integration_time_s(band))
-    with np.errstate(divide="ignore"):
-        snr_db = np.asarray(linear_power_to_db(snr), dtype=float)
-
-    toa = np.full(n_links, np.nan)
-    if method == "first-path":
-        toa[has] = delay_s[first[has]]
-        if noise:
-            toa[has] += sigma[has] * rng.standard_normal(int(has.sum()))
-        detected = has.copy()
-    else:
-        links = np.flatnonzero(has)
-        cir = discrete_cir(link, delay_s, gain, n_links)
-        toa[links], found = _pulse_toa(
-            cir, links, band, pulse, budget, rng if noise else None, method, leading_edge_db
-        )
-        detected = np.zeros(n_links, dtype=bool)
-        detected[links] = found
-    return ToAEstimate(toa, detected, first, snr_db, sigma, method)

@@ -41,7 +41,7 @@ from typing import Any
 import numpy as np
 
 from .bands import Band, get_band
-from .channel import TOA_METHODS, LinkBudget, PulseShape, estimate_toa
+from .channel import LinkBudget, PulseShape
 from .dynamics import (
     FORKLIFT_CLEARANCE_M,
     Route,
@@ -52,10 +52,17 @@ from .dynamics import (
 )
 from .errors import HallrayError, SceneError
 from .paths import Paths
+from .receivers import (
+    DEFAULT_TOA_METHOD,
+    TOA_METHODS,
+    FirstLobeSettings,
+    PreparedLinks,
+    Receiver,
+)
 from .scene import Scene, load_scene
 
 #: Version of the dataset schema (``meta.json`` ``schema_version``).
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
 #: Scenarios of the paper.
 SCENARIOS = ("static", "semi-dynamic")
 #: Bands of the paper (any band of :func:`raytrace.bands.get_band` works in the library).
@@ -78,6 +85,9 @@ COLUMNS = (
     "los",
     "first_kind",
     "snr_db",
+    "peak_ratio_db",
+    "lobe_width",
+    "lobe_kind",
     "tx_offset_s",
     "clock_offset_s",
 )
@@ -99,11 +109,17 @@ class LinkToA:
     toa_s : (L,) float, seconds, estimated propagation delay (no schedule, no clock offset);
         NaN where not detected
     detected : (L,) bool
-    snr_db : (L,) float, dB, per-path SNR of the first detectable path (NaN if none)
+    snr_db : (L,) float, dB, SNR before processing gain (measured on the first lobe by
+        ``first-lobe``, the first detectable path's otherwise; NaN if none)
     sigma_s : (L,) float, seconds, eq. 3 standard deviation at that SNR (NaN if none)
     first_path : (L,) int, index of the first detectable path into the paths, -1 if none
     first_kind : (L,) str, its interaction sequence ("LoS", "R", "TD", ...; "" if none)
     los : (L,) bool, the link has an unobstructed line-of-sight path (detectable or not)
+    peak_ratio_db : (L,) float, dB, ``first-lobe``: first lobe's peak over the strongest (NaN else)
+    lobe_width : (L,) float, ``first-lobe``: first lobe's half-amplitude width over an isolated
+        pulse's (NaN else)
+    lobe_kind : (L,) str, kind of the path that dominates the measured lobe (``first-path``: the
+        first path's kind; "" if none or not known)
     """
 
     toa_s: np.ndarray
@@ -113,49 +129,59 @@ class LinkToA:
     first_path: np.ndarray
     first_kind: np.ndarray
     los: np.ndarray
+    peak_ratio_db: np.ndarray
+    lobe_width: np.ndarray
+    lobe_kind: np.ndarray
+
+
+def _kinds(paths: Paths, index: np.ndarray) -> np.ndarray:
+    """Kind labels of the paths ``index`` (-1: "")."""
+    kind = np.full(index.size, "", dtype=object)
+    has = index >= 0
+    if has.any():
+        kind[has] = paths.select(index[has]).kind_label
+    return kind.astype(str)
+
+
+def prepare_links(paths: Paths, receiver: Receiver) -> PreparedLinks:
+    """The receiver's path-only work for ``paths`` (reusable by every epoch of a snapshot)."""
+    return receiver.prepare(paths.link, paths.delay_s, paths.gain, paths.n_links)
 
 
 def emulate_toa(
     paths: Paths,
     band: Band | str,
     *,
-    method: str = "first-path",
+    method: str = DEFAULT_TOA_METHOD,
     budget: LinkBudget | None = None,
     pulse: PulseShape | None = None,
+    first_lobe: FirstLobeSettings | None = None,
     rng: np.random.Generator | None = None,
     noise: bool = True,
+    receiver: Receiver | None = None,
+    prepared: PreparedLinks | None = None,
 ) -> LinkToA:
-    """Times of arrival of every link of ``paths`` (:func:`raytrace.channel.estimate_toa`) with
+    """Times of arrival of every link of ``paths`` (:class:`raytrace.receivers.Receiver`) with
     the first path's kind and the link's line-of-sight flag.
 
     Parameters
     ----------
     paths : Paths
     band : Band or band name
-    method, budget, pulse, rng, noise : as in :func:`raytrace.channel.estimate_toa`
+    method, budget, pulse, first_lobe, rng, noise : as in :func:`raytrace.receivers.estimate_toa`
+    receiver : Receiver, optional, used instead of ``band, method, budget, pulse, first_lobe``
+    prepared : PreparedLinks, optional, ``prepare_links(paths, receiver)`` done before (a scene
+        that does not change between epochs)
 
     Returns
     -------
     LinkToA
     """
+    rx = receiver or Receiver(method, band, budget=budget, pulse=pulse, first_lobe=first_lobe)
+    prep = prepared if prepared is not None else prepare_links(paths, rx)
+    est = rx.measure(prep, rng, noise=noise)
     n = paths.n_links
-    est = estimate_toa(
-        paths.link,
-        paths.delay_s,
-        paths.gain,
-        n,
-        band,
-        method=method,
-        budget=budget,
-        pulse=pulse,
-        rng=rng,
-        noise=noise,
-    )
     first = np.asarray(est.first_path, dtype=np.int64)
-    kind = np.full(n, "", dtype=object)
-    has = first >= 0
-    if has.any():
-        kind[has] = paths.select(first[has]).kind_label
     los = np.bincount(paths.link[paths.los], minlength=n) > 0
     return LinkToA(
         toa_s=np.asarray(est.toa_s, dtype=float),
@@ -163,8 +189,11 @@ def emulate_toa(
         snr_db=np.asarray(est.snr_db, dtype=float),
         sigma_s=np.asarray(est.sigma_s, dtype=float),
         first_path=first,
-        first_kind=kind.astype(str),
+        first_kind=_kinds(paths, first),
         los=los,
+        peak_ratio_db=np.asarray(est.peak_ratio_db, dtype=float),
+        lobe_width=np.asarray(est.lobe_width, dtype=float),
+        lobe_kind=_kinds(paths, np.asarray(est.lobe_path, dtype=np.int64)),
     )
 
 
@@ -190,12 +219,15 @@ class DatasetConfig:
     duration_s : float, seconds of emulation (the paper: 60 s)
     rate_hz : float, snapshots (epochs) per second
     seed : int
-    toa_method : "first-path" (default, the paper's), "peak" or "leading-edge"
-    noise : bool, estimation noise on (False: exact first detectable delays)
+    toa_method : ToA estimator, one of :data:`raytrace.receivers.TOA_METHODS`: "first-lobe"
+        (default, the realistic receiver), "first-path" (ideal, the paper's eq. 3 model),
+        "peak" or "leading-edge"
+    noise : bool, estimation noise on (False: no noise; ``first-path`` gives exact delays)
     delta_s : float, seconds between two base stations' transmissions
     clock_offset_max_s : float, device clock offsets are uniform in [0, this)
     budget : LinkBudget
     pulse : PulseShape
+    first_lobe : FirstLobeSettings, settings of the first-lobe receiver
     trace : TraceSettings
     clearance_m : float, forklift underside above the floor
     """
@@ -205,12 +237,13 @@ class DatasetConfig:
     duration_s: float = 60.0
     rate_hz: float = 10.0
     seed: int = 1
-    toa_method: str = "first-path"
+    toa_method: str = DEFAULT_TOA_METHOD
     noise: bool = True
     delta_s: float = DELTA_S
     clock_offset_max_s: float = CLOCK_OFFSET_MAX_S
     budget: LinkBudget = field(default_factory=LinkBudget)
     pulse: PulseShape = field(default_factory=PulseShape)
+    first_lobe: FirstLobeSettings = field(default_factory=FirstLobeSettings)
     trace: TraceSettings = field(default_factory=TraceSettings)
     clearance_m: float = FORKLIFT_CLEARANCE_M
 
@@ -301,22 +334,30 @@ class _Fixed:
     def tx_offset_s(self) -> np.ndarray:
         return np.arange(len(self.bs_names)) * self.cfg.delta_s
 
+    def receiver(self) -> Receiver:
+        """The dataset's ToA receiver."""
+        c = self.cfg
+        return Receiver(c.toa_method, self.band, budget=c.budget, pulse=c.pulse,
+                        first_lobe=c.first_lobe)  # fmt: skip
 
-def _epoch_rows(fx: _Fixed, epoch: int, t_s: float, paths: Paths) -> tuple[str, np.ndarray]:
+
+def _num(value: float, fmt: str) -> str:
+    """CSV text of a float: empty for NaN."""
+    return format(float(value), fmt) if math.isfinite(value) else ""
+
+
+def _epoch_rows(
+    fx: _Fixed, epoch: int, t_s: float, paths: Paths, prepared: PreparedLinks | None = None
+) -> tuple[str, np.ndarray]:
     """CSV rows of one epoch (point-major, then base station) and its counters
     ``[rows, detected, los, first path LoS]``."""
     clock_rng, noise_rng = epoch_rngs(fx.cfg.seed, epoch)
     n_b, n_p = len(fx.bs_names), len(fx.point_names)
     clock = clock_rng.uniform(0.0, fx.cfg.clock_offset_max_s, n_p) if n_p else np.zeros(0)
     est = emulate_toa(
-        paths,
-        fx.band,
-        method=fx.cfg.toa_method,
-        budget=fx.cfg.budget,
-        pulse=fx.cfg.pulse,
-        rng=noise_rng,
+        paths, fx.band, receiver=fx.receiver(), prepared=prepared, rng=noise_rng,
         noise=fx.cfg.noise,
-    )
+    )  # fmt: skip
     # link = bs * n_points + point; rows run over points, then base stations
     link = (np.arange(n_b)[None, :] * n_p + np.arange(n_p)[:, None]).reshape(-1)
     b_idx = np.tile(np.arange(n_b), n_p)
@@ -334,9 +375,9 @@ def _epoch_rows(fx: _Fixed, epoch: int, t_s: float, paths: Paths) -> tuple[str, 
             f"{epoch},{t_txt},{fx.point_names[p_idx[i]]},{fx.bs_names[b_idx[i]]},"
             f"{repr(float(toa[i])) if det else ''},"
             f"{float(p[0])!r},{float(p[1])!r},{float(p[2])!r},{float(dist[i])!r},"
-            f"{int(est.los[j])},{est.first_kind[j]},"
-            f"{format(float(est.snr_db[j]), '.3f') if est.first_path[j] >= 0 else ''},"
-            f"{float(tx_off[i])!r},{float(clock[p_idx[i]])!r}\n"
+            f"{int(est.los[j])},{est.first_kind[j]},{_num(est.snr_db[j], '.3f')},"
+            f"{_num(est.peak_ratio_db[j], '.3f')},{_num(est.lobe_width[j], '.4f')},"
+            f"{est.lobe_kind[j]},{float(tx_off[i])!r},{float(clock[p_idx[i]])!r}\n"
         )
     det = est.detected[link]
     counts = np.array(
@@ -365,6 +406,8 @@ class _Group:
     fixed: list[_Fixed]
     times_s: np.ndarray
     tracer: SnapshotTracer
+    #: static scene: each dataset's receiver work on its paths, done once
+    prepared: list[PreparedLinks] | None = None
 
 
 def _group_state(g: _Group) -> dict[str, Any]:
@@ -414,11 +457,15 @@ def _run_epochs(g: _Group, epochs: Sequence[int]) -> tuple[list[list[str]], np.n
     tr.stats = {}
     text: list[list[str]] = [[] for _ in g.fixed]
     counts = np.zeros((len(g.fixed), 4), dtype=np.int64)
+    static = g.scenario != "semi-dynamic"
+    if static and g.prepared is None:
+        g.prepared = [prepare_links(p, fx.receiver()) for p, fx in zip(tr.static_paths, g.fixed)]
     for e in epochs:
         t = float(g.times_s[e])
-        paths = tr.paths_at(t) if g.scenario == "semi-dynamic" else tr.static_paths
+        paths = tr.static_paths if static else tr.paths_at(t)
         for k, fx in enumerate(g.fixed):
-            rows, c = _epoch_rows(fx, int(e), t, paths[k])
+            prep = g.prepared[k] if static and g.prepared is not None else None
+            rows, c = _epoch_rows(fx, int(e), t, paths[k], prep)
             text[k].append(rows)
             counts[k] += c
     return text, counts, dict(tr.stats)
@@ -451,8 +498,10 @@ def _compute_group(
         if progress is not None:
             progress(n_done)
 
-    # static epochs with the first-path estimator cost milliseconds: no processes
-    cheap = g.scenario == "static" and all(fx.cfg.toa_method == "first-path" for fx in g.fixed)
+    # static epochs with the first-path or first-lobe receiver cost milliseconds: no processes
+    cheap = g.scenario == "static" and all(
+        fx.cfg.toa_method in ("first-path", "first-lobe") for fx in g.fixed
+    )
     if workers <= 1 or cheap or n < 2:
         for chunk in _chunks(n, 10):
             collect(_run_epochs(g, chunk), len(chunk))
@@ -488,6 +537,24 @@ def _hall_xy(meta: Mapping[str, Any], scene: Scene) -> list[list[float]]:
     except (TypeError, KeyError, ValueError, IndexError):
         lo, hi = scene.bounds
         return [[float(lo[0]), float(lo[1])], [float(hi[0]), float(hi[1])]]
+
+
+def service_area(scene: Scene, meta: Mapping[str, Any]) -> dict[str, Any] | None:
+    """The dataset's service area: where a device can be, as positioning bounds its fixes.
+
+    The scene's floor outline inside its walls (:meth:`Scene.floor_outline`); for a scene without
+    a floor, the hall size of its metadata; otherwise None.
+    """
+    ring = scene.floor_outline()
+    if ring is not None:
+        src = "floor outline of the scene inside its walls"
+        return {"polygon": [[float(x), float(y)] for x, y in ring], "source": src}
+    hall = meta.get("hall") if isinstance(meta, Mapping) else None
+    try:
+        w, d = (float(v) for v in hall["size"][:2])  # type: ignore[index]
+    except (TypeError, KeyError, ValueError, IndexError):
+        return None
+    return {"polygon": [[0.0, 0.0], [w, 0.0], [w, d], [0.0, d]], "source": "hall size"}
 
 
 def _obstacles_2d(meta: Mapping[str, Any]) -> list[dict[str, Any]]:
@@ -546,6 +613,7 @@ def _meta(
         "toa_model": "toa_s = tx_offset_s + clock_offset_s + estimated propagation delay",
         "link_budget": dataclasses.asdict(cfg.budget),
         "pulse": dataclasses.asdict(cfg.pulse),
+        "first_lobe": dataclasses.asdict(cfg.first_lobe),
         "trace": dataclasses.asdict(cfg.trace),
         "forklifts": {"clearance_m": float(cfg.clearance_m), "routes": routes},
         "base_stations": [
@@ -555,6 +623,7 @@ def _meta(
             {"name": n, "xyz": [float(v) for v in p]} for n, p in zip(fx.point_names, fx.point_xyz)
         ],
         "hall_xy": _hall_xy(inputs.metadata, scene),
+        "service_area": service_area(scene, inputs.metadata),
         "area_of_interest": inputs.metadata.get("area_of_interest"),
         "obstacles_2d": _obstacles_2d(inputs.metadata),
         "columns": list(COLUMNS),
@@ -615,12 +684,13 @@ def make_datasets(
     duration_s: float = 60.0,
     rate_hz: float = 10.0,
     seed: int = 1,
-    toa_method: str = "first-path",
+    toa_method: str = DEFAULT_TOA_METHOD,
     noise: bool = True,
     workers: int = 1,
     force: bool = False,
     progress: bool = False,
     budget: LinkBudget | None = None,
+    first_lobe: FirstLobeSettings | None = None,
     trace_settings: TraceSettings | None = None,
     subdirectories: bool = True,
 ) -> list[dict[str, Any]]:
@@ -641,6 +711,7 @@ def make_datasets(
     force : bool, replace a non-empty ``out_dir``
     progress : bool, tqdm progress bars on stderr
     budget : LinkBudget, optional
+    first_lobe : FirstLobeSettings, optional, settings of the first-lobe receiver
     trace_settings : TraceSettings, optional
     subdirectories : bool, each dataset in ``out_dir/<scenario>-<band>`` (True) or, for a
         single dataset, directly in ``out_dir``
@@ -658,10 +729,20 @@ def make_datasets(
         raise HallrayError(f"workers must be an integer >= 1, got {workers!r}")
     budget = budget or LinkBudget()
     settings = trace_settings or TraceSettings()
+    lobe = first_lobe or FirstLobeSettings()
     configs = [
         DatasetConfig(
-            s, b, duration_s, rate_hz, seed, toa_method, noise, budget=budget, trace=settings
-        )
+            s,
+            b,
+            duration_s,
+            rate_hz,
+            seed,
+            toa_method,
+            noise,
+            budget=budget,
+            first_lobe=lobe,
+            trace=settings,
+        )  # fmt: skip
         for s, b in pairs
     ]
     bands = [c.validate() for c in configs]

@@ -1,7 +1,9 @@
 """``make-dataset``: write the paper's ToA datasets (static / semi-dynamic, C-band / mmWave).
 
     make-dataset --scenario static|semi-dynamic --band c-band|mmwave [--scene hall]
-                 [--duration 60] [--rate 10] [--seed 1] [--toa-method first-path|peak|leading-edge]
+                 [--duration 60] [--rate 10] [--seed 1]
+                 [--toa-method first-lobe|first-path|peak|leading-edge]
+                 [--relative-threshold-db -12] [--cfar-cells 64|none]
                  [--workers N] [--no-noise] [--force] [-q] -o DIR
     make-dataset --all [...] -o DIR      # DIR/static-c-band, DIR/static-mmwave,
                                          # DIR/semi-dynamic-c-band, DIR/semi-dynamic-mmwave
@@ -17,9 +19,9 @@ import sys
 import warnings
 from collections.abc import Sequence
 
-from .channel import TOA_METHODS
 from .cli import OneLineParser
 from .errors import HallrayError
+from .receivers import DEFAULT_TOA_METHOD, TOA_METHODS, FirstLobeSettings
 
 EXIT_BAD_INPUT = 2
 
@@ -46,8 +48,24 @@ def make_dataset_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=1, help="random seed (default 1)")
     p.add_argument(
         "--toa-method",
-        default="first-path",
-        help=f"ToA estimator: {', '.join(TOA_METHODS)} (default first-path)",
+        default=DEFAULT_TOA_METHOD,
+        help=(
+            f"ToA receiver: {', '.join(TOA_METHODS)} (default {DEFAULT_TOA_METHOD}: the "
+            "realistic receiver; first-path is the ideal one of the paper's eq. 3)"
+        ),
+    )
+    p.add_argument(
+        "--relative-threshold-db",
+        type=float,
+        default=FirstLobeSettings.relative_threshold_db,
+        metavar="DB",
+        help="first-lobe: detection threshold relative to the strongest peak (default -12 dB)",
+    )
+    p.add_argument(
+        "--cfar-cells",
+        default=str(FirstLobeSettings.cfar_cells),
+        metavar="M",
+        help="first-lobe: CA-CFAR reference cells, or 'none' for a known noise power (default 64)",
     )
     p.add_argument("--workers", type=int, default=1, help="processes for the snapshots (default 1)")
     p.add_argument(
@@ -57,6 +75,18 @@ def make_dataset_parser() -> argparse.ArgumentParser:
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bars or summary")
     p.add_argument("-o", "--output", required=True, metavar="DIR", help="output directory")
     return p
+
+
+def _cells(text: str) -> int | None:
+    """``--cfar-cells`` value: a positive integer or 'none'."""
+    if text.strip().lower() == "none":
+        return None
+    try:
+        return int(text)
+    except ValueError:
+        raise HallrayError(
+            f"--cfar-cells must be a positive integer or 'none', got {text!r}"
+        ) from None
 
 
 def make_dataset_main(argv: Sequence[str] | None = None) -> int:
@@ -76,6 +106,7 @@ def make_dataset_main(argv: Sequence[str] | None = None) -> int:
             if not args.scenario or not args.band:
                 raise HallrayError("give --scenario and --band, or --all")
             pairs, subdirs = [(args.scenario, args.band)], False
+        first_lobe = FirstLobeSettings(args.relative_threshold_db, _cells(args.cfar_cells))
         with warnings.catch_warnings():
             warnings.simplefilter("default")
             warnings.formatwarning = lambda msg, cat, *a, **k: f"warning: {msg}\n"  # type: ignore[assignment]
@@ -87,6 +118,7 @@ def make_dataset_main(argv: Sequence[str] | None = None) -> int:
                 rate_hz=args.rate,
                 seed=args.seed,
                 toa_method=args.toa_method,
+                first_lobe=first_lobe,
                 noise=not args.no_noise,
                 workers=args.workers,
                 force=args.force,

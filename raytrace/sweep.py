@@ -41,6 +41,7 @@ from typing import Any
 import numpy as np
 
 from .errors import HallrayError
+from .receivers import DEFAULT_TOA_METHOD
 
 #: Bumped when the pipeline's results change for the same parameters (old cell files are then
 #: not reused: their keys differ).
@@ -72,7 +73,7 @@ TRACE_KEYS: dict[str, Any] = {
 }
 TOA_KEYS: dict[str, Any] = {
     "band": "c-band",
-    "toa_method": "first-path",
+    "toa_method": DEFAULT_TOA_METHOD,
     "noise": True,
     "duration_s": 1.0,
     "rate_hz": 10.0,
@@ -347,8 +348,8 @@ def n_epochs(params: Mapping[str, Any]) -> int:
 def validate_cell(params: Mapping[str, Any]) -> None:
     """Check one cell's parameters without running it (one-line :class:`HallrayError`)."""
     from .bands import get_band
-    from .channel import TOA_METHODS
     from .inf import check_hall
+    from .receivers import TOA_METHODS
     from .tracer import TraceConfig
 
     if params.get("profile") is None:
@@ -456,9 +457,10 @@ def simulate_cell(
 
     from .bands import get_band
     from .constants import C0
-    from .dataset import CLOCK_OFFSET_MAX_S, DELTA_S, emulate_toa, epoch_rngs
+    from .dataset import CLOCK_OFFSET_MAX_S, DELTA_S, emulate_toa, epoch_rngs, prepare_links
     from .hallspec import parse_hall_spec
     from .inf import generate_hall, scene_from_spec, split_spec
+    from .receivers import Receiver
     from .tracer import trace
 
     t0 = time.perf_counter()
@@ -495,14 +497,17 @@ def simulate_cell(
     tx_offset = DELTA_S * np.arange(n_bs)
     frac, bias = float(params["inject_nlos_fraction"]), float(params["inject_nlos_bias_m"])
     seed = int(params["seed"])
+    receiver = Receiver(params["toa_method"], band)
+    prepared = prepare_links(paths, receiver)  # the scene is static: once for all epochs
     for e in range(n_ep):
         # the dataset writer's streams (clock, noise), and a third one for the injection
         rng_clock, rng_noise = epoch_rngs(seed, e)
         rng_nlos = np.random.default_rng(np.random.SeedSequence([seed, e]).spawn(3)[2])
         clock[e] = rng_clock.uniform(0.0, CLOCK_OFFSET_MAX_S, n_pts)
         est = emulate_toa(
-            paths, band, method=params["toa_method"], rng=rng_noise, noise=bool(params["noise"])
-        )
+            paths, band, receiver=receiver, prepared=prepared, rng=rng_noise,
+            noise=bool(params["noise"]),
+        )  # fmt: skip
         prop[e] = np.where(est.detected, est.toa_s, np.nan).reshape(n_bs, n_pts).T
         if e == 0:
             sigma = np.asarray(est.sigma_s, dtype=float).reshape(n_bs, n_pts)

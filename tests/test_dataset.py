@@ -97,7 +97,7 @@ def test_emulate_toa_without_noise_is_the_first_detectable_delay():
     rx = np.array([p for _, p in POINTS])
     band = get_band("mmwave")
     paths = trace(sc, tx, rx, band.center_frequency_hz)
-    est = emulate_toa(paths, band, noise=False)
+    est = emulate_toa(paths, band, method="first-path", noise=False)
     want = _first_detectable_delay(paths, band)
     np.testing.assert_array_equal(np.isnan(est.toa_s), np.isnan(want))
     np.testing.assert_allclose(est.toa_s, want, rtol=0, atol=0)
@@ -112,8 +112,9 @@ def test_static_toa_is_delay_plus_schedule_plus_clock_offset(tmp_path):
     sc = _scene()
     out = tmp_path / "ds"
     summary = make_dataset(
-        out, "static", "c-band", scene=sc, duration_s=1.0, rate_hz=5.0, seed=3, noise=False
-    )
+        out, "static", "c-band", scene=sc, duration_s=1.0, rate_hz=5.0, seed=3, noise=False,
+        toa_method="first-path",
+    )  # fmt: skip
     rows, meta = _read(out)
     assert summary["epochs"] == 5 and len(rows) == 5 * len(POINTS) * len(BS)
     assert list(rows[0]) == list(COLUMNS)
@@ -146,10 +147,9 @@ def test_static_toa_is_delay_plus_schedule_plus_clock_offset(tmp_path):
 def test_noise_follows_eq3_scale(tmp_path):
     """With noise on, the ToA error of each row is within a few eq. 3 sigmas of zero."""
     sc = _scene()
-    make_dataset(tmp_path / "n", "static", "mmwave", scene=sc, duration_s=2.0, rate_hz=10.0)
-    make_dataset(
-        tmp_path / "q", "static", "mmwave", scene=sc, duration_s=2.0, rate_hz=10.0, noise=False
-    )
+    kw = {"scene": sc, "duration_s": 2.0, "rate_hz": 10.0, "toa_method": "first-path"}
+    make_dataset(tmp_path / "n", "static", "mmwave", **kw)
+    make_dataset(tmp_path / "q", "static", "mmwave", noise=False, **kw)
     rows_n, _ = _read(tmp_path / "n")
     rows_q, _ = _read(tmp_path / "q")
     err = np.array([float(a["toa_s"]) - float(b["toa_s"]) for a, b in zip(rows_n, rows_q)])
@@ -164,7 +164,7 @@ def test_noise_follows_eq3_scale(tmp_path):
     assert 0.6 < np.std(z) < 1.4
 
 
-SEMI = dict(duration_s=6.0, rate_hz=5.0, seed=11)
+SEMI = dict(duration_s=6.0, rate_hz=5.0, seed=11, toa_method="first-path")
 
 
 @pytest.fixture(scope="module")
@@ -213,13 +213,26 @@ def test_same_seed_gives_identical_files_whatever_the_workers(tmp_path, semi_w1)
     assert one != (tmp_path / "s2" / "toa.csv").read_bytes()
 
 
+def test_first_lobe_datasets_identical_whatever_the_workers(tmp_path):
+    """The default receiver draws its noise from the epoch's own stream: worker count and chunking
+    do not change a byte."""
+    kw = dict(scene=_scene(), duration_s=3.0, rate_hz=5.0, seed=4)
+    pairs = [("static", "c-band"), ("semi-dynamic", "mmwave")]
+    make_datasets(tmp_path / "w1", pairs, workers=1, **kw)
+    make_datasets(tmp_path / "w2", pairs, workers=2, **kw)
+    for sub in ("static-c-band", "semi-dynamic-mmwave"):
+        a = (tmp_path / "w1" / sub / "toa.csv").read_bytes()
+        assert a == (tmp_path / "w2" / sub / "toa.csv").read_bytes(), sub
+        assert b",LoS," in a  # the small scene has line-of-sight links
+
+
 def test_meta_json_carries_the_parameters(tmp_path):
     sc = _scene()
     make_dataset(tmp_path / "m", "static", "mmwave", scene=sc, duration_s=0.5, seed=5)
     _, meta = _read(tmp_path / "m")
     from raytrace import __version__
 
-    assert meta["schema_version"] == 1
+    assert meta["schema_version"] == 2
     assert (meta["scenario"], meta["band"], meta["seed"]) == ("static", "mmwave", 5)
     assert meta["scene_sha256"] == sc.content_hash()
     assert meta["version"] == __version__
@@ -231,7 +244,8 @@ def test_meta_json_carries_the_parameters(tmp_path):
     assert meta["obstacles_2d"][0]["polygon"] == [[4, 4], [5, 4], [5, 5], [4, 5]]
     assert meta["band_parameters"]["center_frequency_hz"] == 26.85e9
     assert meta["link_budget"]["tx_power_dbm"] == 20.0
-    assert meta["toa_method"] == "first-path"
+    assert meta["toa_method"] == "first-lobe"  # the realistic receiver is the default
+    assert meta["first_lobe"] == {"relative_threshold_db": -12.0, "cfar_cells": 64}
     assert set(meta["summary"]) >= {"rows", "detected_fraction", "los_fraction"}
 
 
@@ -239,7 +253,10 @@ def test_positioning_reads_the_dataset(tmp_path):
     from positioning.dataset import load_dataset
 
     sc = _scene()
-    make_dataset(tmp_path / "p", "static", "c-band", scene=sc, duration_s=0.3, noise=False)
+    make_dataset(
+        tmp_path / "p", "static", "c-band", scene=sc, duration_s=0.3, noise=False,
+        toa_method="first-path",
+    )  # fmt: skip
     ds = load_dataset(tmp_path / "p")
     assert ds.n_fixes == 3 * len(POINTS)
     assert ds.bs_names == [n for n, _ in BS]
@@ -401,10 +418,10 @@ def test_failure_midway_leaves_no_output(tmp_path, monkeypatch):
 
     real = dataset._epoch_rows
 
-    def failing(fx, epoch, t, paths):
+    def failing(fx, epoch, t, paths, prepared=None):
         if epoch == 3:
             raise HallrayError("simulated failure in epoch 3")
-        return real(fx, epoch, t, paths)
+        return real(fx, epoch, t, paths, prepared)
 
     monkeypatch.setattr(dataset, "_epoch_rows", failing)
     sc = _scene()
