@@ -8,9 +8,13 @@ Physics of one diffraction at a straight wedge edge, vectorised over P candidate
   Kouyoumjian-Pathak measured from face 0, and the edge-fixed unit vectors.
 * :func:`transition_function` -- the UTD transition function ``F(x)``.
 * :func:`utd_coefficients` -- soft / hard diffraction coefficients ``D_s``, ``D_h``:
-  Kouyoumjian-Pathak (KP) for a perfectly conducting wedge, Luebbers' form with face reflection
-  coefficients for a lossy one.
-* :func:`diffracted_field` -- the diffracted field vector at the receiver.
+  Kouyoumjian-Pathak (KP) for a perfectly conducting wedge, Luebbers' scalar form with face
+  reflection coefficients for a lossy one (normal incidence on the edge).
+* :func:`face_reflection_matrix` -- a face's Fresnel reflection as a 2 x 2 matrix in the
+  ray-fixed (``beta0``, ``phi``) components, exact at oblique incidence on the edge.
+* :func:`diffracted_field` -- the diffracted field vector at the receiver (KP for perfect
+  conductors; for lossy faces Luebbers' heuristic with the face rule below, which makes the field
+  independent of how the mesh labels the faces).
 * :func:`knife_edge_loss_db`, :func:`fresnel_kirchhoff_v` -- ITU-R P.526 single knife edge.
 
 Conventions (see ``docs/diffraction.md`` for the formulas and their sources)
@@ -23,6 +27,11 @@ Conventions (see ``docs/diffraction.md`` for the formulas and their sources)
   the edge into the face, and ``n0`` the outward normal of face 0: ``t0 = n0 x e`` and
   ``n0 = e x t0``; a point ``p`` has ``phi = atan2((p - q).n0, (p - q).t0)`` (``q`` on the edge).
   :func:`wedge_geometry` orients ``e`` itself: the caller only says which face is face 0.
+* Lossy faces (Luebbers' heuristic, made labelling-independent): a face *lit by the source*
+  (source, or image source, in front of the face's plane) reflects at the incidence angle of the
+  incident ray; a face the source does not light takes Luebbers' "reflection angle" of the
+  diffracted ray. The rule is stated per face, so relabelling the faces (or reversing a sheet's
+  winding) changes nothing; with only face 0 lit it is Luebbers' original form.
 * ``n`` = exterior angle / pi: 2 for a half-plane (thin sheet), 1.5 for a right-angle convex
   corner of a box; for a convex wedge ``n = 1 + angle(n0, nn) / pi``.
 * Ray-fixed unit vectors (KP): incident direction ``s'`` (source -> edge), ``phi'_hat =
@@ -52,6 +61,7 @@ __all__ = [
     "wedge_geometry",
     "transition_function",
     "utd_coefficients",
+    "face_reflection_matrix",
     "diffracted_field",
     "knife_edge_loss_db",
     "fresnel_kirchhoff_v",
@@ -185,9 +195,17 @@ class WedgeGeometry:
         unit directions
     beta_hat_in, phi_hat_in : (P, 3) float; ``beta0'_hat``, ``phi'_hat`` (incident ray)
     beta_hat_out, phi_hat_out : (P, 3) float; ``beta0_hat``, ``phi_hat`` (diffracted ray)
+    lit_0, lit_n : (P,) bool; the source lights face 0 (``phi' <= pi``) / face n
+        (``n pi - phi' <= pi``); at least one is True where valid, both for a source that sees
+        both faces of a convex wedge (or grazes a half-plane)
+    psi_0, psi_n : (P,) float, rad; in-plane angle, measured from the face, of the ray whose
+        reflection in that face the face's diffraction term carries: the source's angle
+        (``phi'`` / ``n pi - phi'``) on a lit face; on a face the source does not light, the
+        virtual incident ray that the face would reflect into the diffracted ray
+        (``pi - phi`` / ``pi - (n pi - phi)``; Luebbers' reflection angle)
     cos_theta_0, cos_theta_n : (P,) float; cosine of the incidence angle (to the face normal) at
-        which Luebbers' reflection coefficients ``R_0`` and ``R_n`` are evaluated:
-        ``sin(beta0) |sin(phi')|`` on face 0, ``sin(beta0) |sin(n pi - phi)|`` on face n
+        which the reflection coefficients ``R_0`` and ``R_n`` are evaluated:
+        ``sin(beta0) |sin(psi_0)|``, ``sin(beta0) |sin(psi_n)|``
     valid : (P,) bool; source and receiver in the exterior of the wedge, neither on the edge
         line, non-zero distances
     """
@@ -208,6 +226,10 @@ class WedgeGeometry:
     phi_hat_in: np.ndarray
     beta_hat_out: np.ndarray
     phi_hat_out: np.ndarray
+    lit_0: np.ndarray
+    lit_n: np.ndarray
+    psi_0: np.ndarray
+    psi_n: np.ndarray
     cos_theta_0: np.ndarray
     cos_theta_n: np.ndarray
     valid: np.ndarray
@@ -324,8 +346,14 @@ def wedge_geometry(
         phi_hat_out = cross_out / sin_beta0_out[:, None]
     beta_hat_in = np.cross(s_hat_in, phi_hat_in)
     beta_hat_out = np.cross(s_hat_out, phi_hat_out)
-    cos_theta_0 = sin_beta0 * np.abs(np.sin(phi_in))
-    cos_theta_n = sin_beta0 * np.abs(np.sin(n * np.pi - phi))
+    # which faces the source lights, and the (virtual) incidence angle of each face's term
+    npi = n * np.pi
+    lit_0 = phi_in <= np.pi
+    lit_n = npi - phi_in <= np.pi
+    psi_0 = np.where(lit_0, phi_in, np.pi - phi)
+    psi_n = np.where(lit_n, npi - phi_in, np.pi - (npi - phi))
+    cos_theta_0 = sin_beta0 * np.abs(np.sin(psi_0))
+    cos_theta_n = sin_beta0 * np.abs(np.sin(psi_n))
     return WedgeGeometry(
         edge_dir=e,
         face0_tangent=t0,
@@ -343,6 +371,10 @@ def wedge_geometry(
         phi_hat_in=phi_hat_in,
         beta_hat_out=beta_hat_out,
         phi_hat_out=phi_hat_out,
+        lit_0=lit_0,
+        lit_n=lit_n,
+        psi_0=psi_0,
+        psi_n=psi_n,
         cos_theta_0=cos_theta_0,
         cos_theta_n=cos_theta_n,
         valid=valid,
@@ -411,6 +443,20 @@ def _reflection_pair(
     )
 
 
+def _utd_terms(n, phi, phi_in, sin_beta0, distance_m, wavenumber):
+    """``C (D1 + D2)``, ``C D3``, ``C D4`` of (D7) (broadcast, complex): the polarisation-free
+    parts of the KP coefficient, before the face reflection coefficients multiply D3 and D4."""
+    n, phi, phi_in, sin_beta0, dist, k = np.broadcast_arrays(
+        *(np.asarray(v, dtype=float) for v in (n, phi, phi_in, sin_beta0, distance_m, wavenumber))
+    )
+    kl = k * dist
+    beta_m = phi - phi_in
+    beta_p = phi + phi_in
+    c = -np.exp(-0.25j * np.pi) / (2.0 * n * np.sqrt(_TWO_PI * k) * sin_beta0)
+    d12 = c * (_wedge_term(beta_m, +1, n, kl) + _wedge_term(beta_m, -1, n, kl))
+    return d12, c * _wedge_term(beta_p, +1, n, kl), c * _wedge_term(beta_p, -1, n, kl)
+
+
 def utd_coefficients(
     n: float | np.ndarray,
     phi: float | np.ndarray,
@@ -422,7 +468,7 @@ def utd_coefficients(
     r_0: tuple[np.ndarray, np.ndarray] | None = None,
     r_n: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Soft and hard UTD wedge diffraction coefficients (KP 1974; Luebbers 1984).
+    """Soft and hard UTD wedge diffraction coefficients (KP 1974; Luebbers 1984), scalar form.
 
     ``D = C [D1 + D2 + R_n D3 + R_0 D4]`` with ``C = -exp(-j pi/4) / (2n sqrt(2 pi k) sin beta0)``
     and ``D1 = cot((pi + (phi - phi'))/2n) F(kL a+(phi - phi'))``,
@@ -434,6 +480,11 @@ def utd_coefficients(
     and ``+1`` (hard): KP's ``D_s,h = C [D1 + D2 -+ (D3 + D4)]``. Finite and continuous apart from
     the jumps at shadow and reflection boundaries that make the total field continuous.
 
+    This is the two-dimensional (normal incidence on the edge) form: the caller chooses the angles
+    at which ``R_0`` and ``R_n`` are taken (see :class:`WedgeGeometry` ``cos_theta_0/_n`` for the
+    labelling-independent rule). :func:`diffracted_field` uses the same terms with the faces'
+    reflection as 2 x 2 matrices (:func:`face_reflection_matrix`), exact at oblique incidence.
+
     Parameters
     ----------
     n : wedge parameter (exterior angle / pi)
@@ -442,29 +493,71 @@ def utd_coefficients(
     distance_m : metres; distance parameter ``L`` (``s s' sin^2 beta0 / (s + s')`` for a
         spherical wave)
     wavenumber : rad/m; ``k = 2 pi f / c``
-    r_0, r_n : (soft, hard) reflection coefficients of face 0 (at incidence ``phi'``) and face n
-        (at ``n pi - phi``), e.g. Fresnel ``(r_te, r_tm)`` at
-        :attr:`WedgeGeometry.cos_theta_0` / ``cos_theta_n``; None for a perfect conductor.
+    r_0, r_n : (soft, hard) reflection coefficients of face 0 and face n, e.g. Fresnel
+        ``(r_te, r_tm)`` at :attr:`WedgeGeometry.cos_theta_0` / ``cos_theta_n``; None for a
+        perfect conductor.
 
     Returns
     -------
     d_soft, d_hard : complex128 arrays (broadcast shape), sqrt(metres)
     """
-    n, phi, phi_in, sin_beta0, dist, k = np.broadcast_arrays(
-        *(np.asarray(v, dtype=float) for v in (n, phi, phi_in, sin_beta0, distance_m, wavenumber))
-    )
-    kl = k * dist
-    beta_m = phi - phi_in
-    beta_p = phi + phi_in
-    c = -np.exp(-0.25j * np.pi) / (2.0 * n * np.sqrt(_TWO_PI * k) * sin_beta0)
-    d12 = _wedge_term(beta_m, +1, n, kl) + _wedge_term(beta_m, -1, n, kl)
-    d3 = _wedge_term(beta_p, +1, n, kl)
-    d4 = _wedge_term(beta_p, -1, n, kl)
-    r0s, r0h = _reflection_pair(r_0, n.shape)
-    rns, rnh = _reflection_pair(r_n, n.shape)
-    d_soft = c * (d12 + rns * d3 + r0s * d4)
-    d_hard = c * (d12 + rnh * d3 + r0h * d4)
-    return d_soft, d_hard
+    d12, d3, d4 = _utd_terms(n, phi, phi_in, sin_beta0, distance_m, wavenumber)
+    r0s, r0h = _reflection_pair(r_0, d12.shape)
+    rns, rnh = _reflection_pair(r_n, d12.shape)
+    return d12 + rns * d3 + r0s * d4, d12 + rnh * d3 + r0h * d4
+
+
+def face_reflection_matrix(
+    r_te: np.ndarray, r_tm: np.ndarray, cos_beta: np.ndarray, psi: np.ndarray
+) -> np.ndarray:
+    """Reflection by a wedge face as a 2 x 2 matrix in ray-fixed edge components.
+
+    Frame of the face: ``e_f`` along the edge, ``t_f`` in the face pointing away from the edge,
+    ``n_f = e_f x t_f`` the outward normal (for face 0 of :func:`wedge_geometry` ``e_f = e``, for
+    face n ``e_f = -e``). A ray on Keller's cone, ``s' = c e_f - s (cos psi t_f + sin psi n_f)``
+    (``c = cos beta``, signed, ``s = sin beta``; the source seen from the edge at in-plane angle
+    ``psi`` from the face), is reflected into the specular ray. The Fresnel reflection
+    (``E_r = R_TE (E . u) u + R_TM (E . p_i) p_r`` with ``u = s' x n_f / |s' x n_f|``,
+    ``p = u x k``; P.2040 convention, as the tracer's reflections) written from the incident
+    components ``(E . beta0'_hat, E . phi'_hat)`` to the reflected ray's ``(E . beta0_hat,
+    E . phi_hat)`` (KP ray-fixed vectors) is, with ``m^2 = s^2 cos^2 psi + c^2`` (the squared
+    sine of the incidence angle on the face)::
+
+        T = 1/m^2 [[ -R_TE cos^2 psi + R_TM c^2 sin^2 psi,   -c sin psi cos psi (R_TE + R_TM) ],
+                   [  c sin psi cos psi (R_TE + R_TM),        R_TE c^2 sin^2 psi - R_TM cos^2 psi ]]
+
+    (docs/diffraction.md, (D8b)). A perfect conductor gives ``diag(1, -1)`` at any obliquity
+    (KP's ``-+`` signs); at normal incidence on the edge (``c = 0``) ``diag(-R_TE, -R_TM)``
+    (Luebbers' soft = TE, hard = TM); at oblique incidence a lossy face couples the two
+    components. Reversing ``e_f`` together with the ray-fixed vectors leaves ``T`` unchanged.
+
+    Parameters
+    ----------
+    r_te, r_tm : (P,) complex; Fresnel (or slab) coefficients at incidence cosine
+        ``sin(beta) |sin(psi)|``
+    cos_beta : (P,) float; ``s' . e_f`` (signed)
+    psi : (P,) float, rad
+
+    Returns
+    -------
+    (P, 2, 2) complex128; rows (beta0, phi) of the reflected ray, columns (beta0', phi') of the
+    incident one
+    """
+    r_te, r_tm = np.asarray(r_te, dtype=complex), np.asarray(r_tm, dtype=complex)
+    c = np.asarray(cos_beta, dtype=float)
+    cb2 = c * c
+    cp, sp = np.cos(psi), np.sin(psi)
+    m2 = (1.0 - cb2) * cp * cp + cb2
+    # normal incidence on the face (m -> 0): R_TM = -R_TE there and T -> diag(-R_TE, -R_TM)
+    tiny = m2 < 1e-24
+    inv = 1.0 / np.where(tiny, 1.0, m2)
+    cross = c * sp * cp * (r_te + r_tm) * inv
+    out = np.empty(np.broadcast(r_te, r_tm, c, psi).shape + (2, 2), dtype=complex)
+    out[..., 0, 0] = np.where(tiny, -r_te, (-r_te * cp * cp + r_tm * cb2 * sp * sp) * inv)
+    out[..., 1, 1] = np.where(tiny, -r_tm, (r_te * cb2 * sp * sp - r_tm * cp * cp) * inv)
+    out[..., 0, 1] = np.where(tiny, 0.0, -cross)
+    out[..., 1, 0] = np.where(tiny, 0.0, cross)
+    return out
 
 
 # -- 4. the diffracted field ----------------------------------------------------------------------
@@ -476,7 +569,12 @@ class DiffractedField(NamedTuple):
     field : (P, 3) complex128; field vector at ``dst`` (zero where not ``valid``)
     length_m : (P,) float, metres; unfolded path length ``s' + s``
     delay_s : (P,) float, seconds; ``(s' + s) / c``
-    d_soft, d_hard : (P,) complex128, sqrt(metres); UTD coefficients ``D_s``, ``D_h``
+    d_soft, d_hard : (P,) complex128, sqrt(metres); UTD coefficients ``D_s``, ``D_h`` (the
+        diagonal of ``d_matrix``)
+    d_matrix : (P, 2, 2) complex128, sqrt(metres); the dyadic coefficient in ray-fixed components,
+        rows (beta0, phi) of the diffracted ray, columns (beta0', phi') of the incident one:
+        ``[E_beta0, E_phi] = -d_matrix [E_beta0', E_phi'] A exp(-j k s)``; off-diagonal terms
+        only for lossy faces at oblique incidence
     spreading : (P,) float, 1/sqrt(metres); ``A = sqrt(s' / (s (s' + s)))``
     valid : (P,) bool; as :attr:`WedgeGeometry.valid`
     """
@@ -486,6 +584,7 @@ class DiffractedField(NamedTuple):
     delay_s: np.ndarray
     d_soft: np.ndarray
     d_hard: np.ndarray
+    d_matrix: np.ndarray
     spreading: np.ndarray
     valid: np.ndarray
 
@@ -510,9 +609,18 @@ def diffracted_field(
 ) -> DiffractedField:
     """Field diffracted by the edge towards the receiver (UTD, spherical incidence).
 
-    ``E_d = [-D_s beta0'_hat beta0_hat - D_h phi'_hat phi_hat] . E_i * A * exp(-j k s)`` with
-    ``A = sqrt(s' / (s (s' + s)))``, ``L = s s' sin^2(beta0) / (s + s')`` (KP 1974), i.e.
-    ``E_d = (-D_s (E_i . beta0'_hat) beta0_hat - D_h (E_i . phi'_hat) phi_hat) A exp(-j k s)``.
+    ``[E_beta0, E_phi](dst) = -D [E_i . beta0'_hat, E_i . phi'_hat] A exp(-j k s)`` with the
+    dyadic coefficient (ray-fixed components, KP 1974; Luebbers 1984 for lossy faces)
+
+        ``D = C(D1 + D2) I - C D3 T_n - C D4 T_0``
+
+    ``T_0``, ``T_n`` the faces' reflection matrices (:func:`face_reflection_matrix`, perfect
+    conductor: ``diag(1, -1)``, which is KP's ``D_s,h = C[D1 + D2 -+ (D3 + D4)]``), evaluated per
+    face at the angle ``psi_0`` / ``psi_n`` of :class:`WedgeGeometry` (lit face: the incident
+    ray; unlit face: Luebbers' reflection angle of the diffracted ray), ``A = sqrt(s' / (s (s' +
+    s)))``, ``L = s s' sin^2(beta0) / (s + s')``. Continuous with the geometrical-optics field at
+    both reflection boundaries, also at oblique incidence on lossy faces, and independent of which
+    face the caller calls face 0.
 
     Parameters
     ----------
@@ -525,10 +633,10 @@ def diffracted_field(
         isotropic source), including the phase ``exp(-j k s')`` and any reflection / penetration
         coefficients met before the edge. Its component along the incident ray is ignored.
     frequency_hz : float, Hz
-    r_0, r_n : (soft, hard) pairs of (P,) complex, optional
+    r_0, r_n : (TE, TM) pairs of (P,) complex, optional
         Reflection coefficients of face 0 and face n at ``geometry.cos_theta_0`` /
-        ``cos_theta_n``: TE (perpendicular) for soft, TM (parallel, P.2040 convention, +1 for a
-        perfect conductor) for hard. Use them for thin sheets (slab coefficients).
+        ``cos_theta_n`` (P.2040 convention, ``R_TM -> +1`` for a perfect conductor). Use them
+        for thin sheets (slab coefficients).
     eta_0, eta_n : complex or (P,) complex, optional
         Relative permittivities of the faces, used (through :func:`raytrace.materials.fresnel`,
         half-space Fresnel coefficients) where ``r_0`` / ``r_n`` are not given. Neither given:
@@ -564,32 +672,38 @@ def diffracted_field(
     sin_b = np.where(ok, g.sin_beta0, 1.0)
     length = g.s_in + g.s_out
     dist = s_in * s_out * sin_b**2 / (s_in + s_out)
-    d_soft, d_hard = utd_coefficients(
+    d12, d3, d4 = _utd_terms(
         np.where(ok, g.n, 2.0),
         np.where(ok, g.phi, 0.0),
         np.where(ok, g.phi_in, 0.0),
         sin_b,
         dist,
         k,
-        r_0=r_0,
-        r_n=r_n,
     )
+    # each face's reflection in its own frame (e_f = e for face 0, -e for face n)
+    cos_b = np.where(ok, np.einsum("ij,ij->i", g.s_hat_in, g.edge_dir), 0.0)
+    t_0 = face_reflection_matrix(*_reflection_pair(r_0, (p,)), cos_b, g.psi_0)
+    t_n = face_reflection_matrix(*_reflection_pair(r_n, (p,)), -cos_b, g.psi_n)
+    d_mat = -d3[:, None, None] * t_n - d4[:, None, None] * t_0
+    d_mat[:, 0, 0] += d12
+    d_mat[:, 1, 1] += d12
     spreading = np.sqrt(s_in / (s_out * (s_in + s_out)))
-    e_beta = np.einsum("ij,ij->i", e_in, g.beta_hat_in)
-    e_phi = np.einsum("ij,ij->i", e_in, g.phi_hat_in)
-    amp = spreading * (np.exp(-1j * k * s_out) if phase else 1.0)
-    field = (
-        -(d_soft * e_beta * amp)[:, None] * g.beta_hat_out
-        - (d_hard * e_phi * amp)[:, None] * g.phi_hat_out
+    comp_in = np.stack(
+        [np.einsum("ij,ij->i", e_in, g.beta_hat_in), np.einsum("ij,ij->i", e_in, g.phi_hat_in)],
+        axis=1,
     )
+    comp_out = -np.einsum("pij,pj->pi", d_mat, comp_in)
+    amp = spreading * (np.exp(-1j * k * s_out) if phase else 1.0)
+    field = (comp_out[:, :1] * g.beta_hat_out + comp_out[:, 1:] * g.phi_hat_out) * amp[:, None]
     field = np.where(ok[:, None], field, 0.0)
-    zero = np.zeros(p, dtype=complex)
+    d_mat = np.where(ok[:, None, None], d_mat, 0.0)
     return DiffractedField(
         field=field,
         length_m=length,
         delay_s=length / C0,
-        d_soft=np.where(ok, d_soft, zero),
-        d_hard=np.where(ok, d_hard, zero),
+        d_soft=d_mat[:, 0, 0].copy(),
+        d_hard=d_mat[:, 1, 1].copy(),
+        d_matrix=d_mat,
         spreading=np.where(ok, spreading, 0.0),
         valid=ok,
     )

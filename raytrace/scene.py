@@ -4,7 +4,8 @@ A :class:`Scene` is what the mechanisms (reflection, penetration, diffraction) w
 
 * all triangles of all objects, grouped by object, with outward normals for closed solids;
 * planar *facets* (connected coplanar triangles of one object) for the image method;
-* *wedges* (convex edges of closed solids, free edges of open sheets) for diffraction;
+* *wedges* (convex edges of closed solids, free edges of open sheets) for diffraction, without
+  the junctions where an edge lies on another object's surface (concave or flat there);
 * an Embree scene (through embreex) with one geometry per object, so that a hit names its object.
 
 Objects are either closed solids (watertight, oriented outward here whatever the file says) or
@@ -34,6 +35,8 @@ WEDGE_MIN_ANGLE_RAD = np.deg2rad(1.0)
 #: Distance (m) from an edge along its outward bisector at which a wedge is probed for being
 #: buried in another solid (then it is not a free, diffracting edge).
 BURIED_PROBE_M = 5e-3
+#: Angle (rad) by which the air around a junction edge must exceed pi to stay a (convex) wedge.
+JUNCTION_MIN_EXCESS_RAD = WEDGE_MIN_ANGLE_RAD
 #: Mesh formats read through trimesh.
 MESH_SUFFIXES = (".glb", ".gltf", ".obj", ".ply", ".stl", ".off")
 
@@ -146,6 +149,8 @@ class Scene:
     source: str = ""
     n_degenerate_dropped: int = 0
     n_buried_wedges: int = 0
+    n_junction_wedges: int = 0
+    n_composite_wedges: int = 0
     _embree: Any = field(default=None, repr=False)
 
     # -- construction -------------------------------------------------------------------------
@@ -238,6 +243,7 @@ class Scene:
         )
         scene._build_embree()
         scene._drop_buried_wedges()
+        scene._resolve_junctions()
         return scene
 
     def _drop_buried_wedges(self) -> None:
@@ -262,6 +268,136 @@ class Scene:
             keep = ~buried
             self.wedges = Wedges(**{k: v[keep] for k, v in w.__dict__.items()})
             self.n_buried_wedges = int(buried.sum())
+
+    def _resolve_junctions(self) -> None:
+        """Edges that lie on another object's surface are junctions, not free edges.
+
+        A wall sheet standing on a floor sheet, a slab whose side is flush with the wall below it,
+        a box on a floor sheet: their meshes have free-looking edges there. For every wedge, the
+        facets of other objects whose plane contains the edge (within :attr:`margin`) cover parts
+        of it (triangle by triangle); on each covered piece the cross-section around the edge is
+        rebuilt: the wedge's own air sector is cut by the covering facets' half-lines (a facet
+        passing through the edge gives two, one ending on it gives one) into sub-sectors, each
+        probed at :data:`BURIED_PROBE_M` for lying inside another solid. Then
+
+        * no air sub-sector wider than pi (+ :data:`JUNCTION_MIN_EXCESS_RAD`): the edge is concave
+          or flat on every air side (a room corner, a box on a floor) and is dropped: the UTD
+          coefficient of a right-angle concave perfectly conducting corner is exactly zero (the
+          field is the image series, which the traced reflections carry), and a flat junction has
+          no edge;
+        * an air sub-sector wider than pi but narrower than the wedge's own: a composite convex
+          edge (the outside of two sheets meeting in an L): the piece is kept with that sector's
+          faces (and the material of the wedge's own object), once per edge line;
+        * otherwise the piece is a free edge, unchanged.
+
+        Uncovered parts of a partly covered edge are kept as they are.
+        """
+        w, fc = self.wedges, self.facets
+        if len(w) == 0 or len(fc) == 0:
+            return
+        w_idx, t_lo, t_hi, cover = _junction_pieces(w, fc, self.margin)
+        if len(w_idx) == 0:
+            return
+        m = len(w_idx)
+        keep = np.ones(m, dtype=bool)
+        n0 = w.normal0[w_idx].copy()
+        n1 = w.normal1[w_idx].copy()
+        f0 = w.face0_dir[w_idx].copy()
+        n_new = w.n[w_idx].copy()
+        start = w.start[w_idx] + t_lo[:, None] * w.direction[w_idx]
+        end = w.start[w_idx] + t_hi[:, None] * w.direction[w_idx]
+        seen: set[tuple] = set()
+        n_composite = 0
+        for j in range(m):
+            if len(cover[j]) == 0:
+                continue
+            sector = self._air_sector(w_idx[j], 0.5 * (start[j] + end[j]), cover[j])
+            if sector is None:
+                keep[j] = False
+            elif sector is not True:
+                key = _line_key(start[j], end[j])
+                if key in seen:  # the same composite edge seen from the other object
+                    keep[j] = False
+                    continue
+                seen.add(key)
+                n_composite += 1
+                f0[j], n0[j], n1[j], n_new[j] = sector
+        touched = np.zeros(len(w), dtype=bool)
+        touched[w_idx] = True
+        free = np.flatnonzero(~touched)
+        k = np.flatnonzero(keep)
+        src = np.concatenate([free, w_idx[k]])
+        along = np.concatenate([np.zeros(len(free)), t_lo[k]])
+        order = np.lexsort((along, src))
+        parts = {
+            "start": np.concatenate([w.start[free], start[k]]),
+            "end": np.concatenate([w.end[free], end[k]]),
+            "direction": w.direction[src],
+            "length": np.concatenate([w.length[free], (t_hi - t_lo)[k]]),
+            "normal0": np.concatenate([w.normal0[free], n0[k]]),
+            "normal1": np.concatenate([w.normal1[free], n1[k]]),
+            "face0_dir": np.concatenate([w.face0_dir[free], f0[k]]),
+            "n": np.concatenate([w.n[free], n_new[k]]),
+            "object": w.object[src],
+            "material": w.material[src],
+        }
+        self.wedges = Wedges(**{key: v[order] for key, v in parts.items()})
+        self.n_junction_wedges = int(len(np.unique(w_idx[~keep])))
+        self.n_composite_wedges = n_composite
+
+    def _air_sector(self, i: int, mid: np.ndarray, facets: np.ndarray):
+        """Air around wedge ``i`` at point ``mid`` once the covering ``facets`` are in place.
+
+        Returns True (the wedge's own sector is untouched: a free edge), None (no air
+        sub-sector wider than pi: a junction, not a wedge) or ``(face0_dir, normal0, normal1,
+        n)`` of the one convex air sub-sector (a composite wedge).
+        """
+        from . import reflection as refl
+
+        w, fc = self.wedges, self.facets
+        t0 = w.face0_dir[i]
+        nrm0 = w.normal0[i] - (w.normal0[i] @ w.direction[i]) * w.direction[i]
+        nrm0 /= np.linalg.norm(nrm0)
+        e = np.cross(t0, nrm0)  # angles grow from t0 towards n0, right-handed about e
+        own = w.n[i] * np.pi
+        eps = JUNCTION_MIN_EXCESS_RAD
+        # half-lines of the covering facets, perpendicular to the edge
+        u = np.cross(fc.normal[facets], e)
+        u /= np.linalg.norm(u, axis=1)[:, None]
+        rays = np.concatenate([u, -u])
+        owner = np.concatenate([facets, facets])
+        probe = mid + BURIED_PROBE_M * rays
+        on_plane = (
+            probe - np.einsum("ij,ij->i", probe - mid, fc.normal[owner])[:, None] * fc.normal[owner]
+        )
+        present = refl.points_in_facets(on_plane, owner, fc)
+        ang = np.mod(np.arctan2(rays @ nrm0, rays @ t0), 2 * np.pi)
+        cuts = np.sort(ang[present & (ang > eps) & (ang < own - eps)])
+        if len(cuts) == 0:
+            # nothing crosses the air sector; it may still be filled by a solid that only
+            # touches the edge along one of the wedge's own faces (probed below)
+            cuts = np.zeros(0)
+        bounds = np.concatenate([[0.0], cuts, [own]])
+        lo, hi = bounds[:-1], bounds[1:]
+        wide = hi - lo > 1e-9
+        lo, hi = lo[wide], hi[wide]
+        mid_ang = 0.5 * (lo + hi)
+        dirs = np.cos(mid_ang)[:, None] * t0 + np.sin(mid_ang)[:, None] * nrm0
+        inside = self.inside_solid(mid + BURIED_PROBE_M * dirs)
+        air = (inside < 0) | (inside == w.object[i])
+        if len(lo) == 1 and air[0]:
+            return True
+        width = np.where(air, hi - lo, 0.0)
+        j = int(np.argmax(width))
+        if width[j] <= np.pi + eps:
+            return None
+
+        def d(a: float) -> np.ndarray:
+            return np.cos(a) * t0 + np.sin(a) * nrm0
+
+        # faces of the sub-sector [lo, hi]: outward normals point into it (wedge_geometry: the
+        # outward normal of face 0 is at +pi/2 from it, that of face n at -pi/2)
+        return d(lo[j]), d(lo[j] + 0.5 * np.pi), d(hi[j] - 0.5 * np.pi), width[j] / np.pi
 
     def __getstate__(self) -> dict[str, Any]:
         # the per-subset Embree scenes are a cache of native objects: rebuilt on demand
@@ -620,6 +756,8 @@ class Scene:
             "wedges": len(self.wedges),
             "degenerate_triangles_dropped": self.n_degenerate_dropped,
             "buried_wedges_dropped": self.n_buried_wedges,
+            "junction_wedges_dropped": self.n_junction_wedges,
+            "composite_wedges": self.n_composite_wedges,
         }
 
 
@@ -817,6 +955,91 @@ def _lex_less_equal(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     first = np.argmax(diff, axis=1)
     rows = np.arange(len(a))
     return ~diff.any(axis=1) | (a[rows, first] < b[rows, first])
+
+
+def _junction_pieces(
+    w: Wedges, fc: Facets, tol: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[np.ndarray]]:
+    """Split wedges where facets of other objects cover them.
+
+    A facet covers a part of an edge when the edge lies in the facet's plane (both end points
+    within ``tol``) and, along that part, inside one of its triangles (within ``tol``).
+
+    Returns
+    -------
+    w_idx : (M,) int; wedge of each piece (only wedges with a covered part; each such wedge is
+        cut into consecutive pieces over its whole length)
+    t_lo, t_hi : (M,) float, metres from the wedge's start
+    cover : list of M int arrays; the facets covering each piece (empty: not covered)
+    """
+    da = w.start @ fc.normal.T - fc.offset
+    db = w.end @ fc.normal.T - fc.offset
+    near = (np.abs(da) <= tol) & (np.abs(db) <= tol) & (w.object[:, None] != fc.object[None, :])
+    wi, fk = np.nonzero(near)
+    empty = (np.zeros(0, np.int64), np.zeros(0), np.zeros(0), [])
+    if len(wi) == 0:
+        return empty
+    # (pair, triangle) rows: clip the edge segment to each triangle in the facet's plane
+    cnt = fc.tri_count[fk]
+    rep = np.repeat(np.arange(len(wi)), cnt)
+    within = np.arange(len(rep)) - np.repeat(np.cumsum(cnt) - cnt, cnt)
+    tri = fc.triangles[fc.tri_start[fk][rep] + within]  # (R, 3, 3)
+    a = w.start[wi][rep]
+    d = w.direction[wi][rep]
+    length = w.length[wi][rep]
+    nrm = fc.normal[fk][rep]
+    lo = np.zeros(len(rep))
+    hi = length.copy()
+    for i in range(3):
+        v, v_next, v_other = tri[:, i], tri[:, (i + 1) % 3], tri[:, (i + 2) % 3]
+        m = np.cross(nrm, v_next - v)
+        m /= np.maximum(np.linalg.norm(m, axis=1), 1e-300)[:, None]
+        m *= np.where(np.einsum("ij,ij->i", m, v_other - v) < 0, -1.0, 1.0)[:, None]
+        # inside the triangle's side: m . (a + t d - v) >= 0, with a slack of tol across a side
+        # that runs along the edge (the edge on the facet's border) and none along the edge (a
+        # slack across a side crossed at a grazing angle would stretch along the edge)
+        c0 = np.einsum("ij,ij->i", m, a - v)
+        c1 = np.einsum("ij,ij->i", m, d)
+        along = np.abs(c1) <= 1e-6
+        with np.errstate(divide="ignore", invalid="ignore"):
+            bound = -c0 / c1
+        lo = np.where(~along & (c1 > 0), np.maximum(lo, bound), lo)
+        hi = np.where(~along & (c1 < 0), np.minimum(hi, bound), hi)
+        hi = np.where(along & (c0 < -tol), -np.inf, hi)
+    lo, hi = np.maximum(lo, 0.0), np.minimum(hi, length)
+    ok = hi - lo > 2 * tol
+    if not ok.any():
+        return empty
+    r_w, r_f, r_lo, r_hi = wi[rep[ok]], fk[rep[ok]], lo[ok], hi[ok]
+    out_w, out_lo, out_hi, out_cover = [], [], [], []
+    for i in np.unique(r_w):  # a short loop over the covered wedges, at load time
+        sel = r_w == i
+        cuts = np.unique(np.concatenate([[0.0, w.length[i]], r_lo[sel], r_hi[sel]]))
+        cuts = cuts[(cuts >= 0) & (cuts <= w.length[i])]
+        pieces: list[list] = []  # [lo, hi, key], consecutive, same keys merged
+        for p_lo, p_hi in zip(cuts[:-1], cuts[1:]):
+            t_mid = 0.5 * (p_lo + p_hi)
+            inside = sel & (r_lo <= t_mid) & (r_hi >= t_mid)
+            key = tuple(np.unique(r_f[inside]).tolist())
+            if pieces and (p_hi - p_lo <= 2 * tol or key == pieces[-1][2]):
+                pieces[-1][1] = p_hi  # a sliver between two cuts joins its neighbour
+            else:
+                pieces.append([p_lo, p_hi, key])
+        if len(pieces) > 1 and pieces[0][1] - pieces[0][0] <= 2 * tol:
+            pieces[1][0] = pieces[0][0]
+            pieces.pop(0)
+        for p_lo, p_hi, key in pieces:
+            out_w.append(i)
+            out_lo.append(p_lo)
+            out_hi.append(p_hi)
+            out_cover.append(np.array(key, dtype=np.int64))
+    return np.array(out_w, dtype=np.int64), np.array(out_lo), np.array(out_hi), out_cover
+
+
+def _line_key(a: np.ndarray, b: np.ndarray) -> tuple:
+    """Orientation-free key of a segment, to micrometres."""
+    pa, pb = (tuple(np.round(x * 1e6).astype(np.int64).tolist()) for x in (a, b))
+    return (pa, pb) if pa <= pb else (pb, pa)
 
 
 def _rays(

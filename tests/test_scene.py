@@ -210,7 +210,9 @@ def test_bad_inputs(tmp_path):
 def test_summary_counts(shoebox):
     s = shoebox.summary()
     assert s["objects"] == 6 and s["open_sheets"] == 6 and s["triangles"] == 12
-    assert s["facets"] == 6 and s["wedges"] == 24
+    # the 12 room edges: the inside is a concave corner (dropped); the outside of each L of two
+    # sheets is a convex 270-degree corner, kept once
+    assert s["facets"] == 6 and s["wedges"] == 12 and s["composite_wedges"] == 12
     assert s["size_m"] == [10.0, 8.0, 3.0]
 
 
@@ -260,10 +262,12 @@ def test_inside_solid_exact_for_convex_solids_sharing_faces():
         ("one_wall", 6, 12, {1.5}),
         ("one_sheet", 1, 4, {2.0}),
         ("floor", 1, 4, {2.0}),
-        ("shoebox", 6, 24, {2.0}),
-        # a sheet is not a solid, so the box's bottom edges on the floor sheet are not buried:
-        # the box's 12 edges and the sheet's 4 free edges
-        ("box_on_floor", 7, 16, {1.5, 2.0}),
+        # six sheets meeting at the 12 room edges: only the outer 270-degree corners of the
+        # L-shaped sheet pairs remain
+        ("shoebox", 6, 12, {1.5}),
+        # the box's bottom edges lie on the floor sheet (concave junctions, dropped): the box's
+        # 8 other edges and the sheet's 4 free edges
+        ("box_on_floor", 7, 12, {1.5, 2.0}),
         ("half_plane", 1, 4, {2.0}),
         ("two_boxes", 12, 24, {1.5}),
     ],
@@ -331,3 +335,80 @@ def test_floor_outline_inside_the_walls():
 def test_floor_outline_of_the_bundled_hall():
     ring = load_scene("hall").floor_outline()
     np.testing.assert_allclose(ring, [[0, 0], [42, 0], [42, 46], [0, 46]], atol=1e-5)
+
+
+# -- junctions: edges lying on another object's surface --------------------------------------
+def _wedge_set(sc):
+    """Set of (object name, rounded end points, rounded n) of the scene's wedges."""
+    out = set()
+    for i in range(len(sc.wedges)):
+        a, b = (tuple(np.round(x, 6)) for x in (sc.wedges.start[i], sc.wedges.end[i]))
+        out.add(
+            (sc.objects[sc.wedges.object[i]].name, min(a, b), max(a, b), round(sc.wedges.n[i], 6))
+        )
+    return out
+
+
+def test_box_on_floor_sheet_bottom_edges_are_not_wedges():
+    floor = quad((-5, -5, 0), (10, 0, 0), (0, 10, 0))
+    sc = make_scene([("floor", floor, "concrete"), ("crate", box((0, 0, 0), (1, 1, 1)), "wood")])
+    crate = sc.wedges.object == 1
+    assert crate.sum() == 8 and (sc.wedges.start[crate, 2] + sc.wedges.end[crate, 2] > 0).all()
+    assert (sc.wedges.object == 0).sum() == 4  # the floor's own free edges stay
+    assert sc.n_junction_wedges == 4 and sc.n_composite_wedges == 0
+    # either winding of the floor sheet, the same wedges
+    flipped = quad((-5, -5, 0), (0, 10, 0), (10, 0, 0))
+    sc2 = make_scene([("floor", flipped, "concrete"), ("crate", box((0, 0, 0), (1, 1, 1)), "wood")])
+    assert _wedge_set(sc2) == _wedge_set(sc)
+
+
+def test_slab_flush_with_the_wall_below_has_no_edge_there():
+    """A ceiling slab whose side is flush with the wall's outer face: the ceiling's lower outer
+    edge lies on the wall's face (flat, 180 degrees of air): not a wedge. Its upper outer edge and
+    the wall's outer bottom edge are free convex edges."""
+    wall = box((-0.3, 0, 0), (0, 5, 3))
+    ceiling = box((-0.3, 0, 3), (5, 5, 3.3))
+    sc = make_scene([("wall", wall, "concrete"), ("ceiling", ceiling, "concrete")])
+    ws = _wedge_set(sc)
+    lower_outer = ("ceiling", (-0.3, 0.0, 3.0), (-0.3, 5.0, 3.0), 1.5)
+    upper_outer = ("ceiling", (-0.3, 0.0, 3.3), (-0.3, 5.0, 3.3), 1.5)
+    assert lower_outer not in ws and upper_outer in ws
+    # the wall's top edges lie on the ceiling's bottom face: buried / concave, gone
+    assert not any(w[0] == "wall" and w[1][2] == 3.0 and w[2][2] == 3.0 for w in ws)
+    assert sc.n_junction_wedges >= 1
+
+
+def test_partly_covered_edge_is_cut_where_the_other_object_touches_it():
+    """A shelf board flush with a rack frame's face covers a piece of the frame's vertical edge:
+    that piece is a flat junction; the edge stays a wedge above and below the board."""
+    frame = box((0, 0, 0), (0.1, 1, 2))
+    shelf = box((0.1, 0, 0.9), (3, 1, 0.95))
+    sc = make_scene([("frame", frame, "metal"), ("shelf", shelf, "metal")])
+    w = sc.wedges
+    edge = (w.object == 0) & np.all(np.isclose(w.start[:, :2], [0.1, 0.0]), axis=1)
+    edge &= np.all(np.isclose(w.end[:, :2], [0.1, 0.0]), axis=1)
+    z = np.sort(np.stack([w.start[edge, 2], w.end[edge, 2]], axis=1), axis=1)
+    z = z[np.argsort(z[:, 0])]
+    np.testing.assert_allclose(z, [[0.0, 0.9], [0.95, 2.0]], atol=1e-6)
+
+
+def test_sheets_meeting_in_an_l_keep_one_outer_corner():
+    """Two sheets meeting along a common border (a fence corner, a room corner): the inside is a
+    concave right angle (no wedge), the outside a convex 270-degree corner, kept once."""
+    a = quad((0, 0, 0), (4, 0, 0), (0, 0, 2))  # plane y = 0, x in [0, 4]
+    b = quad((0, 0, 0), (0, 3, 0), (0, 0, 2))  # plane x = 0, y in [0, 3]
+    sc = make_scene([("a", a, "metal"), ("b", b, "metal")])
+    w = sc.wedges
+    corner = np.isclose(w.start[:, 0], 0) & np.isclose(w.start[:, 1], 0)
+    corner &= np.isclose(w.end[:, 0], 0) & np.isclose(w.end[:, 1], 0)
+    assert corner.sum() == 1 and np.isclose(w.n[corner][0], 1.5)
+    assert sc.n_composite_wedges == 1
+    # its exterior is the outside of the L: the quadrant x > 0, y > 0 is inside the wedge
+    from raytrace.diffraction import wedge_geometry
+
+    i = np.flatnonzero(corner)[0]
+    args = (w.direction[i], w.normal0[i], w.normal1[i], w.face0_dir[i])
+    pts = np.array([[2.0, 1.5, 1.0], [-2.0, -1.0, 1.0], [-2.0, 1.0, 1.0], [2.0, -1.0, 1.0]])
+    q = np.array([0.0, 0.0, 1.0])
+    valid = [bool(wedge_geometry(p, p, q, *args).valid[0]) for p in pts]
+    assert valid == [False, True, True, True]
