@@ -105,6 +105,11 @@ def trace_scene_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--extrapolate", action="store_true", help="use materials outside their valid range"
     )
+    p.add_argument(
+        "--no-slab-delay",
+        action="store_true",
+        help="free-space delays for penetrating paths (default: plus each slab's group delay)",
+    )
     p.add_argument("-o", "--output", help="write the paths (.npz, .json or .csv)")
     p.add_argument(
         "--export-glb", metavar="FILE", help="write the scene with the paths of --link links"
@@ -179,6 +184,7 @@ def _trace_scene(args: argparse.Namespace) -> int:
         args.max_diffractions,
         max_interactions=args.max_interactions,
         extrapolate=args.extrapolate,
+        slab_delay=not args.no_slab_delay,
         progress=not args.quiet and not args.json and sys.stderr.isatty(),
     )
     elapsed = time.perf_counter() - t0

@@ -406,8 +406,14 @@ class _Group:
     fixed: list[_Fixed]
     times_s: np.ndarray
     tracer: SnapshotTracer
+    #: index of each dataset's carrier in the tracer's frequencies (receivers share a trace)
+    freq_index: list[int] = field(default_factory=list)
     #: static scene: each dataset's receiver work on its paths, done once
     prepared: list[PreparedLinks] | None = None
+
+    def paths_of(self, paths: Sequence[Paths], k: int) -> Paths:
+        """The paths of dataset ``k`` among the tracer's per-frequency ``paths``."""
+        return paths[self.freq_index[k] if self.freq_index else k]
 
 
 def _group_state(g: _Group) -> dict[str, Any]:
@@ -424,6 +430,7 @@ def _group_state(g: _Group) -> dict[str, Any]:
         "settings": tr.settings,
         "clearance_m": tr.fleet.clearance_m,
         "static_paths": tr.static_paths,
+        "freq_index": g.freq_index,
     }
 
 
@@ -441,7 +448,9 @@ def _init_worker(state: dict[str, Any]) -> None:
         static_paths=state["static_paths"],
         threads=1,
     )
-    _WORKER["group"] = _Group(state["scenario"], state["fixed"], state["times_s"], tracer)
+    _WORKER["group"] = _Group(
+        state["scenario"], state["fixed"], state["times_s"], tracer, state["freq_index"]
+    )
 
 
 def _run_epochs(g: _Group, epochs: Sequence[int]) -> tuple[list[list[str]], np.ndarray, dict]:
@@ -459,13 +468,16 @@ def _run_epochs(g: _Group, epochs: Sequence[int]) -> tuple[list[list[str]], np.n
     counts = np.zeros((len(g.fixed), 4), dtype=np.int64)
     static = g.scenario != "semi-dynamic"
     if static and g.prepared is None:
-        g.prepared = [prepare_links(p, fx.receiver()) for p, fx in zip(tr.static_paths, g.fixed)]
+        g.prepared = [
+            prepare_links(g.paths_of(tr.static_paths, k), fx.receiver())
+            for k, fx in enumerate(g.fixed)
+        ]
     for e in epochs:
         t = float(g.times_s[e])
         paths = tr.static_paths if static else tr.paths_at(t)
         for k, fx in enumerate(g.fixed):
             prep = g.prepared[k] if static and g.prepared is not None else None
-            rows, c = _epoch_rows(fx, int(e), t, paths[k], prep)
+            rows, c = _epoch_rows(fx, int(e), t, g.paths_of(paths, k), prep)
             text[k].append(rows)
             counts[k] += c
     return text, counts, dict(tr.stats)
@@ -684,7 +696,7 @@ def make_datasets(
     duration_s: float = 60.0,
     rate_hz: float = 10.0,
     seed: int = 1,
-    toa_method: str = DEFAULT_TOA_METHOD,
+    toa_method: str | Sequence[str] = DEFAULT_TOA_METHOD,
     noise: bool = True,
     workers: int = 1,
     force: bool = False,
@@ -706,7 +718,10 @@ def make_datasets(
     datasets : (scenario, band) pairs
     scene : scene file, bundled name or Scene; must carry base stations and points (and routes
         for semi-dynamic) in its ``metadata["hallray"]``
-    duration_s, rate_hz, seed, toa_method, noise : see :class:`DatasetConfig`
+    duration_s, rate_hz, seed, noise : see :class:`DatasetConfig`
+    toa_method : str or sequence of str, the receiver (:class:`DatasetConfig`); with several, each
+        (scenario, band) is written for each receiver from the same traces, the first receiver's
+        in ``<scenario>-<band>``, the others' in ``<scenario>-<band>-<receiver>``
     workers : int, processes for the snapshots (the files do not depend on it)
     force : bool, replace a non-empty ``out_dir``
     progress : bool, tqdm progress bars on stderr
@@ -720,10 +735,13 @@ def make_datasets(
     -------
     list of dict, one summary per dataset (directory, rows, fractions, timings)
     """
-    pairs = list(dict.fromkeys((str(s), str(b)) for s, b in datasets))
-    if not pairs:
+    methods = [toa_method] if isinstance(toa_method, str) else list(dict.fromkeys(toa_method))
+    if not methods:
+        raise HallrayError("no ToA receiver requested")
+    triples = list(dict.fromkeys((str(s), str(b), m) for s, b in datasets for m in methods))
+    if not triples:
         raise HallrayError("no dataset requested")
-    if not subdirectories and len(pairs) != 1:
+    if not subdirectories and len(triples) != 1:
         raise HallrayError("several datasets need subdirectories")
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise HallrayError(f"workers must be an integer >= 1, got {workers!r}")
@@ -737,13 +755,13 @@ def make_datasets(
             duration_s,
             rate_hz,
             seed,
-            toa_method,
+            m,
             noise,
             budget=budget,
             first_lobe=lobe,
             trace=settings,
-        )  # fmt: skip
-        for s, b in pairs
+        )
+        for s, b, m in triples
     ]
     bands = [c.validate() for c in configs]
     t_start = time.perf_counter()
@@ -780,7 +798,8 @@ def make_datasets(
                 for i in idx
             ]
             routes = inputs.routes if scenario == "semi-dynamic" else []
-            freqs = [bands[i].center_frequency_hz for i in idx]
+            carriers = [bands[i].center_frequency_hz for i in idx]
+            freqs = list(dict.fromkeys(carriers))
             known = [static_cache.get(f) for f in freqs]
             tracer = SnapshotTracer(
                 sc,
@@ -794,12 +813,12 @@ def make_datasets(
             static_cache.update(zip(freqs, tracer.static_paths))
             tracer.check_clear(times, inputs.bs_names, inputs.point_names)
             t_static = time.perf_counter() - t0
-            group = _Group(scenario, fixed, times, tracer)
+            group = _Group(scenario, fixed, times, tracer, [freqs.index(f) for f in carriers])
             bar = None
             if progress:
                 from tqdm import tqdm
 
-                names = ", ".join(b.name for b in (bands[i] for i in idx))
+                names = ", ".join(dict.fromkeys(bands[i].name for i in idx))
                 bar = tqdm(
                     total=len(times), desc=f"{scenario} ({names})", unit="epoch", file=sys.stderr
                 )
@@ -812,7 +831,10 @@ def make_datasets(
                     bar.close()
             for k, i in enumerate(idx):
                 cfg = configs[i]
-                d = tmp / f"{cfg.scenario}-{bands[i].name}" if subdirectories else tmp
+                name = f"{cfg.scenario}-{bands[i].name}"
+                if cfg.toa_method != methods[0]:
+                    name += f"-{cfg.toa_method}"
+                d = tmp / name if subdirectories else tmp
                 d.mkdir(exist_ok=True)
                 header = ",".join(COLUMNS) + "\n"
                 (d / "toa.csv").write_text(header + bodies[k], encoding="utf-8")
@@ -827,6 +849,7 @@ def make_datasets(
                         "directory": str(out / d.relative_to(tmp)),
                         "scenario": cfg.scenario,
                         "band": bands[i].name,
+                        "toa_method": cfg.toa_method,
                         "epochs": len(times),
                         **meta["summary"],
                         "static_trace_s": t_static,

@@ -69,7 +69,12 @@ def make_dataset_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--workers", type=int, default=1, help="processes for the snapshots (default 1)")
     p.add_argument(
-        "--no-noise", action="store_true", help="exact first detectable delays (no eq. 3 noise)"
+        "--no-noise", action="store_true", help="no estimation noise (first-path: exact delays)"
+    )
+    p.add_argument(
+        "--no-slab-delay",
+        action="store_true",
+        help="free-space delays for penetrating paths (default: plus each slab's group delay)",
     )
     p.add_argument("--force", action="store_true", help="replace a non-empty output directory")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bars or summary")
@@ -92,6 +97,7 @@ def _cells(text: str) -> int | None:
 def make_dataset_main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``make-dataset``; returns the exit status."""
     from .dataset import ALL_DATASETS, make_datasets
+    from .dynamics import TraceSettings
 
     try:
         args = make_dataset_parser().parse_args(argv)
@@ -119,6 +125,7 @@ def make_dataset_main(argv: Sequence[str] | None = None) -> int:
                 seed=args.seed,
                 toa_method=args.toa_method,
                 first_lobe=first_lobe,
+                trace_settings=TraceSettings(slab_delay=not args.no_slab_delay),
                 noise=not args.no_noise,
                 workers=args.workers,
                 force=args.force,
