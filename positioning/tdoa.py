@@ -41,7 +41,7 @@ import numpy as np
 
 from .errors import PositioningError
 
-#: Speed of light in vacuum, m/s (exact, SI 2019). Same value as ``raytrace.constants.C0``;
+#: Speed of light in vacuum, m/s (exact, SI 2019). Same value as ``raytrace.core.constants.C0``;
 #: repeated because ``positioning`` never imports ``raytrace``.
 C0 = 299_792_458.0
 

@@ -11,10 +11,10 @@ from __future__ import annotations
 
 from importlib.metadata import PackageNotFoundError, version
 
-from .errors import HallrayError, MaterialError, SceneError, TraceInputError
-from .paths import Paths
-from .scene import Scene, load_scene
-from .tracer import TraceConfig, trace
+from .core.errors import HallrayError, MaterialError, SceneError, TraceInputError
+from .solver.paths import Paths
+from .scene.model import Scene, load_scene
+from .solver.tracer import TraceConfig, trace
 
 try:
     __version__ = version("hallray")

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from raytrace.materials import MaterialLibrary
-from raytrace.scene import Scene
+from raytrace.physics.materials import MaterialLibrary
+from raytrace.scene.model import Scene
 
 
 def quad(p0, u, v) -> trimesh.Trimesh:
@@ -50,7 +50,7 @@ def shoebox() -> Scene:
 
 def admit_every_beam(monkeypatch) -> None:
     """Switch the beam (cone) pruning of the tracer off: every target is reachable."""
-    import raytrace.reflection as refl
+    import raytrace.solver.reflection as refl
 
     def everything(b, target_centre, target_radius):
         shape = np.broadcast(b.apex[..., 0], np.asarray(target_centre)[..., 0], target_radius)

@@ -10,9 +10,9 @@ import pytest
 from scipy.integrate import quad
 from scipy.optimize import brentq
 
-from raytrace import channel
-from raytrace.bands import get_band
-from raytrace.channel import (
+from raytrace.emulation import channel
+from raytrace.emulation.bands import get_band
+from raytrace.emulation.channel import (
     LinkBudget,
     PulseShape,
     band_limited_response,
@@ -24,9 +24,9 @@ from raytrace.channel import (
     thermal_noise_power_w,
     toa_std_eq3_s,
 )
-from raytrace.constants import C0
-from raytrace.errors import HallrayError
-from raytrace.receivers import TOA_METHODS, estimate_toa
+from raytrace.core.constants import C0
+from raytrace.core.errors import HallrayError
+from raytrace.emulation.receivers import TOA_METHODS, estimate_toa
 
 #: dB agreement of link-budget arithmetic with hand values (hand values quoted to 0.01 dB).
 HAND_DB_TOL = 0.005

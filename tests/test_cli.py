@@ -9,8 +9,8 @@ import pytest
 import trimesh
 from conftest import box, quad
 
-from raytrace.cli import trace_scene_main
-from raytrace.paths import Paths
+from raytrace.cli.trace_scene import trace_scene_main
+from raytrace.solver.paths import Paths
 
 
 @pytest.fixture

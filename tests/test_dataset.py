@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 from conftest import box, make_scene, quad
 
-from raytrace.bands import get_band
-from raytrace.channel import LinkBudget, detection_snr_db
-from raytrace.constants import K_BOLTZMANN
-from raytrace.dataset import (
+from raytrace.emulation.bands import get_band
+from raytrace.emulation.channel import LinkBudget, detection_snr_db
+from raytrace.core.constants import K_BOLTZMANN
+from raytrace.emulation.dataset import (
     CLOCK_OFFSET_MAX_S,
     COLUMNS,
     DELTA_S,
@@ -22,9 +22,9 @@ from raytrace.dataset import (
     make_dataset,
     make_datasets,
 )
-from raytrace.dataset_cli import make_dataset_main
-from raytrace.errors import HallrayError, SceneError
-from raytrace.tracer import trace
+from raytrace.cli.make_dataset import make_dataset_main
+from raytrace.core.errors import HallrayError, SceneError
+from raytrace.solver.tracer import trace
 
 #: ToAs are sums of a schedule (<= 0.03 s), a clock offset (< 1 ms) and a delay: float64 keeps
 #: them to ~1e-17 s; the CSV stores repr() (round trip).
@@ -327,7 +327,7 @@ def test_scene_without_positions_or_routes(tmp_path, kw, message):
 @pytest.fixture(scope="module")
 def tiny_glb(tmp_path_factory) -> Path:
     """A small hall with base stations, points and a route, built like the reference hall."""
-    from raytrace import hallspec
+    from raytrace.halls import spec as hallspec
 
     spec = hallspec.load_hall_spec(
         {
@@ -434,7 +434,7 @@ def test_cli_refuses_a_non_empty_directory_unless_forced(tmp_path, tiny_glb, cap
 
 
 def test_failure_midway_leaves_no_output(tmp_path, monkeypatch):
-    import raytrace.dataset as dataset
+    import raytrace.emulation.dataset as dataset
 
     real = dataset._epoch_rows
 

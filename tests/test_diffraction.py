@@ -1,4 +1,4 @@
-"""Tests of raytrace.diffraction against closed forms and independent computations.
+"""Tests of raytrace.physics.utd against closed forms and independent computations.
 
 Independent references used here: a hand-derived Keller point; scipy.optimize.minimize_scalar
 (shortest path over the edge line); the transition function from scipy.special.fresnel and its
@@ -14,9 +14,9 @@ import pytest
 from scipy.optimize import minimize_scalar
 from scipy.special import fresnel as fresnel_sc
 
-from raytrace import diffraction as dif
-from raytrace.constants import C0
-from raytrace.errors import TraceInputError
+from raytrace.physics import utd as dif
+from raytrace.core.constants import C0
+from raytrace.core.errors import TraceInputError
 
 # -- tolerances (named; the reason is in the comment) ---------------------------------------------
 POINT_TOL_M = 1e-12  # closed-form point, float64 rounding on ~10 m coordinates
@@ -350,7 +350,7 @@ def test_coefficients_vs_textbook_kp() -> None:
 
 def test_boundary_limit_value_and_jump() -> None:
     # KP: cot(eps/2n) F(kL 2 sin^2(eps/2)) -> n [sqrt(2 pi kL) sgn(eps) - 2 kL eps e^{j pi/4}] e^{j pi/4}
-    from raytrace.diffraction import _wedge_term
+    from raytrace.physics.utd import _wedge_term
 
     n, kl = np.array([1.5, 2.0]), np.array([30.0, 300.0])
     for eps in (1e-3, -1e-3, 1e-6, -1e-6):
@@ -704,7 +704,7 @@ def test_continuity_right_angle_wedge(pol: str, eta: complex | None, boundary: s
 # materials route and API behaviour
 # =================================================================================================
 def test_eta_route_matches_explicit_coefficients() -> None:
-    materials = pytest.importorskip("raytrace.materials")
+    materials = pytest.importorskip("raytrace.physics.materials")
     src, dst, q, e, n0, nn = _box_corner_case(0.6, np.array([0.3, 1.9, 3.5]))
     q = dif.keller_points(src, dst, q - 5 * Z, q + 5 * Z).point
     g = dif.wedge_geometry(src, dst, q, e, n0, nn)

@@ -7,10 +7,10 @@ import pytest
 from conftest import admit_every_beam, box, make_scene, quad
 from scipy.optimize import minimize_scalar
 
-from raytrace.constants import C0
-from raytrace.diffraction import fresnel_kirchhoff_v, knife_edge_loss_db
-from raytrace.paths import DIFFRACTION
-from raytrace.tracer import trace
+from raytrace.core.constants import C0
+from raytrace.physics.utd import fresnel_kirchhoff_v, knife_edge_loss_db
+from raytrace.solver.paths import DIFFRACTION
+from raytrace.solver.tracer import trace
 
 F_C = 3.775e9
 DELAY_TOL_S = 1e-12
@@ -156,7 +156,7 @@ def _same_paths(a, b):
 def test_mixed_path_pruning_loses_no_path(monkeypatch, seed):
     """The candidate pruning of RD, DR and RDR paths (object and edge beams, the visible part of
     each edge) only drops candidates that fail later anyway: switching it off changes nothing."""
-    import raytrace.diffraction_paths as dp
+    import raytrace.solver.diffraction as dp
 
     sc, tx, rx = _cluttered_scene(seed)
     kw = dict(max_reflections=2, max_penetrations=2, max_diffractions=1, max_interactions=3)
@@ -180,7 +180,7 @@ def test_segment_box_span_against_sampling():
     b[:40, 1] = a[:40, 1]  # segments parallel to a slab
     lo = rng.uniform(-1.5, 0.0, (n, 3))
     hi = lo + rng.uniform(0.2, 1.5, (n, 3))
-    from raytrace.diffraction_paths import _segment_box_span
+    from raytrace.solver.diffraction import _segment_box_span
 
     s_in, s_out = _segment_box_span(a, b, lo, hi)
     s = np.linspace(0, 1, 4001)
@@ -283,7 +283,7 @@ def test_mirrored_links_about_a_concrete_pillar_edge_have_the_same_diffracted_ga
 
 @pytest.mark.parametrize("name", ["canonical/shoebox", "canonical/box_on_floor_concrete"])
 def test_no_diffraction_at_room_corners_or_where_a_box_stands(name):
-    from raytrace.scene import load_scene
+    from raytrace.scene.model import load_scene
 
     sc = load_scene(name)
     if name.endswith("shoebox"):

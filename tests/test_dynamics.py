@@ -7,7 +7,7 @@ import pytest
 import trimesh
 from conftest import box, make_scene, quad, shoebox_sheets
 
-from raytrace.dynamics import (
+from raytrace.solver.incremental import (
     FORKLIFT_CLEARANCE_M,
     Boxes,
     Route,
@@ -18,12 +18,12 @@ from raytrace.dynamics import (
     segments_meet_boxes,
     snapshot_times,
 )
-from raytrace.errors import SceneError
-from raytrace.materials import MaterialLibrary
-from raytrace.paths import Paths
-from raytrace.scene import Scene
-from raytrace.scene_dynamic import extend_scene, posed, yaw_rotations
-from raytrace.tracer import reevaluate, trace
+from raytrace.core.errors import SceneError
+from raytrace.physics.materials import MaterialLibrary
+from raytrace.solver.paths import Paths
+from raytrace.scene.model import Scene
+from raytrace.scene.dynamic import extend_scene, posed, yaw_rotations
+from raytrace.solver.tracer import reevaluate, trace
 
 F_C = 3.775e9
 F_MM = 26.85e9
@@ -77,9 +77,9 @@ def test_back_and_forth_pose_closed_form():
 
 def test_hall_routes_agree_with_hallspec_kinematics():
     """Our kinematics against the hall builder's independent Route.pose."""
-    hallspec = pytest.importorskip("raytrace.hallspec")
+    hallspec = pytest.importorskip("raytrace.halls.spec")
     spec = hallspec.load_hall_spec(
-        __import__("raytrace.bundled", fromlist=["x"]).scenes_dir() / "hall.yaml"
+        __import__("raytrace.scene.bundled", fromlist=["x"]).scenes_dir() / "hall.yaml"
     )
     meta = {"hallray": hallspec.hall_metadata(spec)}
     ours = {r.name: r for r in routes_from_metadata(meta)}
@@ -373,8 +373,8 @@ def test_incremental_equals_full_retrace_small_scene(t):
 def test_incremental_equals_full_retrace_when_bands_block_differently(monkeypatch):
     """Objects opaque in one band only (a material that blocks at mmWave but not at C-band) do
     not block the shared geometric trace; each band still equals its full retrace."""
-    import raytrace.dynamics as dyn
-    import raytrace.tracer as tracer_mod
+    import raytrace.solver.incremental as dyn
+    import raytrace.solver.tracer as tracer_mod
 
     real = tracer_mod.opaque_objects
 

@@ -13,8 +13,8 @@ import pytest
 import trimesh
 import yaml
 
-from raytrace.errors import HallrayError, MaterialError
-from raytrace.hallspec import (
+from raytrace.core.errors import HallrayError, MaterialError
+from raytrace.halls.spec import (
     ITU_MATERIALS,
     SCHEMA_VERSION,
     Box,
@@ -35,7 +35,7 @@ from raytrace.hallspec import (
     write_bytes_atomic,
     write_glb,
 )
-from raytrace.materials import MaterialLibrary
+from raytrace.physics.materials import MaterialLibrary
 
 ROOT = Path(__file__).resolve().parent.parent
 HALL_YAML = ROOT / "scenes" / "hall.yaml"

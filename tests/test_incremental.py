@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from conftest import box, make_scene, quad, shoebox_sheets
 
-from raytrace.paths import Paths
-from raytrace.tracer import reevaluate, trace
+from raytrace.solver.paths import Paths
+from raytrace.solver.tracer import reevaluate, trace
 
 F_C = 3.775e9
 

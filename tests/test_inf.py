@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 import yaml
 
-from raytrace.errors import HallrayError
-from raytrace.hallspec import build_hall_cli, load_hall_spec, parse_hall_spec, parse_los_note
-from raytrace.inf import (
+from raytrace.core.errors import HallrayError
+from raytrace.halls.spec import build_hall_cli, load_hall_spec, parse_hall_spec, parse_los_note
+from raytrace.halls.inf import (
     BS_CLEARANCE_M,
     DEFAULT_MATERIALS,
     DENSITY_TOL,
@@ -34,8 +34,8 @@ from raytrace.inf import (
     split_spec,
     wilson_interval,
 )
-from raytrace.inf_cli import hall_los_check_main, make_hall_main
-from raytrace.scene import load_scene
+from raytrace.cli.make_hall import hall_los_check_main, make_hall_main
+from raytrace.scene.model import load_scene
 
 SMALL = "30x24x8"
 #: closed-form 3GPP decay distances are computed to this relative precision

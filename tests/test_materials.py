@@ -1,4 +1,4 @@
-"""Tests of raytrace.materials against closed forms and independent computations.
+"""Tests of raytrace.physics.materials against closed forms and independent computations.
 
 Independent references used here:
 * the P.2040-3 Table 3 power laws evaluated by hand;
@@ -18,9 +18,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from raytrace.constants import C0, EPS0
-from raytrace.errors import HallrayError, MaterialError
-from raytrace.materials import (
+from raytrace.core.constants import C0, EPS0
+from raytrace.core.errors import HallrayError, MaterialError
+from raytrace.physics.materials import (
     DEFAULT_USER_THICKNESS_M,
     ExtrapolationWarning,
     Material,

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from conftest import box, make_scene, quad
 
-from raytrace.materials import MaterialLibrary
-from raytrace.penetration import segment_crossings
+from raytrace.physics.materials import MaterialLibrary
+from raytrace.solver.penetration import segment_crossings
 
 #: Embree hits are float32 (about 1e-7 relative at a few metres); chords are differences of two.
 CHORD_TOL_M = 2e-6

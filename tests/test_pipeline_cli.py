@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from raytrace.pipeline_cli import reproduce_paper_main
+from raytrace.cli.reproduce_paper import reproduce_paper_main
 
 
 @pytest.mark.parametrize(

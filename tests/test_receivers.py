@@ -9,12 +9,12 @@ import pytest
 from scipy.integrate import quad
 from scipy.optimize import brentq, minimize_scalar
 
-from raytrace import receivers
-from raytrace.bands import get_band
-from raytrace.channel import LinkBudget, PulseShape, discrete_cir
-from raytrace.constants import C0
-from raytrace.errors import HallrayError
-from raytrace.receivers import (
+from raytrace.emulation import receivers
+from raytrace.emulation.bands import get_band
+from raytrace.emulation.channel import LinkBudget, PulseShape, discrete_cir
+from raytrace.core.constants import C0
+from raytrace.core.errors import HallrayError
+from raytrace.emulation.receivers import (
     FirstLobeSettings,
     Receiver,
     cfar_factor,

@@ -1,13 +1,13 @@
-"""Image-method geometry of raytrace.reflection against closed forms and brute force."""
+"""Image-method geometry of raytrace.solver.reflection against closed forms and brute force."""
 
 from __future__ import annotations
 
 import numpy as np
 from conftest import box, make_scene, quad
 
-from raytrace import reflection as refl
-from raytrace.scene import Facets
-from raytrace.scene_dynamic import extend_scene
+from raytrace.solver import reflection as refl
+from raytrace.scene.model import Facets
+from raytrace.scene.dynamic import extend_scene
 
 GEOM_TOL_M = 1e-12
 

@@ -8,11 +8,11 @@ import pytest
 import trimesh
 from conftest import box, make_scene, quad
 
-from raytrace.export import KIND_COLOURS
-from raytrace.render import _camera_cut, _object_arrays, link_paths, render_scene
-from raytrace.render_cli import render_scene_main
-from raytrace.scene import load_scene
-from raytrace.tracer import trace
+from raytrace.viz.export import KIND_COLOURS
+from raytrace.viz.render import _camera_cut, _object_arrays, link_paths, render_scene
+from raytrace.cli.render_scene import render_scene_main
+from raytrace.scene.model import load_scene
+from raytrace.solver.tracer import trace
 
 #: A pixel within this (0..255 per channel) of a path colour counts as that colour.
 COLOUR_TOL = 12
@@ -86,7 +86,7 @@ def test_picture_has_the_requested_size_and_the_los_path(room_file, tmp_path, ca
 
 
 def test_paths_file_and_link_names(room_file, tmp_path, capsys):
-    from raytrace.cli import trace_scene_main
+    from raytrace.cli.trace_scene import trace_scene_main
 
     npz = tmp_path / "paths.npz"
     assert trace_scene_main([str(room_file), "-q", "-o", str(npz)]) == 0

@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 import trimesh
 
-from raytrace.constants import C0
-from raytrace.errors import HallrayError, MaterialError
-from raytrace.scan import (
+from raytrace.core.constants import C0
+from raytrace.core.errors import HallrayError, MaterialError
+from raytrace.halls.scan import (
     MaterialRules,
     ScanOptions,
     read_cloud,
@@ -24,9 +24,9 @@ from raytrace.scan import (
     scan_to_scene,
     simulate_scan,
 )
-from raytrace.scan_cli import scan_to_scene_main
-from raytrace.scene import load_scene
-from raytrace.tracer import trace
+from raytrace.cli.scan_to_scene import scan_to_scene_main
+from raytrace.scene.model import load_scene
+from raytrace.solver.tracer import trace
 
 #: Reconstructed floor, ceiling and walls within this of the originals (offset and tilt), m.
 PLANE_TOL_M = 0.05

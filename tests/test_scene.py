@@ -7,8 +7,8 @@ import pytest
 import trimesh
 from conftest import box, make_scene, quad
 
-from raytrace.errors import SceneError
-from raytrace.scene import load_scene
+from raytrace.core.errors import SceneError
+from raytrace.scene.model import load_scene
 
 ANGLE_TOL = 1e-9
 AREA_TOL_M2 = 1e-9
@@ -229,7 +229,7 @@ def test_edges_buried_against_another_solid_are_not_wedges():
 
 
 def test_bundled_name_is_not_hidden_by_a_directory(tmp_path, monkeypatch):
-    from raytrace.bundled import resolve_scene
+    from raytrace.scene.bundled import resolve_scene
 
     (tmp_path / "hall").mkdir()
     monkeypatch.chdir(tmp_path)
@@ -404,7 +404,7 @@ def test_sheets_meeting_in_an_l_keep_one_outer_corner():
     assert corner.sum() == 1 and np.isclose(w.n[corner][0], 1.5)
     assert sc.n_composite_wedges == 1
     # its exterior is the outside of the L: the quadrant x > 0, y > 0 is inside the wedge
-    from raytrace.diffraction import wedge_geometry
+    from raytrace.physics.utd import wedge_geometry
 
     i = np.flatnonzero(corner)[0]
     args = (w.direction[i], w.normal0[i], w.normal1[i], w.face0_dir[i])

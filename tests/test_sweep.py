@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 import yaml
 
-from raytrace.constants import C0
-from raytrace.errors import HallrayError
-from raytrace.sweep import (
+from raytrace.core.constants import C0
+from raytrace.core.errors import HallrayError
+from raytrace.studies.sweep import (
     CELL_KEYS,
     cell_key,
     cell_path,
@@ -24,7 +24,7 @@ from raytrace.sweep import (
     run_sweep,
     simulate_cell,
 )
-from raytrace.sweep_cli import run_sweep_main
+from raytrace.cli.run_sweep import run_sweep_main
 
 SMALL = "30x24x8"
 #: exact (noise-free) ToA of a LoS link vs distance / c, seconds (float64 over ~1e-7 s)
@@ -277,12 +277,12 @@ def test_resume_recomputes_only_missing_cells(tmp_path):
 
 
 def test_datasets_are_the_dataset_writers_and_give_the_same_fixes(tmp_path):
-    """``datasets: true``: every cell's ToA dataset is written by raytrace.dataset.make_dataset;
+    """``datasets: true``: every cell's ToA dataset is written by raytrace.emulation.dataset.make_dataset;
     its ToAs equal the sweep's in-memory ones exactly, and positioning the dataset file gives the
     cell's errors. A missing dataset makes its cell count as not done."""
     from positioning import error_2d, locate, summarize
     from positioning.dataset import load_dataset
-    from raytrace.sweep import dataset_dir
+    from raytrace.studies.sweep import dataset_dir
 
     cfg = parse_sweep_config(small_config(grid={"profile": ["InF-SL", "InF-SH"]}, datasets=True))
     out = tmp_path / "out"
@@ -344,7 +344,7 @@ def test_dask_local_cluster_in_process(tmp_path):
 
 @pytest.mark.skipif(not os.uname().sysname == "Linux", reason="glibc mallopt")
 def test_tune_malloc_applies_on_glibc():
-    from raytrace.sweep import tune_malloc
+    from raytrace.studies.sweep import tune_malloc
 
     assert tune_malloc() is True
 
@@ -383,7 +383,7 @@ def test_dask_local_cluster_two_worker_processes(tmp_path):
 
 def test_unreachable_scheduler_is_a_one_line_error(tmp_path, monkeypatch, capsys):
     pytest.importorskip("distributed")
-    import raytrace.sweep as sweep
+    import raytrace.studies.sweep as sweep
 
     monkeypatch.setattr(sweep, "CONNECT_TIMEOUT_S", 0.5)
     path = _write(tmp_path, small_config())
@@ -437,7 +437,7 @@ def test_cli_bad_input(tmp_path, capsys):
 
 
 def test_failed_cell_is_reported_and_retried(tmp_path, monkeypatch, capsys):
-    import raytrace.sweep as sweep
+    import raytrace.studies.sweep as sweep
 
     real = sweep.run_cell
 

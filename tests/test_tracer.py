@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 from conftest import admit_every_beam, box, make_scene, quad, shoebox_sheets
 
-from raytrace.constants import C0
-from raytrace.errors import TraceInputError
-from raytrace.materials import Material, MaterialLibrary, fresnel, slab, slab_group_delay
-from raytrace.tracer import trace
+from raytrace.core.constants import C0
+from raytrace.core.errors import TraceInputError
+from raytrace.physics.materials import Material, MaterialLibrary, fresnel, slab, slab_group_delay
+from raytrace.solver.tracer import trace
 
 DELAY_TOL_S = 1e-12
 GAIN_TOL_DB = 0.01
@@ -269,7 +269,7 @@ def test_beam_pruning_loses_no_path(monkeypatch):
 
 
 def test_opaque_objects_are_metals_of_realistic_thickness():
-    from raytrace.tracer import TraceConfig, _Context, opaque_objects
+    from raytrace.solver.tracer import TraceConfig, _Context, opaque_objects
 
     lib = MaterialLibrary.itu().with_yaml(
         {"materials": {"foil": {"eta_real": 1.0, "sigma": 1e7, "thickness": 1e-8}}}

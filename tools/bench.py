@@ -98,8 +98,8 @@ def _kinds(paths) -> dict[str, int]:
 def bench_snapshots(scene_name: str, n: int) -> dict:
     """Incremental retrace of ``n`` snapshots with the hall's forklifts (both bands, one thread,
     as in a dataset worker) against a full retrace of the same snapshots."""
-    from raytrace.bands import get_band
-    from raytrace.dynamics import SnapshotTracer, routes_from_metadata
+    from raytrace.emulation.bands import get_band
+    from raytrace.solver.incremental import SnapshotTracer, routes_from_metadata
 
     scene = load_scene(scene_name)
     meta = scene.metadata.get("hallray", {})

@@ -3,7 +3,7 @@
     python tools/bench_scan.py                 # about one million points (the default)
     python tools/bench_scan.py --points 300000 --json
 
-A scan of the hall is simulated (``raytrace.scan.simulate_scan``: 16 stations, 2 cm noise, 30
+A scan of the hall is simulated (``raytrace.halls.scan.simulate_scan``: 16 stations, 2 cm noise, 30
 drop-out holes) until it holds the requested number of points, written as a .ply, and
 reconstructed in a fresh process with the default options; the report has the wall time per
 stage, the peak resident memory of that process (``resource.getrusage``: open3d's C++ memory
@@ -26,7 +26,7 @@ ROOT = Path(__file__).resolve().parent.parent
 CHILD = """
 import json, resource, sys, time, tracemalloc
 sys.path.insert(0, {root!r})
-from raytrace.scan import ScanOptions, scan_to_scene
+from raytrace.halls.scan import ScanOptions, scan_to_scene
 tracemalloc.start()
 t0 = time.perf_counter()
 s = scan_to_scene({cloud!r}, {out!r}, ScanOptions())
@@ -43,8 +43,8 @@ def main(argv: list[str] | None = None) -> int:
     sys.path.insert(0, str(ROOT))
     import numpy as np
 
-    from raytrace.scan import simulate_scan
-    from raytrace.scene import load_scene
+    from raytrace.halls.scan import simulate_scan
+    from raytrace.scene.model import load_scene
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--points", type=int, default=1_000_000, help="points in the cloud [1e6]")

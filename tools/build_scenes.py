@@ -22,7 +22,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from raytrace.hallspec import (  # noqa: E402
+from raytrace.halls.spec import (  # noqa: E402
     SCHEMA_VERSION,
     Box,
     Primitive,

@@ -23,7 +23,7 @@ LINKS = ["BS1,P07", "BS3,P23", "BS2,P06"]
 
 def main(argv: list[str] | None = None) -> int:
     sys.path.insert(0, str(ROOT))
-    from raytrace.render_cli import render_scene_main
+    from raytrace.cli.render_scene import render_scene_main
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--out-dir", default=str(ROOT / "docs"), help="where to write [docs/]")
@@ -39,8 +39,8 @@ def main(argv: list[str] | None = None) -> int:
         return code
     import numpy as np  # noqa: F401  (the scan needs numpy and open3d)
 
-    from raytrace.scan import ScanOptions, scan_to_scene, simulate_scan
-    from raytrace.scene import load_scene
+    from raytrace.halls.scan import ScanOptions, scan_to_scene, simulate_scan
+    from raytrace.scene.model import load_scene
 
     hall = load_scene("hall")
     pts = simulate_scan(hall, 1_200_000, noise_m=0.02, n_gaps=30, seed=11)

@@ -25,8 +25,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import trimesh  # noqa: E402
 
-from raytrace.errors import HallrayError  # noqa: E402
-from raytrace.hallspec import load_hall_spec, plot_top_view, write_bytes_atomic  # noqa: E402
+from raytrace.core.errors import HallrayError  # noqa: E402
+from raytrace.halls.spec import load_hall_spec, plot_top_view, write_bytes_atomic  # noqa: E402
 
 #: Area names drawn on the reference hall's plan (x, y in m).
 REFERENCE_LABELS = {

@@ -1,0 +1,1 @@
+"""raytrace.cli.trace_scene."""

@@ -1,0 +1,181 @@
+"""``scan-to-scene CLOUD -o SCENE.glb``: a laser scan (point cloud) to a traceable scene.
+
+Thin: parse, call :func:`raytrace.halls.scan.scan_to_scene`, print the summary. Bad input of any kind
+is a one-line ``error: ...`` on stderr and exit status 2, and no output file.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from collections.abc import Callable, Sequence
+from typing import Any
+
+from .trace_scene import OneLineParser, _run
+
+
+def run_tool(
+    main: Callable[[argparse.Namespace], int],
+    parser: argparse.ArgumentParser,
+    argv: Sequence[str] | None,
+) -> int:
+    """``raytrace.cli.trace_scene._run`` (one-line errors, exit 2), returning argparse's exit status
+    (``--help``: 0, a usage error: 2) instead of raising SystemExit."""
+    try:
+        return _run(main, parser, argv)
+    except SystemExit as exc:
+        return int(exc.code or 0)
+
+
+def scan_to_scene_parser() -> argparse.ArgumentParser:
+    from ..halls.scan import OBJECT_MODES, ScanOptions
+
+    d = ScanOptions()
+    p = OneLineParser(
+        prog="scan-to-scene",
+        description=(
+            "Reconstruct a point cloud (.ply .pcd .xyz .pts, .las/.laz with laspy) into a "
+            "traceable scene: planar polygons for the large planes (floor, ceiling and walls as "
+            "closed slabs), boxes or meshes for the rest, materials by rules. Needs open3d "
+            "(pip install 'hallray[scan]'). See docs/scan.md."
+        ),
+    )
+    p.add_argument("cloud", help="point cloud file")
+    p.add_argument("-o", "--output", required=True, help="output scene (.glb)")
+    p.add_argument(
+        "--voxel", type=float, default=d.voxel_size_m, help=f"voxel size, m [{d.voxel_size_m}]"
+    )
+    p.add_argument(
+        "--plane-distance",
+        type=float,
+        default=d.plane_distance_m,
+        help=f"RANSAC inlier distance, m (about 2.5 x the scan noise) [{d.plane_distance_m}]",
+    )
+    p.add_argument(
+        "--plane-min-points",
+        type=int,
+        default=d.plane_min_points,
+        help=f"smallest plane, points after downsampling [{d.plane_min_points}]",
+    )
+    p.add_argument(
+        "--plane-min-area",
+        type=float,
+        default=d.plane_min_area_m2,
+        help=f"smallest plane piece kept as a polygon, m^2 [{d.plane_min_area_m2}]",
+    )
+    p.add_argument("--max-planes", type=int, default=d.max_planes, help=f"[{d.max_planes}]")
+    p.add_argument(
+        "--simplify",
+        type=float,
+        help="outline simplification tolerance, m [1.5 voxels]; larger: fewer triangles",
+    )
+    p.add_argument(
+        "--wall-thickness",
+        type=float,
+        default=d.wall_thickness_m,
+        help=f"floor, ceiling and outer walls become slabs this thick (0: sheets), m "
+        f"[{d.wall_thickness_m}]",
+    )
+    p.add_argument(
+        "--objects",
+        choices=OBJECT_MODES,
+        default=d.objects,
+        help="what the clusters left after the planes become: upright boxes, convex hulls, "
+        f"decimated alpha-shape meshes, or nothing [{d.objects}]",
+    )
+    p.add_argument(
+        "--decimate",
+        type=int,
+        default=d.max_object_triangles,
+        metavar="N",
+        help=f"at most N triangles per object (hull, mesh) [{d.max_object_triangles}]",
+    )
+    p.add_argument(
+        "--box-fill",
+        type=float,
+        default=d.box_fill,
+        help=f"split a cluster's box while it is filled less than this [{d.box_fill}]",
+    )
+    p.add_argument(
+        "--object-min-points",
+        type=int,
+        default=d.object_min_points,
+        help=f"smallest cluster turned into an object [{d.object_min_points}]",
+    )
+    p.add_argument(
+        "--materials",
+        metavar="RULES.yaml",
+        help="material rules (materials, rules, default; see docs/scan.md)",
+    )
+    p.add_argument(
+        "--positions",
+        metavar="FILE",
+        help="base_stations and points to store in the scene (YAML/JSON, a hall YAML, or a GLB)",
+    )
+    p.add_argument("--seed", type=int, default=d.seed, help=f"random seed [{d.seed}]")
+    p.add_argument("--json", action="store_true", help="print the summary as JSON")
+    p.add_argument("--elements", action="store_true", help="list every plane and object")
+    return p
+
+
+def scan_to_scene_main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of ``scan-to-scene``."""
+    return run_tool(_scan_to_scene, scan_to_scene_parser(), argv)
+
+
+def _scan_to_scene(args: argparse.Namespace) -> int:
+    from ..halls.scan import ScanOptions, scan_to_scene
+
+    opt = ScanOptions(
+        voxel_size_m=args.voxel,
+        plane_distance_m=args.plane_distance,
+        plane_min_points=args.plane_min_points,
+        plane_min_area_m2=args.plane_min_area,
+        max_planes=args.max_planes,
+        simplify_m=args.simplify,
+        wall_thickness_m=args.wall_thickness,
+        objects=args.objects,
+        max_object_triangles=args.decimate,
+        box_fill=args.box_fill,
+        object_min_points=args.object_min_points,
+        seed=args.seed,
+    )
+    summary = scan_to_scene(
+        args.cloud, args.output, opt, rules=args.materials, positions=args.positions
+    )
+    if args.json:
+        if not args.elements:
+            summary = {k: v for k, v in summary.items() if k != "elements"}
+        print(json.dumps(summary, indent=1))
+        return 0
+    _print_summary(summary, args.elements)
+    return 0
+
+
+def _print_summary(s: dict[str, Any], elements: bool) -> None:
+    mats = ", ".join(f"{k} ({v})" for k, v in s["materials"].items())
+    print(f"wrote {s['output']}: {s['triangles']} triangles, {s['bytes']} bytes")
+    print(
+        f"points     {s['input_points']} read, {s['downsampled_points']} after downsampling, "
+        f"{s['outliers_removed']} outliers removed, {s['points_used']} used"
+    )
+    print(
+        f"planes     {s['planes']} ({s['bounding_planes']} bounding: floor, ceiling, walls), "
+        f"{s['plane_points']} points"
+    )
+    print(f"objects    {s['objects']}, {s['object_points']} points")
+    print(f"unexplained {s['unexplained_points']} points (small clusters, noise)")
+    print(f"materials  {mats}")
+    print(
+        f"residual   distance of the points to the mesh: mean {s['residual_mean_m'] * 100:.1f} cm, "
+        f"p95 {s['residual_p95_m'] * 100:.1f} cm (noise estimate {s['noise_estimate_m'] * 100:.1f} cm)"
+    )
+    t = s["time_s"]
+    print("time       " + ", ".join(f"{k[:-2]} {v:.2f} s" for k, v in t.items()))
+    if elements:
+        print(f"\n{'name':<32} {'kind':<6} {'points':>7} {'tri':>5} {'area m2':>9} {'size m':>7}")
+        for e in s["elements"]:
+            print(
+                f"{e['name']:<32} {e['kind']:<6} {e['points']:>7} {e['triangles']:>5} "
+                f"{e['area_m2']:>9.2f} {e['size_m']:>7.2f}"
+            )

@@ -1,0 +1,317 @@
+"""Command-line tools of the ray tracer (console scripts; thin: parse, call, print/write).
+
+Every tool turns bad input into a one-line ``error: ...`` on stderr and exit status 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+import warnings
+from collections.abc import Callable, Sequence
+from typing import Any, NoReturn
+
+import numpy as np
+
+from ..core.errors import HallrayError
+
+EXIT_BAD_INPUT = 2
+
+
+class OneLineParser(argparse.ArgumentParser):
+    """An argument parser whose usage errors are one line, ``error: ...``, exit status 2."""
+
+    def error(self, message: str) -> NoReturn:
+        print(f"error: {message}", file=sys.stderr)
+        raise SystemExit(EXIT_BAD_INPUT)
+
+
+def _run(
+    main: Callable[[argparse.Namespace], int],
+    parser: argparse.ArgumentParser,
+    argv: Sequence[str] | None,
+) -> int:
+    args = parser.parse_args(argv)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("default")
+            warnings.formatwarning = lambda msg, cat, *a, **k: f"warning: {msg}\n"  # type: ignore[assignment]
+            return main(args)
+    except HallrayError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except OSError as exc:  # unwritable output, a full disk: one line, not a traceback
+        where = f": {exc.filename}" if exc.filename else ""
+        print(f"error: {exc.strerror or exc}{where}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except KeyboardInterrupt:
+        print("error: interrupted", file=sys.stderr)
+        return 130
+
+
+def parse_xyz(text: str) -> list[float]:
+    """``"x,y,z"`` in metres -> three floats (argparse type)."""
+    parts = text.replace(" ", "").split(",")
+    try:
+        vals = [float(p) for p in parts]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected X,Y,Z in metres, got {text!r}") from None
+    if len(vals) != 3:
+        raise argparse.ArgumentTypeError(f"expected X,Y,Z in metres, got {text!r}")
+    if not all(np.isfinite(vals)):
+        raise argparse.ArgumentTypeError(f"coordinates must be finite numbers, got {text!r}")
+    return vals
+
+
+def _named_positions(meta: dict[str, Any], key: str) -> tuple[list[str], np.ndarray] | None:
+    items = meta.get(key)
+    if not items:
+        return None
+    names = [str(it.get("name", f"{key}{i}")) for i, it in enumerate(items)]
+    return names, np.array([it["xyz"] for it in items], dtype=float)
+
+
+# -- trace-scene ------------------------------------------------------------------------------
+def trace_scene_parser() -> argparse.ArgumentParser:
+    p = OneLineParser(
+        prog="trace-scene",
+        description=(
+            "Summarise a scene and trace all paths between transmitters and receivers. SCENE is a "
+            "mesh (.glb .gltf .obj .ply .stl), a Mitsuba/Sionna XML, or 'hall' for the bundled "
+            "reference hall, whose base stations and points are traced by default."
+        ),
+    )
+    p.add_argument("scene", help="scene file or bundled scene name ('hall')")
+    p.add_argument(
+        "--tx", type=parse_xyz, action="append", metavar="X,Y,Z", help="transmitter (repeatable), m"
+    )
+    p.add_argument(
+        "--rx", type=parse_xyz, action="append", metavar="X,Y,Z", help="receiver (repeatable), m"
+    )
+    p.add_argument(
+        "--band", default="c-band", help="band name (c-band, mmwave) or a bands YAML [c-band]"
+    )
+    p.add_argument("--frequency-hz", type=float, help="carrier frequency in Hz (overrides --band)")
+    p.add_argument("--max-reflections", type=int, default=2)
+    p.add_argument("--max-penetrations", type=int, default=2)
+    p.add_argument("--max-diffractions", type=int, default=1)
+    p.add_argument(
+        "--max-interactions", type=int, default=2, help="reflections + diffractions per path"
+    )
+    p.add_argument("--materials", help="materials YAML (user materials, bind patterns, default)")
+    p.add_argument("--default-material", help="material for objects no name or pattern binds")
+    p.add_argument(
+        "--extrapolate", action="store_true", help="use materials outside their valid range"
+    )
+    p.add_argument(
+        "--no-slab-delay",
+        action="store_true",
+        help="free-space delays for penetrating paths (default: plus each slab's group delay)",
+    )
+    p.add_argument("-o", "--output", help="write the paths (.npz, .json or .csv)")
+    p.add_argument(
+        "--export-glb", metavar="FILE", help="write the scene with the paths of --link links"
+    )
+    p.add_argument(
+        "--link",
+        action="append",
+        metavar="TX,RX",
+        help="links to export with --export-glb, as indices or names (default: the first link)",
+    )
+    p.add_argument(
+        "--summary-only", action="store_true", help="print the scene summary, trace nothing"
+    )
+    p.add_argument("--json", action="store_true", help="print JSON instead of tables")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    return p
+
+
+def trace_scene_main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of ``trace-scene``."""
+    return _run(_trace_scene, trace_scene_parser(), argv)
+
+
+def _trace_scene(args: argparse.Namespace) -> int:
+    from ..emulation.bands import get_band
+    from ..scene.model import load_scene
+    from ..solver.tracer import check_positions, trace
+
+    scene = load_scene(args.scene, args.materials, default_material=args.default_material)
+    summary = scene.summary()
+    meta = scene.metadata.get("hallray", {}) if isinstance(scene.metadata, dict) else {}
+    tx_named = _named_positions(meta, "base_stations")
+    rx_named = _named_positions(meta, "points")
+    if args.tx:
+        tx_names, tx = [f"tx{i}" for i in range(len(args.tx))], np.array(args.tx, dtype=float)
+    elif tx_named:
+        tx_names, tx = tx_named
+    else:
+        tx_names, tx = [], np.zeros((0, 3))
+    if args.rx:
+        rx_names, rx = [f"rx{i}" for i in range(len(args.rx))], np.array(args.rx, dtype=float)
+    elif rx_named:
+        rx_names, rx = rx_named
+    else:
+        rx_names, rx = [], np.zeros((0, 3))
+
+    if args.summary_only or len(tx) == 0 or len(rx) == 0:
+        if not args.summary_only and (len(tx) == 0) != (len(rx) == 0):
+            raise HallrayError(
+                "give both --tx and --rx (the scene has no stored positions for the other)"
+            )
+        if args.output or args.export_glb:
+            raise HallrayError("nothing traced: give --tx and --rx to write paths")
+        if args.json:
+            print(json.dumps(summary, indent=1))
+        else:
+            _print_summary(summary)
+        return 0
+
+    check_positions(scene, tx, "transmitter", strict=True)
+    check_positions(scene, rx, "receiver", strict=True)
+    band = get_band(args.band)
+    freq = float(args.frequency_hz) if args.frequency_hz is not None else band.center_frequency_hz
+    t0 = time.perf_counter()
+    paths = trace(
+        scene,
+        tx,
+        rx,
+        freq,
+        args.max_reflections,
+        args.max_penetrations,
+        args.max_diffractions,
+        max_interactions=args.max_interactions,
+        extrapolate=args.extrapolate,
+        slab_delay=not args.no_slab_delay,
+        progress=not args.quiet and not args.json and sys.stderr.isatty(),
+    )
+    elapsed = time.perf_counter() - t0
+    table = link_table(paths, tx_names, rx_names)
+    if args.output:
+        paths.save(args.output)
+    if args.export_glb:
+        from ..viz.export import export_paths_glb
+
+        links = _parse_links(args.link, tx_names, rx_names) if args.link else [0]
+        export_paths_glb(scene, paths, links, args.export_glb)
+    if args.json:
+        print(
+            json.dumps(
+                {
+                    "scene": summary,
+                    "frequency_hz": freq,
+                    "n_paths": paths.n_paths,
+                    "elapsed_s": round(elapsed, 4),
+                    "links": table,
+                },
+                indent=1,
+            )
+        )
+        return 0
+    _print_summary(summary)
+    print(
+        f"\ntraced {paths.n_links} links ({len(tx)} tx x {len(rx)} rx) at {freq / 1e9:.4g} GHz: "
+        f"{paths.n_paths} paths in {elapsed:.2f} s "
+        f"(reflections <= {args.max_reflections}, penetrations <= {args.max_penetrations}, "
+        f"diffractions <= {args.max_diffractions}, interactions <= {args.max_interactions})\n"
+    )
+    _print_links(table)
+    if args.output:
+        print(f"\npaths written to {args.output}")
+    if args.export_glb:
+        print(f"scene with paths written to {args.export_glb}")
+    return 0
+
+
+def link_table(paths: Any, tx_names: list[str], rx_names: list[str]) -> list[dict[str, Any]]:
+    """Per-link summary rows: first arrival, LoS, path counts by kind, strongest path."""
+    from ..core.constants import C0
+
+    first = paths.first_arrival()
+    strong = paths.strongest()
+    counts = paths.counts_by_kind()
+    kinds = paths.kind_label
+    power = paths.power_db
+    n_rx = len(paths.rx)
+    rows = []
+    for link in range(paths.n_links):
+        t, r = divmod(link, n_rx)
+        d = float(np.linalg.norm(paths.tx[t] - paths.rx[r]))
+        i, s = first[link], strong[link]
+        rows.append(
+            {
+                "tx": tx_names[t] if t < len(tx_names) else f"tx{t}",
+                "rx": rx_names[r] if r < len(rx_names) else f"rx{r}",
+                "distance_m": round(d, 4),
+                "los": bool(counts["los"][link] > 0),
+                "first_delay_ns": None if i < 0 else round(paths.delay_s[i] * 1e9, 4),
+                "first_excess_m": None if i < 0 else round(paths.delay_s[i] * C0 - d, 4),
+                "first_kind": None if i < 0 else str(kinds[i]),
+                "n_los": int(counts["los"][link]),
+                "n_reflection": int(counts["reflection"][link]),
+                "n_penetration": int(counts["penetration"][link]),
+                "n_diffraction": int(counts["diffraction"][link]),
+                "strongest_kind": None if s < 0 else str(kinds[s]),
+                "strongest_power_db": None if s < 0 else round(float(power[s]), 2),
+            }
+        )
+    return rows
+
+
+def _print_summary(s: dict[str, Any]) -> None:
+    size = " x ".join(f"{v:.2f}" for v in s["size_m"])
+    mats = ", ".join(f"{k} ({v})" for k, v in s["materials"].items())
+    print(f"scene      {s['source']}")
+    print(f"extent     {size} m  (min {s['bounds_min_m']}, max {s['bounds_max_m']})")
+    print(
+        f"objects    {s['objects']} ({s['closed_solids']} closed solids, {s['open_sheets']} open sheets)"
+    )
+    print(f"materials  {mats}")
+    print(f"triangles  {s['triangles']}   facets {s['facets']}   wedges {s['wedges']}")
+
+
+def _print_links(rows: list[dict[str, Any]]) -> None:
+    head = (
+        f"{'tx':<6} {'rx':<6} {'dist m':>7} {'LoS':>3} {'first ns':>9} {'excess m':>8} {'first':>6} "
+        f"{'#LoS':>4} {'#R':>4} {'#T':>4} {'#D':>4} {'strongest':>9} {'dB':>8}"
+    )
+    print(head)
+    print("-" * len(head))
+    for r in rows:
+        fd = "-" if r["first_delay_ns"] is None else f"{r['first_delay_ns']:.3f}"
+        ex = "-" if r["first_excess_m"] is None else f"{r['first_excess_m']:.3f}"
+        sp = "-" if r["strongest_power_db"] is None else f"{r['strongest_power_db']:.2f}"
+        print(
+            f"{r['tx']:<6} {r['rx']:<6} {r['distance_m']:>7.2f} {'yes' if r['los'] else 'no':>3} {fd:>9} "
+            f"{ex:>8} {r['first_kind'] or '-':>6} {r['n_los']:>4} {r['n_reflection']:>4} "
+            f"{r['n_penetration']:>4} {r['n_diffraction']:>4} {r['strongest_kind'] or '-':>9} {sp:>8}"
+        )
+
+
+def _parse_links(items: list[str], tx_names: list[str], rx_names: list[str]) -> list[int]:
+    out = []
+    for item in items:
+        parts = item.split(",")
+        if len(parts) != 2:
+            raise HallrayError(f"--link expects TX,RX (indices or names), got {item!r}")
+        idx = []
+        for part, names in zip(parts, (tx_names, rx_names)):
+            part = part.strip()
+            if part in names:
+                idx.append(names.index(part))
+            elif part.isdigit() and int(part) < len(names):
+                idx.append(int(part))
+            else:
+                raise HallrayError(f"--link {item!r}: {part!r} is not a known name or index")
+        out.append(idx[0] * len(rx_names) + idx[1])
+    return out
+
+
+# -- build-hall -------------------------------------------------------------------------------
+def build_hall_main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of ``build-hall HALL.yaml -o HALL.glb``."""
+    from ..halls.spec import build_hall_cli
+
+    return build_hall_cli(argv)

@@ -1,0 +1,1 @@
+"""raytrace.scene.model."""

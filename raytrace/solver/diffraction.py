@@ -1,0 +1,446 @@
+"""Diffraction stage of the tracer: candidate paths over wedges, pure and mixed with reflections.
+
+What is traced (first-order diffraction, UTD field from :mod:`raytrace.physics.utd`):
+
+* ``D``: tx -> edge -> rx, for every link and every wedge;
+* ``RD``: tx -> facet -> edge -> rx, and ``DR``: tx -> edge -> facet -> rx, when
+  ``max_reflections >= 1`` and ``max_interactions >= 2``;
+* ``RDR``: tx -> facet -> edge -> facet -> rx, when ``max_reflections >= 2`` and
+  ``max_interactions >= 3``.
+
+Reflections are unfolded by images: for ``RD`` the diffraction point is Keller's point between
+the image of the transmitter in the facet and the receiver, and the reflection point is where
+the segment image -> diffraction point crosses the facet. Candidates (tx, facet, wedge) are pruned
+exactly before receivers are considered: the transmitter on a reflecting side of the facet, the
+edge (clipped to that side) projected from the image onto the facet's plane must meet the facet's
+bounding box. Every segment is then checked with Embree (penetrations allowed up to the limit).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from . import reflection as refl
+from ..physics.utd import diffracted_field, keller_points, wedge_geometry
+from .paths import DIFFRACTION, REFLECTION, Paths
+
+if TYPE_CHECKING:
+    from .tracer import _Context
+
+#: Work is split into chunks of about this many candidates.
+CHUNK = 300_000
+#: Padding (m) of the visible part of an edge used to prune diffraction points before the exact
+#: point-in-facet test: far above rounding, so the pruning never drops a valid path.
+SPAN_PAD_M = 1e-6
+
+
+def stages(ctx: _Context) -> list[tuple[str, Callable[[], list[Paths]]]]:
+    """The diffraction stages allowed by the context's limits, as (name, callable) pairs."""
+    out: list[tuple[str, Callable[[], list[Paths]]]] = [("diffraction", lambda: [_pure(ctx)])]
+    cfg = ctx.cfg
+    if cfg.max_reflections >= 1 and cfg.max_interactions >= 2:
+        out.append(("reflection-diffraction", lambda: _one_reflection(ctx, before=True)))
+        out.append(("diffraction-reflection", lambda: _one_reflection(ctx, before=False)))
+    if cfg.max_reflections >= 2 and cfg.max_interactions >= 3:
+        out.append(("reflection-diffraction-reflection", lambda: _two_reflections(ctx)))
+    return out
+
+
+def trace_diffraction(ctx: _Context) -> list[Paths]:
+    """All diffraction paths allowed by the context's limits."""
+    return [p for _, stage in stages(ctx) for p in stage()]
+
+
+def field_model(ctx: _Context):
+    """The callback the tracer's back end applies at a diffraction vertex.
+
+    The unfolded source and receiver (images, for mixed paths) are recovered from the chain: the
+    unfolded path is straight on either side of the edge.
+    """
+    w = ctx.scene.wedges
+
+    def apply(wedge, chain, j, e, seg_len):
+        point = chain[:, j]
+        s_in = seg_len[:, :j].sum(axis=1)
+        s_out = seg_len[:, j:].sum(axis=1)
+        d_in = point - chain[:, j - 1]
+        d_in /= np.linalg.norm(d_in, axis=1, keepdims=True)
+        d_out = chain[:, j + 1] - point
+        d_out /= np.linalg.norm(d_out, axis=1, keepdims=True)
+        src = point - s_in[:, None] * d_in
+        dst = point + s_out[:, None] * d_out
+        geo = wedge_geometry(
+            src,
+            dst,
+            point,
+            w.direction[wedge],
+            w.normal0[wedge],
+            w.normal1[wedge],
+            w.face0_dir[wedge],
+        )
+        mat = w.material[wedge]
+        two = ~ctx.obj_closed[w.object[wedge]]
+        r0 = ctx._reflection(mat, geo.cos_theta_0, two)
+        rn = ctx._reflection(mat, geo.cos_theta_n, two)
+        fld = diffracted_field(geo, e, ctx.f, r_0=r0, r_n=rn, phase=False)
+        # incident spreading of the unfolded incident leg; the phase of the whole path is applied
+        # by the back end
+        scale = np.where(geo.valid, ctx.wavelength / (4 * np.pi * s_in), 0.0)
+        return fld.field, scale
+
+    return apply
+
+
+def _valid_geometry(ctx: _Context, wedge, src, dst, point) -> np.ndarray:
+    w = ctx.scene.wedges
+    geo = wedge_geometry(
+        src, dst, point, w.direction[wedge], w.normal0[wedge], w.normal1[wedge], w.face0_dir[wedge]
+    )
+    return geo.valid
+
+
+def _pure(ctx: _Context) -> Paths:
+    w = ctx.scene.wedges
+    n_t, n_r, n_w = len(ctx.tx), len(ctx.rx), len(w)
+    parts = []
+    total = n_t * n_w * n_r
+    ctx.count("candidates_d", total)
+    for c0 in range(0, total, CHUNK):
+        flat = np.arange(c0, min(total, c0 + CHUNK))
+        t_idx, rest = np.divmod(flat, n_w * n_r)
+        w_idx, r_idx = np.divmod(rest, n_r)
+        if ctx.wedge_mask is not None:
+            keep = ctx.wedge_mask[w_idx]
+            t_idx, w_idx, r_idx = t_idx[keep], w_idx[keep], r_idx[keep]
+        kp = keller_points(ctx.tx[t_idx], ctx.rx[r_idx], w.start[w_idx], w.end[w_idx])
+        ok = kp.on_edge
+        t_idx, w_idx, r_idx, pt = t_idx[ok], w_idx[ok], r_idx[ok], kp.point[ok]
+        ok = _valid_geometry(ctx, w_idx, ctx.tx[t_idx], ctx.rx[r_idx], pt)
+        t_idx, w_idx, r_idx, pt = t_idx[ok], w_idx[ok], r_idx[ok], pt[ok]
+        parts.append(
+            ctx.finish(
+                t_idx,
+                r_idx,
+                pt[:, None, :],
+                w_idx[:, None],
+                kinds=np.full((len(t_idx), 1), DIFFRACTION, np.int8),
+                diffraction=field_model(ctx),
+            )
+        )
+    return Paths.concatenate(parts) if parts else Paths.empty(ctx.tx, ctx.rx, ctx.f, 1)
+
+
+def _facet_wedge_pairs(
+    ctx: _Context, ends: np.ndarray, mixed_rdr: bool = False
+) -> tuple[np.ndarray, ...]:
+    """(end point, facet, wedge) triples where a reflection in the facet can reach the edge.
+
+    ``ends`` are transmitters (for RD) or receivers (for DR); ``mixed_rdr`` keeps every pair (the
+    restriction to some objects is applied to the joined RDR triples instead). Exact necessary
+    conditions, cheapest first: per object, the bounding sphere of its edges must reach the end's
+    side of the facet plane and the beam from the end's image through the facet's bounding sphere;
+    per edge, the same with the edge's own sphere; then the edge, clipped to the end's side and
+    projected from the image onto the facet's plane, must meet the facet's (slightly grown)
+    bounding box.
+
+    Returns
+    -------
+    e_idx, f_idx, w_idx : (M,) int
+    image : (M, 3) float, the end's image in the facet, metres
+    t_lo, t_hi : (M,) float, metres from the wedge's start: the part of the edge seen from the
+        image through the facet's bounding box, padded by :data:`SPAN_PAD_M`. A diffraction
+        point of this reflection lies in it (necessary condition).
+    """
+    fc, w = ctx.scene.facets, ctx.scene.wedges
+    side = refl.reflecting_side(fc, ends)  # (E, K)
+    f_centre, f_radius = refl.facet_spheres(fc)
+    g_order, g_start, g_count, g_centre, g_radius = _wedge_groups(w)
+    w_mid = 0.5 * (w.start + w.end)
+    w_half = 0.5 * w.length * (1 + 1e-9) + 1e-9
+    lo, hi = refl.facet_boxes(fc, ctx.scene.margin)
+    eps = refl.PLANE_TOL_M
+    restricted = ctx.facet_mask is not None and not mixed_rdr
+    all_groups = np.arange(len(g_start))
+    edge_ends = (w.start, w.end)
+    if restricted:
+        g_in = ctx.wedge_mask[g_order[g_start]]  # a group is one object's wedges
+        g_chosen, g_other = np.flatnonzero(g_in), np.flatnonzero(~g_in)
+
+        # few candidates: distances per candidate
+        def plane_dist(k, wi, f_idx):
+            return np.einsum("ij,ij->i", edge_ends[k][wi], fc.normal[f_idx]) - fc.offset[f_idx]
+
+    else:
+        # signed distances of the edges' end points from every facet plane: (W, K) each
+        dist = [x @ fc.normal.T - fc.offset for x in edge_ends]
+
+        def plane_dist(k, wi, f_idx):
+            return dist[k][wi, f_idx]
+
+    outs = []
+    for e in range(len(ends)):
+        f_ok = np.flatnonzero(side[e] != 0)
+        sgn = side[e, f_ok].astype(float)
+        nrm, off = fc.normal[f_ok], fc.offset[f_ok]
+        h_f = np.abs(ends[e] @ nrm.T - off)  # the end's distance from each plane
+        img_f = ends[e] - 2.0 * (sgn * h_f)[:, None] * nrm
+        # the beam from the image through each facet's bounding sphere
+        f_beam = refl.beam(img_f, f_centre[f_ok], f_radius[f_ok])
+        if restricted:
+            # only pairs with the wedge or the facet on a chosen object: two blocks of the
+            # (group, facet) matrix
+            f_all = np.arange(len(f_ok))
+            blocks = [(g_chosen, f_all), (g_other, np.flatnonzero(ctx.facet_mask[f_ok]))]
+        else:
+            blocks = [(all_groups, np.arange(len(f_ok)))]
+        gi_parts, fj_parts = [], []
+        for gs, fs in blocks:
+            if len(gs) == 0 or len(fs) == 0:
+                continue
+            # object level, dense: the group's sphere reaches the end's side and the beam
+            c, r = g_centre[gs], g_radius[gs]
+            near = (c @ nrm[fs].T - off[fs]) * sgn[fs] + r[:, None] > eps
+            near &= refl.beam_reaches(
+                refl.Beam(*(x[fs][None] for x in f_beam)), c[:, None], r[:, None]
+            )
+            gb, fb = np.nonzero(near)
+            gi_parts.append(gs[gb])
+            fj_parts.append(fs[fb])
+        if not gi_parts:
+            continue
+        gi, fj = np.concatenate(gi_parts), np.concatenate(fj_parts)
+        if len(gi) == 0:
+            continue
+        cnt = g_count[gi]
+        first = np.cumsum(cnt) - cnt
+        wi = g_order[np.repeat(g_start[gi] - first, cnt) + np.arange(int(cnt.sum()))]
+        fj = np.repeat(fj, cnt)
+        f_idx = f_ok[fj]
+        # the edge must have a part strictly on the end's side of the facet plane
+        da = plane_dist(0, wi, f_idx) * sgn[fj]
+        db = plane_dist(1, wi, f_idx) * sgn[fj]
+        keep = (da > eps) | (db > eps)
+        wi, fj, f_idx, da, db = wi[keep], fj[keep], f_idx[keep], da[keep], db[keep]
+        # beam test with the edge's own bounding sphere
+        keep = refl.beam_reaches(f_beam.take(fj), w_mid[wi], w_half[wi])
+        wi, fj, f_idx, da, db = wi[keep], fj[keep], f_idx[keep], da[keep], db[keep]
+        if len(wi) == 0:
+            continue
+        img = img_f[fj]
+        # clip the edge to the end's side
+        a, b = w.start[wi], w.end[wi]
+        cut_a = da <= eps
+        cut_b = db <= eps
+        u = np.where(cut_a | cut_b, (eps - da) / np.where(db != da, db - da, 1.0), 0.0)
+        pa = a + u[:, None] * (b - a)
+        a = np.where(cut_a[:, None], pa, a)
+        b = np.where(cut_b[:, None], pa, b)
+        # project from the image onto the facet plane: the image is at distance h on the other
+        # side, a point at distance s on this side projects at u = h / (h + s) from the image
+        h = h_f[fj]
+        d_a = h + np.maximum(da, eps)  # clipped ends sit at eps
+        d_b = h + np.maximum(db, eps)
+        qa = img + (h / d_a)[:, None] * (a - img)
+        qb = img + (h / d_b)[:, None] * (b - img)
+        s_in, s_out = _segment_box_span(qa, qb, lo[f_idx], hi[f_idx])
+        ok = s_in <= s_out
+        # the part of the edge that projects into the box: the projection is a perspective map,
+        # so the edge parameter of projected parameter s is s D_a / (s D_a + (1 - s) D_b)
+        d_a, d_b = d_a[ok], d_b[ok]
+        lam = [x * d_a / (x * d_a + (1 - x) * d_b) for x in (s_in[ok], s_out[ok])]
+        w_ok = wi[ok]
+        t_a = np.einsum("ij,ij->i", a[ok] - w.start[w_ok], w.direction[w_ok])
+        t_b = np.einsum("ij,ij->i", b[ok] - w.start[w_ok], w.direction[w_ok])
+        t_lo = t_a + lam[0] * (t_b - t_a) - SPAN_PAD_M
+        t_hi = t_a + lam[1] * (t_b - t_a) + SPAN_PAD_M
+        outs.append((np.full(len(w_ok), e), f_idx[ok], w_ok, img[ok], t_lo, t_hi))
+    if not outs:
+        z = np.zeros(0, np.int64)
+        return z, z, z, np.zeros((0, 3)), np.zeros(0), np.zeros(0)
+    return tuple(np.concatenate(x) for x in zip(*outs))
+
+
+def _wedge_groups(w) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Wedges grouped by object, with each group's bounding sphere (cached on the wedges).
+
+    Returns
+    -------
+    order : (W,) int, wedge indices sorted by object
+    start, count : (G,) int, each group's slice of ``order``
+    centre : (G, 3) float, metres
+    radius : (G,) float, metres (grown by a relative 1e-9)
+    """
+    cache = w.__dict__.get("_groups")
+    if cache is not None:
+        return cache
+    order = np.argsort(w.object, kind="stable")
+    _, start, count = np.unique(w.object[order], return_index=True, return_counts=True)
+    a, b = w.start[order], w.end[order]
+    lo = np.minimum.reduceat(np.minimum(a, b), start, axis=0)
+    hi = np.maximum.reduceat(np.maximum(a, b), start, axis=0)
+    centre = 0.5 * (lo + hi)
+    owner = np.repeat(np.arange(len(start)), count)
+    d = np.maximum(
+        np.linalg.norm(a - centre[owner], axis=1), np.linalg.norm(b - centre[owner], axis=1)
+    )
+    radius = np.maximum.reduceat(d, start) * (1 + 1e-9) + 1e-9
+    out = (order, start, count, centre, radius)
+    object.__setattr__(w, "_groups", out)
+    return out
+
+
+def _segment_box_span(
+    a: np.ndarray, b: np.ndarray, lo: np.ndarray, hi: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Parameters ``[s_in, s_out]`` (within [0, 1]) of the part of segments a -> b inside
+    axis-aligned boxes (slab test), vectorised; ``s_in > s_out`` where they miss."""
+    d = b - a
+    # a component parallel to a slab: dividing by a tiny step gives +-huge (in or out of the
+    # slab) or 0 (on its boundary, which counts as inside)
+    inv = 1.0 / np.where(d == 0.0, 1e-300, d)
+    t1 = (lo - a) * inv
+    t2 = (hi - a) * inv
+    s_in = np.minimum(t1, t2).max(axis=1)
+    s_out = np.maximum(t1, t2).min(axis=1)
+    return np.maximum(s_in, 0.0), np.minimum(s_out, 1.0)
+
+
+def _one_reflection(ctx: _Context, before: bool) -> list[Paths]:
+    """RD (``before=True``: reflection at the transmitter's side) or DR paths."""
+    fc, w = ctx.scene.facets, ctx.scene.wedges
+    ends, others = (ctx.tx, ctx.rx) if before else (ctx.rx, ctx.tx)
+    e_idx, f_idx, w_idx, img, t_lo, t_hi = _facet_wedge_pairs(ctx, ends)
+    side_e = refl.reflecting_side(fc, ends)
+    # Keller's point in scalar form (see keller_points): t = ts + (td - ts) rho_s / (rho_s + rho_d)
+    # with the end's image (ts, rho_s) per triple and the other end (td, rho_d) per wedge, so
+    # that the expansion over the other ends is a cheap (triples, others) matrix
+    ts, rho_s = _along_and_off(img, w.start[w_idx], w.direction[w_idx])
+    td_w, rho_w = _along_and_off(
+        others[None, :, :], w.start[:, None, :], w.direction[:, None, :]
+    )  # (W, O)
+    out = []
+    n_o = len(others)
+    step = max(1, CHUNK // max(n_o, 1))
+    for c0 in range(0, len(e_idx), step):
+        sl = slice(c0, min(len(e_idx), c0 + step))
+        td, rd = td_w[w_idx[sl]], rho_w[w_idx[sl]]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = ts[sl, None] + (td - ts[sl, None]) * rho_s[sl, None] / (rho_s[sl, None] + rd)
+        q, o_idx = np.nonzero((t >= t_lo[sl, None]) & (t <= t_hi[sl, None]))
+        q += c0
+        ctx.count("candidates_rd" if before else "candidates_dr", len(q))
+        ee, ff, ww, im = e_idx[q], f_idx[q], w_idx[q], img[q]
+        kp = keller_points(im, others[o_idx], w.start[ww], w.end[ww])
+        ok = kp.on_edge
+        # the edge point must lie on the reflecting side (where the end is)
+        s_d = refl.signed_distance(kp.point, fc.normal[ff], fc.offset[ff])
+        ok &= np.sign(np.where(ok, s_d, 0.0)) == side_e[ee, ff]
+        q, ee, ff, ww, im, o_idx, dpt = (
+            q[ok],
+            ee[ok],
+            ff[ok],
+            ww[ok],
+            im[ok],
+            o_idx[ok],
+            kp.point[ok],
+        )
+        u, p = refl.segment_plane_point(im, dpt, fc.normal[ff], fc.offset[ff])
+        ok = (u > 0) & (u < 1)
+        ok[ok] = refl.points_in_facets(p[ok], ff[ok], fc)
+        q, ee, ff, ww, im, o_idx, dpt, p = (x[ok] for x in (q, ee, ff, ww, im, o_idx, dpt, p))
+        if before:
+            t_idx, r_idx = ee, o_idx
+            ok = _valid_geometry(ctx, ww, im, ctx.rx[r_idx], dpt)
+            verts = np.stack([p, dpt], axis=1)
+            fac = np.stack([ff, ww], axis=1)
+            kinds = np.array([[REFLECTION, DIFFRACTION]], np.int8)
+        else:
+            t_idx, r_idx = o_idx, ee
+            ok = _valid_geometry(ctx, ww, ctx.tx[t_idx], im, dpt)
+            verts = np.stack([dpt, p], axis=1)
+            fac = np.stack([ww, ff], axis=1)
+            kinds = np.array([[DIFFRACTION, REFLECTION]], np.int8)
+        if ok.any():
+            out.append(
+                ctx.finish(
+                    t_idx[ok],
+                    r_idx[ok],
+                    verts[ok],
+                    fac[ok],
+                    kinds=np.repeat(kinds, int(ok.sum()), axis=0),
+                    diffraction=field_model(ctx),
+                )
+            )
+    return out
+
+
+def _along_and_off(
+    p: np.ndarray, start: np.ndarray, direction: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Position along edge lines (m from ``start``) of the foot of points, and their distance
+    from the lines (m); broadcasts over leading axes of (..., 3) arrays."""
+    rel = p - start
+    t = np.einsum("...j,...j->...", rel, direction)
+    return t, np.linalg.norm(rel - t[..., None] * direction, axis=-1)
+
+
+def _two_reflections(ctx: _Context) -> list[Paths]:
+    """RDR paths: a reflection on each side of the edge (the two pruned sets joined on the wedge)."""
+    fc, w = ctx.scene.facets, ctx.scene.wedges
+    t_e, t_f, t_w, t_img, t_lo, t_hi = _facet_wedge_pairs(ctx, ctx.tx, mixed_rdr=True)
+    r_e, r_f, r_w, r_img, r_lo, r_hi = _facet_wedge_pairs(ctx, ctx.rx, mixed_rdr=True)
+    side_t = refl.reflecting_side(fc, ctx.tx)
+    side_r = refl.reflecting_side(fc, ctx.rx)
+    out = []
+    order = np.argsort(r_w, kind="stable")
+    r_w_sorted = r_w[order]
+    starts = np.searchsorted(r_w_sorted, t_w, side="left")
+    ends = np.searchsorted(r_w_sorted, t_w, side="right")
+    counts = ends - starts
+    a = np.repeat(np.arange(len(t_w)), counts)
+    b = order[
+        np.repeat(starts, counts)
+        + (np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts))
+    ]
+    # the diffraction point lies in the part of the edge seen through both facets
+    keep = np.maximum(t_lo[a], r_lo[b]) <= np.minimum(t_hi[a], r_hi[b])
+    if ctx.facet_mask is not None:
+        keep &= ctx.facet_mask[t_f[a]] | ctx.wedge_mask[t_w[a]] | ctx.facet_mask[r_f[b]]
+    a, b = a[keep], b[keep]
+    ctx.count("candidates_rdr", len(a))
+    for c0 in range(0, len(a), CHUNK):
+        ia, ib = a[c0 : c0 + CHUNK], b[c0 : c0 + CHUNK]
+        ww = t_w[ia]
+        kp = keller_points(t_img[ia], r_img[ib], w.start[ww], w.end[ww])
+        ok = kp.on_edge
+        dpt = kp.point
+        f1, f2 = t_f[ia], r_f[ib]
+        s1 = refl.signed_distance(dpt, fc.normal[f1], fc.offset[f1])
+        s2 = refl.signed_distance(dpt, fc.normal[f2], fc.offset[f2])
+        ok &= (np.sign(np.where(ok, s1, 0)) == side_t[t_e[ia], f1]) & (
+            np.sign(np.where(ok, s2, 0)) == side_r[r_e[ib], f2]
+        )
+        u1, p1 = refl.segment_plane_point(t_img[ia], dpt, fc.normal[f1], fc.offset[f1])
+        u2, p2 = refl.segment_plane_point(r_img[ib], dpt, fc.normal[f2], fc.offset[f2])
+        ok &= (u1 > 0) & (u1 < 1) & (u2 > 0) & (u2 < 1)
+        ok[ok] = refl.points_in_facets(p1[ok], f1[ok], fc)
+        ok[ok] = refl.points_in_facets(p2[ok], f2[ok], fc)
+        ok[ok] = _valid_geometry(ctx, ww[ok], t_img[ia][ok], r_img[ib][ok], dpt[ok])
+        if ok.any():
+            n = int(ok.sum())
+            out.append(
+                ctx.finish(
+                    t_e[ia][ok],
+                    r_e[ib][ok],
+                    np.stack([p1[ok], dpt[ok], p2[ok]], axis=1),
+                    np.stack([f1[ok], ww[ok], f2[ok]], axis=1),
+                    kinds=np.repeat(
+                        np.array([[REFLECTION, DIFFRACTION, REFLECTION]], np.int8), n, axis=0
+                    ),
+                    diffraction=field_model(ctx),
+                )
+            )
+    return out

@@ -1,0 +1,376 @@
+"""The path container: a structure of arrays over all paths of all links.
+
+File formats written by :meth:`Paths.save` (all carry the same fields):
+
+* ``.npz``: every array under its attribute name, plus ``frequency_hz``, ``tx``, ``rx`` and
+  ``format_version``; read back with :meth:`Paths.load`.
+* ``.json``: ``{"format_version", "frequency_hz", "tx", "rx", "paths": [{...}, ...]}`` with one
+  object per path (``link, tx_index, rx_index, kind, delay_s, gain_re, gain_im, power_db,
+  n_reflections, n_penetrations, n_diffractions, interactions: [{"type", "point", "object"}]``).
+* ``.csv``: one row per path with ``link, tx_index, rx_index, kind, delay_s, gain_re, gain_im,
+  power_db, n_reflections, n_penetrations, n_diffractions`` and the interaction points as
+  ``p1_x, p1_y, p1_z, ...`` (empty where a path has fewer interactions).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+from dataclasses import dataclass, fields
+from pathlib import Path
+
+import numpy as np
+
+from ..core.constants import linear_power_to_db
+from ..core.errors import HallrayError
+from ..core.fileio import write_atomic
+
+#: Interaction codes in :attr:`Paths.interaction`.
+NONE, REFLECTION, PENETRATION, DIFFRACTION = 0, 1, 2, 3
+_LETTER = {REFLECTION: "R", PENETRATION: "T", DIFFRACTION: "D"}
+_NAME = {REFLECTION: "reflection", PENETRATION: "penetration", DIFFRACTION: "diffraction"}
+FORMAT_VERSION = 1
+
+
+@dataclass
+class Paths:
+    """All paths between a set of transmitters and receivers.
+
+    Attributes
+    ----------
+    tx : (T, 3) float, transmitter positions, metres
+    rx : (R, 3) float, receiver positions, metres
+    frequency_hz : float
+    link : (P,) int, ``tx_index * R + rx_index``
+    tx_index, rx_index : (P,) int
+    delay_s : (P,) float, propagation delay, seconds
+    gain : (P,) complex, field amplitude at the receiver relative to the transmitted one between
+        isotropic, vertically polarised antennas; ``|gain|**2`` is the path's power gain
+        (``(lambda / (4 pi d))**2`` for line of sight)
+    n_reflections, n_penetrations, n_diffractions : (P,) int
+    interaction : (P, D) int8, interaction codes in path order (0 none, 1 reflection,
+        2 penetration, 3 diffraction)
+    points : (P, D, 3) float, interaction points, metres (NaN padded)
+    objects : (P, D) int, object index of each interaction (-1 padded)
+    elements : (P, D) int, scene element of each interaction: facet index for a reflection, wedge
+        index for a diffraction, -1 for a penetration and padding
+    """
+
+    tx: np.ndarray
+    rx: np.ndarray
+    frequency_hz: float
+    link: np.ndarray
+    tx_index: np.ndarray
+    rx_index: np.ndarray
+    delay_s: np.ndarray
+    gain: np.ndarray
+    n_reflections: np.ndarray
+    n_penetrations: np.ndarray
+    n_diffractions: np.ndarray
+    interaction: np.ndarray
+    points: np.ndarray
+    objects: np.ndarray
+    elements: np.ndarray
+
+    _PER_PATH = (
+        "link",
+        "tx_index",
+        "rx_index",
+        "delay_s",
+        "gain",
+        "n_reflections",
+        "n_penetrations",
+        "n_diffractions",
+        "interaction",
+        "points",
+        "objects",
+        "elements",
+    )
+
+    # -- construction -------------------------------------------------------------------------
+    @classmethod
+    def empty(cls, tx: np.ndarray, rx: np.ndarray, frequency_hz: float, depth: int = 0) -> Paths:
+        """No paths."""
+        return cls(
+            tx=np.asarray(tx, dtype=float).reshape(-1, 3),
+            rx=np.asarray(rx, dtype=float).reshape(-1, 3),
+            frequency_hz=float(frequency_hz),
+            link=np.zeros(0, np.int64),
+            tx_index=np.zeros(0, np.int64),
+            rx_index=np.zeros(0, np.int64),
+            delay_s=np.zeros(0),
+            gain=np.zeros(0, complex),
+            n_reflections=np.zeros(0, np.int16),
+            n_penetrations=np.zeros(0, np.int16),
+            n_diffractions=np.zeros(0, np.int16),
+            interaction=np.zeros((0, depth), np.int8),
+            points=np.zeros((0, depth, 3)),
+            objects=np.zeros((0, depth), np.int64),
+            elements=np.zeros((0, depth), np.int64),
+        )
+
+    @classmethod
+    def concatenate(cls, parts: list[Paths]) -> Paths:
+        """Join path sets of the same links, padding interaction arrays to the deepest."""
+        if not parts:
+            raise ValueError("nothing to concatenate")
+        depth = max(p.interaction.shape[1] for p in parts)
+        padded = [p._padded(depth) for p in parts]
+        first = parts[0]
+        kw = {k: np.concatenate([getattr(p, k) for p in padded]) for k in cls._PER_PATH}
+        return cls(tx=first.tx, rx=first.rx, frequency_hz=first.frequency_hz, **kw)
+
+    def _padded(self, depth: int) -> Paths:
+        d = self.interaction.shape[1]
+        if d == depth:
+            return self
+        extra = depth - d
+        n = self.n_paths
+        return Paths(
+            **{
+                **{f.name: getattr(self, f.name) for f in fields(self)},
+                "interaction": np.concatenate([self.interaction, np.zeros((n, extra), np.int8)], 1),
+                "points": np.concatenate([self.points, np.full((n, extra, 3), np.nan)], 1),
+                "objects": np.concatenate([self.objects, np.full((n, extra), -1, np.int64)], 1),
+                "elements": np.concatenate([self.elements, np.full((n, extra), -1, np.int64)], 1),
+            }
+        )
+
+    def select(self, mask: np.ndarray) -> Paths:
+        """The paths where ``mask`` (bool (P,) or index array) selects."""
+        kw = {k: getattr(self, k)[mask] for k in self._PER_PATH}
+        return Paths(tx=self.tx, rx=self.rx, frequency_hz=self.frequency_hz, **kw)
+
+    def sorted(self) -> Paths:
+        """Paths ordered by link, then delay, then kind (a canonical, reproducible order)."""
+        codes = self.interaction.astype(np.int64)
+        keys = [codes[:, i] for i in range(codes.shape[1] - 1, -1, -1)]
+        order = np.lexsort((*keys, self.delay_s, self.link))
+        return self.select(order)
+
+    # -- derived ------------------------------------------------------------------------------
+    def vertices(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Reflection and diffraction vertices of every path, without penetrations.
+
+        Returns
+        -------
+        kinds : (P, k) int8, interaction codes (1 reflection, 3 diffraction; 0 padding)
+        points : (P, k, 3) float, metres
+        elements : (P, k) int, facet or wedge index
+        """
+        keep = (self.interaction == REFLECTION) | (self.interaction == DIFFRACTION)
+        k = int(keep.sum(axis=1).max()) if self.n_paths else 0
+        # stable compaction: the kept interactions first, in path order
+        order = np.argsort(~keep, axis=1, kind="stable")[:, :k]
+        rows = np.arange(self.n_paths)[:, None]
+        kinds = np.where(keep[rows, order], self.interaction[rows, order], 0).astype(np.int8)
+        pts = self.points[rows, order]
+        elem = np.where(keep[rows, order], self.elements[rows, order], -1)
+        return kinds, pts, elem
+
+    @property
+    def n_paths(self) -> int:
+        return int(self.delay_s.shape[0])
+
+    @property
+    def n_links(self) -> int:
+        return int(len(self.tx) * len(self.rx))
+
+    @property
+    def los(self) -> np.ndarray:
+        """(P,) bool, paths without any interaction."""
+        return (self.interaction == NONE).all(axis=1)
+
+    @property
+    def power_db(self) -> np.ndarray:
+        """(P,) float, path power gain, dB."""
+        return linear_power_to_db(np.abs(self.gain) ** 2)
+
+    @property
+    def length_m(self) -> np.ndarray:
+        """(P,) float, unfolded path length, metres."""
+        from ..core.constants import C0
+
+        return self.delay_s * C0
+
+    @property
+    def kind_label(self) -> np.ndarray:
+        """(P,) str, the interaction sequence (``"LoS"``, ``"R"``, ``"RT"``, ``"DR"``, ...)."""
+        if self.n_paths == 0:
+            return np.zeros(0, dtype=str)
+        # few distinct interaction sequences: label each once
+        patterns, inverse = np.unique(self.interaction, axis=0, return_inverse=True)
+        labels = np.array(["".join(_LETTER[int(c)] for c in row if c) or "LoS" for row in patterns])
+        return labels[inverse.reshape(-1)]
+
+    def first_arrival(self, mask: np.ndarray | None = None) -> np.ndarray:
+        """Index of the earliest path of every link, -1 for links without a path.
+
+        Parameters
+        ----------
+        mask : (P,) bool, optional, the paths that may count (e.g. the detectable ones)
+
+        Returns
+        -------
+        (n_links,) int
+        """
+        ok = np.ones(self.n_paths, bool) if mask is None else np.asarray(mask, bool)
+        idx = np.flatnonzero(ok)
+        out = np.full(self.n_links, -1, dtype=np.int64)
+        if idx.size == 0:
+            return out
+        order = idx[np.lexsort((self.delay_s[idx], self.link[idx]))]
+        links, first = np.unique(self.link[order], return_index=True)
+        out[links] = order[first]
+        return out
+
+    def strongest(self) -> np.ndarray:
+        """Index of the strongest path of every link, -1 for links without a path."""
+        out = np.full(self.n_links, -1, dtype=np.int64)
+        if self.n_paths == 0:
+            return out
+        order = np.lexsort((-np.abs(self.gain), self.link))
+        links, first = np.unique(self.link[order], return_index=True)
+        out[links] = order[first]
+        return out
+
+    def counts_by_kind(self) -> dict[str, np.ndarray]:
+        """Per-link number of paths by main mechanism: ``los``, ``reflection`` (reflections only,
+        maybe penetrating), ``penetration`` (penetrations only), ``diffraction`` (any D)."""
+        n = self.n_links
+        los = self.los
+        diff = self.n_diffractions > 0
+        refl = (self.n_reflections > 0) & ~diff
+        pen = (self.n_penetrations > 0) & (self.n_reflections == 0) & ~diff
+        return {
+            name: np.bincount(self.link[m], minlength=n)
+            for name, m in (
+                ("los", los),
+                ("reflection", refl),
+                ("penetration", pen),
+                ("diffraction", diff),
+            )
+        }
+
+    # -- files --------------------------------------------------------------------------------
+    def save(self, path: str | Path) -> None:
+        """Write the paths as .npz, .json or .csv (see the module docstring), atomically."""
+        p = Path(path)
+        suffix = p.suffix.lower()
+        if suffix == ".npz":
+            buf = io.BytesIO()
+            np.savez_compressed(
+                buf,
+                format_version=FORMAT_VERSION,
+                frequency_hz=self.frequency_hz,
+                tx=self.tx,
+                rx=self.rx,
+                **{k: getattr(self, k) for k in self._PER_PATH},
+            )
+            data = buf.getvalue()
+        elif suffix == ".json":
+            data = json.dumps(self._to_json(), indent=1).encode()
+        elif suffix == ".csv":
+            data = self._to_csv().encode()
+        else:
+            raise HallrayError(
+                f"unknown paths format {suffix or '(none)'!r}: use .npz, .json or .csv"
+            )
+        write_atomic(p, data)
+
+    @classmethod
+    def load(cls, path: str | Path) -> Paths:
+        """Read paths written by :meth:`save` as .npz."""
+        p = Path(path)
+        if not p.exists():
+            raise HallrayError(f"paths file not found: {p}")
+        try:
+            with np.load(p) as z:
+                kw = {k: z[k] for k in cls._PER_PATH}
+                return cls(tx=z["tx"], rx=z["rx"], frequency_hz=float(z["frequency_hz"]), **kw)
+        except (OSError, ValueError, KeyError) as exc:
+            raise HallrayError(f"cannot read paths file {p.name}: {exc}") from None
+
+    def _to_json(self) -> dict:
+        kinds = self.kind_label
+        power = self.power_db
+        recs = []
+        for i in range(self.n_paths):
+            inter = [
+                {
+                    "type": _NAME[int(c)],
+                    "point": [round(float(x), 9) for x in self.points[i, j]],
+                    "object": int(self.objects[i, j]),
+                }
+                for j, c in enumerate(self.interaction[i])
+                if c
+            ]
+            recs.append(
+                {
+                    "link": int(self.link[i]),
+                    "tx_index": int(self.tx_index[i]),
+                    "rx_index": int(self.rx_index[i]),
+                    "kind": str(kinds[i]),
+                    "delay_s": float(self.delay_s[i]),
+                    "gain_re": float(self.gain[i].real),
+                    "gain_im": float(self.gain[i].imag),
+                    "power_db": float(power[i]),
+                    "n_reflections": int(self.n_reflections[i]),
+                    "n_penetrations": int(self.n_penetrations[i]),
+                    "n_diffractions": int(self.n_diffractions[i]),
+                    "interactions": inter,
+                }
+            )
+        return {
+            "format_version": FORMAT_VERSION,
+            "frequency_hz": self.frequency_hz,
+            "tx": self.tx.tolist(),
+            "rx": self.rx.tolist(),
+            "paths": recs,
+        }
+
+    def _to_csv(self) -> str:
+        depth = self.interaction.shape[1]
+        out = io.StringIO()
+        w = csv.writer(out, lineterminator="\n")
+        head = [
+            "link",
+            "tx_index",
+            "rx_index",
+            "kind",
+            "delay_s",
+            "gain_re",
+            "gain_im",
+            "power_db",
+            "n_reflections",
+            "n_penetrations",
+            "n_diffractions",
+        ]
+        for j in range(depth):
+            head += [f"p{j + 1}_type", f"p{j + 1}_x", f"p{j + 1}_y", f"p{j + 1}_z"]
+        w.writerow(head)
+        kinds = self.kind_label
+        power = self.power_db
+        for i in range(self.n_paths):
+            row = [
+                int(self.link[i]),
+                int(self.tx_index[i]),
+                int(self.rx_index[i]),
+                kinds[i],
+                repr(float(self.delay_s[i])),
+                repr(float(self.gain[i].real)),
+                repr(float(self.gain[i].imag)),
+                f"{power[i]:.6f}",
+                int(self.n_reflections[i]),
+                int(self.n_penetrations[i]),
+                int(self.n_diffractions[i]),
+            ]
+            for j in range(depth):
+                c = int(self.interaction[i, j])
+                if c:
+                    row += [_LETTER[c]] + [f"{x:.9f}" for x in self.points[i, j]]
+                else:
+                    row += ["", "", "", ""]
+            w.writerow(row)
+        return out.getvalue()

@@ -1,0 +1,478 @@
+"""Pictures of scenes and paths: a top view and a perspective view, as PNG (matplotlib, Agg).
+
+:func:`render_scene` draws
+
+* a **top view**: the triangles projected from above, lowest first (so a machine stands on the
+  floor), filled by material, the ceiling and anything above ``cut_height_m`` left out, vertical
+  sheets as lines;
+* a **perspective view** (``mpl_toolkits.mplot3d``): a cut-away from the camera's side (the
+  ceiling and the outer walls facing the camera are left out), faces coloured by material with
+  Lambert shading from a fixed light;
+* the base stations and points of interest, and the paths of the chosen links coloured by their
+  main mechanism (:data:`raytrace.viz.export.KIND_COLOURS`: LoS, reflection, penetration,
+  diffraction), each link's first arrival drawn bold.
+
+Large triangles are split for the perspective view only (mplot3d sorts whole polygons by depth).
+"""
+
+from __future__ import annotations
+
+import io
+import os
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..core.constants import C0
+from ..core.errors import HallrayError
+from .export import KIND_COLOURS, path_category, path_polylines
+from ..solver.paths import Paths
+from ..scene.model import Scene
+
+#: Default picture size, pixels, and resolution.
+DEFAULT_SIZE_PX = (2000, 1000)
+DEFAULT_DPI = 150
+#: Light direction (towards the light) for the perspective shading, and the ambient share.
+LIGHT_DIR = np.array([-0.35, -0.55, 0.76])
+AMBIENT = 0.45
+#: Category names in the legend.
+CATEGORY_LABELS = {
+    "los": "line of sight",
+    "reflection": "reflection",
+    "penetration": "penetration only",
+    "diffraction": "diffraction",
+}
+_FALLBACK_RGB = ((0.55, 0.35, 0.65), (0.30, 0.60, 0.35), (0.80, 0.30, 0.50), (0.40, 0.40, 0.40))
+
+
+@dataclass
+class LinkPaths:
+    """The paths of one link to draw: names, the polylines and their categories."""
+
+    tx_name: str
+    rx_name: str
+    lines: list[np.ndarray]  # each (k, 3), metres, tx -> interactions -> rx
+    categories: list[str]
+    first: int  # index into lines of the first arrival, -1 if none
+    first_kind: str
+    first_delay_s: float
+    distance_m: float
+    strongest_kind: str = "-"
+    strongest_power_db: float = float("nan")
+
+
+def material_rgb(material: str, user_index: int = 0) -> tuple[float, float, float]:
+    """The drawing colour of a material (``raytrace.halls.spec.MATERIAL_COLORS``, else a fallback)."""
+    from ..halls.spec import MATERIAL_COLORS
+
+    if material in MATERIAL_COLORS:
+        return tuple(MATERIAL_COLORS[material])  # type: ignore[return-value]
+    return _FALLBACK_RGB[user_index % len(_FALLBACK_RGB)]
+
+
+def link_paths(
+    paths: Paths,
+    links: Sequence[int],
+    tx_names: Sequence[str],
+    rx_names: Sequence[str],
+    *,
+    max_paths: int = 8,
+) -> list[LinkPaths]:
+    """The first arrival and the ``max_paths`` strongest other paths of each link.
+
+    Parameters
+    ----------
+    paths : Paths
+    links : link indices (``tx_index * R + rx_index``)
+    tx_names, rx_names : names for the labels
+    max_paths : int, strongest paths per link besides the first arrival (0: first arrival only;
+        negative: all)
+    """
+    n_rx = len(paths.rx)
+    first = paths.first_arrival()
+    strongest = paths.strongest()
+    cats = path_category(paths)
+    kinds = paths.kind_label
+    power = paths.power_db
+    out = []
+    for link in links:
+        t, r = divmod(int(link), n_rx)
+        idx = np.flatnonzero(paths.link == link)
+        f = int(first[link]) if link < len(first) else -1
+        others = idx[idx != f]
+        others = others[np.argsort(-power[others], kind="stable")]
+        if max_paths >= 0:
+            others = others[:max_paths]
+        chosen = ([f] if f >= 0 else []) + others.tolist()
+        out.append(
+            LinkPaths(
+                tx_name=tx_names[t] if t < len(tx_names) else f"tx{t}",
+                rx_name=rx_names[r] if r < len(rx_names) else f"rx{r}",
+                lines=path_polylines(paths, np.asarray(chosen, dtype=int)),
+                categories=[str(cats[i]) for i in chosen],
+                first=0 if f >= 0 else -1,
+                first_kind=str(kinds[f]) if f >= 0 else "-",
+                first_delay_s=float(paths.delay_s[f]) if f >= 0 else float("nan"),
+                distance_m=float(np.linalg.norm(paths.tx[t] - paths.rx[r])),
+                strongest_kind=str(kinds[strongest[link]]) if f >= 0 else "-",
+                strongest_power_db=float(power[strongest[link]]) if f >= 0 else float("nan"),
+            )
+        )
+    return out
+
+
+def _object_arrays(scene: Scene) -> list[dict[str, Any]]:
+    """Per object: triangles (F, 3, 3), face normals, material, closed, bounds."""
+    out = []
+    for k, o in enumerate(scene.objects):
+        sl = slice(o.face_start, o.face_start + o.face_count)
+        tri = scene.vertices[scene.faces[sl]]
+        out.append(
+            {
+                "index": k,
+                "name": o.name,
+                "material": o.material,
+                "closed": o.closed,
+                "tri": tri,
+                "normal": scene.face_normal[sl],
+                "lo": tri.reshape(-1, 3).min(axis=0),
+                "hi": tri.reshape(-1, 3).max(axis=0),
+            }
+        )
+    return out
+
+
+def _floor_z(scene: Scene) -> float:
+    """Height of the floor: the lowest large upward-facing facet, or the bottom of the scene."""
+    f = scene.facets
+    if len(f) == 0:
+        return float(scene.bounds[0, 2])
+    up = (f.normal[:, 2] > 0.99) & (f.area > 0.05 * f.area.max())
+    return float(f.offset[up].min()) if up.any() else float(scene.bounds[0, 2])
+
+
+def _shade(rgb: np.ndarray, normals: np.ndarray, two_sided: bool) -> np.ndarray:
+    """(F, 3) colours lit by :data:`LIGHT_DIR` (Lambert, plus ambient)."""
+    light = LIGHT_DIR / np.linalg.norm(LIGHT_DIR)
+    lam = normals @ light
+    lam = np.abs(lam) if two_sided else np.clip(lam, 0.0, None)
+    k = AMBIENT + (1.0 - AMBIENT) * lam
+    return np.clip(rgb[None, :] * k[:, None] + 0.06, 0.0, 1.0)
+
+
+def _subdivide(tri: np.ndarray, max_edge: float) -> np.ndarray:
+    """Split triangles (F, 3, 3) at edge midpoints until no edge is longer than ``max_edge``."""
+    for _ in range(8):
+        e = np.linalg.norm(tri - np.roll(tri, -1, axis=1), axis=2).max(axis=1)
+        big = e > max_edge
+        if not big.any():
+            break
+        t = tri[big]
+        a, b, c = t[:, 0], t[:, 1], t[:, 2]
+        ab, bc, ca = (a + b) / 2, (b + c) / 2, (c + a) / 2
+        parts = np.concatenate(
+            [
+                np.stack([a, ab, ca], 1),
+                np.stack([ab, b, bc], 1),
+                np.stack([ca, bc, c], 1),
+                np.stack([ab, bc, ca], 1),
+            ]
+        )
+        tri = np.concatenate([tri[~big], parts])
+    return tri
+
+
+def _camera_cut(objs: list[dict[str, Any]], lo: np.ndarray, hi: np.ndarray, azim: float) -> set:
+    """Objects left out of the cut-away: large ones on the faces of the scene's bounding box
+    that face the camera (the ceiling and the two outer walls nearest the camera)."""
+    span = hi - lo
+    tol = 0.02 * span.max()
+    cam = np.array([np.cos(np.radians(azim)), np.sin(np.radians(azim))])
+    faces = [(2, 1)]  # (axis, +1: the max face / -1: the min face)
+    faces.append((0, 1 if cam[0] > 0 else -1))
+    faces.append((1, 1 if cam[1] > 0 else -1))
+    out = set()
+    for o in objs:
+        for axis, side in faces:
+            on_face = hi[axis] - o["hi"][axis] < tol if side > 0 else o["lo"][axis] - lo[axis] < tol
+            # the object lies against that face (thin in that direction) and covers much of it
+            thin = (o["hi"][axis] - o["lo"][axis]) < 0.1 * span[axis]
+            other = [a for a in range(3) if a != axis]
+            wide = all((o["hi"][a] - o["lo"][a]) > 0.6 * span[a] for a in other)
+            if on_face and thin and wide:
+                out.add(o["index"])
+    return out
+
+
+def render_scene(
+    scene: Scene,
+    out_path: str | os.PathLike[str],
+    *,
+    links: Sequence[LinkPaths] = (),
+    base_stations: Sequence[tuple[str, Sequence[float]]] | None = None,
+    points: Sequence[tuple[str, Sequence[float]]] | None = None,
+    size_px: tuple[int, int] = DEFAULT_SIZE_PX,
+    dpi: int = DEFAULT_DPI,
+    title: str | None = None,
+    subtitle: str | None = None,
+    cut_height_m: float | None = None,
+    elev: float = 32.0,
+    azim: float = -125.0,
+    frequency_hz: float | None = None,
+) -> dict[str, Any]:
+    """Draw a scene (top view and perspective view) with positions and paths into a PNG.
+
+    Parameters
+    ----------
+    scene : Scene
+    out_path : output .png, written atomically
+    links : LinkPaths to draw (see :func:`link_paths`)
+    base_stations, points : (name, xyz) pairs; default: the scene's ``hallray`` metadata
+    size_px : (width, height) of the picture, pixels
+    dpi : resolution (sets the size of text and lines relative to the picture)
+    title, subtitle : text above the views (default: the scene's name and its size)
+    cut_height_m : objects lying wholly above this height are left out of the top view
+        (default: 90 % of the way from the floor to the top of the scene)
+    elev, azim : perspective camera elevation and azimuth, degrees (default from the south-west)
+    frequency_hz : the paths' frequency, for the subtitle
+
+    Returns
+    -------
+    dict: ``size_px``, ``objects_drawn``, ``triangles_drawn``, ``paths_drawn``
+    """
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+    from matplotlib.collections import LineCollection, PolyCollection
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+    from mpl_toolkits.mplot3d.art3d import Line3DCollection, Poly3DCollection
+
+    from ..halls.spec import write_bytes_atomic
+
+    out = Path(out_path)
+    if out.suffix.lower() != ".png":
+        raise HallrayError(f"output {out} must end in .png")
+    if not out.parent.is_dir():
+        raise HallrayError(f"output directory {out.parent} does not exist")
+    w, h = (int(v) for v in size_px)
+    if not (200 <= w <= 10000 and 150 <= h <= 10000):
+        raise HallrayError(f"picture size must be 200..10000 x 150..10000 pixels, got {w}x{h}")
+    meta = scene.metadata.get("hallray", {}) if isinstance(scene.metadata, dict) else {}
+    if base_stations is None:
+        base_stations = [(b["name"], b["xyz"]) for b in meta.get("base_stations", []) or []]
+    if points is None:
+        points = [(p["name"], p["xyz"]) for p in meta.get("points", []) or []]
+
+    objs = _object_arrays(scene)
+    lo, hi = scene.bounds
+    floor = _floor_z(scene)
+    top = hi[2]
+    cut = cut_height_m if cut_height_m is not None else floor + 0.9 * (top - floor)
+    user = sorted({o["material"] for o in objs} - _known_colours())
+    rgb = {
+        m: np.array(material_rgb(m, user.index(m) if m in user else 0))
+        for m in scene.material_names
+    }
+
+    fig = plt.figure(figsize=(w / dpi, h / dpi), dpi=dpi)
+    fs = 7.5
+    ax2 = fig.add_axes((0.045, 0.17, 0.40, 0.70))
+    ax3 = fig.add_axes((0.46, 0.08, 0.54, 0.78), projection="3d")
+
+    # -- top view -----------------------------------------------------------------------------
+    shown = [o for o in objs if o["lo"][2] < cut]
+    order = sorted(shown, key=lambda o: (o["hi"][2], o["index"]))
+    n_tri = 0
+    for o in order:
+        tri = o["tri"]
+        # faces seen from above: the upward ones of solids, every face of a sheet
+        vis = np.ones(len(tri), bool) if not o["closed"] else o["normal"][:, 2] > -1e-6
+        tri = tri[vis]
+        if len(tri) == 0:
+            continue
+        base = rgb[o["material"]]
+        on_floor = o["hi"][2] <= floor + 0.05
+        face = np.clip(base * (0.82 + 0.18 * np.abs(o["normal"][vis, 2]))[:, None], 0, 1)
+        horizontal_sheet = (not o["closed"]) and (o["hi"][2] - o["lo"][2] < 0.05) and not on_floor
+        alpha = 0.28 if on_floor else (0.45 if horizontal_sheet else 1.0)
+        edge = np.clip(base * 0.55, 0, 1)
+        lw = 1.4 if (not o["closed"] and not horizontal_sheet and not on_floor) else 0.15
+        if on_floor:
+            lw = 0.0
+        ax2.add_collection(
+            PolyCollection(
+                tri[:, :, :2],
+                facecolors=np.column_stack([face, np.full(len(face), alpha)]),
+                edgecolors=[(*edge, 0.9 if lw > 1 else 0.35)],
+                linewidths=lw,
+                zorder=1 + 0.001 * o["hi"][2],
+            )
+        )
+        n_tri += len(tri)
+    ax2.set_xlim(lo[0] - 0.02 * (hi[0] - lo[0]), hi[0] + 0.02 * (hi[0] - lo[0]))
+    ax2.set_ylim(lo[1] - 0.02 * (hi[1] - lo[1]), hi[1] + 0.02 * (hi[1] - lo[1]))
+    ax2.set_aspect("equal")
+    ax2.set_xlabel("x (m)", fontsize=fs)
+    ax2.set_ylabel("y (m)", fontsize=fs)
+    ax2.tick_params(labelsize=fs - 0.5)
+    ax2.set_title("top view", fontsize=fs + 1, loc="left")
+
+    # -- perspective view -----------------------------------------------------------------------
+    hidden = _camera_cut(objs, lo, hi, azim)
+    max_edge = 0.12 * float(np.max(hi - lo))
+    floor_polys, floor_cols, polys, cols, edges = [], [], [], [], []
+    for o in objs:
+        if o["index"] in hidden:
+            continue
+        tri, nrm = o["tri"], o["normal"]
+        col = _shade(rgb[o["material"]], nrm, not o["closed"])
+        if (
+            o["hi"][2] <= floor + 0.05
+            and o["lo"][2] < floor + 0.05
+            and (o["hi"] - o["lo"])[:2].min() > 0.3 * (hi - lo)[:2].min()
+        ):
+            floor_polys.append(tri)
+            floor_cols.append(col)
+            continue
+        big = np.linalg.norm(tri - np.roll(tri, -1, axis=1), axis=2).max(axis=1) > max_edge
+        edge = np.clip(col * 0.7, 0, 1)
+        if big.any():
+            # split for the depth sort; the pieces get no outline (it would draw the split)
+            parts = [_subdivide(tri[i : i + 1], max_edge) for i in np.flatnonzero(big)]
+            counts = [len(p) for p in parts]
+            tri = np.concatenate([tri[~big], *parts])
+            edge = np.concatenate([edge[~big], np.repeat(col[big], counts, axis=0)])
+            col = np.concatenate([col[~big], np.repeat(col[big], counts, axis=0)])
+        polys.append(tri)
+        cols.append(col)
+        edges.append(edge)
+    ax3.computed_zorder = False
+    if floor_polys:
+        fp = np.concatenate(floor_polys)
+        ax3.add_collection3d(
+            Poly3DCollection(fp, facecolors=np.concatenate(floor_cols), edgecolors="none", zorder=1)
+        )
+    if polys:
+        ax3.add_collection3d(
+            Poly3DCollection(
+                np.concatenate(polys),
+                facecolors=np.concatenate(cols),
+                edgecolors=np.concatenate(edges),
+                linewidths=0.15,
+                zorder=2,
+            )
+        )
+    span = hi - lo
+    ax3.set_xlim(lo[0], hi[0])
+    ax3.set_ylim(lo[1], hi[1])
+    ax3.set_zlim(lo[2], hi[2])
+    ax3.set_box_aspect(tuple(span / span.max()), zoom=1.25)
+    ax3.view_init(elev=elev, azim=azim)
+    ax3.set_axis_off()
+
+    # -- positions and paths -------------------------------------------------------------------
+    n_paths = 0
+    used_cats: list[str] = []
+    for lk in links:
+        for k, (line, cat) in enumerate(zip(lk.lines, lk.categories)):
+            c = np.array(KIND_COLOURS[cat][:3]) / 255.0
+            bold = k == lk.first
+            lw, alpha = (2.2, 1.0) if bold else (0.8, 0.55)
+            ax2.add_collection(
+                LineCollection([line[:, :2]], colors=[(*c, alpha)], linewidths=lw, zorder=20 + bold)
+            )
+            ax3.add_collection3d(
+                Line3DCollection([line], colors=[(*c, alpha)], linewidths=lw, zorder=20 + bold)
+            )
+            if cat not in used_cats:
+                used_cats.append(cat)
+            n_paths += 1
+    for name, xyz in base_stations:
+        x, y, z = (float(v) for v in xyz)
+        ax2.plot(x, y, marker="^", ms=8, mfc="gold", mec="k", mew=0.8, zorder=30)
+        ax2.annotate(name, (x, y), xytext=(4, 4), textcoords="offset points", fontsize=fs - 0.5,
+                     weight="bold", zorder=31)  # fmt: skip
+        ax3.plot([x], [y], [z], marker="^", ms=7, mfc="gold", mec="k", mew=0.8, zorder=30)
+        ax3.text(x, y, z + 0.04 * span[2] + 0.3, name, fontsize=fs - 1, weight="bold", zorder=31)
+    for name, xyz in points:
+        x, y, z = (float(v) for v in xyz)
+        ax2.plot(x, y, marker="s", ms=3.5, mfc="red", mec="darkred", mew=0.5, zorder=30)
+        ax2.annotate(name, (x, y), xytext=(3, -7), textcoords="offset points",
+                     fontsize=fs - 2, color="darkred", zorder=31)  # fmt: skip
+        ax3.plot([x], [y], [z], marker="s", ms=2.5, mfc="red", mec="darkred", mew=0.4, zorder=30)
+
+    # -- legend and titles --------------------------------------------------------------------
+    mats = sorted(
+        {o["material"] for o in objs},
+        key=lambda m: -sum(len(o["tri"]) for o in objs if o["material"] == m),
+    )
+    handles: list[Any] = [
+        Patch(facecolor=rgb[m], edgecolor="0.3", lw=0.5, label=m.replace("_", " ")) for m in mats
+    ]
+    for cat in KIND_COLOURS:
+        if cat in used_cats:
+            c = np.array(KIND_COLOURS[cat][:3]) / 255.0
+            handles.append(Line2D([], [], color=c, lw=2.0, label=CATEGORY_LABELS[cat]))
+    if links:
+        handles.append(Line2D([], [], color="0.2", lw=2.2, label="first arrival (bold)"))
+    if base_stations:
+        handles.append(
+            Line2D([], [], marker="^", ls="", mfc="gold", mec="k", ms=7, label="base station")
+        )
+    if points:
+        handles.append(
+            Line2D([], [], marker="s", ls="", mfc="red", mec="darkred", ms=4, label="point")
+        )
+    fig.legend(handles=handles, loc="lower center", ncol=min(len(handles), 9), fontsize=fs,
+               frameon=False, bbox_to_anchor=(0.5, 0.0))  # fmt: skip
+    name = meta.get("name") or Path(scene.source).stem or "scene"
+    size = " x ".join(f"{v:.1f}" for v in span)
+    fig.text(0.045, 0.965, title or f"{name}", fontsize=fs + 4, weight="bold", va="top")
+    sub = subtitle or f"{len(objs)} objects, {len(scene.faces)} triangles, {size} m" + (
+        f"; paths traced at {frequency_hz / 1e9:.4g} GHz" if frequency_hz and links else ""
+    )
+    fig.text(0.045, 0.925, sub, fontsize=fs + 0.5, va="top", color="0.25")
+    if links:
+        lines = [
+            f"{lk.tx_name} \u2192 {lk.rx_name}  {lk.distance_m:5.1f} m  "
+            + (
+                f"first arrival {lk.first_kind:<3} {lk.first_delay_s * 1e9:7.2f} ns "
+                f"(+{lk.first_delay_s * C0 - lk.distance_m:.2f} m), "
+                f"strongest {lk.strongest_kind:<3} {lk.strongest_power_db:6.1f} dB"
+                if lk.first >= 0
+                else "no path"
+            )
+            for lk in links
+        ]
+        fig.text(0.47, 0.925, "\n".join(lines), fontsize=fs, va="top", family="monospace")
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=dpi)
+    plt.close(fig)
+    write_bytes_atomic(buf.getvalue(), out)
+    return {
+        "size_px": [w, h],
+        "objects_drawn": len(objs) - len(hidden),
+        "triangles_drawn": n_tri,
+        "paths_drawn": n_paths,
+    }
+
+
+def _known_colours() -> set[str]:
+    from ..halls.spec import MATERIAL_COLORS
+
+    return set(MATERIAL_COLORS)
+
+
+def positions_from_metadata(scene: Scene) -> tuple[list[str], np.ndarray, list[str], np.ndarray]:
+    """Base station and point names and positions (T, 3), (R, 3) from the scene's metadata."""
+    meta = scene.metadata.get("hallray", {}) if isinstance(scene.metadata, Mapping) else {}
+    bs = meta.get("base_stations") or []
+    pts = meta.get("points") or []
+    tx = np.array([b["xyz"] for b in bs], dtype=float).reshape(-1, 3)
+    rx = np.array([p["xyz"] for p in pts], dtype=float).reshape(-1, 3)
+    return [str(b["name"]) for b in bs], tx, [str(p["name"]) for p in pts], rx
