@@ -12,8 +12,8 @@ from __future__ import annotations
 from importlib.metadata import PackageNotFoundError, version
 
 from .core.errors import HallrayError, MaterialError, SceneError, TraceInputError
-from .solver.paths import Paths
 from .scene.model import Scene, load_scene
+from .solver.paths import Paths
 from .solver.tracer import TraceConfig, trace
 
 try:

@@ -7,9 +7,9 @@ import dataclasses
 import pytest
 import yaml
 
-from raytrace.emulation.bands import BUILTIN_BANDS, Band, band_from_dict, get_band, load_bands
 from raytrace.core.constants import C0
 from raytrace.core.errors import HallrayError
+from raytrace.emulation.bands import BUILTIN_BANDS, Band, band_from_dict, get_band, load_bands
 
 #: Relative tolerance on derived floating-point quantities (pure arithmetic).
 REL_TOL = 1e-12

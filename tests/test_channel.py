@@ -10,6 +10,8 @@ import pytest
 from scipy.integrate import quad
 from scipy.optimize import brentq
 
+from raytrace.core.constants import C0
+from raytrace.core.errors import HallrayError
 from raytrace.emulation import channel
 from raytrace.emulation.bands import get_band
 from raytrace.emulation.channel import (
@@ -24,8 +26,6 @@ from raytrace.emulation.channel import (
     thermal_noise_power_w,
     toa_std_eq3_s,
 )
-from raytrace.core.constants import C0
-from raytrace.core.errors import HallrayError
 from raytrace.emulation.receivers import TOA_METHODS, estimate_toa
 
 #: dB agreement of link-budget arithmetic with hand values (hand values quoted to 0.01 dB).

@@ -11,9 +11,11 @@ import numpy as np
 import pytest
 from conftest import box, make_scene, quad
 
+from raytrace.cli.make_dataset import make_dataset_main
+from raytrace.core.constants import K_BOLTZMANN
+from raytrace.core.errors import HallrayError, SceneError
 from raytrace.emulation.bands import get_band
 from raytrace.emulation.channel import LinkBudget, detection_snr_db
-from raytrace.core.constants import K_BOLTZMANN
 from raytrace.emulation.dataset import (
     CLOCK_OFFSET_MAX_S,
     COLUMNS,
@@ -22,8 +24,6 @@ from raytrace.emulation.dataset import (
     make_dataset,
     make_datasets,
 )
-from raytrace.cli.make_dataset import make_dataset_main
-from raytrace.core.errors import HallrayError, SceneError
 from raytrace.solver.tracer import trace
 
 #: ToAs are sums of a schedule (<= 0.03 s), a clock offset (< 1 ms) and a delay: float64 keeps

@@ -14,9 +14,9 @@ import pytest
 from scipy.optimize import minimize_scalar
 from scipy.special import fresnel as fresnel_sc
 
-from raytrace.physics import utd as dif
 from raytrace.core.constants import C0
 from raytrace.core.errors import TraceInputError
+from raytrace.physics import utd as dif
 
 # -- tolerances (named; the reason is in the comment) ---------------------------------------------
 POINT_TOL_M = 1e-12  # closed-form point, float64 rounding on ~10 m coordinates

@@ -7,22 +7,20 @@ import pytest
 import trimesh
 from conftest import box, make_scene, quad, shoebox_sheets
 
+from raytrace.core.errors import SceneError
+from raytrace.physics.materials import MaterialLibrary
+from raytrace.scene.dynamic import extend_scene, posed, yaw_rotations
+from raytrace.scene.metadata import routes_from_metadata
+from raytrace.scene.model import Scene
+from raytrace.scene.motion import FORKLIFT_CLEARANCE_M, Route, snapshot_times
 from raytrace.solver.incremental import (
-    FORKLIFT_CLEARANCE_M,
     Boxes,
-    Route,
     SnapshotTracer,
     TraceSettings,
     path_segments,
-    routes_from_metadata,
     segments_meet_boxes,
-    snapshot_times,
 )
-from raytrace.core.errors import SceneError
-from raytrace.physics.materials import MaterialLibrary
 from raytrace.solver.paths import Paths
-from raytrace.scene.model import Scene
-from raytrace.scene.dynamic import extend_scene, posed, yaw_rotations
 from raytrace.solver.tracer import reevaluate, trace
 
 F_C = 3.775e9
@@ -214,9 +212,8 @@ def test_extend_scene_equals_from_meshes():
     for part in ("facets", "wedges"):
         a, b = getattr(joined, part), getattr(whole, part)
         assert len(a) == len(b)
-        for k, v in vars(b).items():
-            if not k.startswith("_"):
-                np.testing.assert_array_equal(getattr(a, k), v, err_msg=f"{part}.{k}")
+        for k, v in b.arrays().items():
+            np.testing.assert_array_equal(getattr(a, k), v, err_msg=f"{part}.{k}")
     # the Embree scene names the added objects
     hit = joined.occluded(np.array([[3.0, 0.5, 1.0]]), np.array([[3.0, 4.5, 1.0]]))
     assert hit[0]

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 import yaml
 
+from raytrace.cli.make_hall import hall_los_check_main, make_hall_main
 from raytrace.core.errors import HallrayError
-from raytrace.halls.spec import build_hall_cli, load_hall_spec, parse_hall_spec, parse_los_note
 from raytrace.halls.inf import (
     BS_CLEARANCE_M,
     DEFAULT_MATERIALS,
@@ -34,7 +34,7 @@ from raytrace.halls.inf import (
     split_spec,
     wilson_interval,
 )
-from raytrace.cli.make_hall import hall_los_check_main, make_hall_main
+from raytrace.halls.spec import build_hall_cli, load_hall_spec, parse_hall_spec, parse_los_note
 from raytrace.scene.model import load_scene
 
 SMALL = "30x24x8"

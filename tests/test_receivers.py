@@ -7,13 +7,13 @@ import math
 import numpy as np
 import pytest
 from scipy.integrate import quad
-from scipy.optimize import brentq, minimize_scalar
+from scipy.optimize import minimize_scalar
 
+from raytrace.core.constants import C0
+from raytrace.core.errors import HallrayError
 from raytrace.emulation import receivers
 from raytrace.emulation.bands import get_band
 from raytrace.emulation.channel import LinkBudget, PulseShape, discrete_cir
-from raytrace.core.constants import C0
-from raytrace.core.errors import HallrayError
 from raytrace.emulation.receivers import (
     FirstLobeSettings,
     Receiver,

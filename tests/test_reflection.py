@@ -5,9 +5,10 @@ from __future__ import annotations
 import numpy as np
 from conftest import box, make_scene, quad
 
-from raytrace.solver import reflection as refl
-from raytrace.scene.model import Facets
+from raytrace.scene import accel
 from raytrace.scene.dynamic import extend_scene
+from raytrace.scene.elements import Facets
+from raytrace.solver import reflection as refl
 
 GEOM_TOL_M = 1e-12
 
@@ -52,7 +53,7 @@ def test_cone_reaches_is_conservative():
 
 
 def _fresh(facets: Facets) -> Facets:
-    return Facets(**{k: v for k, v in facets.__dict__.items() if not k.startswith("_")})
+    return Facets(**facets.arrays())  # the same arrays, an empty cache
 
 
 def test_facing_pairs_extended_equals_recomputed():
@@ -71,8 +72,8 @@ def test_facing_pairs_extended_equals_recomputed():
         ]
     )
     joined = extend_scene(base, extra)
-    got = refl.facing_pairs(joined.facets)  # filled by extend_scene from the base's block
-    want = refl.facing_pairs(_fresh(joined.facets))
+    got = accel.facing_pairs(joined.facets)  # filled by extend_scene from the base's block
+    want = accel.facing_pairs(_fresh(joined.facets))
     assert got is not want
     np.testing.assert_array_equal(got, want)
     assert got[: len(base.facets), len(base.facets) :].any()

@@ -8,11 +8,11 @@ import pytest
 import trimesh
 from conftest import box, make_scene, quad
 
-from raytrace.viz.export import KIND_COLOURS
-from raytrace.viz.render import _camera_cut, _object_arrays, link_paths, render_scene
 from raytrace.cli.render_scene import render_scene_main
 from raytrace.scene.model import load_scene
 from raytrace.solver.tracer import trace
+from raytrace.viz.export import KIND_COLOURS
+from raytrace.viz.render import _camera_cut, _object_arrays, link_paths, render_scene
 
 #: A pixel within this (0..255 per channel) of a path colour counts as that colour.
 COLOUR_TOL = 12

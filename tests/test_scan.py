@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 import trimesh
 
+from raytrace.cli.scan_to_scene import scan_to_scene_main
 from raytrace.core.constants import C0
 from raytrace.core.errors import HallrayError, MaterialError
 from raytrace.halls.scan import (
@@ -24,7 +25,6 @@ from raytrace.halls.scan import (
     scan_to_scene,
     simulate_scan,
 )
-from raytrace.cli.scan_to_scene import scan_to_scene_main
 from raytrace.scene.model import load_scene
 from raytrace.solver.tracer import trace
 

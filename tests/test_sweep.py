@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 import yaml
 
+from raytrace.cli.run_sweep import run_sweep_main
 from raytrace.core.constants import C0
 from raytrace.core.errors import HallrayError
 from raytrace.studies.sweep import (
@@ -24,7 +25,6 @@ from raytrace.studies.sweep import (
     run_sweep,
     simulate_cell,
 )
-from raytrace.cli.run_sweep import run_sweep_main
 
 SMALL = "30x24x8"
 #: exact (noise-free) ToA of a LoS link vs distance / c, seconds (float64 over ~1e-7 s)

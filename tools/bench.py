@@ -99,7 +99,8 @@ def bench_snapshots(scene_name: str, n: int) -> dict:
     """Incremental retrace of ``n`` snapshots with the hall's forklifts (both bands, one thread,
     as in a dataset worker) against a full retrace of the same snapshots."""
     from raytrace.emulation.bands import get_band
-    from raytrace.solver.incremental import SnapshotTracer, routes_from_metadata
+    from raytrace.scene.metadata import routes_from_metadata
+    from raytrace.solver.incremental import SnapshotTracer
 
     scene = load_scene(scene_name)
     meta = scene.metadata.get("hallray", {})

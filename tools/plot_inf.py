@@ -24,8 +24,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from raytrace.halls.spec import parse_hall_spec, plot_top_view, write_bytes_atomic  # noqa: E402
 from raytrace.halls.inf import PROFILES, generate_hall, los_check, split_spec  # noqa: E402
+from raytrace.halls.spec import parse_hall_spec, plot_top_view, write_bytes_atomic  # noqa: E402
 
 
 def _save(fig, path: Path) -> None:

@@ -19,9 +19,9 @@ import sys
 import warnings
 from collections.abc import Sequence
 
-from .trace_scene import OneLineParser
 from ..core.errors import HallrayError
 from ..emulation.receivers import DEFAULT_TOA_METHOD, TOA_METHODS, FirstLobeSettings
+from .trace_scene import OneLineParser
 
 EXIT_BAD_INPUT = 2
 

@@ -15,8 +15,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from .trace_scene import OneLineParser
 from ..core.errors import HallrayError
+from .trace_scene import OneLineParser
 
 EXIT_BAD_INPUT = 2
 #: Files that ``make-hall -o DIR`` writes.
@@ -124,8 +124,8 @@ def make_hall(
     """Generate a hall and write ``hall.yaml``, ``hall.glb`` and ``inf.json`` into ``out_dir``
     (created if its parent exists). Everything is generated and validated before the first file
     is written; each file is written atomically. Returns ``{"dir", "spec", "info"}``."""
-    from ..halls.spec import build_scene, glb_bytes, parse_hall_spec, write_bytes_atomic
     from ..halls.inf import generate_hall, hall_yaml, split_spec
+    from ..halls.spec import build_scene, glb_bytes, parse_hall_spec, write_bytes_atomic
 
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
@@ -203,8 +203,8 @@ def _jsonable(x: Any) -> Any:
 
 
 def _los_sample(args: argparse.Namespace) -> tuple[Any, dict[str, Any]]:
-    from ..halls.spec import load_hall_spec
     from ..halls.inf import PROFILES, canonical_profile, los_check, los_sample, resolve_params
+    from ..halls.spec import load_hall_spec
     from ..scene.model import load_scene
 
     target = Path(args.target)
@@ -289,8 +289,8 @@ def _plot(sample: Any, summary: dict[str, Any], path: str) -> None:
     import matplotlib.pyplot as plt
     import numpy as np
 
-    from ..halls.spec import write_bytes_atomic
     from ..halls.inf import los_probability_3gpp
+    from ..halls.spec import write_bytes_atomic
 
     if not str(path).lower().endswith(".png"):
         raise HallrayError(f"--plot {path}: must end in .png")

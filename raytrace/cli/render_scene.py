@@ -12,9 +12,9 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from .trace_scene import OneLineParser, _parse_links, parse_xyz
 from ..core.errors import HallrayError
 from .scan_to_scene import run_tool
+from .trace_scene import OneLineParser, _parse_links, parse_xyz
 
 
 def _size(text: str) -> tuple[int, int]:
@@ -87,16 +87,20 @@ def render_scene_main(argv: Sequence[str] | None = None) -> int:
 
 
 def _render_scene(args: argparse.Namespace) -> int:
-    from ..solver.paths import Paths
-    from ..viz.render import link_paths, positions_from_metadata, render_scene
+    from ..scene.metadata import SceneMetadata
     from ..scene.model import load_scene
+    from ..solver.paths import Paths
+    from ..viz.render import link_paths, render_scene
 
     if not args.output.lower().endswith(".png"):
         raise HallrayError(f"output {args.output} must end in .png")
     if args.dpi < 20 or args.dpi > 1200:
         raise HallrayError(f"--dpi must be 20..1200, got {args.dpi}")
     scene = load_scene(args.scene, args.materials, default_material=args.default_material)
-    bs_names, bs_xyz, pt_names, pt_xyz = positions_from_metadata(scene)
+    sites = SceneMetadata.from_scene(scene)
+    bs_names, bs_xyz, pt_names, pt_xyz = (
+        sites.bs_names, sites.bs_xyz, sites.point_names, sites.point_xyz
+    )
     links = []
     freq = None
     if args.paths:

@@ -59,8 +59,8 @@ def reproduce_paper_main(argv: Sequence[str] | None = None) -> int:
 def _main(args: argparse.Namespace) -> int:
     from positioning.cli import accuracy_report_main
 
-    from ..emulation.dataset import make_datasets
     from ..core.errors import HallrayError
+    from ..emulation.dataset import make_datasets
 
     out = Path(args.output)
     data_dir = out / "datasets"

@@ -11,8 +11,8 @@ import argparse
 import sys
 from collections.abc import Sequence
 
-from .trace_scene import OneLineParser
 from ..core.errors import HallrayError
+from .trace_scene import OneLineParser
 
 EXIT_BAD_INPUT = 2
 EXIT_CELLS_FAILED = 1

@@ -65,14 +65,6 @@ def parse_xyz(text: str) -> list[float]:
     return vals
 
 
-def _named_positions(meta: dict[str, Any], key: str) -> tuple[list[str], np.ndarray] | None:
-    items = meta.get(key)
-    if not items:
-        return None
-    names = [str(it.get("name", f"{key}{i}")) for i, it in enumerate(items)]
-    return names, np.array([it["xyz"] for it in items], dtype=float)
-
-
 # -- trace-scene ------------------------------------------------------------------------------
 def trace_scene_parser() -> argparse.ArgumentParser:
     p = OneLineParser(
@@ -135,26 +127,19 @@ def trace_scene_main(argv: Sequence[str] | None = None) -> int:
 
 def _trace_scene(args: argparse.Namespace) -> int:
     from ..emulation.bands import get_band
+    from ..scene.metadata import SceneMetadata
     from ..scene.model import load_scene
     from ..solver.tracer import check_positions, trace
 
     scene = load_scene(args.scene, args.materials, default_material=args.default_material)
     summary = scene.summary()
-    meta = scene.metadata.get("hallray", {}) if isinstance(scene.metadata, dict) else {}
-    tx_named = _named_positions(meta, "base_stations")
-    rx_named = _named_positions(meta, "points")
+    sites = SceneMetadata.from_scene(scene)
+    tx_names, tx = sites.bs_names, sites.bs_xyz
+    rx_names, rx = sites.point_names, sites.point_xyz
     if args.tx:
         tx_names, tx = [f"tx{i}" for i in range(len(args.tx))], np.array(args.tx, dtype=float)
-    elif tx_named:
-        tx_names, tx = tx_named
-    else:
-        tx_names, tx = [], np.zeros((0, 3))
     if args.rx:
         rx_names, rx = [f"rx{i}" for i in range(len(args.rx))], np.array(args.rx, dtype=float)
-    elif rx_named:
-        rx_names, rx = rx_named
-    else:
-        rx_names, rx = [], np.zeros((0, 3))
 
     if args.summary_only or len(tx) == 0 or len(rx) == 0:
         if not args.summary_only and (len(tx) == 0) != (len(rx) == 0):

@@ -33,9 +33,9 @@ import scipy.fft
 from scipy.optimize import brentq
 from scipy.stats import ncx2
 
-from .bands import Band, get_band
 from ..core.constants import K_BOLTZMANN, db_to_linear_power, linear_power_to_db, watt_to_dbm
 from ..core.errors import HallrayError
+from .bands import Band, get_band
 
 __all__ = [
     "DEFAULT_ROLL_OFF",

@@ -40,18 +40,14 @@ from typing import Any
 
 import numpy as np
 
+from ..core.errors import HallrayError, SceneError
+from ..scene.metadata import SceneMetadata
+from ..scene.model import Scene, load_scene
+from ..scene.motion import FORKLIFT_CLEARANCE_M, snapshot_times
+from ..solver.incremental import SnapshotTracer, TraceSettings
+from ..solver.paths import Paths
 from .bands import Band, get_band
 from .channel import LinkBudget, PulseShape
-from ..solver.incremental import (
-    FORKLIFT_CLEARANCE_M,
-    Route,
-    SnapshotTracer,
-    TraceSettings,
-    routes_from_metadata,
-    snapshot_times,
-)
-from ..core.errors import HallrayError, SceneError
-from ..solver.paths import Paths
 from .receivers import (
     DEFAULT_TOA_METHOD,
     TOA_METHODS,
@@ -59,7 +55,6 @@ from .receivers import (
     PreparedLinks,
     Receiver,
 )
-from ..scene.model import Scene, load_scene
 
 #: Version of the dataset schema (``meta.json`` ``schema_version``).
 SCHEMA_VERSION = 2
@@ -271,47 +266,6 @@ class DatasetConfig:
     def times_s(self) -> np.ndarray:
         """Epoch times, seconds."""
         return snapshot_times(self.duration_s, self.rate_hz)
-
-
-@dataclass(frozen=True)
-class SceneInputs:
-    """What a dataset needs from the scene: the positions and the forklift routes."""
-
-    bs_names: list[str]
-    bs_xyz: np.ndarray
-    point_names: list[str]
-    point_xyz: np.ndarray
-    routes: list[Route]
-    metadata: dict[str, Any]
-
-    @classmethod
-    def from_scene(cls, scene: Scene) -> SceneInputs:
-        """Base stations, points and routes from ``scene.metadata["hallray"]``."""
-        meta = scene.metadata.get("hallray", {}) if isinstance(scene.metadata, dict) else {}
-        if not isinstance(meta, dict):
-            meta = {}
-        bs_names, bs_xyz = _named_positions(meta.get("base_stations"), "base_stations")
-        pt_names, pt_xyz = _named_positions(meta.get("points"), "points")
-        return cls(bs_names, bs_xyz, pt_names, pt_xyz, routes_from_metadata(scene.metadata), meta)
-
-
-def _named_positions(raw: Any, what: str) -> tuple[list[str], np.ndarray]:
-    if not isinstance(raw, list) or not raw:
-        raise SceneError(f"the scene has no {what} (metadata['hallray']['{what}'])")
-    names, xyz = [], []
-    for i, entry in enumerate(raw):
-        try:
-            name = str(entry["name"])
-            p = np.asarray(entry["xyz"], dtype=float)
-        except (KeyError, TypeError, ValueError):
-            raise SceneError(f"scene metadata: {what}[{i}] needs a name and an xyz") from None
-        if p.shape != (3,) or not np.all(np.isfinite(p)):
-            raise SceneError(f"scene metadata: {what}[{i}] ('{name}') needs a finite xyz")
-        names.append(name)
-        xyz.append(p)
-    if len(set(names)) != len(names):
-        raise SceneError(f"scene metadata: duplicate names in {what}")
-    return names, np.array(xyz)
 
 
 # --------------------------------------------------------------------------------------------
@@ -582,7 +536,7 @@ def _obstacles_2d(meta: Mapping[str, Any]) -> list[dict[str, Any]]:
 def _meta(
     fx: _Fixed,
     scene: Scene,
-    inputs: SceneInputs,
+    inputs: SceneMetadata,
     times: np.ndarray,
     counts: np.ndarray,
     scene_name: str,
@@ -634,10 +588,10 @@ def _meta(
         "points": [
             {"name": n, "xyz": [float(v) for v in p]} for n, p in zip(fx.point_names, fx.point_xyz)
         ],
-        "hall_xy": _hall_xy(inputs.metadata, scene),
-        "service_area": service_area(scene, inputs.metadata),
-        "area_of_interest": inputs.metadata.get("area_of_interest"),
-        "obstacles_2d": _obstacles_2d(inputs.metadata),
+        "hall_xy": _hall_xy(inputs.block, scene),
+        "service_area": service_area(scene, inputs.block),
+        "area_of_interest": inputs.block.get("area_of_interest"),
+        "obstacles_2d": _obstacles_2d(inputs.block),
         "columns": list(COLUMNS),
         "summary": {
             "rows": rows,
@@ -770,7 +724,7 @@ def make_datasets(
     else:
         sc = load_scene(scene)
         scene_name = Path(sc.source).name
-    inputs = SceneInputs.from_scene(sc)
+    inputs = SceneMetadata.from_scene(sc, require=True)
     if any(c.scenario == "semi-dynamic" for c in configs) and not inputs.routes:
         raise SceneError("the semi-dynamic scenario needs forklift routes in the scene metadata")
     out = Path(out_dir)

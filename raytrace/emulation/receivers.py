@@ -47,6 +47,8 @@ from functools import lru_cache
 import numpy as np
 from scipy.optimize import brentq
 
+from ..core.constants import linear_power_to_db
+from ..core.errors import HallrayError
 from .bands import Band, get_band
 from .channel import (
     DiscreteCIR,
@@ -61,8 +63,6 @@ from .channel import (
     raised_cosine,
     toa_std_eq3_s,
 )
-from ..core.constants import linear_power_to_db
-from ..core.errors import HallrayError
 
 __all__ = [
     "DEFAULT_TOA_METHOD",

@@ -45,8 +45,8 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import HallrayError
-from .spec import ITU_MATERIALS, HallSpec, hall_metadata, los_note, parse_hall_spec
 from ..scene.model import Scene
+from .spec import ITU_MATERIALS, HallSpec, hall_metadata, los_note, parse_hall_spec
 
 #: Version of the generator's algorithm: a change of the layout rules bumps it (seeds then give
 #: other halls). Stored in ``inf.json``.

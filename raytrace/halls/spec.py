@@ -34,6 +34,8 @@ from raytrace.core.errors import HallrayError, MaterialError, SceneError
 from raytrace.core.fileio import write_atomic
 from raytrace.physics.materials import MaterialLibrary
 
+from ..scene.motion import ROUTE_MODES, Route
+
 #: Version of the hall YAML schema and of the ``metadata["hallray"]`` block of the built GLB.
 SCHEMA_VERSION = 1
 
@@ -72,7 +74,6 @@ _FALLBACK_COLORS = ((0.55, 0.35, 0.65), (0.30, 0.60, 0.35), (0.80, 0.30, 0.50), 
 _NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_-]*$")
 _MATERIAL_NAME_RE = re.compile(r"^[a-z][a-z0-9_]*$")
 _MATERIAL_KEYS = ("eta_real", "sigma", "thickness", "a", "b", "c", "d", "f_range_ghz")
-_ROUTE_MODES = ("loop", "back_and_forth")
 
 
 # --------------------------------------------------------------------------------------------
@@ -337,82 +338,6 @@ class PointOfInterest:
     name: str
     xyz: tuple[float, float, float]
     note: str = ""
-
-
-def route_pose(
-    polyline: np.ndarray, speed: float, mode: str, t_s: np.ndarray | float
-) -> tuple[np.ndarray, np.ndarray]:
-    """Position and heading of a vehicle driving a polyline at constant speed.
-
-    Parameters
-    ----------
-    polyline : (K, 2) float, waypoints, metres
-    speed : float, m/s
-    mode : ``"loop"`` (back to the first waypoint, then again) or ``"back_and_forth"``
-    t_s : (T,) float, seconds (t = 0 at the first waypoint)
-
-    Returns
-    -------
-    xy : (T, 2) float, metres
-    heading_rad : (T,) float, driving direction counter-clockwise from +x, in (-pi, pi]
-    """
-    t = np.atleast_1d(np.asarray(t_s, dtype=float))
-    poly = np.asarray(polyline, dtype=float)
-    seg = np.diff(poly, axis=0)
-    seg_len = np.linalg.norm(seg, axis=1)
-    cum = np.concatenate([[0.0], np.cumsum(seg_len)])
-    total = cum[-1]
-    s = speed * t
-    back = np.zeros(t.shape, dtype=bool)
-    if mode == "loop":
-        s = np.mod(s, total)
-    else:
-        s = np.mod(s, 2.0 * total)
-        back = s > total
-        s = np.where(back, 2.0 * total - s, s)
-    i = np.clip(np.searchsorted(cum, s, side="right") - 1, 0, len(seg) - 1)
-    frac = (s - cum[i]) / seg_len[i]
-    xy = poly[i] + frac[:, None] * seg[i]
-    heading = np.arctan2(seg[i, 1], seg[i, 0]) + np.where(back, np.pi, 0.0)
-    heading = np.where(heading > np.pi, heading - 2 * np.pi, heading)
-    return xy, heading
-
-
-@dataclass(frozen=True)
-class Route:
-    """A forklift route: a box ``size`` (l, w, h) m of ``material`` driving at ``speed`` m/s along
-    the polyline ``waypoints`` ((x, y) m), either around a ``loop`` (back to the first waypoint) or
-    ``back_and_forth``."""
-
-    name: str
-    size: tuple[float, float, float]
-    material: str
-    waypoints: tuple[tuple[float, float], ...]
-    speed: float
-    mode: str = "loop"
-
-    def _polyline(self) -> np.ndarray:
-        pts = np.asarray(self.waypoints, dtype=float)
-        return np.vstack([pts, pts[:1]]) if self.mode == "loop" else pts
-
-    @property
-    def length_m(self) -> float:
-        """Length of one pass (one lap for a loop, one way for back-and-forth), m."""
-        return float(np.linalg.norm(np.diff(self._polyline(), axis=0), axis=1).sum())
-
-    @property
-    def period_s(self) -> float:
-        """Time until the forklift is back at its start with the same heading, s."""
-        factor = 1.0 if self.mode == "loop" else 2.0
-        return factor * self.length_m / self.speed
-
-    def pose(self, t_s: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
-        """Position and heading at times ``t_s`` (T,) s (t = 0 at the first waypoint).
-
-        Returns ``xy`` (T, 2) float64 m of the forklift's centre and ``heading_rad`` (T,) float64,
-        the driving direction (counter-clockwise from +x).
-        """
-        return route_pose(self._polyline(), self.speed, self.mode, t_s)
 
 
 @dataclass(frozen=True)
@@ -812,8 +737,8 @@ def _parse_routes(raw: Any, materials: Sequence[str]) -> list[Route]:
             _fail(f"{where}.waypoints", "two consecutive waypoints coincide")
         speed = _number(entry["speed"], f"{where}.speed", positive=True)
         mode = entry.get("mode", "loop")
-        if mode not in _ROUTE_MODES:
-            _fail(f"{where}.mode", f"expected one of {', '.join(_ROUTE_MODES)}, got {mode!r}")
+        if mode not in ROUTE_MODES:
+            _fail(f"{where}.mode", f"expected one of {', '.join(ROUTE_MODES)}, got {mode!r}")
         if mode == "loop" and len(waypoints) < 3:
             _fail(f"{where}.waypoints", "a loop needs at least 3 waypoints")
         out.append(Route(name, size, material, waypoints, speed, mode))
@@ -826,7 +751,7 @@ def _route_swept_area(route: Route) -> Any:
     from shapely.geometry import LineString, Point
     from shapely.ops import unary_union
 
-    poly = route._polyline()
+    poly = route.polyline
     l, w, _ = route.size
     parts = [LineString(poly).buffer(0.5 * w)] + [Point(p).buffer(0.5 * l) for p in poly]
     return unary_union(parts)

@@ -21,8 +21,9 @@ import dataclasses
 import numpy as np
 
 from ..core.errors import SceneError
-from ..solver.reflection import facing_pairs
-from .model import Facets, Scene, SceneObject, Wedges
+from .accel import facing_pairs
+from .elements import Facets, SceneObject, Wedges
+from .model import Scene
 
 
 def extend_scene(base: Scene, extra: Scene) -> Scene:
@@ -81,7 +82,7 @@ def extend_scene(base: Scene, extra: Scene) -> Scene:
             tail = remap[tail]
         return np.concatenate([getattr(bw, name), tail])
 
-    wedges = Wedges(**{f.name: joined_wedge_field(f.name) for f in dataclasses.fields(Wedges)})
+    wedges = Wedges(**{name: joined_wedge_field(name) for name in bw.arrays()})
     scene = dataclasses.replace(
         base,
         vertices=np.concatenate([base.vertices, extra.vertices]),

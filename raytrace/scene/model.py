@@ -27,6 +27,8 @@ import numpy as np
 
 from ..core.errors import SceneError
 from ..physics.materials import MaterialLibrary
+from . import accel
+from .elements import Facets, SceneObject, Wedges
 
 #: Triangles with an area below this (m^2) are degenerate and dropped.
 DEGENERATE_AREA_M2 = 1e-10
@@ -39,80 +41,6 @@ BURIED_PROBE_M = 5e-3
 JUNCTION_MIN_EXCESS_RAD = WEDGE_MIN_ANGLE_RAD
 #: Mesh formats read through trimesh.
 MESH_SUFFIXES = (".glb", ".gltf", ".obj", ".ply", ".stl", ".off")
-
-
-@dataclass(frozen=True)
-class Facets:
-    """Planar facets (connected coplanar triangles of one object), structure of arrays.
-
-    Attributes
-    ----------
-    normal : (K, 3) float, unit outward normal (for open sheets: the stored one; both sides reflect)
-    offset : (K,) float, metres; the plane is ``normal . x = offset``
-    object : (K,) int, object index
-    material : (K,) int, index into ``Scene.material_names``
-    two_sided : (K,) bool, True for facets of open sheets
-    area : (K,) float, m^2
-    tri_start, tri_count : (K,) int, the facet's triangles are
-        ``Facets.triangles[tri_start[k] : tri_start[k] + tri_count[k]]``
-    triangles : (M, 3, 3) float, vertices of the facets' triangles, metres
-    """
-
-    normal: np.ndarray
-    offset: np.ndarray
-    object: np.ndarray
-    material: np.ndarray
-    two_sided: np.ndarray
-    area: np.ndarray
-    tri_start: np.ndarray
-    tri_count: np.ndarray
-    triangles: np.ndarray
-
-    def __len__(self) -> int:
-        return int(self.normal.shape[0])
-
-
-@dataclass(frozen=True)
-class Wedges:
-    """Diffracting edges, structure of arrays.
-
-    Attributes
-    ----------
-    start, end : (W, 3) float, edge end points, metres
-    direction : (W, 3) float, unit vector from start to end
-    length : (W,) float, metres
-    normal0, normal1 : (W, 3) float, outward unit normals of the two faces (for the free edge of a
-        sheet, the sheet normal and its opposite)
-    face0_dir : (W, 3) float, unit vector perpendicular to the edge, from the edge into face 0
-    n : (W,) float, exterior wedge angle over pi (2 for a half-plane, 1.5 for a right-angle corner)
-    object : (W,) int
-    material : (W,) int
-    """
-
-    start: np.ndarray
-    end: np.ndarray
-    direction: np.ndarray
-    length: np.ndarray
-    normal0: np.ndarray
-    normal1: np.ndarray
-    face0_dir: np.ndarray
-    n: np.ndarray
-    object: np.ndarray
-    material: np.ndarray
-
-    def __len__(self) -> int:
-        return int(self.start.shape[0])
-
-
-@dataclass
-class SceneObject:
-    """One object of the scene (one Embree geometry)."""
-
-    name: str
-    material: str
-    closed: bool
-    face_start: int
-    face_count: int
 
 
 @dataclass
@@ -225,7 +153,7 @@ class Scene:
         for p in facet_parts:
             starts.append(p["tri_start"] + offset)
             offset += len(p["triangles"])
-        facets = Facets(**{**facets.__dict__, "tri_start": _cat(starts)})
+        facets = Facets(**{**facets.arrays(), "tri_start": _cat(starts)})
         wedges = Wedges(**{k: _cat([p[k] for p in wedge_parts]) for k in wedge_parts[0]})
         scene = cls(
             vertices=np.concatenate(verts),
@@ -266,7 +194,7 @@ class Scene:
         buried[np.flatnonzero(probe_ok)] = (inside >= 0) & (inside != w.object[probe_ok])
         if buried.any():
             keep = ~buried
-            self.wedges = Wedges(**{k: v[keep] for k, v in w.__dict__.items()})
+            self.wedges = Wedges(**{k: v[keep] for k, v in w.arrays().items()})
             self.n_buried_wedges = int(buried.sum())
 
     def _resolve_junctions(self) -> None:
@@ -352,8 +280,6 @@ class Scene:
         sub-sector wider than pi: a junction, not a wedge) or ``(face0_dir, normal0, normal1,
         n)`` of the one convex air sub-sector (a composite wedge).
         """
-        from ..solver import reflection as refl
-
         w, fc = self.wedges, self.facets
         t0 = w.face0_dir[i]
         nrm0 = w.normal0[i] - (w.normal0[i] @ w.direction[i]) * w.direction[i]
@@ -370,7 +296,7 @@ class Scene:
         on_plane = (
             probe - np.einsum("ij,ij->i", probe - mid, fc.normal[owner])[:, None] * fc.normal[owner]
         )
-        present = refl.points_in_facets(on_plane, owner, fc)
+        present = accel.points_in_facets(on_plane, owner, fc)
         ang = np.mod(np.arctan2(rays @ nrm0, rays @ t0), 2 * np.pi)
         cuts = np.sort(ang[present & (ang > eps) & (ang < own - eps)])
         if len(cuts) == 0:

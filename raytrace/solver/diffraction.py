@@ -23,8 +23,9 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from . import reflection as refl
 from ..physics.utd import diffracted_field, keller_points, wedge_geometry
+from ..scene import accel
+from . import reflection as refl
 from .paths import DIFFRACTION, REFLECTION, Paths
 
 if TYPE_CHECKING:
@@ -156,12 +157,12 @@ def _facet_wedge_pairs(
     """
     fc, w = ctx.scene.facets, ctx.scene.wedges
     side = refl.reflecting_side(fc, ends)  # (E, K)
-    f_centre, f_radius = refl.facet_spheres(fc)
-    g_order, g_start, g_count, g_centre, g_radius = _wedge_groups(w)
+    f_centre, f_radius = accel.facet_spheres(fc)
+    g_order, g_start, g_count, g_centre, g_radius = accel.wedge_groups(w)
     w_mid = 0.5 * (w.start + w.end)
     w_half = 0.5 * w.length * (1 + 1e-9) + 1e-9
-    lo, hi = refl.facet_boxes(fc, ctx.scene.margin)
-    eps = refl.PLANE_TOL_M
+    lo, hi = accel.facet_boxes(fc, ctx.scene.margin)
+    eps = accel.PLANE_TOL_M
     restricted = ctx.facet_mask is not None and not mixed_rdr
     all_groups = np.arange(len(g_start))
     edge_ends = (w.start, w.end)
@@ -263,35 +264,6 @@ def _facet_wedge_pairs(
     return tuple(np.concatenate(x) for x in zip(*outs))
 
 
-def _wedge_groups(w) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Wedges grouped by object, with each group's bounding sphere (cached on the wedges).
-
-    Returns
-    -------
-    order : (W,) int, wedge indices sorted by object
-    start, count : (G,) int, each group's slice of ``order``
-    centre : (G, 3) float, metres
-    radius : (G,) float, metres (grown by a relative 1e-9)
-    """
-    cache = w.__dict__.get("_groups")
-    if cache is not None:
-        return cache
-    order = np.argsort(w.object, kind="stable")
-    _, start, count = np.unique(w.object[order], return_index=True, return_counts=True)
-    a, b = w.start[order], w.end[order]
-    lo = np.minimum.reduceat(np.minimum(a, b), start, axis=0)
-    hi = np.maximum.reduceat(np.maximum(a, b), start, axis=0)
-    centre = 0.5 * (lo + hi)
-    owner = np.repeat(np.arange(len(start)), count)
-    d = np.maximum(
-        np.linalg.norm(a - centre[owner], axis=1), np.linalg.norm(b - centre[owner], axis=1)
-    )
-    radius = np.maximum.reduceat(d, start) * (1 + 1e-9) + 1e-9
-    out = (order, start, count, centre, radius)
-    object.__setattr__(w, "_groups", out)
-    return out
-
-
 def _segment_box_span(
     a: np.ndarray, b: np.ndarray, lo: np.ndarray, hi: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -349,7 +321,7 @@ def _one_reflection(ctx: _Context, before: bool) -> list[Paths]:
         )
         u, p = refl.segment_plane_point(im, dpt, fc.normal[ff], fc.offset[ff])
         ok = (u > 0) & (u < 1)
-        ok[ok] = refl.points_in_facets(p[ok], ff[ok], fc)
+        ok[ok] = accel.points_in_facets(p[ok], ff[ok], fc)
         q, ee, ff, ww, im, o_idx, dpt, p = (x[ok] for x in (q, ee, ff, ww, im, o_idx, dpt, p))
         if before:
             t_idx, r_idx = ee, o_idx
@@ -426,8 +398,8 @@ def _two_reflections(ctx: _Context) -> list[Paths]:
         u1, p1 = refl.segment_plane_point(t_img[ia], dpt, fc.normal[f1], fc.offset[f1])
         u2, p2 = refl.segment_plane_point(r_img[ib], dpt, fc.normal[f2], fc.offset[f2])
         ok &= (u1 > 0) & (u1 < 1) & (u2 > 0) & (u2 < 1)
-        ok[ok] = refl.points_in_facets(p1[ok], f1[ok], fc)
-        ok[ok] = refl.points_in_facets(p2[ok], f2[ok], fc)
+        ok[ok] = accel.points_in_facets(p1[ok], f1[ok], fc)
+        ok[ok] = accel.points_in_facets(p2[ok], f2[ok], fc)
         ok[ok] = _valid_geometry(ctx, ww[ok], t_img[ia][ok], r_img[ib][ok], dpt[ok])
         if ok.any():
             n = int(ok.sum())

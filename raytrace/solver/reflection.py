@@ -1,4 +1,4 @@
-"""Specular reflection by the image method over planar facets.
+"""Image-method geometry: image points, plane crossings, reflecting sides and beams of facets.
 
 Pure, vectorised geometry: image points, line-plane intersections, point-in-facet tests, and
 the candidate generation of first- and second-order reflection paths. Visibility (Embree) and
@@ -13,13 +13,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..scene.model import Facets
-
-#: Barycentric tolerance of the point-in-triangle test (dimensionless): a reflection point on
-#: the shared edge of two triangles of one facet must not fall through the crack.
-BARY_TOL = 1e-9
-#: Points closer than this to a facet's plane (m) are on it: no reflection from there.
-PLANE_TOL_M = 1e-9
+from ..scene.accel import PLANE_TOL_M
+from ..scene.elements import Facets
 
 
 def mirror(points: np.ndarray, normal: np.ndarray, offset: np.ndarray) -> np.ndarray:
@@ -60,88 +55,6 @@ def segment_plane_point(
     with np.errstate(divide="ignore", invalid="ignore"):
         u = np.where(np.abs(den) > 0, sa / den, np.nan)
     return u, a + u[:, None] * (b - a)
-
-
-def points_in_facets(points: np.ndarray, facet: np.ndarray, facets: Facets) -> np.ndarray:
-    """Whether each point (on its facet's plane) lies inside that facet.
-
-    A facet is a union of triangles; the point is inside if it is in any of them (barycentric
-    test in 3D, with :data:`BARY_TOL`).
-
-    Parameters
-    ----------
-    points : (n, 3) float, metres
-    facet : (n,) int, facet index of each point
-
-    Returns
-    -------
-    (n,) bool
-    """
-    n = len(points)
-    if n == 0:
-        return np.zeros(0, dtype=bool)
-    # cheap rejection by the facet's bounding box first: most candidates fail here
-    lo, hi = facet_boxes(facets)
-    near = np.all((points >= lo[facet]) & (points <= hi[facet]), axis=1)
-    out = np.zeros(n, dtype=bool)
-    if near.any():
-        idx = np.flatnonzero(near)
-        out[idx] = _in_triangles(points[idx], facet[idx], facets)
-    return out
-
-
-def _in_triangles(points: np.ndarray, facet: np.ndarray, facets: Facets) -> np.ndarray:
-    """Barycentric test of points against all triangles of their facets."""
-    n = len(points)
-    counts = facets.tri_count[facet]
-    rep = np.repeat(np.arange(n), counts)
-    # index of each expanded triangle: tri_start[f] + 0..count-1
-    within = np.arange(len(rep)) - np.repeat(np.cumsum(counts) - counts, counts)
-    tri = facets.triangles[np.repeat(facets.tri_start[facet], counts) + within]
-    p = points[rep]
-    v0 = tri[:, 1] - tri[:, 0]
-    v1 = tri[:, 2] - tri[:, 0]
-    v2 = p - tri[:, 0]
-    d00 = np.einsum("ij,ij->i", v0, v0)
-    d01 = np.einsum("ij,ij->i", v0, v1)
-    d11 = np.einsum("ij,ij->i", v1, v1)
-    d20 = np.einsum("ij,ij->i", v2, v0)
-    d21 = np.einsum("ij,ij->i", v2, v1)
-    den = d00 * d11 - d01 * d01
-    v = (d11 * d20 - d01 * d21) / den
-    w = (d00 * d21 - d01 * d20) / den
-    inside_tri = (v >= -BARY_TOL) & (w >= -BARY_TOL) & (v + w <= 1 + BARY_TOL)
-    out = np.zeros(n, dtype=bool)
-    np.logical_or.at(out, rep, inside_tri)
-    return out
-
-
-def facet_boxes(facets: Facets, grow: float = 1e-6) -> tuple[np.ndarray, np.ndarray]:
-    """(K, 3) lower and upper corners of each facet's axis-aligned bounding box, grown by
-    ``grow`` metres (cached on the facets)."""
-    cache = facets.__dict__.get("_boxes")
-    if cache is not None and cache[0] == grow:
-        return cache[1], cache[2]
-    # a facet's triangles are contiguous, starting at tri_start
-    lo = np.minimum.reduceat(facets.triangles.min(axis=1), facets.tri_start, axis=0) - grow
-    hi = np.maximum.reduceat(facets.triangles.max(axis=1), facets.tri_start, axis=0) + grow
-    object.__setattr__(facets, "_boxes", (grow, lo, hi))
-    return lo, hi
-
-
-def facet_spheres(facets: Facets) -> tuple[np.ndarray, np.ndarray]:
-    """Bounding sphere of each facet: centre (K, 3) and radius (K,), metres (cached)."""
-    cache = facets.__dict__.get("_spheres")
-    if cache is not None:
-        return cache
-    lo, hi = facet_boxes(facets, 0.0)
-    centre = 0.5 * (lo + hi)
-    owner = np.repeat(np.arange(len(facets)), facets.tri_count * 3)
-    d = np.linalg.norm(facets.triangles.reshape(-1, 3) - centre[owner], axis=1)
-    radius = np.maximum.reduceat(d, 3 * facets.tri_start)
-    out = (centre, radius * (1 + 1e-9) + 1e-9)
-    object.__setattr__(facets, "_spheres", out)
-    return out
 
 
 class Beam(NamedTuple):
@@ -232,55 +145,3 @@ def reflecting_side(
     closed = ~facets.two_sided[idx]
     side[:, closed] = np.maximum(side[:, closed], 0)
     return side
-
-
-def facing_pairs(facets: Facets, known: np.ndarray | None = None) -> np.ndarray:
-    """(K, K) bool: facet j can receive a reflection from facet i (necessary condition).
-
-    Some part of facet i must lie strictly on a reflecting side of facet j and vice versa
-    (closed solids reflect outward only). Excludes i == j and facets in the same plane. The result
-    is cached on the facets and read-only.
-
-    Parameters
-    ----------
-    facets : Facets
-    known : (k0, k0) bool, optional, the result for the first k0 facets (the same facets in the
-        same order, e.g. a static scene that moving objects are appended to): only the rows and
-        columns of the others are computed
-    """
-    cache = facets.__dict__.get("_facing")
-    if cache is not None:
-        return cache
-    k = len(facets)
-    k0 = 0 if known is None else int(known.shape[0])
-    # sees[i, j]: any vertex of facet i on a reflecting side of facet j; a facet's vertices are
-    # contiguous, so one reduceat per block
-    starts = 3 * (np.cumsum(facets.tri_count) - facets.tri_count)
-    verts = facets.triangles.reshape(-1, 3)
-
-    def sees(rows: slice, cols: slice) -> np.ndarray:
-        v0 = starts[rows.start] if rows.start < k else len(verts)
-        s = verts[v0 : starts[rows.stop] if rows.stop < k else len(verts)]
-        s = s @ facets.normal[cols].T - facets.offset[None, cols]
-        first = starts[rows] - v0
-        front = np.logical_or.reduceat(s > PLANE_TOL_M, first, axis=0)
-        back = np.logical_or.reduceat(s < -PLANE_TOL_M, first, axis=0)
-        return front | (back & facets.two_sided[None, cols])
-
-    every = slice(0, k)
-    if k0 == 0:
-        both = sees(every, every)
-        ok = both & both.T
-    else:
-        ok = np.zeros((k, k), dtype=bool)
-        ok[:k0, :k0] = known
-    if 0 < k0 < k:
-        new = slice(k0, k)
-        s_new_all = sees(new, every)  # (k - k0, k)
-        s_all_new = sees(every, new)  # (k, k - k0)
-        ok[k0:, :] = s_new_all & s_all_new.T
-        ok[:, k0:] = s_all_new & s_new_all.T
-    np.fill_diagonal(ok, False)
-    ok.setflags(write=False)
-    object.__setattr__(facets, "_facing", ok)
-    return ok

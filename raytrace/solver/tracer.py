@@ -30,13 +30,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import reflection as refl
 from ..core.constants import C0
 from ..core.errors import TraceInputError
 from ..physics.materials import fresnel, slab, slab_group_delay
+from ..scene import accel
+from ..scene.model import Scene
+from . import reflection as refl
 from .paths import DIFFRACTION, PENETRATION, REFLECTION, Paths
 from .penetration import segment_crossings
-from ..scene.model import Scene
 
 #: Paths whose power gain is below this (dB) carry no power (e.g. through metal) and are dropped.
 MIN_POWER_DB = -250.0
@@ -398,16 +399,16 @@ class _Context:
         img = refl.mirror(self.tx[t_idx], fc.normal[k_idx], fc.offset[k_idx])
         u, p = refl.segment_plane_point(self.rx[r_idx], img, fc.normal[k_idx], fc.offset[k_idx])
         ok = (u > 0) & (u < 1)
-        ok[ok] = refl.points_in_facets(p[ok], k_idx[ok], fc)
+        ok[ok] = accel.points_in_facets(p[ok], k_idx[ok], fc)
         return [self.finish(t_idx[ok], r_idx[ok], p[ok][:, None, :], k_idx[ok][:, None])]
 
     def reflections_2(self) -> list[Paths]:
         fc = self.scene.facets
-        pairs = refl.facing_pairs(fc)
+        pairs = accel.facing_pairs(fc)
         if self.facet_mask is not None:
             pairs = pairs & (self.facet_mask[:, None] | self.facet_mask[None, :])
         side_rx = refl.reflecting_side(fc, self.rx)  # (R, K)
-        centre, radius = refl.facet_spheres(fc)
+        centre, radius = accel.facet_spheres(fc)
         out: list[Paths] = []
         for t in range(len(self.tx)):
             side_t = refl.reflecting_side(fc, self.tx[t : t + 1])[0]  # (K,)
@@ -453,11 +454,11 @@ class _Context:
                     self.rx[r_idx], img2[q], fc.normal[ff2], fc.offset[ff2]
                 )
                 ok = (u2 > 0) & (u2 < 1)
-                ok[ok] = refl.points_in_facets(p2[ok], ff2[ok], fc)
+                ok[ok] = accel.points_in_facets(p2[ok], ff2[ok], fc)
                 q, r_idx, ff1, ff2, p2 = q[ok], r_idx[ok], ff1[ok], ff2[ok], p2[ok]
                 u1, p1 = refl.segment_plane_point(p2, img1[i1[q]], fc.normal[ff1], fc.offset[ff1])
                 ok = (u1 > 0) & (u1 < 1)
-                ok[ok] = refl.points_in_facets(p1[ok], ff1[ok], fc)
+                ok[ok] = accel.points_in_facets(p1[ok], ff1[ok], fc)
                 # the second reflection point must be on the side of the first facet that the
                 # transmitter is on
                 s2 = refl.signed_distance(p2[ok], fc.normal[ff1[ok]], fc.offset[ff1[ok]])

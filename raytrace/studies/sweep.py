@@ -340,7 +340,7 @@ def _hall_kwargs(params: Mapping[str, Any]) -> dict[str, Any]:
 
 def n_epochs(params: Mapping[str, Any]) -> int:
     """Epochs of a cell: ``floor(duration_s * rate_hz)``, as the dataset writer counts them."""
-    from ..solver.incremental import snapshot_times
+    from ..scene.motion import snapshot_times
 
     return len(snapshot_times(params["duration_s"], params["rate_hz"]))
 
@@ -348,8 +348,8 @@ def n_epochs(params: Mapping[str, Any]) -> int:
 def validate_cell(params: Mapping[str, Any]) -> None:
     """Check one cell's parameters without running it (one-line :class:`HallrayError`)."""
     from ..emulation.bands import get_band
-    from ..halls.inf import check_hall
     from ..emulation.receivers import TOA_METHODS
+    from ..halls.inf import check_hall
     from ..solver.tracer import TraceConfig
 
     if params.get("profile") is None:
@@ -455,12 +455,18 @@ def simulate_cell(
     """
     from positioning import locate
 
-    from ..emulation.bands import get_band
     from ..core.constants import C0
-    from ..emulation.dataset import CLOCK_OFFSET_MAX_S, DELTA_S, emulate_toa, epoch_rngs, prepare_links
-    from ..halls.spec import parse_hall_spec
-    from ..halls.inf import generate_hall, scene_from_spec, split_spec
+    from ..emulation.bands import get_band
+    from ..emulation.dataset import (
+        CLOCK_OFFSET_MAX_S,
+        DELTA_S,
+        emulate_toa,
+        epoch_rngs,
+        prepare_links,
+    )
     from ..emulation.receivers import Receiver
+    from ..halls.inf import generate_hall, scene_from_spec, split_spec
+    from ..halls.spec import parse_hall_spec
     from ..solver.tracer import trace
 
     t0 = time.perf_counter()

@@ -8,8 +8,8 @@ import numpy as np
 
 from ..core.errors import HallrayError
 from ..core.fileio import write_atomic
-from ..solver.paths import Paths
 from ..scene.model import Scene
+from ..solver.paths import Paths
 
 #: RGBA colour of a path by its main mechanism.
 KIND_COLOURS = {

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import io
 import os
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -28,9 +28,9 @@ import numpy as np
 
 from ..core.constants import C0
 from ..core.errors import HallrayError
-from .export import KIND_COLOURS, path_category, path_polylines
-from ..solver.paths import Paths
 from ..scene.model import Scene
+from ..solver.paths import Paths
+from .export import KIND_COLOURS, path_category, path_polylines
 
 #: Default picture size, pixels, and resolution.
 DEFAULT_SIZE_PX = (2000, 1000)
@@ -466,13 +466,3 @@ def _known_colours() -> set[str]:
     from ..halls.spec import MATERIAL_COLORS
 
     return set(MATERIAL_COLORS)
-
-
-def positions_from_metadata(scene: Scene) -> tuple[list[str], np.ndarray, list[str], np.ndarray]:
-    """Base station and point names and positions (T, 3), (R, 3) from the scene's metadata."""
-    meta = scene.metadata.get("hallray", {}) if isinstance(scene.metadata, Mapping) else {}
-    bs = meta.get("base_stations") or []
-    pts = meta.get("points") or []
-    tx = np.array([b["xyz"] for b in bs], dtype=float).reshape(-1, 3)
-    rx = np.array([p["xyz"] for p in pts], dtype=float).reshape(-1, 3)
-    return [str(b["name"]) for b in bs], tx, [str(p["name"]) for p in pts], rx

@@ -1,0 +1,192 @@
+"""Geometry of a scene's facets and wedges, and the derived arrays the mechanisms reuse.
+
+Point-in-facet tests and the acceleration arrays that every mechanism prunes with: facet
+bounding boxes and spheres, the facet pairs that can exchange a reflection, wedges grouped by
+object. The derived arrays are computed on first use and kept in the ``cache`` of the
+:class:`~raytrace.scene.model.Facets` or :class:`~raytrace.scene.model.Wedges` they describe
+(read-only arrays; a new Facets starts with an empty cache).
+
+A facet of a closed solid reflects only on its outward side; a facet of an open sheet on both.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .elements import Facets, Wedges
+
+#: Barycentric tolerance of the point-in-triangle test (dimensionless): a point on the shared
+#: edge of two triangles of one facet must not fall through the crack.
+BARY_TOL = 1e-9
+#: Points closer than this to a facet's plane (m) are on it: no reflection from there.
+PLANE_TOL_M = 1e-9
+
+
+def points_in_facets(points: np.ndarray, facet: np.ndarray, facets: Facets) -> np.ndarray:
+    """Whether each point (on its facet's plane) lies inside that facet.
+
+    A facet is a union of triangles; the point is inside if it is in any of them (barycentric
+    test in 3D, with :data:`BARY_TOL`).
+
+    Parameters
+    ----------
+    points : (n, 3) float, metres
+    facet : (n,) int, facet index of each point
+    facets : Facets
+
+    Returns
+    -------
+    (n,) bool
+    """
+    n = len(points)
+    if n == 0:
+        return np.zeros(0, dtype=bool)
+    # cheap rejection by the facet's bounding box first: most candidates fail here
+    lo, hi = facet_boxes(facets)
+    near = np.all((points >= lo[facet]) & (points <= hi[facet]), axis=1)
+    out = np.zeros(n, dtype=bool)
+    if near.any():
+        idx = np.flatnonzero(near)
+        out[idx] = _in_triangles(points[idx], facet[idx], facets)
+    return out
+
+
+def _in_triangles(points: np.ndarray, facet: np.ndarray, facets: Facets) -> np.ndarray:
+    """Barycentric test of points against all triangles of their facets."""
+    n = len(points)
+    counts = facets.tri_count[facet]
+    rep = np.repeat(np.arange(n), counts)
+    # index of each expanded triangle: tri_start[f] + 0..count-1
+    within = np.arange(len(rep)) - np.repeat(np.cumsum(counts) - counts, counts)
+    tri = facets.triangles[np.repeat(facets.tri_start[facet], counts) + within]
+    p = points[rep]
+    v0 = tri[:, 1] - tri[:, 0]
+    v1 = tri[:, 2] - tri[:, 0]
+    v2 = p - tri[:, 0]
+    d00 = np.einsum("ij,ij->i", v0, v0)
+    d01 = np.einsum("ij,ij->i", v0, v1)
+    d11 = np.einsum("ij,ij->i", v1, v1)
+    d20 = np.einsum("ij,ij->i", v2, v0)
+    d21 = np.einsum("ij,ij->i", v2, v1)
+    den = d00 * d11 - d01 * d01
+    v = (d11 * d20 - d01 * d21) / den
+    w = (d00 * d21 - d01 * d20) / den
+    inside_tri = (v >= -BARY_TOL) & (w >= -BARY_TOL) & (v + w <= 1 + BARY_TOL)
+    out = np.zeros(n, dtype=bool)
+    np.logical_or.at(out, rep, inside_tri)
+    return out
+
+
+def facet_boxes(facets: Facets, grow: float = 1e-6) -> tuple[np.ndarray, np.ndarray]:
+    """(K, 3) lower and upper corners of each facet's axis-aligned bounding box, grown by
+    ``grow`` metres (cached per ``grow``)."""
+    key = ("boxes", float(grow))
+    cached = facets.cache.get(key)
+    if cached is not None:
+        return cached
+    # a facet's triangles are contiguous, starting at tri_start
+    lo = np.minimum.reduceat(facets.triangles.min(axis=1), facets.tri_start, axis=0) - grow
+    hi = np.maximum.reduceat(facets.triangles.max(axis=1), facets.tri_start, axis=0) + grow
+    lo.setflags(write=False)
+    hi.setflags(write=False)
+    facets.cache[key] = (lo, hi)
+    return lo, hi
+
+
+def facet_spheres(facets: Facets) -> tuple[np.ndarray, np.ndarray]:
+    """Bounding sphere of each facet: centre (K, 3) and radius (K,), metres (cached)."""
+    cached = facets.cache.get("spheres")
+    if cached is not None:
+        return cached
+    lo, hi = facet_boxes(facets, 0.0)
+    centre = 0.5 * (lo + hi)
+    owner = np.repeat(np.arange(len(facets)), facets.tri_count * 3)
+    d = np.linalg.norm(facets.triangles.reshape(-1, 3) - centre[owner], axis=1)
+    radius = np.maximum.reduceat(d, 3 * facets.tri_start) * (1 + 1e-9) + 1e-9
+    centre.setflags(write=False)
+    radius.setflags(write=False)
+    facets.cache["spheres"] = (centre, radius)
+    return centre, radius
+
+
+def facing_pairs(facets: Facets, known: np.ndarray | None = None) -> np.ndarray:
+    """(K, K) bool: facet j can receive a reflection from facet i (necessary condition).
+
+    Some part of facet i must lie strictly on a reflecting side of facet j and vice versa
+    (closed solids reflect outward only). Excludes i == j and facets in the same plane. The result
+    is cached on the facets and read-only.
+
+    Parameters
+    ----------
+    facets : Facets
+    known : (k0, k0) bool, optional, the result for the first k0 facets (the same facets in the
+        same order, e.g. a static scene that moving objects are appended to): only the rows and
+        columns of the others are computed
+    """
+    cached = facets.cache.get("facing")
+    if cached is not None:
+        return cached
+    k = len(facets)
+    k0 = 0 if known is None else int(known.shape[0])
+    # sees[i, j]: any vertex of facet i on a reflecting side of facet j; a facet's vertices are
+    # contiguous, so one reduceat per block
+    starts = 3 * (np.cumsum(facets.tri_count) - facets.tri_count)
+    verts = facets.triangles.reshape(-1, 3)
+
+    def sees(rows: slice, cols: slice) -> np.ndarray:
+        v0 = starts[rows.start] if rows.start < k else len(verts)
+        s = verts[v0 : starts[rows.stop] if rows.stop < k else len(verts)]
+        s = s @ facets.normal[cols].T - facets.offset[None, cols]
+        first = starts[rows] - v0
+        front = np.logical_or.reduceat(s > PLANE_TOL_M, first, axis=0)
+        back = np.logical_or.reduceat(s < -PLANE_TOL_M, first, axis=0)
+        return front | (back & facets.two_sided[None, cols])
+
+    every = slice(0, k)
+    if k0 == 0:
+        both = sees(every, every)
+        ok = both & both.T
+    else:
+        ok = np.zeros((k, k), dtype=bool)
+        ok[:k0, :k0] = known
+    if 0 < k0 < k:
+        new = slice(k0, k)
+        s_new_all = sees(new, every)  # (k - k0, k)
+        s_all_new = sees(every, new)  # (k, k - k0)
+        ok[k0:, :] = s_new_all & s_all_new.T
+        ok[:, k0:] = s_all_new & s_new_all.T
+    np.fill_diagonal(ok, False)
+    ok.setflags(write=False)
+    facets.cache["facing"] = ok
+    return ok
+
+
+def wedge_groups(w: Wedges) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Wedges grouped by object, with each group's bounding sphere (cached).
+
+    Returns
+    -------
+    order : (W,) int, wedge indices sorted by object
+    start, count : (G,) int, each group's slice of ``order``
+    centre : (G, 3) float, metres
+    radius : (G,) float, metres (grown by a relative 1e-9)
+    """
+    cached = w.cache.get("groups")
+    if cached is not None:
+        return cached
+    order = np.argsort(w.object, kind="stable")
+    _, start, count = np.unique(w.object[order], return_index=True, return_counts=True)
+    a, b = w.start[order], w.end[order]
+    lo = np.minimum.reduceat(np.minimum(a, b), start, axis=0)
+    hi = np.maximum.reduceat(np.maximum(a, b), start, axis=0)
+    centre = 0.5 * (lo + hi)
+    owner = np.repeat(np.arange(len(start)), count)
+    d = np.maximum(
+        np.linalg.norm(a - centre[owner], axis=1), np.linalg.norm(b - centre[owner], axis=1)
+    )
+    radius = np.maximum.reduceat(d, start) * (1 + 1e-9) + 1e-9
+    out = (order, start, count, centre, radius)
+    for x in out:
+        x.setflags(write=False)
+    w.cache["groups"] = out
+    return out

@@ -1,0 +1,99 @@
+"""The arrays a scene is made of: objects, planar facets and wedges (structure of arrays).
+
+Plain containers without behaviour beyond their shapes; :mod:`raytrace.scene.model` builds them
+from meshes and :mod:`raytrace.scene.accel` derives the arrays the mechanisms prune with.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields
+from typing import Any
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Facets:
+    """Planar facets (connected coplanar triangles of one object), structure of arrays.
+
+    Attributes
+    ----------
+    normal : (K, 3) float, unit outward normal (for open sheets: the stored one; both sides reflect)
+    offset : (K,) float, metres; the plane is ``normal . x = offset``
+    object : (K,) int, object index
+    material : (K,) int, index into ``Scene.material_names``
+    two_sided : (K,) bool, True for facets of open sheets
+    area : (K,) float, m^2
+    tri_start, tri_count : (K,) int, the facet's triangles are
+        ``Facets.triangles[tri_start[k] : tri_start[k] + tri_count[k]]``
+    triangles : (M, 3, 3) float, vertices of the facets' triangles, metres
+    """
+
+    normal: np.ndarray
+    offset: np.ndarray
+    object: np.ndarray
+    material: np.ndarray
+    two_sided: np.ndarray
+    area: np.ndarray
+    tri_start: np.ndarray
+    tri_count: np.ndarray
+    triangles: np.ndarray
+    #: Derived arrays (bounding boxes, spheres, facing pairs), computed on first use by
+    #: :mod:`raytrace.scene.accel`; never copied to another Facets.
+    cache: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)
+
+    def __len__(self) -> int:
+        return int(self.normal.shape[0])
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """The per-facet arrays by field name (everything but the cache)."""
+        return {f.name: getattr(self, f.name) for f in fields(self) if f.name != "cache"}
+
+
+@dataclass(frozen=True)
+class Wedges:
+    """Diffracting edges, structure of arrays.
+
+    Attributes
+    ----------
+    start, end : (W, 3) float, edge end points, metres
+    direction : (W, 3) float, unit vector from start to end
+    length : (W,) float, metres
+    normal0, normal1 : (W, 3) float, outward unit normals of the two faces (for the free edge of a
+        sheet, the sheet normal and its opposite)
+    face0_dir : (W, 3) float, unit vector perpendicular to the edge, from the edge into face 0
+    n : (W,) float, exterior wedge angle over pi (2 for a half-plane, 1.5 for a right-angle corner)
+    object : (W,) int
+    material : (W,) int
+    """
+
+    start: np.ndarray
+    end: np.ndarray
+    direction: np.ndarray
+    length: np.ndarray
+    normal0: np.ndarray
+    normal1: np.ndarray
+    face0_dir: np.ndarray
+    n: np.ndarray
+    object: np.ndarray
+    material: np.ndarray
+    #: Derived arrays (groups by object), computed on first use by :mod:`raytrace.scene.accel`.
+    cache: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)
+
+    def __len__(self) -> int:
+        return int(self.start.shape[0])
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """The per-wedge arrays by field name (everything but the cache)."""
+        return {f.name: getattr(self, f.name) for f in fields(self) if f.name != "cache"}
+
+
+@dataclass
+class SceneObject:
+    """One object of the scene (one Embree geometry)."""
+
+    name: str
+    material: str
+    closed: bool
+    face_start: int
+    face_count: int

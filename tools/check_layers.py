@@ -1,0 +1,222 @@
+#!/usr/bin/env python3
+"""Check that hallray's imports follow its layers (docs/architecture.md); run by CI.
+
+Fails (exit 1, one line per violation) on:
+
+* an import that goes against the arrows between raytrace's subpackages (``LAYERS`` below);
+* ``positioning`` importing ``raytrace``, or anything importing ``raytrace.cli``;
+* a solver stage module imported by anything but the tracer;
+* an import cycle between our modules (module-level and function-local imports together);
+* a function-local import of our own module that would close a cycle if it were at module level
+  (an import made only to dodge a cycle).
+
+Function-local imports that do not close a cycle are fine (lazy loading of heavy modules).
+Imports inside ``if TYPE_CHECKING:`` count like any other: a cycle of types is a cycle. Standard
+library only.
+
+Usage: ``python tools/check_layers.py [ROOT]`` (default: the checkout this file is in).
+"""
+
+from __future__ import annotations
+
+import ast
+import sys
+from collections import defaultdict
+from pathlib import Path
+
+#: Subpackage -> the subpackages of raytrace it may import (itself included).
+LAYERS: dict[str, set[str]] = {
+    "core": {"core"},
+    "physics": {"core", "physics"},
+    "scene": {"core", "physics", "scene"},
+    "solver": {"core", "physics", "scene", "solver"},
+    "emulation": {"core", "physics", "scene", "solver", "emulation"},
+    "halls": {"core", "physics", "scene", "halls"},
+    "viz": {"core", "physics", "scene", "solver.paths", "halls", "viz"},
+    "studies": {"core", "physics", "scene", "solver", "emulation", "halls", "viz", "studies"},
+    "cli": {"core", "physics", "scene", "solver", "emulation", "halls", "viz", "studies", "cli"},
+}
+#: The package's own __init__ re-exports the public API from these.
+TOP_ALLOWED = {"core", "physics", "scene", "solver", "emulation"}
+#: Solver modules that only the tracer may import (the stages and their back end).
+STAGES = {"raytrace.solver.specular", "raytrace.solver.diffraction", "raytrace.solver.evaluate"}
+STAGE_IMPORTERS = {"raytrace.solver.tracer"} | STAGES
+
+
+def module_name(root: Path, path: Path) -> str:
+    parts = list(path.relative_to(root).with_suffix("").parts)
+    if parts[-1] == "__init__":
+        parts = parts[:-1]
+    return ".".join(parts)
+
+
+def imports_of(tree: ast.Module, mod: str, is_pkg: bool, known: set[str]):
+    """Yield ``(target module, line, local)`` for every import of our own modules."""
+
+    def resolve(node: ast.ImportFrom) -> list[str]:
+        if node.level:
+            base = mod.split(".") if is_pkg else mod.split(".")[:-1]
+            base = base[: len(base) - (node.level - 1)]
+            prefix = ".".join(base + ([node.module] if node.module else []))
+        else:
+            prefix = node.module or ""
+        out = []
+        for alias in node.names:
+            sub = f"{prefix}.{alias.name}"
+            out.append(sub if sub in known else prefix)
+        return out
+
+    def visit(node: ast.AST, local: bool) -> None:
+        for child in ast.iter_child_nodes(node):
+            inner = local or isinstance(child, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda))
+            if isinstance(child, ast.Import):
+                for a in child.names:
+                    found.append((a.name, child.lineno, local))
+            elif isinstance(child, ast.ImportFrom):
+                for target in resolve(child):
+                    found.append((target, child.lineno, local))
+            visit(child, inner)
+
+    found: list[tuple[str, int, bool]] = []
+    visit(tree, False)
+    for target, line, local in found:
+        while target and target not in known:
+            target = target.rpartition(".")[0]
+        if target:
+            yield target, line, local
+
+
+def layer_of(mod: str) -> str | None:
+    parts = mod.split(".")
+    if parts[0] != "raytrace":
+        return None
+    return parts[1] if len(parts) > 1 and parts[1] in LAYERS else ""
+
+
+def allowed(src: str, dst: str) -> bool:
+    s, d = layer_of(src), layer_of(dst)
+    if src.startswith("positioning"):
+        return not dst.startswith("raytrace")
+    if s is None or d is None:
+        return True  # positioning targets are checked by the raytrace side below
+    if d == "":  # raytrace/__init__ (the public API, __version__)
+        return s == ""
+    if s == "":
+        return d in TOP_ALLOWED
+    if d == "cli":
+        return s == "cli"
+    if dst in STAGES and src not in STAGE_IMPORTERS:
+        return False
+    ok = LAYERS[s]
+    if d in ok:
+        return True
+    return any(dst == f"raytrace.{q}" or dst.startswith(f"raytrace.{q}.") for q in ok if "." in q)
+
+
+def cycles(edges: dict[str, set[str]]) -> list[list[str]]:
+    """Strongly connected components with more than one module (Tarjan, iterative)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on: set[str] = set()
+    out: list[list[str]] = []
+    counter = 0
+    for start in sorted(edges):
+        if start in index:
+            continue
+        work = [(start, iter(sorted(edges.get(start, ()))))]
+        index[start] = low[start] = counter
+        counter += 1
+        stack.append(start)
+        on.add(start)
+        while work:
+            v, it = work[-1]
+            nxt = next(it, None)
+            if nxt is not None:
+                if nxt not in index:
+                    index[nxt] = low[nxt] = counter
+                    counter += 1
+                    stack.append(nxt)
+                    on.add(nxt)
+                    work.append((nxt, iter(sorted(edges.get(nxt, ())))))
+                elif nxt in on:
+                    low[v] = min(low[v], index[nxt])
+                continue
+            work.pop()
+            if work:
+                low[work[-1][0]] = min(low[work[-1][0]], low[v])
+            if low[v] == index[v]:
+                comp = []
+                while True:
+                    w = stack.pop()
+                    on.discard(w)
+                    comp.append(w)
+                    if w == v:
+                        break
+                if len(comp) > 1:
+                    out.append(sorted(comp))
+    return out
+
+
+def reachable(edges: dict[str, set[str]], a: str, b: str) -> bool:
+    seen, todo = {a}, [a]
+    while todo:
+        v = todo.pop()
+        if v == b:
+            return True
+        for w in edges.get(v, ()):
+            if w not in seen:
+                seen.add(w)
+                todo.append(w)
+    return False
+
+
+def check(root: Path) -> list[str]:
+    files = {}
+    for pkg in ("raytrace", "positioning"):
+        for path in sorted((root / pkg).rglob("*.py")):
+            files[module_name(root, path)] = path
+    known = set(files)
+    problems: list[str] = []
+    module_edges: dict[str, set[str]] = defaultdict(set)
+    all_edges: dict[str, set[str]] = defaultdict(set)
+    local_edges: list[tuple[str, str, int]] = []
+    for mod, path in files.items():
+        tree = ast.parse(path.read_text(encoding="utf-8"), str(path))
+        rel = path.relative_to(root)
+        for dst, line, local in imports_of(tree, mod, path.name == "__init__.py", known):
+            if dst == mod or mod.startswith(dst + "."):
+                continue  # a module importing its own package's __init__ runs first anyway
+            if not allowed(mod, dst):
+                problems.append(f"{rel}:{line}: {mod} imports {dst} (against the layers)")
+            all_edges[mod].add(dst)
+            if local:
+                local_edges.append((mod, dst, line))
+            else:
+                module_edges[mod].add(dst)
+    for comp in cycles(all_edges):
+        problems.append(f"import cycle: {' -> '.join(comp)}")
+    for src, dst, line in local_edges:
+        if dst not in module_edges[src] and reachable(module_edges, dst, src):
+            rel = files[src].relative_to(root)
+            problems.append(
+                f"{rel}:{line}: function-local import of {dst} dodges a cycle ({dst} imports "
+                f"{src} at module level)"
+            )
+    return problems
+
+
+def main(argv: list[str]) -> int:
+    root = Path(argv[1]) if len(argv) > 1 else Path(__file__).resolve().parents[1]
+    problems = check(root)
+    for p in problems:
+        print(p)
+    if problems:
+        print(f"{len(problems)} layer violation(s)", file=sys.stderr)
+        return 1
+    print("layers ok")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main(sys.argv))
