@@ -9,17 +9,13 @@ The main entry points::
 
 from __future__ import annotations
 
-from importlib.metadata import PackageNotFoundError, version
-
 from .core.errors import HallrayError, MaterialError, SceneError, TraceInputError
+from .core.version import __version__
 from .scene.model import Scene, load_scene
+from .solver.config import TraceConfig
+from .solver.context import TraceContext
 from .solver.paths import Paths
-from .solver.tracer import TraceConfig, trace
-
-try:
-    __version__ = version("hallray")
-except PackageNotFoundError:  # running from a source checkout
-    __version__ = "0.0.0+checkout"
+from .solver.tracer import reevaluate, trace
 
 __all__ = [
     "HallrayError",
@@ -28,8 +24,10 @@ __all__ = [
     "Scene",
     "SceneError",
     "TraceConfig",
+    "TraceContext",
     "TraceInputError",
     "__version__",
     "load_scene",
+    "reevaluate",
     "trace",
 ]

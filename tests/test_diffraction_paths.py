@@ -9,6 +9,7 @@ from scipy.optimize import minimize_scalar
 
 from raytrace.core.constants import C0
 from raytrace.physics.utd import fresnel_kirchhoff_v, knife_edge_loss_db
+from raytrace.solver.config import TraceConfig
 from raytrace.solver.paths import DIFFRACTION
 from raytrace.solver.tracer import trace
 
@@ -44,7 +45,9 @@ def test_metal_box_first_arrival_is_the_shortest_edge_diffraction():
     sc = _metal_box_scene()
     tx = np.array([[0.0, 0.0, 4.0]])
     rx = np.array([[10.0, 0.5, 1.0]])
-    p = trace(sc, tx, rx, F_C, max_reflections=2, max_penetrations=2, max_diffractions=1)
+    p = trace(
+        sc, tx, rx, F_C, TraceConfig(max_reflections=2, max_penetrations=2, max_diffractions=1)
+    )
     assert not p.los.any()
     first = p.first_arrival()[0]
     assert p.kind_label[first] == "D"
@@ -69,10 +72,7 @@ def test_reflection_into_edge_and_edge_into_reflection():
         tx,
         rx,
         F_C,
-        max_reflections=1,
-        max_penetrations=0,
-        max_diffractions=1,
-        max_interactions=2,
+        TraceConfig(max_reflections=1, max_penetrations=0, max_diffractions=1, max_interactions=2),
     )
     a, b = np.array([5.0, -15.0, 3.0]), np.array([5.0, 15.0, 3.0])
     kinds = p.kind_label
@@ -102,7 +102,9 @@ def test_half_plane_shadow_matches_knife_edge(rx_z):
     d1, d2 = 30.0, 30.0
     tx = np.array([[-d1, 0.0, -0.2]])
     rx = np.array([[d2, 0.0, rx_z]])
-    p = trace(sc, tx, rx, F_C, max_reflections=0, max_penetrations=0, max_diffractions=1)
+    p = trace(
+        sc, tx, rx, F_C, TraceConfig(max_reflections=0, max_penetrations=0, max_diffractions=1)
+    )
     assert not p.los.any()
     # the top edge (z = 0); the finite screen's side edges diffract too, much weaker
     d = p.select((p.kind_label == "D") & np.isclose(p.points[:, 0, 2], 0.0, atol=1e-9))
@@ -159,8 +161,8 @@ def test_mixed_path_pruning_loses_no_path(monkeypatch, seed):
     import raytrace.solver.diffraction as dp
 
     sc, tx, rx = _cluttered_scene(seed)
-    kw = dict(max_reflections=2, max_penetrations=2, max_diffractions=1, max_interactions=3)
-    pruned = trace(sc, tx, rx, F_C, **kw)
+    cfg = TraceConfig(max_reflections=2, max_penetrations=2, max_diffractions=1, max_interactions=3)
+    pruned = trace(sc, tx, rx, F_C, cfg)
     assert {"RD", "DR", "RDR"} <= set(pruned.kind_label)
 
     def whole_edge(a, b, lo, hi):
@@ -169,7 +171,7 @@ def test_mixed_path_pruning_loses_no_path(monkeypatch, seed):
     admit_every_beam(monkeypatch)
     monkeypatch.setattr(dp, "_segment_box_span", whole_edge)
     monkeypatch.setattr(dp, "SPAN_PAD_M", np.inf)
-    _same_paths(pruned, trace(sc, tx, rx, F_C, **kw))
+    _same_paths(pruned, trace(sc, tx, rx, F_C, cfg))
 
 
 def test_segment_box_span_against_sampling():
@@ -236,9 +238,9 @@ def test_relabelled_faces_give_the_same_diffraction():
     rng = np.random.default_rng(17)
     tx = rng.uniform([-8, -8, 0.5], [8, 8, 4], (3, 3))
     rx = rng.uniform([-8, -8, 0.5], [8, 8, 4], (6, 3))
-    kw = dict(max_reflections=1, max_penetrations=1, max_diffractions=1, max_interactions=2)
-    a = trace(sc, tx, rx, F_C, **kw)
-    b = trace(_relabelled(sc), tx, rx, F_C, **kw)
+    cfg = TraceConfig(max_reflections=1, max_penetrations=1, max_diffractions=1, max_interactions=2)
+    a = trace(sc, tx, rx, F_C, cfg)
+    b = trace(_relabelled(sc), tx, rx, F_C, cfg)
     d = a.n_diffractions > 0
     assert d.sum() > 50
     ka = np.lexsort((a.delay_s, a.link))
@@ -271,7 +273,9 @@ def test_mirrored_links_about_a_concrete_pillar_edge_have_the_same_diffracted_ga
     swap = np.array([1, 0, 2])
     gains = []
     for t, q in ((tx, rx), (tx[:, swap], rx[:, swap])):
-        p = trace(sc, t, q, F_C, max_reflections=0, max_penetrations=0, max_diffractions=1)
+        p = trace(
+            sc, t, q, F_C, TraceConfig(max_reflections=0, max_penetrations=0, max_diffractions=1)
+        )
         on_edge = (p.n_diffractions == 1) & np.all(np.isclose(p.points[:, 0, :2], edge), axis=1)
         g = np.full(len(t) * len(q), np.nan)
         g[p.link[on_edge]] = 20 * np.log10(np.abs(p.gain[on_edge]))
@@ -296,7 +300,9 @@ def test_no_diffraction_at_room_corners_or_where_a_box_stands(name):
             np.array([[-5.0, 0.0, 1.5]]),
             np.array([[5.0, 0.0, 1.5], [0.0, 5.0, 1.0], [2.0, 3.0, 0.3]]),
         )
-    p = trace(sc, tx, rx, F_C, max_reflections=2, max_penetrations=2, max_diffractions=1)
+    p = trace(
+        sc, tx, rx, F_C, TraceConfig(max_reflections=2, max_penetrations=2, max_diffractions=1)
+    )
     d = p.n_diffractions > 0
     if name.endswith("shoebox"):
         assert not d.any()  # the room's edges are concave inside; their outside is out of reach

@@ -13,10 +13,10 @@ from raytrace.scene.dynamic import extend_scene, posed, yaw_rotations
 from raytrace.scene.metadata import routes_from_metadata
 from raytrace.scene.model import Scene
 from raytrace.scene.motion import FORKLIFT_CLEARANCE_M, Route, snapshot_times
+from raytrace.solver.config import TraceConfig
 from raytrace.solver.incremental import (
     Boxes,
     SnapshotTracer,
-    TraceSettings,
     path_segments,
     segments_meet_boxes,
 )
@@ -178,7 +178,7 @@ def test_segment_box_axis_parallel_and_contained_cases():
 def test_path_segments_follow_the_vertices(shoebox):
     tx = np.array([[2.0, 3.0, 1.5]])
     rx = np.array([[7.0, 5.0, 1.2], [5.0, 5.0, 2.0]])
-    p = trace(shoebox, tx, rx, F_C, max_diffractions=0)
+    p = trace(shoebox, tx, rx, F_C, TraceConfig(max_diffractions=0))
     a, b, path = path_segments(p)
     n_seg = np.bincount(path, minlength=p.n_paths)
     np.testing.assert_array_equal(n_seg, p.n_reflections + 1)
@@ -312,7 +312,7 @@ def test_forklift_blocks_line_of_sight_exactly_when_in_the_way():
     tx = np.array([[10.0, 2.0, 1.0]])
     rx = np.array([[10.0, 18.0, 1.0]])
     route = _crossing_route()
-    st = SnapshotTracer(scene, tx, rx, [route], [F_C], TraceSettings(max_reflections=1))
+    st = SnapshotTracer(scene, tx, rx, [route], [F_C], TraceConfig(max_reflections=1))
     times = snapshot_times(16.0, 10.0)
     x, _ = route.pose(times)
     # the LoS (x = 10, z = 1 within the box's height) crosses y = 10; blocked iff |x - 10| < 1
@@ -370,15 +370,15 @@ def test_incremental_equals_full_retrace_small_scene(t):
 def test_incremental_equals_full_retrace_when_bands_block_differently(monkeypatch):
     """Objects opaque in one band only (a material that blocks at mmWave but not at C-band) do
     not block the shared geometric trace; each band still equals its full retrace."""
+    import raytrace.solver.context as context_mod
     import raytrace.solver.incremental as dyn
-    import raytrace.solver.tracer as tracer_mod
 
-    real = tracer_mod.opaque_objects
+    real = context_mod.opaque_objects
 
     def mmwave_only(scene, frequency_hz, *a, **kw):
         return real(scene, frequency_hz, *a, **kw) & (frequency_hz > 10e9)
 
-    monkeypatch.setattr(tracer_mod, "opaque_objects", mmwave_only)
+    monkeypatch.setattr(context_mod, "opaque_objects", mmwave_only)
     monkeypatch.setattr(dyn, "opaque_objects", mmwave_only)
     scene = make_scene(_static_objects())
     route, tx, rx = _loop_route_and_links()
@@ -405,7 +405,7 @@ def test_antenna_inside_a_forklift_is_refused():
         [[10.0, 10.0, 1.0]],
         [_crossing_route()],
         [F_C],
-        TraceSettings(max_reflections=0, max_diffractions=0),
+        TraceConfig(max_reflections=0, max_diffractions=0),
     )
     with pytest.raises(SceneError, match="inside forklift 'forklift_1' at t = 3.5 s"):
         st.check_clear(snapshot_times(16.0, 10.0), ["BS1"], ["P1"])

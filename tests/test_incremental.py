@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from conftest import box, make_scene, quad, shoebox_sheets
 
+from raytrace.solver.config import TraceConfig
 from raytrace.solver.paths import Paths
 from raytrace.solver.tracer import reevaluate, trace
 
@@ -26,13 +27,13 @@ def test_incremental_equals_full_retrace(forklift_x):
     forklift = ("forklift", box((forklift_x, 3.0, 0.0), (forklift_x + 2.0, 4.2, 2.2)), "metal")
     tx = np.array([[1.0, 1.0, 3.0], [11.0, 9.0, 3.0]])
     rx = np.array([[11.0, 4.0, 1.0], [4.0, 8.5, 1.0], [6.0, 2.0, 1.0]])
-    kw = dict(max_reflections=2, max_penetrations=2, max_diffractions=1, max_interactions=2)
+    cfg = TraceConfig(max_reflections=2, max_penetrations=2, max_diffractions=1, max_interactions=2)
     s0 = make_scene(static)
     s1 = make_scene(static + [forklift])
-    base = trace(s0, tx, rx, F_C, **kw)
-    full = trace(s1, tx, rx, F_C, **kw)
-    new = trace(s1, tx, rx, F_C, involving=[len(static)], **kw)
-    inc = Paths.concatenate([reevaluate(s1, base, max_penetrations=2), new]).sorted()
+    base = trace(s0, tx, rx, F_C, cfg)
+    full = trace(s1, tx, rx, F_C, cfg)
+    new = trace(s1, tx, rx, F_C, cfg, involving=[len(static)])
+    inc = Paths.concatenate([reevaluate(s1, base, TraceConfig(max_penetrations=2)), new]).sorted()
     assert inc.n_paths == full.n_paths
     a, b = _key(inc), _key(full)
     np.testing.assert_array_equal(a[0], b[0])

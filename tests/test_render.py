@@ -10,6 +10,7 @@ from conftest import box, make_scene, quad
 
 from raytrace.cli.render_scene import render_scene_main
 from raytrace.scene.model import load_scene
+from raytrace.solver.config import TraceConfig
 from raytrace.solver.tracer import trace
 from raytrace.viz.export import KIND_COLOURS
 from raytrace.viz.render import _camera_cut, _object_arrays, link_paths, render_scene
@@ -146,7 +147,7 @@ def test_render_scene_library_call_on_the_hall(tmp_path):
     meta = scene.metadata["hallray"]
     bs = np.array([b["xyz"] for b in meta["base_stations"]])
     pts = np.array([p["xyz"] for p in meta["points"]])
-    p = trace(scene, bs[:1], pts[6:7], 3.775e9, max_diffractions=0)  # BS1 -> P07
+    p = trace(scene, bs[:1], pts[6:7], 3.775e9, TraceConfig(max_diffractions=0))  # BS1 -> P07
     links = link_paths(p, [0], ["BS1"], ["P07"], max_paths=4)
     info = render_scene(scene, tmp_path / "hall.png", links=links, size_px=(900, 450), dpi=72)
     assert info["size_px"] == [900, 450] and info["paths_drawn"] == 5

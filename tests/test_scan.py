@@ -26,6 +26,7 @@ from raytrace.halls.scan import (
     simulate_scan,
 )
 from raytrace.scene.model import load_scene
+from raytrace.solver.config import TraceConfig
 from raytrace.solver.tracer import trace
 
 #: Reconstructed floor, ceiling and walls within this of the originals (offset and tilt), m.
@@ -253,9 +254,9 @@ def test_hall_first_arrivals_agree_with_the_original(hall_scan):
     meta = hall.metadata["hallray"]
     bs = np.array([b["xyz"] for b in meta["base_stations"]])
     pts = np.array([p["xyz"] for p in meta["points"]])
-    kw = {"max_reflections": 2, "max_penetrations": 0, "max_diffractions": 0}
-    a = trace(hall, bs, pts, 3.775e9, **kw)
-    b = trace(rec, bs, pts, 3.775e9, **kw)
+    cfg = TraceConfig(max_reflections=2, max_penetrations=0, max_diffractions=0)
+    a = trace(hall, bs, pts, 3.775e9, cfg)
+    b = trace(rec, bs, pts, 3.775e9, cfg)
     fa, fb = a.first_arrival(), b.first_arrival()
     los_a = np.zeros(a.n_links, bool)
     los_a[a.link[a.los]] = True

@@ -11,6 +11,7 @@ from conftest import admit_every_beam, box, make_scene, quad, shoebox_sheets
 from raytrace.core.constants import C0
 from raytrace.core.errors import TraceInputError
 from raytrace.physics.materials import Material, MaterialLibrary, fresnel, slab, slab_group_delay
+from raytrace.solver.config import TraceConfig
 from raytrace.solver.tracer import trace
 
 DELAY_TOL_S = 1e-12
@@ -38,7 +39,9 @@ def test_line_of_sight_delay_and_friis_gain():
     rng = np.random.default_rng(1)
     tx = rng.uniform(-5, 5, (3, 3))
     rx = rng.uniform(-5, 5, (5, 3))
-    p = trace(sc, tx, rx, F_C, max_reflections=0, max_penetrations=0, max_diffractions=0)
+    p = trace(
+        sc, tx, rx, F_C, TraceConfig(max_reflections=0, max_penetrations=0, max_diffractions=0)
+    )
     los = p.select(p.los)
     assert los.n_paths == 15
     d = np.linalg.norm(tx[los.tx_index] - rx[los.rx_index], axis=1)
@@ -56,7 +59,9 @@ def test_one_wall_reflection_te_closed_form():
     sc = make_scene([("wall", wall, "concrete")])
     tx = np.array([[0.0, 0.0, 2.0]])
     rx = np.array([[6.0, 1.5, 2.0]])
-    p = trace(sc, tx, rx, F_C, max_reflections=1, max_penetrations=0, max_diffractions=0)
+    p = trace(
+        sc, tx, rx, F_C, TraceConfig(max_reflections=1, max_penetrations=0, max_diffractions=0)
+    )
     r = p.select(p.n_reflections == 1)
     assert r.n_paths == 1
     image = np.array([0.0, 10.0, 2.0])
@@ -80,7 +85,9 @@ def test_floor_reflection_tm_magnitude():
     sc = make_scene([("floor", floor, "concrete")])
     tx = np.array([[0.0, 0.0, 4.0]])
     rx = np.array([[10.0, 3.0, 1.0]])
-    p = trace(sc, tx, rx, F_C, max_reflections=1, max_penetrations=0, max_diffractions=0)
+    p = trace(
+        sc, tx, rx, F_C, TraceConfig(max_reflections=1, max_penetrations=0, max_diffractions=0)
+    )
     r = p.select(p.n_reflections == 1)
     assert r.n_paths == 1
     image = np.array([0.0, 0.0, -4.0])
@@ -115,7 +122,9 @@ def test_shoebox_image_sources_up_to_order_two(rx):
     sc = make_scene(shoebox_sheets(size))
     tx = np.array([[2.0, 3.0, 1.5]])
     rxa = np.array([rx])
-    p = trace(sc, tx, rxa, F_C, max_reflections=2, max_penetrations=0, max_diffractions=0)
+    p = trace(
+        sc, tx, rxa, F_C, TraceConfig(max_reflections=2, max_penetrations=0, max_diffractions=0)
+    )
     images = _shoebox_images(tx[0], size, 2)
     assert len(images) == 25
     expected = np.sort([np.linalg.norm(np.array(img) - rxa[0]) / C0 for img, _ in images])
@@ -130,8 +139,8 @@ def test_shoebox_image_sources_up_to_order_two(rx):
 def test_shoebox_extra_paths_only_with_penetrations(shoebox):
     tx = np.array([[2.0, 3.0, 1.5]])
     rx = np.array([[7.0, 5.0, 1.2]])
-    p0 = trace(shoebox, tx, rx, F_C, max_penetrations=0, max_diffractions=0)
-    p2 = trace(shoebox, tx, rx, F_C, max_penetrations=2, max_diffractions=0)
+    p0 = trace(shoebox, tx, rx, F_C, TraceConfig(max_penetrations=0, max_diffractions=0))
+    p2 = trace(shoebox, tx, rx, F_C, TraceConfig(max_penetrations=2, max_diffractions=0))
     assert p2.n_paths >= p0.n_paths
     no_pen = p2.select(p2.n_penetrations == 0)
     np.testing.assert_allclose(np.sort(no_pen.delay_s), np.sort(p0.delay_s), atol=DELAY_TOL_S)
@@ -150,7 +159,9 @@ def test_penetrable_box_one_penetration_through_the_chord():
     sc = _box_scene("concrete")
     tx = np.array([[0.0, 0.0, 1.5]])
     rx = np.array([[10.0, 0.5, 1.5]])
-    p = trace(sc, tx, rx, F_C, max_reflections=0, max_penetrations=2, max_diffractions=0)
+    p = trace(
+        sc, tx, rx, F_C, TraceConfig(max_reflections=0, max_penetrations=2, max_diffractions=0)
+    )
     assert not p.los.any()
     t = p.select(p.n_penetrations == 1)
     assert t.n_paths == 1
@@ -160,7 +171,9 @@ def test_penetrable_box_one_penetration_through_the_chord():
     mat = MaterialLibrary.itu()["concrete"]
     tau = slab_group_delay(mat.permittivity(F_C), cos_i, 1.0, mat.permittivity_slope(F_C))
     assert abs(t.delay_s[0] - d / C0 - tau) < DELAY_TOL_S
-    free = trace(sc, tx, rx, F_C, max_reflections=0, max_diffractions=0, slab_delay=False)
+    free = trace(
+        sc, tx, rx, F_C, TraceConfig(max_reflections=0, max_diffractions=0, slab_delay=False)
+    )
     assert abs(free.delay_s[0] - d / C0) < DELAY_TOL_S  # switched off: the geometric delay
     np.testing.assert_allclose(free.gain, t.gain, rtol=1e-12)  # the field is the same
     # entry point on the face x = 4
@@ -192,7 +205,9 @@ def test_lossless_slab_delays_a_penetrating_path_as_geometric_optics():
     )
     tx = np.array([[0.0, 0.0, 1.5]])
     rx = np.array([[10.0, 2.5, 1.5]])
-    p = trace(sc, tx, rx, F_C, max_reflections=0, max_penetrations=1, max_diffractions=0)
+    p = trace(
+        sc, tx, rx, F_C, TraceConfig(max_reflections=0, max_penetrations=1, max_diffractions=0)
+    )
     assert p.n_paths == 1 and p.n_penetrations[0] == 1
     d = np.linalg.norm(rx[0] - tx[0])
     theta = np.arccos((rx[0] - tx[0])[0] / d)
@@ -208,7 +223,9 @@ def test_metal_box_carries_no_penetration_power():
     sc = _box_scene("metal")
     tx = np.array([[0.0, 0.0, 1.5]])
     rx = np.array([[10.0, 0.5, 1.5]])
-    p = trace(sc, tx, rx, F_C, max_reflections=2, max_penetrations=2, max_diffractions=0)
+    p = trace(
+        sc, tx, rx, F_C, TraceConfig(max_reflections=2, max_penetrations=2, max_diffractions=0)
+    )
     assert not p.los.any()
     assert (p.n_penetrations == 0).all()
 
@@ -216,12 +233,12 @@ def test_metal_box_carries_no_penetration_power():
 def test_identical_runs_and_receiver_order_independence(shoebox):
     tx = np.array([[2.0, 3.0, 1.5], [8.0, 1.0, 2.5]])
     rx = np.array([[7.0, 5.0, 1.2], [5.0, 5.0, 2.0], [1.0, 7.0, 0.5]])
-    a = trace(shoebox, tx, rx, F_C, max_diffractions=0)
-    b = trace(shoebox, tx, rx, F_C, max_diffractions=0)
+    a = trace(shoebox, tx, rx, F_C, TraceConfig(max_diffractions=0))
+    b = trace(shoebox, tx, rx, F_C, TraceConfig(max_diffractions=0))
     np.testing.assert_array_equal(a.delay_s, b.delay_s)
     np.testing.assert_array_equal(a.gain, b.gain)
     perm = np.array([2, 0, 1])
-    c = trace(shoebox, tx, rx[perm], F_C, max_diffractions=0)
+    c = trace(shoebox, tx, rx[perm], F_C, TraceConfig(max_diffractions=0))
     for new_r, old_r in enumerate(perm):
         for t in range(len(tx)):
             ma = (a.tx_index == t) & (a.rx_index == old_r)
@@ -269,7 +286,7 @@ def test_beam_pruning_loses_no_path(monkeypatch):
 
 
 def test_opaque_objects_are_metals_of_realistic_thickness():
-    from raytrace.solver.tracer import TraceConfig, _Context, opaque_objects
+    from raytrace.solver.context import TraceContext, opaque_objects
 
     lib = MaterialLibrary.itu().with_yaml(
         {"materials": {"foil": {"eta_real": 1.0, "sigma": 1e7, "thickness": 1e-8}}}
@@ -285,7 +302,9 @@ def test_opaque_objects_are_metals_of_realistic_thickness():
         lib,
     )
     for f in (F_C, 26.85e9):
-        ctx = _Context(sc, np.array([[2.0, 3, 0.5]]), np.array([[2.0, 4, 0.5]]), f, TraceConfig())
+        ctx = TraceContext(
+            sc, np.array([[2.0, 3, 0.5]]), np.array([[2.0, 4, 0.5]]), f, TraceConfig()
+        )
         op = opaque_objects(sc, f, -250.0)
         np.testing.assert_array_equal(op, ctx.opaque)
         # a 10 nm foil transmits: what decides is the slab loss, not the material's name

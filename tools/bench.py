@@ -20,7 +20,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from raytrace import load_scene, trace  # noqa: E402
+from raytrace import TraceConfig, load_scene, trace  # noqa: E402
 
 
 def _best_of(fn, repeat):
@@ -41,9 +41,9 @@ def bench_trace(scene_name: str, repeat: int) -> dict:
     rx = np.array([p["xyz"] for p in meta["points"]], float)
     n_links = len(tx) * len(rx)
     configs = {
-        "los_only": dict(max_reflections=0, max_penetrations=0, max_diffractions=0),
-        "los_r2_t2": dict(max_reflections=2, max_penetrations=2, max_diffractions=0),
-        "los_r2_t2_d1_mixed": dict(
+        "los_only": TraceConfig(max_reflections=0, max_penetrations=0, max_diffractions=0),
+        "los_r2_t2": TraceConfig(max_reflections=2, max_penetrations=2, max_diffractions=0),
+        "los_r2_t2_d1_mixed": TraceConfig(
             max_reflections=2, max_penetrations=2, max_diffractions=1, max_interactions=2
         ),
     }
@@ -56,12 +56,12 @@ def bench_trace(scene_name: str, repeat: int) -> dict:
         "load_s": round(load_s, 4),
         "configs": {},
     }
-    for name, kw in configs.items():
-        if kw["max_diffractions"] and not len(scene.wedges):
+    for name, cfg in configs.items():
+        if cfg.max_diffractions and not len(scene.wedges):
             continue
         stats: dict[str, int] = {}
-        best, paths = _best_of(lambda kw=kw: trace(scene, tx, rx, 3.775e9, **kw), repeat)
-        trace(scene, tx, rx, 3.775e9, stats=stats, **kw)
+        best, paths = _best_of(lambda cfg=cfg: trace(scene, tx, rx, 3.775e9, cfg), repeat)
+        trace(scene, tx, rx, 3.775e9, cfg, stats=stats)
         segs = int(stats.get("segments_tested", 0))
         out["configs"][name] = {
             "seconds": round(best, 4),

@@ -21,6 +21,7 @@ from collections.abc import Sequence
 
 from ..core.errors import HallrayError
 from ..emulation.receivers import DEFAULT_TOA_METHOD, TOA_METHODS, FirstLobeSettings
+from ..solver.config import add_trace_arguments
 from .trace_scene import OneLineParser
 
 EXIT_BAD_INPUT = 2
@@ -71,12 +72,8 @@ def make_dataset_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--no-noise", action="store_true", help="no estimation noise (first-path: exact delays)"
     )
-    p.add_argument(
-        "--no-slab-delay",
-        action="store_true",
-        help="free-space delays for penetrating paths (default: plus each slab's group delay)",
-    )
     p.add_argument("--force", action="store_true", help="replace a non-empty output directory")
+    add_trace_arguments(p)
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bars or summary")
     p.add_argument("-o", "--output", required=True, metavar="DIR", help="output directory")
     return p
@@ -97,7 +94,7 @@ def _cells(text: str) -> int | None:
 def make_dataset_main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``make-dataset``; returns the exit status."""
     from ..emulation.dataset import ALL_DATASETS, make_datasets
-    from ..solver.incremental import TraceSettings
+    from ..solver.config import config_from_args
 
     try:
         args = make_dataset_parser().parse_args(argv)
@@ -125,7 +122,7 @@ def make_dataset_main(argv: Sequence[str] | None = None) -> int:
                 seed=args.seed,
                 toa_method=args.toa_method,
                 first_lobe=first_lobe,
-                trace_settings=TraceSettings(slab_delay=not args.no_slab_delay),
+                trace_settings=config_from_args(args),
                 noise=not args.no_noise,
                 workers=args.workers,
                 force=args.force,

@@ -13,6 +13,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from ..core.errors import HallrayError
+from ..solver.config import add_trace_arguments, config_from_args
 from .scan_to_scene import run_tool
 from .trace_scene import OneLineParser, _parse_links, parse_xyz
 
@@ -58,10 +59,6 @@ def render_scene_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--band", default="c-band", help="band when tracing on the fly [c-band]")
     p.add_argument("--frequency-hz", type=float, help="carrier frequency, Hz (overrides --band)")
-    p.add_argument("--max-reflections", type=int, default=2)
-    p.add_argument("--max-penetrations", type=int, default=2)
-    p.add_argument("--max-diffractions", type=int, default=1)
-    p.add_argument("--max-interactions", type=int, default=2)
     p.add_argument("--materials", help="materials YAML (user materials, bind patterns, default)")
     p.add_argument("--default-material", help="material for objects no name or pattern binds")
     p.add_argument(
@@ -78,6 +75,7 @@ def render_scene_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--elev", type=float, default=32.0, help="perspective elevation, deg [32]")
     p.add_argument("--azim", type=float, default=-125.0, help="perspective azimuth, deg [-125]")
+    add_trace_arguments(p)
     return p
 
 
@@ -99,7 +97,10 @@ def _render_scene(args: argparse.Namespace) -> int:
     scene = load_scene(args.scene, args.materials, default_material=args.default_material)
     sites = SceneMetadata.from_scene(scene)
     bs_names, bs_xyz, pt_names, pt_xyz = (
-        sites.bs_names, sites.bs_xyz, sites.point_names, sites.point_xyz
+        sites.bs_names,
+        sites.bs_xyz,
+        sites.point_names,
+        sites.point_xyz,
     )
     links = []
     freq = None
@@ -132,16 +133,7 @@ def _render_scene(args: argparse.Namespace) -> int:
         freq = float(args.frequency_hz) if args.frequency_hz else band.center_frequency_hz
         for link in chosen:
             t, r = divmod(link, len(rx))
-            one = trace(
-                scene,
-                tx[t : t + 1],
-                rx[r : r + 1],
-                freq,
-                args.max_reflections,
-                args.max_penetrations,
-                args.max_diffractions,
-                max_interactions=args.max_interactions,
-            )
+            one = trace(scene, tx[t : t + 1], rx[r : r + 1], freq, config_from_args(args))
             links += link_paths(one, [0], [tx_names[t]], [rx_names[r]], max_paths=args.max_paths)
     elif args.tx or args.rx:
         raise HallrayError("--tx/--rx are for tracing links: add --link TX,RX")

@@ -16,6 +16,7 @@ from typing import Any, NoReturn
 import numpy as np
 
 from ..core.errors import HallrayError
+from ..solver.config import add_trace_arguments
 
 EXIT_BAD_INPUT = 2
 
@@ -86,22 +87,8 @@ def trace_scene_parser() -> argparse.ArgumentParser:
         "--band", default="c-band", help="band name (c-band, mmwave) or a bands YAML [c-band]"
     )
     p.add_argument("--frequency-hz", type=float, help="carrier frequency in Hz (overrides --band)")
-    p.add_argument("--max-reflections", type=int, default=2)
-    p.add_argument("--max-penetrations", type=int, default=2)
-    p.add_argument("--max-diffractions", type=int, default=1)
-    p.add_argument(
-        "--max-interactions", type=int, default=2, help="reflections + diffractions per path"
-    )
     p.add_argument("--materials", help="materials YAML (user materials, bind patterns, default)")
     p.add_argument("--default-material", help="material for objects no name or pattern binds")
-    p.add_argument(
-        "--extrapolate", action="store_true", help="use materials outside their valid range"
-    )
-    p.add_argument(
-        "--no-slab-delay",
-        action="store_true",
-        help="free-space delays for penetrating paths (default: plus each slab's group delay)",
-    )
     p.add_argument("-o", "--output", help="write the paths (.npz, .json or .csv)")
     p.add_argument(
         "--export-glb", metavar="FILE", help="write the scene with the paths of --link links"
@@ -117,6 +104,7 @@ def trace_scene_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--json", action="store_true", help="print JSON instead of tables")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    add_trace_arguments(p)
     return p
 
 
@@ -129,6 +117,7 @@ def _trace_scene(args: argparse.Namespace) -> int:
     from ..emulation.bands import get_band
     from ..scene.metadata import SceneMetadata
     from ..scene.model import load_scene
+    from ..solver.config import config_from_args
     from ..solver.tracer import check_positions, trace
 
     scene = load_scene(args.scene, args.materials, default_material=args.default_material)
@@ -159,19 +148,8 @@ def _trace_scene(args: argparse.Namespace) -> int:
     band = get_band(args.band)
     freq = float(args.frequency_hz) if args.frequency_hz is not None else band.center_frequency_hz
     t0 = time.perf_counter()
-    paths = trace(
-        scene,
-        tx,
-        rx,
-        freq,
-        args.max_reflections,
-        args.max_penetrations,
-        args.max_diffractions,
-        max_interactions=args.max_interactions,
-        extrapolate=args.extrapolate,
-        slab_delay=not args.no_slab_delay,
-        progress=not args.quiet and not args.json and sys.stderr.isatty(),
-    )
+    show = not args.quiet and not args.json and sys.stderr.isatty()
+    paths = trace(scene, tx, rx, freq, config_from_args(args), progress=show)
     elapsed = time.perf_counter() - t0
     table = link_table(paths, tx_names, rx_names)
     if args.output:

@@ -44,7 +44,8 @@ from ..core.errors import HallrayError, SceneError
 from ..scene.metadata import SceneMetadata
 from ..scene.model import Scene, load_scene
 from ..scene.motion import FORKLIFT_CLEARANCE_M, snapshot_times
-from ..solver.incremental import SnapshotTracer, TraceSettings
+from ..solver.config import TraceConfig
+from ..solver.incremental import SnapshotTracer
 from ..solver.paths import Paths
 from .bands import Band, get_band
 from .channel import LinkBudget, PulseShape
@@ -223,7 +224,7 @@ class DatasetConfig:
     budget : LinkBudget
     pulse : PulseShape
     first_lobe : FirstLobeSettings, settings of the first-lobe receiver
-    trace : TraceSettings
+    trace : TraceConfig, the tracer limits
     clearance_m : float, forklift underside above the floor
     """
 
@@ -239,7 +240,7 @@ class DatasetConfig:
     budget: LinkBudget = field(default_factory=LinkBudget)
     pulse: PulseShape = field(default_factory=PulseShape)
     first_lobe: FirstLobeSettings = field(default_factory=FirstLobeSettings)
-    trace: TraceSettings = field(default_factory=TraceSettings)
+    trace: TraceConfig = field(default_factory=TraceConfig)
     clearance_m: float = FORKLIFT_CLEARANCE_M
 
     def validate(self) -> Band:
@@ -541,7 +542,7 @@ def _meta(
     counts: np.ndarray,
     scene_name: str,
 ) -> dict[str, Any]:
-    from .. import __version__
+    from ..core.version import __version__
 
     cfg = fx.cfg
     rows, det, los, first_los = (int(v) for v in counts)
@@ -657,7 +658,7 @@ def make_datasets(
     progress: bool = False,
     budget: LinkBudget | None = None,
     first_lobe: FirstLobeSettings | None = None,
-    trace_settings: TraceSettings | None = None,
+    trace_settings: TraceConfig | None = None,
     subdirectories: bool = True,
 ) -> list[dict[str, Any]]:
     """Write several ToA datasets, sharing the traces between them.
@@ -681,7 +682,7 @@ def make_datasets(
     progress : bool, tqdm progress bars on stderr
     budget : LinkBudget, optional
     first_lobe : FirstLobeSettings, optional, settings of the first-lobe receiver
-    trace_settings : TraceSettings, optional
+    trace_settings : TraceConfig, optional, the tracer limits
     subdirectories : bool, each dataset in ``out_dir/<scenario>-<band>`` (True) or, for a
         single dataset, directly in ``out_dir``
 
@@ -700,7 +701,7 @@ def make_datasets(
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise HallrayError(f"workers must be an integer >= 1, got {workers!r}")
     budget = budget or LinkBudget()
-    settings = trace_settings or TraceSettings()
+    settings = trace_settings or TraceConfig()
     lobe = first_lobe or FirstLobeSettings()
     configs = [
         DatasetConfig(

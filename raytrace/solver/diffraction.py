@@ -19,17 +19,15 @@ bounding box. Every segment is then checked with Embree (penetrations allowed up
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..physics.utd import diffracted_field, keller_points, wedge_geometry
 from ..scene import accel
 from . import reflection as refl
+from .context import TraceContext
+from .evaluate import DiffractionModel, evaluate
 from .paths import DIFFRACTION, REFLECTION, Paths
-
-if TYPE_CHECKING:
-    from .tracer import _Context
 
 #: Work is split into chunks of about this many candidates.
 CHUNK = 300_000
@@ -38,7 +36,7 @@ CHUNK = 300_000
 SPAN_PAD_M = 1e-6
 
 
-def stages(ctx: _Context) -> list[tuple[str, Callable[[], list[Paths]]]]:
+def stages(ctx: TraceContext) -> list[tuple[str, Callable[[], list[Paths]]]]:
     """The diffraction stages allowed by the context's limits, as (name, callable) pairs."""
     out: list[tuple[str, Callable[[], list[Paths]]]] = [("diffraction", lambda: [_pure(ctx)])]
     cfg = ctx.cfg
@@ -50,12 +48,7 @@ def stages(ctx: _Context) -> list[tuple[str, Callable[[], list[Paths]]]]:
     return out
 
 
-def trace_diffraction(ctx: _Context) -> list[Paths]:
-    """All diffraction paths allowed by the context's limits."""
-    return [p for _, stage in stages(ctx) for p in stage()]
-
-
-def field_model(ctx: _Context):
+def field_model(ctx: TraceContext) -> DiffractionModel:
     """The callback the tracer's back end applies at a diffraction vertex.
 
     The unfolded source and receiver (images, for mixed paths) are recovered from the chain: the
@@ -84,8 +77,8 @@ def field_model(ctx: _Context):
         )
         mat = w.material[wedge]
         two = ~ctx.obj_closed[w.object[wedge]]
-        r0 = ctx._reflection(mat, geo.cos_theta_0, two)
-        rn = ctx._reflection(mat, geo.cos_theta_n, two)
+        r0 = ctx.reflection_coefficients(mat, geo.cos_theta_0, two)
+        rn = ctx.reflection_coefficients(mat, geo.cos_theta_n, two)
         fld = diffracted_field(geo, e, ctx.f, r_0=r0, r_n=rn, phase=False)
         # incident spreading of the unfolded incident leg; the phase of the whole path is applied
         # by the back end
@@ -95,7 +88,7 @@ def field_model(ctx: _Context):
     return apply
 
 
-def _valid_geometry(ctx: _Context, wedge, src, dst, point) -> np.ndarray:
+def _valid_geometry(ctx: TraceContext, wedge, src, dst, point) -> np.ndarray:
     w = ctx.scene.wedges
     geo = wedge_geometry(
         src, dst, point, w.direction[wedge], w.normal0[wedge], w.normal1[wedge], w.face0_dir[wedge]
@@ -103,7 +96,7 @@ def _valid_geometry(ctx: _Context, wedge, src, dst, point) -> np.ndarray:
     return geo.valid
 
 
-def _pure(ctx: _Context) -> Paths:
+def _pure(ctx: TraceContext) -> Paths:
     w = ctx.scene.wedges
     n_t, n_r, n_w = len(ctx.tx), len(ctx.rx), len(w)
     parts = []
@@ -122,7 +115,8 @@ def _pure(ctx: _Context) -> Paths:
         ok = _valid_geometry(ctx, w_idx, ctx.tx[t_idx], ctx.rx[r_idx], pt)
         t_idx, w_idx, r_idx, pt = t_idx[ok], w_idx[ok], r_idx[ok], pt[ok]
         parts.append(
-            ctx.finish(
+            evaluate(
+                ctx,
                 t_idx,
                 r_idx,
                 pt[:, None, :],
@@ -135,7 +129,7 @@ def _pure(ctx: _Context) -> Paths:
 
 
 def _facet_wedge_pairs(
-    ctx: _Context, ends: np.ndarray, mixed_rdr: bool = False
+    ctx: TraceContext, ends: np.ndarray, mixed_rdr: bool = False
 ) -> tuple[np.ndarray, ...]:
     """(end point, facet, wedge) triples where a reflection in the facet can reach the edge.
 
@@ -280,7 +274,7 @@ def _segment_box_span(
     return np.maximum(s_in, 0.0), np.minimum(s_out, 1.0)
 
 
-def _one_reflection(ctx: _Context, before: bool) -> list[Paths]:
+def _one_reflection(ctx: TraceContext, before: bool) -> list[Paths]:
     """RD (``before=True``: reflection at the transmitter's side) or DR paths."""
     fc, w = ctx.scene.facets, ctx.scene.wedges
     ends, others = (ctx.tx, ctx.rx) if before else (ctx.rx, ctx.tx)
@@ -337,7 +331,8 @@ def _one_reflection(ctx: _Context, before: bool) -> list[Paths]:
             kinds = np.array([[DIFFRACTION, REFLECTION]], np.int8)
         if ok.any():
             out.append(
-                ctx.finish(
+                evaluate(
+                    ctx,
                     t_idx[ok],
                     r_idx[ok],
                     verts[ok],
@@ -359,7 +354,7 @@ def _along_and_off(
     return t, np.linalg.norm(rel - t[..., None] * direction, axis=-1)
 
 
-def _two_reflections(ctx: _Context) -> list[Paths]:
+def _two_reflections(ctx: TraceContext) -> list[Paths]:
     """RDR paths: a reflection on each side of the edge (the two pruned sets joined on the wedge)."""
     fc, w = ctx.scene.facets, ctx.scene.wedges
     t_e, t_f, t_w, t_img, t_lo, t_hi = _facet_wedge_pairs(ctx, ctx.tx, mixed_rdr=True)
@@ -404,7 +399,8 @@ def _two_reflections(ctx: _Context) -> list[Paths]:
         if ok.any():
             n = int(ok.sum())
             out.append(
-                ctx.finish(
+                evaluate(
+                    ctx,
                     t_e[ia][ok],
                     r_e[ib][ok],
                     np.stack([p1[ok], dpt[ok], p2[ok]], axis=1),

@@ -44,8 +44,9 @@ from ..core.errors import SceneError
 from ..scene.dynamic import extend_scene, posed, yaw_rotations
 from ..scene.model import Scene
 from ..scene.motion import FORKLIFT_CLEARANCE_M, Route
+from .config import TraceConfig
 from .paths import Paths
-from .tracer import MIN_POWER_DB, opaque_objects, reevaluate, trace
+from .tracer import opaque_objects, reevaluate, trace
 
 #: Default growth of the forklift boxes in the segment test, m: far above Embree's float32
 #: resolution (~4e-6 m at 50 m) and the tracer's end margin (1e-4 m), so that no crossing that
@@ -231,27 +232,6 @@ class Fleet:
 # --------------------------------------------------------------------------------------------
 
 
-@dataclass(frozen=True)
-class TraceSettings:
-    """Tracer limits shared by the static trace and the snapshots (see :func:`trace`)."""
-
-    max_reflections: int = 2
-    max_penetrations: int = 2
-    max_diffractions: int = 1
-    max_interactions: int = 2
-    min_power_db: float = MIN_POWER_DB
-    slab_delay: bool = True
-
-    def trace_kwargs(self) -> dict[str, Any]:
-        return {
-            "max_reflections": self.max_reflections,
-            "max_penetrations": self.max_penetrations,
-            "max_diffractions": self.max_diffractions,
-            "max_interactions": self.max_interactions,
-            "slab_delay": self.slab_delay,
-        }
-
-
 def _at_frequency(paths: Paths, frequency_hz: float) -> Paths:
     return dataclasses.replace(paths, frequency_hz=float(frequency_hz))
 
@@ -296,7 +276,7 @@ class SnapshotTracer:
     rx : (R, 3) float, receiver positions, metres
     routes : sequence of Route (may be empty: every snapshot is the static scene)
     frequencies_hz : sequence of float, the bands' carriers; one path set per frequency
-    settings : TraceSettings
+    settings : TraceConfig
     clearance_m : float, forklift underside above the floor, metres
     grow_m : float, growth of the boxes in the affected-path test, metres
     static_paths : list of Paths, optional, a previous :attr:`static_paths` of the same inputs
@@ -317,7 +297,7 @@ class SnapshotTracer:
         rx: np.ndarray,
         routes: Sequence[Route],
         frequencies_hz: Sequence[float],
-        settings: TraceSettings | None = None,
+        settings: TraceConfig | None = None,
         *,
         clearance_m: float = FORKLIFT_CLEARANCE_M,
         grow_m: float = AFFECTED_GROW_M,
@@ -330,7 +310,7 @@ class SnapshotTracer:
         self.frequencies_hz = [float(f) for f in frequencies_hz]
         if not self.frequencies_hz:
             raise SceneError("no frequency to trace")
-        self.settings = settings or TraceSettings()
+        self.settings = settings or TraceConfig()
         self.threads = threads
         self.fleet = Fleet(routes, clearance_m)
         self.grow_m = max(float(grow_m), 10.0 * scene.margin)
@@ -350,16 +330,8 @@ class SnapshotTracer:
 
     # -- helpers --------------------------------------------------------------------------
     def _trace(self, scene: Scene, frequency_hz: float, min_power_db: float, **kw: Any) -> Paths:
-        return trace(
-            scene,
-            self.tx,
-            self.rx,
-            frequency_hz,
-            min_power_db=min_power_db,
-            threads=self.threads,
-            **self.settings.trace_kwargs(),
-            **kw,
-        )
+        cfg = self.settings.replace(min_power_db=min_power_db)
+        return trace(scene, self.tx, self.rx, frequency_hz, cfg, threads=self.threads, **kw)
 
     def _tick(self, key: str, t0: float) -> float:
         now = time.perf_counter()
@@ -413,19 +385,17 @@ class SnapshotTracer:
         t0 = self._tick("involving_s", t0)
         out = []
         for k, (f, static, aff) in enumerate(zip(self.frequencies_hz, self.static_paths, affected)):
-            kw = {
-                "max_penetrations": self.settings.max_penetrations,
-                "min_power_db": cut,
-                "slab_delay": self.settings.slab_delay,
-            }
             if k == 0 and np.array_equal(opaque[0], common):
                 # the new paths' fields are already those of this frequency: only the power cut
                 # (the tracer's own expression) remains
                 power_db = 20 * np.log10(np.maximum(np.abs(new.gain), 1e-300))
-                parts = [reevaluate(snap, static.select(aff), **kw), new.select(power_db >= cut)]
+                parts = [
+                    reevaluate(snap, static.select(aff), self.settings),
+                    new.select(power_db >= cut),
+                ]
             else:
                 redo = Paths.concatenate([static.select(aff), new])
-                parts = [reevaluate(snap, _at_frequency(redo, f), **kw)]
+                parts = [reevaluate(snap, _at_frequency(redo, f), self.settings)]
             out.append(Paths.concatenate([static.select(~aff), *parts]).sorted())
             self.stats["affected_paths"] = self.stats.get("affected_paths", 0) + int(aff.sum())
         self._tick("reevaluate_s", t0)

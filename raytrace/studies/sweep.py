@@ -42,10 +42,12 @@ import numpy as np
 
 from ..core.errors import HallrayError
 from ..emulation.receivers import DEFAULT_TOA_METHOD
+from ..solver.config import TRACE_KEYS as TRACE_FIELDS
+from ..solver.config import TraceConfig
 
 #: Bumped when the pipeline's results change for the same parameters (old cell files are then
 #: not reused: their keys differ).
-PIPELINE_VERSION = 2
+PIPELINE_VERSION = 3
 #: Seconds to wait for a Dask scheduler before giving up.
 CONNECT_TIMEOUT_S = 10.0
 #: Characters of the parameter hash used as a cell key.
@@ -65,12 +67,8 @@ HALL_KEYS: dict[str, Any] = {
     "n_points": 50,
     "ut_height": 1.5,
 }
-TRACE_KEYS: dict[str, Any] = {
-    "max_reflections": 2,
-    "max_penetrations": 2,
-    "max_diffractions": 1,
-    "max_interactions": 2,
-}
+#: The tracer's limits and switches, with their defaults: the fields of TraceConfig.
+TRACE_KEYS: dict[str, Any] = {k: getattr(TraceConfig(), k) for k in TRACE_FIELDS}
 TOA_KEYS: dict[str, Any] = {
     "band": "c-band",
     "toa_method": DEFAULT_TOA_METHOD,
@@ -350,16 +348,11 @@ def validate_cell(params: Mapping[str, Any]) -> None:
     from ..emulation.bands import get_band
     from ..emulation.receivers import TOA_METHODS
     from ..halls.inf import check_hall
-    from ..solver.tracer import TraceConfig
 
     if params.get("profile") is None:
         raise HallrayError("no profile given")
     check_hall(params["profile"], params["size"], params["seed"], **_hall_kwargs(params))
-    for k in TRACE_KEYS:
-        v = params[k]
-        if isinstance(v, bool) or not isinstance(v, int):
-            raise HallrayError(f"{k} must be an integer, got {v!r}")
-    TraceConfig(*(params[k] for k in TRACE_KEYS)).validate()
+    TraceConfig.from_mapping(params)  # one-line TraceInputError for a bad limit
     get_band(params["band"])
     if params["toa_method"] not in TOA_METHODS:
         raise HallrayError(
@@ -480,17 +473,8 @@ def simulate_cell(
     n_bs, n_pts = len(bs), len(pts)
     t1 = time.perf_counter()
     band = get_band(params["band"])
-    paths = trace(
-        scene,
-        bs,
-        pts,
-        band.center_frequency_hz,
-        params["max_reflections"],
-        params["max_penetrations"],
-        params["max_diffractions"],
-        max_interactions=params["max_interactions"],
-        threads=threads,
-    )
+    cfg = TraceConfig.from_mapping(params)
+    paths = trace(scene, bs, pts, band.center_frequency_hz, cfg, threads=threads)
     t2 = time.perf_counter()
     n_links = n_bs * n_pts  # link = tx * R + rx: BS-major
     los = (np.bincount(paths.link[paths.los], minlength=n_links) > 0).reshape(n_bs, n_pts)
@@ -571,7 +555,6 @@ def _write_dataset(
     from positioning.dataset import load_dataset
 
     from ..emulation.dataset import make_dataset
-    from ..solver.incremental import TraceSettings
 
     make_dataset(
         out,
@@ -583,7 +566,7 @@ def _write_dataset(
         seed=int(params["seed"]),
         toa_method=params["toa_method"],
         noise=bool(params["noise"]),
-        trace_settings=TraceSettings(*(params[k] for k in TRACE_KEYS)),
+        trace_settings=TraceConfig.from_mapping(params),
         force=True,
     )
     ds = load_dataset(out)

@@ -1,0 +1,351 @@
+"""The common back end of every stage: candidate paths -> visible paths with their fields.
+
+A stage (:mod:`raytrace.solver.specular`, :mod:`raytrace.solver.diffraction`) proposes candidate
+paths as vertex chains; :func:`evaluate` then
+
+1. drops candidates with a segment through an opaque object (one Embree query),
+2. finds what every segment crosses and drops paths over the penetration limit
+   (:func:`raytrace.solver.penetration.segment_crossings`),
+3. tracks the field vector through every interaction (:func:`path_fields`),
+4. assembles the :class:`~raytrace.solver.paths.Paths` with their interaction sequences and drops
+   those below the power cut.
+
+Field model: isotropic antennas with vertical polarisation at both ends. The field vector is
+tracked in the TE/TM basis of each interaction's plane of incidence (``s = k_i x n``,
+``p = s x k``) and projected on the receive antenna's polarisation (vertical, made perpendicular
+to the arrival direction), so that line of sight is exactly Friis:
+``gain = lambda / (4 pi d) exp(-j k d)``. Penetrated slabs add their group delay to the path
+delay when ``TraceConfig.slab_delay`` is on.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..core.constants import C0
+from ..physics.materials import slab, slab_group_delay
+from .context import TraceContext
+from .paths import DIFFRACTION, PENETRATION, REFLECTION, Paths
+from .penetration import Crossings, segment_crossings
+
+#: ``model(wedge (n,), chain (n, k+2, 3), j, field (n, 3), seg_len (n, k+1)) -> (field, scale)``:
+#: the field after the diffraction at vertex ``j`` of each chain and an extra amplitude factor.
+DiffractionModel = Callable[..., tuple[np.ndarray, np.ndarray]]
+
+
+@dataclass(frozen=True)
+class Candidates:
+    """Candidate paths of one interaction sequence length ``k`` (structure of arrays, M paths).
+
+    Attributes
+    ----------
+    t_idx, r_idx : (M,) int, transmitter and receiver
+    verts : (M, k, 3) float, interaction points in order, metres
+    elem : (M, k) int, facet of a reflection, wedge of a diffraction
+    kinds : (M, k) int8, interaction codes (``REFLECTION``, ``DIFFRACTION``)
+    chain : (M, k + 2, 3) float, tx, the vertices and rx, metres
+    vobj : (M, k) int, object under each vertex
+    """
+
+    t_idx: np.ndarray
+    r_idx: np.ndarray
+    verts: np.ndarray
+    elem: np.ndarray
+    kinds: np.ndarray
+    chain: np.ndarray
+    vobj: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.t_idx.shape[0])
+
+    @property
+    def depth(self) -> int:
+        """Number of vertices ``k`` (reflections and diffractions) of every candidate."""
+        return int(self.verts.shape[1])
+
+    @property
+    def ends(self) -> np.ndarray:
+        """(M * (k + 1), 2) int: object under each segment's start and end (-1: tx or rx)."""
+        m = len(self)
+        edge = np.full((m, 1), -1)
+        chain_obj = np.concatenate([edge, self.vobj, edge], axis=1)
+        return np.stack([chain_obj[:, :-1], chain_obj[:, 1:]], axis=2).reshape(-1, 2)
+
+    def take(self, sel: np.ndarray) -> Candidates:
+        """The candidates ``sel`` (indices or mask)."""
+        return Candidates(*(getattr(self, f)[sel] for f in self.__dataclass_fields__))
+
+
+def candidates(
+    ctx: TraceContext,
+    t_idx: np.ndarray,
+    r_idx: np.ndarray,
+    verts: np.ndarray,
+    elem: np.ndarray,
+    kinds: np.ndarray | None = None,
+) -> Candidates:
+    """Candidates from a stage's arrays (``kinds`` default: all reflections)."""
+    m, k = verts.shape[0], verts.shape[1]
+    kinds = np.full((m, k), REFLECTION, np.int8) if kinds is None else kinds
+    chain = np.concatenate([ctx.tx[t_idx][:, None], verts, ctx.rx[r_idx][:, None]], axis=1)
+    # the object under each vertex (tx and rx: none), so segments ignore their own vertices
+    if k:
+        facet_obj = ctx.scene.facets.object[np.where(kinds == REFLECTION, elem, 0)]
+        vobj = np.where(kinds == DIFFRACTION, ctx.wedge_object(elem), facet_obj)
+    else:
+        vobj = np.zeros((m, 0), int)
+    return Candidates(t_idx, r_idx, verts, elem, kinds, chain, vobj)
+
+
+def evaluate(
+    ctx: TraceContext,
+    t_idx: np.ndarray,
+    r_idx: np.ndarray,
+    verts: np.ndarray,
+    elem: np.ndarray,
+    kinds: np.ndarray | None = None,
+    diffraction: DiffractionModel | None = None,
+) -> Paths:
+    """Check visibility and penetrations of candidate paths and compute their fields.
+
+    Parameters
+    ----------
+    ctx : TraceContext
+    t_idx, r_idx : (M,) int
+    verts : (M, k, 3) float, interaction points in order, metres
+    elem : (M, k) int, facet of each reflection (or wedge index of a diffraction)
+    kinds : (M, k) int8, interaction codes (default: all reflections)
+    diffraction : DiffractionModel applied at diffraction vertices
+        (:func:`raytrace.solver.diffraction.field_model`)
+
+    Returns
+    -------
+    Paths, in candidate order, without the blocked, over-limit and powerless ones.
+    """
+    cand = candidates(ctx, t_idx, r_idx, verts, elem, kinds)
+    depth = cand.depth + ctx.cfg.max_penetrations
+    blocked = blocked_by_opaque(ctx, cand)
+    if blocked.any():
+        ctx.count("paths_blocked_opaque", int(blocked.sum()))
+        cand = cand.take(~blocked)
+    cross = None
+    if len(cand):
+        cand, cross = within_penetration_limit(ctx, cand)
+    if not len(cand):
+        return Paths.empty(ctx.tx, ctx.rx, ctx.f, depth)
+    gain, delay_s = path_fields(ctx, cand, cross, diffraction)
+    keep = 20 * np.log10(np.maximum(np.abs(gain), 1e-300)) >= ctx.cfg.min_power_db
+    ctx.count("paths_dropped_no_power", int((~keep).sum()))
+    return assemble(ctx, cand, cross, delay_s, gain).select(keep)
+
+
+def blocked_by_opaque(ctx: TraceContext, cand: Candidates) -> np.ndarray:
+    """(M,) bool: candidates with a segment that crosses an opaque object.
+
+    Conservative: a segment whose first opaque hit is the object under one of its own ends (a ray
+    grazing the face of the object it diffracts on, within float32 noise) is left to
+    :func:`segment_crossings`, which records exactly what it crosses.
+    """
+    m = len(cand)
+    if not ctx.opaque.any() or m == 0:
+        return np.zeros(m, dtype=bool)
+    a = cand.chain[:, :-1].reshape(-1, 3)
+    v = cand.chain[:, 1:].reshape(-1, 3) - a
+    length = np.linalg.norm(v, axis=1)
+    d = np.divide(v, length[:, None], out=np.zeros_like(v), where=length[:, None] > 0)
+    margin = ctx.scene.margin
+    hit = ctx.scene.first_hit_among(ctx.opaque, a + margin * d, d, length - 2 * margin)
+    ends = cand.ends
+    return ((hit >= 0) & (hit != ends[:, 0]) & (hit != ends[:, 1])).reshape(m, -1).any(axis=1)
+
+
+def within_penetration_limit(ctx: TraceContext, cand: Candidates) -> tuple[Candidates, Crossings]:
+    """The candidates whose segments cross at most ``max_penetrations`` objects in all, and the
+    crossings of their segments (``M' * (k + 1)`` rows, segment-major per path)."""
+    m, k, kmax = len(cand), cand.depth, ctx.cfg.max_penetrations
+    a = cand.chain[:, :-1].reshape(-1, 3)
+    b = cand.chain[:, 1:].reshape(-1, 3)
+    cross = segment_crossings(ctx.scene, a, b, kmax, cand.ends)
+    ctx.count("segments_tested", len(a))
+    n_pen = cross.count.reshape(m, k + 1).sum(axis=1)
+    ok = ~cross.exceeded.reshape(m, k + 1).any(axis=1) & (n_pen <= kmax)
+    if ok.all():
+        return cand, cross
+    sel = np.flatnonzero(ok)
+    rows = (sel[:, None] * (k + 1) + np.arange(k + 1)[None]).reshape(-1)
+    return cand.take(sel), Crossings(*(getattr(cross, f)[rows] for f in cross.__dataclass_fields__))
+
+
+def path_fields(
+    ctx: TraceContext,
+    cand: Candidates,
+    cross: Crossings,
+    diffraction: DiffractionModel | None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Complex gain and delay of every candidate.
+
+    The field vector starts vertically polarised, goes through each segment's penetrations (slab
+    transmission, ITU-R P.2040 sec. 3) and each vertex's reflection (Fresnel or slab) or
+    diffraction (``diffraction`` model), and is projected on the receive antenna.
+
+    Returns
+    -------
+    gain : (M,) complex, field amplitude relative to the transmitted one
+    delay_s : (M,) float, seconds: unfolded length over c, plus the slabs' group delays
+    """
+    m, k = len(cand), cand.depth
+    seg = cand.chain[:, 1:] - cand.chain[:, :-1]  # (m, k+1, 3)
+    seg_len = np.linalg.norm(seg, axis=2)
+    dirs = seg / np.maximum(seg_len, 1e-300)[:, :, None]
+    total = seg_len.sum(axis=1)
+    e = vertical_pol(dirs[:, 0]).astype(complex)
+    count = cross.count.reshape(m, k + 1)
+    pen_obj = cross.object.reshape(m, k + 1, -1)
+    pen_nrm = cross.normal.reshape(m, k + 1, -1, 3)
+    pen_th = cross.thickness.reshape(m, k + 1, -1)
+    amp_scale = np.ones(m, dtype=complex)  # extra scalar factors (diffraction spreading)
+    extra_delay = np.zeros(m)  # group delay of the penetrated slabs, s
+    fc = ctx.scene.facets
+    for j in range(k + 1):
+        for s in range(pen_obj.shape[2]):
+            has = count[:, j] > s
+            if not has.any():
+                continue
+            mat = ctx.obj_material[pen_obj[has, j, s]]
+            cos_i = np.abs(np.einsum("ij,ij->i", pen_nrm[has, j, s], dirs[has, j]))
+            _, _, t_te, t_tm = slab(ctx.eta[mat], cos_i, pen_th[has, j, s], ctx.f)
+            if ctx.cfg.slab_delay:
+                extra_delay[has] += slab_group_delay(
+                    ctx.eta[mat], cos_i, pen_th[has, j, s], ctx.eta_slope[mat]
+                )
+            e[has] = apply_te_tm(e[has], dirs[has, j], dirs[has, j], pen_nrm[has, j, s], t_te, t_tm)
+        if j == k:
+            break
+        is_r = cand.kinds[:, j] == REFLECTION
+        if is_r.any():
+            fidx = cand.elem[is_r, j]
+            nrm = fc.normal[fidx]
+            cos_i = np.abs(np.einsum("ij,ij->i", nrm, dirs[is_r, j]))
+            r_te, r_tm = ctx.reflection_coefficients(fc.material[fidx], cos_i, fc.two_sided[fidx])
+            e[is_r] = apply_te_tm(e[is_r], dirs[is_r, j], dirs[is_r, j + 1], nrm, r_te, r_tm)
+        is_d = cand.kinds[:, j] == DIFFRACTION
+        if is_d.any():
+            if diffraction is None:
+                raise RuntimeError("diffraction vertex without a diffraction model")
+            e[is_d], scale = diffraction(
+                cand.elem[is_d, j], cand.chain[is_d], j + 1, e[is_d], seg_len[is_d]
+            )
+            amp_scale[is_d] *= scale
+    proj = np.einsum("ij,ij->i", e, vertical_pol(dirs[:, -1]))
+    has_d = (cand.kinds == DIFFRACTION).any(axis=1)
+    # free-space spreading over the unfolded length (diffracted paths carry their own)
+    spread = np.where(has_d, 1.0, ctx.wavelength / (4 * np.pi * total))
+    gain = spread * amp_scale * np.exp(-1j * ctx.k0 * total) * proj
+    return gain, total / C0 + extra_delay
+
+
+def assemble(
+    ctx: TraceContext,
+    cand: Candidates,
+    cross: Crossings,
+    delay_s: np.ndarray,
+    gain: np.ndarray,
+) -> Paths:
+    """The :class:`Paths` of evaluated candidates, with interaction sequences ordered along the
+    path: the penetrations of segment ``j``, then vertex ``j``."""
+    m, k = len(cand), cand.depth
+    count = cross.count.reshape(m, k + 1)
+    pen_obj = cross.object.reshape(m, k + 1, -1)
+    pen_pts = cross.point.reshape(m, k + 1, -1, 3)
+    depth = k + ctx.cfg.max_penetrations
+    inter = np.zeros((m, depth), np.int8)
+    pts = np.full((m, depth, 3), np.nan)
+    objs = np.full((m, depth), -1, np.int64)
+    elems = np.full((m, depth), -1, np.int64)
+    pos = np.zeros(m, dtype=np.int64)
+    rows = np.arange(m)
+    for j in range(k + 1):
+        for s in range(pen_obj.shape[2]):
+            has = count[:, j] > s
+            r = rows[has]
+            inter[r, pos[has]] = PENETRATION
+            pts[r, pos[has]] = pen_pts[has, j, s]
+            objs[r, pos[has]] = pen_obj[has, j, s]
+            pos[has] += 1
+        if j < k:
+            inter[rows, pos] = cand.kinds[:, j]
+            pts[rows, pos] = cand.verts[:, j]
+            objs[rows, pos] = cand.vobj[:, j]
+            elems[rows, pos] = cand.elem[:, j]
+            pos += 1
+    return Paths(
+        tx=ctx.tx,
+        rx=ctx.rx,
+        frequency_hz=ctx.f,
+        link=cand.t_idx * len(ctx.rx) + cand.r_idx,
+        tx_index=cand.t_idx.astype(np.int64),
+        rx_index=cand.r_idx.astype(np.int64),
+        delay_s=delay_s,
+        gain=gain,
+        n_reflections=(cand.kinds == REFLECTION).sum(axis=1).astype(np.int16),
+        n_penetrations=count.sum(axis=1).astype(np.int16),
+        n_diffractions=(cand.kinds == DIFFRACTION).sum(axis=1).astype(np.int16),
+        interaction=inter,
+        points=pts,
+        objects=objs,
+        elements=elems,
+    )
+
+
+def vertical_pol(direction: np.ndarray) -> np.ndarray:
+    """Unit vector of a vertically polarised antenna's field for a ray along ``direction``:
+    z made perpendicular to the ray (x for a vertical ray)."""
+    z = np.array([0.0, 0.0, 1.0])
+    v = z[None, :] - direction[:, 2:3] * direction
+    n = np.linalg.norm(v, axis=1)
+    vertical = n < 1e-9
+    if vertical.any():
+        x = np.array([1.0, 0.0, 0.0])
+        v[vertical] = x - direction[vertical, 0:1] * direction[vertical]
+        n[vertical] = np.linalg.norm(v[vertical], axis=1)
+    return v / n[:, None]
+
+
+def apply_te_tm(
+    e: np.ndarray,
+    k_in: np.ndarray,
+    k_out: np.ndarray,
+    normal: np.ndarray,
+    c_te: np.ndarray,
+    c_tm: np.ndarray,
+) -> np.ndarray:
+    """Field after an interaction with TE/TM coefficients.
+
+    Basis: ``s = k_in x n`` (TE, perpendicular to the plane of incidence), ``p = s x k`` on each
+    side (TM). With this basis the P.2040 coefficients (R_TM -> +1 for a perfect conductor) map
+    the field directly; at normal incidence any ``s`` perpendicular to ``k_in`` serves.
+
+    Parameters
+    ----------
+    e : (n, 3) complex, incident field vector
+    k_in, k_out : (n, 3) float, unit propagation directions before and after
+    normal : (n, 3) float, unit surface normal
+    c_te, c_tm : (n,) complex
+    """
+    s = np.cross(k_in, normal)
+    ns = np.linalg.norm(s, axis=1)
+    normal_inc = ns < 1e-9
+    if normal_inc.any():
+        # any direction perpendicular to k_in
+        helper = np.where(np.abs(k_in[normal_inc, 0:1]) < 0.9, [[1.0, 0, 0]], [[0, 1.0, 0]])
+        s[normal_inc] = np.cross(k_in[normal_inc], helper)
+        ns[normal_inc] = np.linalg.norm(s[normal_inc], axis=1)
+    s = s / ns[:, None]
+    p_in = np.cross(s, k_in)
+    p_out = np.cross(s, k_out)
+    es = np.einsum("ij,ij->i", e, s)
+    ep = np.einsum("ij,ij->i", e, p_in)
+    return (c_te * es)[:, None] * s + (c_tm * ep)[:, None] * p_out

@@ -1,0 +1,131 @@
+"""Specular stages of the tracer: line of sight, first- and second-order reflections.
+
+Image method over the scene's planar facets (a closed solid's facet reflects on its outward side,
+an open sheet's on both): the candidates of each stage are vertex chains that
+:func:`raytrace.solver.evaluate.evaluate` turns into paths (visibility, penetrations, fields).
+These stages mirror the diffraction stages of :mod:`raytrace.solver.diffraction`; only the
+tracer calls them.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+from ..scene import accel
+from . import reflection as refl
+from .context import TraceContext
+from .evaluate import evaluate
+from .paths import Paths
+
+#: Work is split into chunks of about this many candidate paths to bound memory.
+CHUNK = 400_000
+
+
+def stages(ctx: TraceContext) -> list[tuple[str, Callable[[], list[Paths]]]]:
+    """The specular stages allowed by the context's limits, as (name, callable) pairs."""
+    cfg = ctx.cfg
+    out: list[tuple[str, Callable[[], list[Paths]]]] = []
+    if ctx.facet_mask is None:  # line of sight involves no object
+        out.append(("line of sight", lambda: line_of_sight(ctx)))
+    if cfg.max_reflections >= 1 and cfg.max_interactions >= 1:
+        out.append(("1st-order reflections", lambda: first_order(ctx)))
+    if cfg.max_reflections >= 2 and cfg.max_interactions >= 2:
+        out.append(("2nd-order reflections", lambda: second_order(ctx)))
+    return out
+
+
+def line_of_sight(ctx: TraceContext) -> list[Paths]:
+    """Line of sight: every link, no vertex."""
+    t_idx, r_idx = np.divmod(np.arange(len(ctx.tx) * len(ctx.rx)), len(ctx.rx))
+    return [
+        evaluate(ctx, t_idx, r_idx, np.zeros((len(t_idx), 0, 3)), np.zeros((len(t_idx), 0), int))
+    ]
+
+
+def first_order(ctx: TraceContext) -> list[Paths]:
+    """Single reflections: the image of the transmitter in every facet that both ends see on a
+    reflecting side, through the receiver, crossing the facet."""
+    fc = ctx.scene.facets
+    side_tx = refl.reflecting_side(fc, ctx.tx)  # (T, K)
+    side_rx = refl.reflecting_side(fc, ctx.rx)  # (R, K)
+    ok_tkr = (side_tx[:, :, None] != 0) & (side_tx[:, :, None] == side_rx.T[None])
+    if ctx.facet_mask is not None:
+        ok_tkr &= ctx.facet_mask[None, :, None]
+    t_idx, k_idx, r_idx = np.nonzero(ok_tkr)
+    ctx.count("candidates_r1", len(t_idx))
+    img = refl.mirror(ctx.tx[t_idx], fc.normal[k_idx], fc.offset[k_idx])
+    u, p = refl.segment_plane_point(ctx.rx[r_idx], img, fc.normal[k_idx], fc.offset[k_idx])
+    ok = (u > 0) & (u < 1)
+    ok[ok] = accel.points_in_facets(p[ok], k_idx[ok], fc)
+    return [evaluate(ctx, t_idx[ok], r_idx[ok], p[ok][:, None, :], k_idx[ok][:, None])]
+
+
+def second_order(ctx: TraceContext) -> list[Paths]:
+    """Double reflections: images of images over the facet pairs that can exchange a reflection
+    (:func:`raytrace.scene.accel.facing_pairs`), pruned by beams through the facets' bounding
+    spheres, one transmitter at a time."""
+    fc = ctx.scene.facets
+    pairs = accel.facing_pairs(fc)
+    if ctx.facet_mask is not None:
+        pairs = pairs & (ctx.facet_mask[:, None] | ctx.facet_mask[None, :])
+    side_rx = refl.reflecting_side(fc, ctx.rx)  # (R, K)
+    centre, radius = accel.facet_spheres(fc)
+    out: list[Paths] = []
+    for t in range(len(ctx.tx)):
+        side_t = refl.reflecting_side(fc, ctx.tx[t : t + 1])[0]  # (K,)
+        f1 = np.flatnonzero(side_t != 0)
+        img1 = refl.mirror(np.broadcast_to(ctx.tx[t], (len(f1), 3)), fc.normal[f1], fc.offset[f1])
+        # only first facets with some partner, and side tests only on possible partners
+        rows = pairs[f1].any(axis=1)
+        f1, img1 = f1[rows], img1[rows]
+        cols = np.flatnonzero(pairs[f1].any(axis=0))
+        # first images on a reflecting side of the second facet (exact necessary condition)
+        side_img = refl.reflecting_side(fc, img1, cols)  # (len(f1), len(cols))
+        a, jc = np.nonzero((side_img != 0) & pairs[f1][:, cols])
+        f2 = cols[jc]
+        # beam test: the second facet must meet the rays from the first image through the
+        # first facet (bounding spheres: a necessary condition)
+        beam = refl.cone_reaches(img1[a], centre[f1[a]], radius[f1[a]], centre[f2], radius[f2])
+        a, f2, jc = a[beam], f2[beam], jc[beam]
+        i1, f1a = a, f1[a]
+        if len(f1a) == 0:
+            continue
+        img2 = refl.mirror(img1[i1], fc.normal[f2], fc.offset[f2])
+        s_img = side_img[i1, jc]
+        # receivers on the same side of the second facet as the first image, inside the
+        # beam from the second image through the second facet
+        step = max(1, CHUNK // max(len(ctx.rx), 1))
+        for c0 in range(0, len(f1a), step):
+            sl = slice(c0, c0 + step)
+            ok_qr = side_rx.T[f2[sl]] == s_img[sl, None]
+            ok_qr &= refl.cone_reaches(
+                img2[sl, None, :],
+                centre[f2[sl], None, :],
+                radius[f2[sl], None],
+                ctx.rx[None],
+                0.0,
+            )
+            q, r_idx = np.nonzero(ok_qr)
+            ctx.count("candidates_r2", len(q))
+            q = q + c0
+            ff1, ff2 = f1a[q], f2[q]
+            u2, p2 = refl.segment_plane_point(
+                ctx.rx[r_idx], img2[q], fc.normal[ff2], fc.offset[ff2]
+            )
+            ok = (u2 > 0) & (u2 < 1)
+            ok[ok] = accel.points_in_facets(p2[ok], ff2[ok], fc)
+            q, r_idx, ff1, ff2, p2 = q[ok], r_idx[ok], ff1[ok], ff2[ok], p2[ok]
+            u1, p1 = refl.segment_plane_point(p2, img1[i1[q]], fc.normal[ff1], fc.offset[ff1])
+            ok = (u1 > 0) & (u1 < 1)
+            ok[ok] = accel.points_in_facets(p1[ok], ff1[ok], fc)
+            # the second reflection point must be on the side of the first facet that the
+            # transmitter is on
+            s2 = refl.signed_distance(p2[ok], fc.normal[ff1[ok]], fc.offset[ff1[ok]])
+            ok[ok] = np.sign(s2) == side_t[ff1[ok]]
+            if ok.any():
+                verts = np.stack([p1[ok], p2[ok]], axis=1)
+                fac = np.stack([ff1[ok], ff2[ok]], axis=1)
+                out.append(evaluate(ctx, np.full(int(ok.sum()), t), r_idx[ok], verts, fac))
+    return out
