@@ -8,23 +8,19 @@
     make-dataset --all [...] -o DIR      # DIR/static-c-band, DIR/static-mmwave,
                                          # DIR/semi-dynamic-c-band, DIR/semi-dynamic-mmwave
 
-Bad input gives a one-line ``error: ...`` on stderr and exit status 2; the output directory
-appears only when complete.
+Bad input gives a one-line ``error: ...`` on stderr and exit status 2 (:mod:`.harness`); the
+output directory appears only when complete.
 """
 
 from __future__ import annotations
 
 import argparse
-import sys
-import warnings
 from collections.abc import Sequence
 
 from ..core.errors import HallrayError
 from ..emulation.receivers import DEFAULT_TOA_METHOD, TOA_METHODS, FirstLobeSettings
 from ..solver.config import add_trace_arguments
-from .trace_scene import OneLineParser
-
-EXIT_BAD_INPUT = 2
+from .harness import OneLineParser, run_tool
 
 
 def make_dataset_parser() -> argparse.ArgumentParser:
@@ -93,51 +89,39 @@ def _cells(text: str) -> int | None:
 
 def make_dataset_main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``make-dataset``; returns the exit status."""
+    return run_tool(
+        _make_dataset, make_dataset_parser(), argv, interrupted="interrupted (nothing written)"
+    )
+
+
+def _make_dataset(args: argparse.Namespace) -> int:
     from ..emulation.dataset import ALL_DATASETS, make_datasets
     from ..solver.config import config_from_args
 
-    try:
-        args = make_dataset_parser().parse_args(argv)
-    except SystemExit as exc:  # bad arguments (one line already printed) or --help
-        return int(exc.code or 0) if not isinstance(exc.code, str) else EXIT_BAD_INPUT
-    try:
-        if args.all:
-            if args.scenario or args.band:
-                raise HallrayError("--all writes every scenario and band: drop --scenario/--band")
-            pairs, subdirs = list(ALL_DATASETS), True
-        else:
-            if not args.scenario or not args.band:
-                raise HallrayError("give --scenario and --band, or --all")
-            pairs, subdirs = [(args.scenario, args.band)], False
-        first_lobe = FirstLobeSettings(args.relative_threshold_db, _cells(args.cfar_cells))
-        with warnings.catch_warnings():
-            warnings.simplefilter("default")
-            warnings.formatwarning = lambda msg, cat, *a, **k: f"warning: {msg}\n"  # type: ignore[assignment]
-            summaries = make_datasets(
-                args.output,
-                pairs,
-                scene=args.scene,
-                duration_s=args.duration,
-                rate_hz=args.rate,
-                seed=args.seed,
-                toa_method=args.toa_method,
-                first_lobe=first_lobe,
-                trace_settings=config_from_args(args),
-                noise=not args.no_noise,
-                workers=args.workers,
-                force=args.force,
-                progress=not args.quiet,
-                subdirectories=subdirs,
-            )
-    except HallrayError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return EXIT_BAD_INPUT
-    except OSError as exc:
-        print(f"error: {exc.strerror or exc}: {exc.filename or args.output}", file=sys.stderr)
-        return EXIT_BAD_INPUT
-    except KeyboardInterrupt:
-        print("error: interrupted (nothing written)", file=sys.stderr)
-        return 130
+    if args.all:
+        if args.scenario or args.band:
+            raise HallrayError("--all writes every scenario and band: drop --scenario/--band")
+        pairs, subdirs = list(ALL_DATASETS), True
+    else:
+        if not args.scenario or not args.band:
+            raise HallrayError("give --scenario and --band, or --all")
+        pairs, subdirs = [(args.scenario, args.band)], False
+    summaries = make_datasets(
+        args.output,
+        pairs,
+        scene=args.scene,
+        duration_s=args.duration,
+        rate_hz=args.rate,
+        seed=args.seed,
+        toa_method=args.toa_method,
+        first_lobe=FirstLobeSettings(args.relative_threshold_db, _cells(args.cfar_cells)),
+        trace_settings=config_from_args(args),
+        noise=not args.no_noise,
+        workers=args.workers,
+        force=args.force,
+        progress=not args.quiet,
+        subdirectories=subdirs,
+    )
     if not args.quiet:
         for s in summaries:
             print(

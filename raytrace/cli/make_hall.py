@@ -10,26 +10,17 @@ import argparse
 import io
 import json
 import math
-import sys
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 from ..core.errors import HallrayError
-from .trace_scene import OneLineParser
+from .harness import OneLineParser, run_tool
 
-EXIT_BAD_INPUT = 2
 #: Files that ``make-hall -o DIR`` writes.
 HALL_YAML = "hall.yaml"
 HALL_GLB = "hall.glb"
 INF_JSON = "inf.json"
-
-
-def _parse(parser: argparse.ArgumentParser, argv: Sequence[str] | None) -> Any:
-    try:
-        return parser.parse_args(argv)
-    except SystemExit as exc:  # --help (0) or a usage error (2, message already printed)
-        return int(exc.code or 0)
 
 
 def _bs_grid(text: str) -> tuple[int, int]:
@@ -87,21 +78,14 @@ def make_hall_parser() -> argparse.ArgumentParser:
 
 def make_hall_main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``make-hall``: 0 on success, 2 on bad input."""
-    args = _parse(make_hall_parser(), argv)
-    if isinstance(args, int):
-        return args
-    try:
-        written = make_hall(
-            args.profile,
-            args.size,
-            args.seed,
-            args.output,
-            n_points=args.points,
-            **_generator_kwargs(args),
-        )
-    except (HallrayError, OSError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return EXIT_BAD_INPUT
+    return run_tool(_make_hall, make_hall_parser(), argv)
+
+
+def _make_hall(args: argparse.Namespace) -> int:
+    written = make_hall(
+        args.profile, args.size, args.seed, args.output, n_points=args.points,
+        **_generator_kwargs(args),
+    )  # fmt: skip
     info = written["info"]
     p = info["params"]
     print(
@@ -168,21 +152,18 @@ def hall_los_check_parser() -> argparse.ArgumentParser:
 
 def hall_los_check_main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``hall-los-check``: 0 on success, 2 on bad input."""
-    args = _parse(hall_los_check_parser(), argv)
-    if isinstance(args, int):
-        return args
-    try:
-        sample, params = _los_sample(args)
-        width = args.bin if args.bin is not None else max(2.0, params["clutter_size"] / 2.0)
-        if not (math.isfinite(width) and width > 0):
-            raise HallrayError(f"--bin must be a positive number of metres, got {args.bin!r}")
-        summary = sample.summary(width)
-        summary["params"] = params
-        if args.plot:
-            _plot(sample, summary, args.plot)
-    except (HallrayError, OSError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return EXIT_BAD_INPUT
+    return run_tool(_hall_los_check, hall_los_check_parser(), argv)
+
+
+def _hall_los_check(args: argparse.Namespace) -> int:
+    sample, params = _los_sample(args)
+    width = args.bin if args.bin is not None else max(2.0, params["clutter_size"] / 2.0)
+    if not (math.isfinite(width) and width > 0):
+        raise HallrayError(f"--bin must be a positive number of metres, got {args.bin!r}")
+    summary = sample.summary(width)
+    summary["params"] = params
+    if args.plot:
+        _plot(sample, summary, args.plot)
     if args.json:
         print(json.dumps(_jsonable(summary), indent=1))
     else:

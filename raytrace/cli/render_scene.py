@@ -14,8 +14,7 @@ import numpy as np
 
 from ..core.errors import HallrayError
 from ..solver.config import add_trace_arguments, config_from_args
-from .scan_to_scene import run_tool
-from .trace_scene import OneLineParser, _parse_links, parse_xyz
+from .harness import OneLineParser, add_scene_arguments, parse_links, parse_xyz, run_tool
 
 
 def _size(text: str) -> tuple[int, int]:
@@ -38,7 +37,7 @@ def render_scene_parser() -> argparse.ArgumentParser:
             "SCENE is a mesh file, a Mitsuba/Sionna XML or 'hall'. See docs/render.md."
         ),
     )
-    p.add_argument("scene", help="scene file or bundled scene name ('hall')")
+    add_scene_arguments(p)
     p.add_argument("-o", "--output", required=True, help="output picture (.png)")
     p.add_argument(
         "--paths", metavar="FILE", help="paths file (.npz) written by trace-scene -o for this scene"
@@ -59,8 +58,6 @@ def render_scene_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--band", default="c-band", help="band when tracing on the fly [c-band]")
     p.add_argument("--frequency-hz", type=float, help="carrier frequency, Hz (overrides --band)")
-    p.add_argument("--materials", help="materials YAML (user materials, bind patterns, default)")
-    p.add_argument("--default-material", help="material for objects no name or pattern binds")
     p.add_argument(
         "--size",
         type=_size,
@@ -111,7 +108,7 @@ def _render_scene(args: argparse.Namespace) -> int:
         _check_paths_fit_scene(paths, scene, args.paths)
         tx_names = _names_for(paths.tx, bs_names, bs_xyz, "tx")
         rx_names = _names_for(paths.rx, pt_names, pt_xyz, "rx")
-        chosen = _parse_links(args.link, tx_names, rx_names) if args.link else []
+        chosen = parse_links(args.link, tx_names, rx_names) if args.link else []
         links = link_paths(paths, chosen, tx_names, rx_names, max_paths=args.max_paths)
         freq = paths.frequency_hz
     elif args.link:
@@ -126,7 +123,7 @@ def _render_scene(args: argparse.Namespace) -> int:
             raise HallrayError(
                 "the scene stores no base stations or points: give --tx and --rx, or --paths"
             )
-        chosen = _parse_links(args.link, tx_names, rx_names)
+        chosen = parse_links(args.link, tx_names, rx_names)
         check_positions(scene, tx, "transmitter", strict=True)
         check_positions(scene, rx, "receiver", strict=True)
         band = get_band(args.band)

@@ -15,7 +15,7 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
-from .trace_scene import OneLineParser, _run
+from .harness import OneLineParser, run_tool
 
 PAIRS = (
     ("static", "c-band"),
@@ -53,7 +53,7 @@ def parser() -> argparse.ArgumentParser:
 
 def reproduce_paper_main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``reproduce-paper``."""
-    return _run(_main, parser(), argv)
+    return run_tool(_main, parser(), argv)
 
 
 def _main(args: argparse.Namespace) -> int:

@@ -12,11 +12,9 @@ import sys
 from collections.abc import Sequence
 
 from ..core.errors import HallrayError
-from .trace_scene import OneLineParser
+from .harness import OneLineParser, run_tool
 
-EXIT_BAD_INPUT = 2
 EXIT_CELLS_FAILED = 1
-EXIT_INTERRUPTED = 130
 
 
 def run_sweep_parser() -> argparse.ArgumentParser:
@@ -51,44 +49,33 @@ def run_sweep_parser() -> argparse.ArgumentParser:
 
 def run_sweep_main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``run-sweep``."""
-    try:
-        args = run_sweep_parser().parse_args(argv)
-    except SystemExit as exc:  # --help (0) or a usage error (2, message already printed)
-        return int(exc.code or 0)
+    return run_tool(
+        _run_sweep, run_sweep_parser(), argv,
+        interrupted="interrupted; finished cells are kept, rerun to resume",
+    )  # fmt: skip
+
+
+def _run_sweep(args: argparse.Namespace) -> int:
     from ..studies.sweep import default_output, load_sweep_config, read_cell_result, run_sweep
 
-    try:
-        cfg = load_sweep_config(args.config)
-        if args.list:
-            out = default_output(cfg) if args.output is None else args.output
-            for cell in cfg.cells():
-                done = read_cell_result(out, cell) is not None
-                desc = ", ".join(
-                    f"{k}={cell.params[k] if '.' not in k else cell.methods[k.split('.')[0]][k.split('.', 1)[1]]}"
-                    for k in cfg.varying
-                )
-                print(f"{cell.index:4d} {cell.key} {'done' if done else 'todo'}  {desc}")
-            return 0
-        if args.limit is not None and args.limit < 0:
-            raise HallrayError(f"--limit must be >= 0, got {args.limit}")
-        progress = not args.quiet and sys.stderr.isatty()
-        report = run_sweep(
-            cfg,
-            args.output,
-            workers=args.workers,
-            scheduler=args.scheduler,
-            progress=progress,
-            limit=args.limit,
-        )
-    except HallrayError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return EXIT_BAD_INPUT
-    except OSError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return EXIT_BAD_INPUT
-    except KeyboardInterrupt:
-        print("error: interrupted; finished cells are kept, rerun to resume", file=sys.stderr)
-        return EXIT_INTERRUPTED
+    cfg = load_sweep_config(args.config)
+    if args.list:
+        out = default_output(cfg) if args.output is None else args.output
+        for cell in cfg.cells():
+            done = read_cell_result(out, cell) is not None
+            desc = ", ".join(
+                f"{k}={cell.params[k] if '.' not in k else cell.methods[k.split('.')[0]][k.split('.', 1)[1]]}"
+                for k in cfg.varying
+            )
+            print(f"{cell.index:4d} {cell.key} {'done' if done else 'todo'}  {desc}")
+        return 0
+    if args.limit is not None and args.limit < 0:
+        raise HallrayError(f"--limit must be >= 0, got {args.limit}")
+    progress = not args.quiet and sys.stderr.isatty()
+    report = run_sweep(
+        cfg, args.output, workers=args.workers, scheduler=args.scheduler, progress=progress,
+        limit=args.limit,
+    )  # fmt: skip
     done = len(report.results)
     rate = f", {report.cells_per_minute:.1f} cells/min" if report.computed else ""
     print(

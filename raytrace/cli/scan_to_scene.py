@@ -8,23 +8,10 @@ from __future__ import annotations
 
 import argparse
 import json
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from typing import Any
 
-from .trace_scene import OneLineParser, _run
-
-
-def run_tool(
-    main: Callable[[argparse.Namespace], int],
-    parser: argparse.ArgumentParser,
-    argv: Sequence[str] | None,
-) -> int:
-    """``raytrace.cli.trace_scene._run`` (one-line errors, exit 2), returning argparse's exit status
-    (``--help``: 0, a usage error: 2) instead of raising SystemExit."""
-    try:
-        return _run(main, parser, argv)
-    except SystemExit as exc:
-        return int(exc.code or 0)
+from .harness import OneLineParser, run_tool
 
 
 def scan_to_scene_parser() -> argparse.ArgumentParser:

@@ -1,7 +1,5 @@
-"""Command-line tools of the ray tracer (console scripts; thin: parse, call, print/write).
-
-Every tool turns bad input into a one-line ``error: ...`` on stderr and exit status 2.
-"""
+"""``trace-scene``: summarise a scene and trace all paths between transmitters and receivers;
+``build-hall``: build a hall mesh from its YAML description."""
 
 from __future__ import annotations
 
@@ -9,61 +7,14 @@ import argparse
 import json
 import sys
 import time
-import warnings
-from collections.abc import Callable, Sequence
-from typing import Any, NoReturn
+from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
 from ..core.errors import HallrayError
 from ..solver.config import add_trace_arguments
-
-EXIT_BAD_INPUT = 2
-
-
-class OneLineParser(argparse.ArgumentParser):
-    """An argument parser whose usage errors are one line, ``error: ...``, exit status 2."""
-
-    def error(self, message: str) -> NoReturn:
-        print(f"error: {message}", file=sys.stderr)
-        raise SystemExit(EXIT_BAD_INPUT)
-
-
-def _run(
-    main: Callable[[argparse.Namespace], int],
-    parser: argparse.ArgumentParser,
-    argv: Sequence[str] | None,
-) -> int:
-    args = parser.parse_args(argv)
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("default")
-            warnings.formatwarning = lambda msg, cat, *a, **k: f"warning: {msg}\n"  # type: ignore[assignment]
-            return main(args)
-    except HallrayError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return EXIT_BAD_INPUT
-    except OSError as exc:  # unwritable output, a full disk: one line, not a traceback
-        where = f": {exc.filename}" if exc.filename else ""
-        print(f"error: {exc.strerror or exc}{where}", file=sys.stderr)
-        return EXIT_BAD_INPUT
-    except KeyboardInterrupt:
-        print("error: interrupted", file=sys.stderr)
-        return 130
-
-
-def parse_xyz(text: str) -> list[float]:
-    """``"x,y,z"`` in metres -> three floats (argparse type)."""
-    parts = text.replace(" ", "").split(",")
-    try:
-        vals = [float(p) for p in parts]
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected X,Y,Z in metres, got {text!r}") from None
-    if len(vals) != 3:
-        raise argparse.ArgumentTypeError(f"expected X,Y,Z in metres, got {text!r}")
-    if not all(np.isfinite(vals)):
-        raise argparse.ArgumentTypeError(f"coordinates must be finite numbers, got {text!r}")
-    return vals
+from .harness import OneLineParser, add_scene_arguments, parse_links, parse_xyz, run_tool
 
 
 # -- trace-scene ------------------------------------------------------------------------------
@@ -76,7 +27,7 @@ def trace_scene_parser() -> argparse.ArgumentParser:
             "reference hall, whose base stations and points are traced by default."
         ),
     )
-    p.add_argument("scene", help="scene file or bundled scene name ('hall')")
+    add_scene_arguments(p)
     p.add_argument(
         "--tx", type=parse_xyz, action="append", metavar="X,Y,Z", help="transmitter (repeatable), m"
     )
@@ -87,8 +38,6 @@ def trace_scene_parser() -> argparse.ArgumentParser:
         "--band", default="c-band", help="band name (c-band, mmwave) or a bands YAML [c-band]"
     )
     p.add_argument("--frequency-hz", type=float, help="carrier frequency in Hz (overrides --band)")
-    p.add_argument("--materials", help="materials YAML (user materials, bind patterns, default)")
-    p.add_argument("--default-material", help="material for objects no name or pattern binds")
     p.add_argument("-o", "--output", help="write the paths (.npz, .json or .csv)")
     p.add_argument(
         "--export-glb", metavar="FILE", help="write the scene with the paths of --link links"
@@ -110,7 +59,7 @@ def trace_scene_parser() -> argparse.ArgumentParser:
 
 def trace_scene_main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``trace-scene``."""
-    return _run(_trace_scene, trace_scene_parser(), argv)
+    return run_tool(_trace_scene, trace_scene_parser(), argv)
 
 
 def _trace_scene(args: argparse.Namespace) -> int:
@@ -157,7 +106,7 @@ def _trace_scene(args: argparse.Namespace) -> int:
     if args.export_glb:
         from ..viz.export import export_paths_glb
 
-        links = _parse_links(args.link, tx_names, rx_names) if args.link else [0]
+        links = parse_links(args.link, tx_names, rx_names) if args.link else [0]
         export_paths_glb(scene, paths, links, args.export_glb)
     if args.json:
         print(
@@ -251,25 +200,6 @@ def _print_links(rows: list[dict[str, Any]]) -> None:
             f"{ex:>8} {r['first_kind'] or '-':>6} {r['n_los']:>4} {r['n_reflection']:>4} "
             f"{r['n_penetration']:>4} {r['n_diffraction']:>4} {r['strongest_kind'] or '-':>9} {sp:>8}"
         )
-
-
-def _parse_links(items: list[str], tx_names: list[str], rx_names: list[str]) -> list[int]:
-    out = []
-    for item in items:
-        parts = item.split(",")
-        if len(parts) != 2:
-            raise HallrayError(f"--link expects TX,RX (indices or names), got {item!r}")
-        idx = []
-        for part, names in zip(parts, (tx_names, rx_names)):
-            part = part.strip()
-            if part in names:
-                idx.append(names.index(part))
-            elif part.isdigit() and int(part) < len(names):
-                idx.append(int(part))
-            else:
-                raise HallrayError(f"--link {item!r}: {part!r} is not a known name or index")
-        out.append(idx[0] * len(rx_names) + idx[1])
-    return out
 
 
 # -- build-hall -------------------------------------------------------------------------------

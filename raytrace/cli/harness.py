@@ -1,0 +1,79 @@
+"""What every ray-tracer command shares: the harness (one-line errors, exit codes, signals) and the
+common option types.
+
+The harness itself is :mod:`positioning.command` (one for both packages); :func:`run_tool` runs a
+raytrace tool with :class:`~raytrace.core.errors.HallrayError` as bad input. The command modules
+beside this one are thin: they parse, call the library, print or write.
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Callable, Sequence
+
+import numpy as np
+
+from positioning.command import EXIT_BAD_INPUT, OneLineParser, run_command
+
+from ..core.errors import HallrayError
+
+__all__ = [
+    "EXIT_BAD_INPUT",
+    "OneLineParser",
+    "add_scene_arguments",
+    "parse_links",
+    "parse_xyz",
+    "run_tool",
+]
+
+
+def run_tool(
+    main: Callable[[argparse.Namespace], int],
+    parser: argparse.ArgumentParser,
+    argv: Sequence[str] | None,
+    *,
+    interrupted: str = "interrupted",
+) -> int:
+    """Run a raytrace command (:func:`positioning.command.run_command`); returns the exit status."""
+    return run_command(main, parser, argv, user_errors=(HallrayError,), interrupted=interrupted)
+
+
+def parse_xyz(text: str) -> list[float]:
+    """``"x,y,z"`` in metres -> three floats (argparse type; negative values work)."""
+    parts = text.replace(" ", "").split(",")
+    try:
+        vals = [float(p) for p in parts]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected X,Y,Z in metres, got {text!r}") from None
+    if len(vals) != 3:
+        raise argparse.ArgumentTypeError(f"expected X,Y,Z in metres, got {text!r}")
+    if not all(np.isfinite(vals)):
+        raise argparse.ArgumentTypeError(f"coordinates must be finite numbers, got {text!r}")
+    return vals
+
+
+def add_scene_arguments(p: argparse.ArgumentParser) -> None:
+    """The options of every command that loads a scene: SCENE, --materials, --default-material."""
+    p.add_argument("scene", help="scene file (.glb .gltf .obj .ply .stl, Mitsuba XML) or 'hall'")
+    p.add_argument("--materials", help="materials YAML (user materials, bind patterns, default)")
+    p.add_argument("--default-material", help="material for objects no name or pattern binds")
+
+
+def parse_links(items: list[str], tx_names: list[str], rx_names: list[str]) -> list[int]:
+    """``--link TX,RX`` values (names or indices) -> link indices ``tx * R + rx``."""
+    out = []
+    for item in items:
+        parts = item.split(",")
+        if len(parts) != 2:
+            raise HallrayError(f"--link expects TX,RX (indices or names), got {item!r}")
+        idx = []
+        for part, names in zip(parts, (tx_names, rx_names)):
+            part = part.strip()
+            if part in names:
+                idx.append(names.index(part))
+            elif part.isdigit() and int(part) < len(names):
+                idx.append(int(part))
+            else:
+                raise HallrayError(f"--link {item!r}: {part!r} is not a known name or index")
+        out.append(idx[0] * len(rx_names) + idx[1])
+    return out
