@@ -11,7 +11,8 @@ from __future__ import annotations
 
 from .core.errors import HallrayError, MaterialError, SceneError, TraceInputError
 from .core.version import __version__
-from .scene.model import Scene, load_scene
+from .scene.io import load_scene
+from .scene.model import Scene
 from .solver.config import TraceConfig
 from .solver.context import TraceContext
 from .solver.paths import Paths

@@ -287,7 +287,7 @@ def test_mirrored_links_about_a_concrete_pillar_edge_have_the_same_diffracted_ga
 
 @pytest.mark.parametrize("name", ["canonical/shoebox", "canonical/box_on_floor_concrete"])
 def test_no_diffraction_at_room_corners_or_where_a_box_stands(name):
-    from raytrace.scene.model import load_scene
+    from raytrace.scene.io import load_scene
 
     sc = load_scene(name)
     if name.endswith("shoebox"):

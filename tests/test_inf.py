@@ -35,7 +35,7 @@ from raytrace.halls.inf import (
     wilson_interval,
 )
 from raytrace.halls.spec import build_hall_cli, load_hall_spec, parse_hall_spec, parse_los_note
-from raytrace.scene.model import load_scene
+from raytrace.scene.io import load_scene
 
 SMALL = "30x24x8"
 #: closed-form 3GPP decay distances are computed to this relative precision

@@ -9,7 +9,7 @@ import trimesh
 from conftest import box, make_scene, quad
 
 from raytrace.cli.render_scene import render_scene_main
-from raytrace.scene.model import load_scene
+from raytrace.scene.io import load_scene
 from raytrace.solver.config import TraceConfig
 from raytrace.solver.tracer import trace
 from raytrace.viz.export import KIND_COLOURS

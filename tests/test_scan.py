@@ -25,7 +25,7 @@ from raytrace.halls.scan import (
     scan_to_scene,
     simulate_scan,
 )
-from raytrace.scene.model import load_scene
+from raytrace.scene.io import load_scene
 from raytrace.solver.config import TraceConfig
 from raytrace.solver.tracer import trace
 

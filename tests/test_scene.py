@@ -8,7 +8,7 @@ import trimesh
 from conftest import box, make_scene, quad
 
 from raytrace.core.errors import SceneError
-from raytrace.scene.model import load_scene
+from raytrace.scene.io import load_scene
 
 ANGLE_TOL = 1e-9
 AREA_TOL_M2 = 1e-9

@@ -44,7 +44,7 @@ def main(argv: list[str] | None = None) -> int:
     import numpy as np
 
     from raytrace.halls.scan import simulate_scan
-    from raytrace.scene.model import load_scene
+    from raytrace.scene.io import load_scene
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--points", type=int, default=1_000_000, help="points in the cloud [1e6]")

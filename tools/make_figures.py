@@ -40,7 +40,7 @@ def main(argv: list[str] | None = None) -> int:
     import numpy as np  # noqa: F401  (the scan needs numpy and open3d)
 
     from raytrace.halls.scan import ScanOptions, scan_to_scene, simulate_scan
-    from raytrace.scene.model import load_scene
+    from raytrace.scene.io import load_scene
 
     hall = load_scene("hall")
     pts = simulate_scan(hall, 1_200_000, noise_m=0.02, n_gaps=30, seed=11)

@@ -186,7 +186,7 @@ def _jsonable(x: Any) -> Any:
 def _los_sample(args: argparse.Namespace) -> tuple[Any, dict[str, Any]]:
     from ..halls.inf import PROFILES, canonical_profile, los_check, los_sample, resolve_params
     from ..halls.spec import load_hall_spec
-    from ..scene.model import load_scene
+    from ..scene.io import load_scene
 
     target = Path(args.target)
     if target.is_dir():

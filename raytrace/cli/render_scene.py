@@ -82,8 +82,8 @@ def render_scene_main(argv: Sequence[str] | None = None) -> int:
 
 
 def _render_scene(args: argparse.Namespace) -> int:
+    from ..scene.io import load_scene
     from ..scene.metadata import SceneMetadata
-    from ..scene.model import load_scene
     from ..solver.paths import Paths
     from ..viz.render import link_paths, render_scene
 

@@ -64,8 +64,8 @@ def trace_scene_main(argv: Sequence[str] | None = None) -> int:
 
 def _trace_scene(args: argparse.Namespace) -> int:
     from ..emulation.bands import get_band
+    from ..scene.io import load_scene
     from ..scene.metadata import SceneMetadata
-    from ..scene.model import load_scene
     from ..solver.config import config_from_args
     from ..solver.tracer import check_positions, trace
 

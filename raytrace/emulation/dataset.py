@@ -41,8 +41,9 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import HallrayError, SceneError
+from ..scene.io import load_scene
 from ..scene.metadata import SceneMetadata
-from ..scene.model import Scene, load_scene
+from ..scene.model import Scene
 from ..scene.motion import FORKLIFT_CLEARANCE_M, snapshot_times
 from ..solver.config import TraceConfig
 from ..solver.incremental import SnapshotTracer

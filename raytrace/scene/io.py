@@ -1,0 +1,197 @@
+"""Reading scenes from files: meshes (glb, gltf, obj, ply, stl, off) through trimesh, Mitsuba /
+Sionna RT scene XML, and the bundled scenes by name; binding a material to every object."""
+
+from __future__ import annotations
+
+import fnmatch
+import xml.etree.ElementTree as ET
+from pathlib import Path
+from typing import Any
+
+from ..core.errors import SceneError
+from ..physics.materials import MaterialLibrary
+from .model import Scene
+
+#: Mesh formats read through trimesh.
+MESH_SUFFIXES = (".glb", ".gltf", ".obj", ".ply", ".stl", ".off")
+
+
+def load_scene(
+    path: str | Path,
+    materials: MaterialLibrary | str | Path | dict[str, Any] | None = None,
+    *,
+    default_material: str | None = None,
+) -> Scene:
+    """Read a scene and bind a material to every object.
+
+    Parameters
+    ----------
+    path : str or Path
+        A mesh (.glb, .gltf, .obj, .ply, .stl, .off) read through trimesh, a Mitsuba / Sionna RT
+        scene XML, or the name of a bundled scene (``"hall"``).
+    materials : MaterialLibrary, YAML path or dict, optional
+        User materials, a ``bind`` map of glob patterns on object names to materials (overrides
+        name matching), and an optional ``default``. Materials stored in the file's ``hallray``
+        metadata are loaded first.
+    default_material : str, optional
+        Material of objects that no name or pattern binds (otherwise they are an error).
+
+    Returns
+    -------
+    Scene
+
+    Raises
+    ------
+    SceneError
+        Missing or unreadable file, empty mesh, NaN vertices, objects without a material.
+    """
+    from .bundled import resolve_scene
+
+    p = resolve_scene(path)
+    if not p.exists():
+        raise SceneError(f"scene file not found: {path}")
+    if p.is_dir():
+        raise SceneError(f"scene path is a directory, not a file: {path}")
+    suffix = p.suffix.lower()
+    if suffix == ".xml":
+        named, metadata, xml_materials = _read_mitsuba(p)
+    elif suffix in MESH_SUFFIXES:
+        named, metadata = _read_trimesh(p)
+        xml_materials = {}
+    else:
+        raise SceneError(
+            f"unsupported scene format {suffix or '(none)'!r} for {p.name}; "
+            f"use one of {', '.join(MESH_SUFFIXES)} or .xml"
+        )
+    library = MaterialLibrary.itu()
+    meta_h = metadata.get("hallray", {}) if isinstance(metadata, dict) else {}
+    if isinstance(meta_h, dict) and meta_h.get("materials"):
+        library = library.with_yaml({"materials": meta_h["materials"]})
+    if xml_materials:
+        library = library.with_yaml({"materials": xml_materials})
+    if isinstance(materials, MaterialLibrary):
+        library = materials
+    elif materials is not None:
+        library = library.with_yaml(materials)
+    default = default_material or getattr(library, "default", None)
+    if default is not None and default not in library:
+        raise SceneError(f"default material {default!r} is not a known material")
+    bind = dict(getattr(library, "bind", {}) or {})
+
+    bound: list[tuple[str, Any, str]] = []
+    unbound: list[str] = []
+    for name, mesh, hints in named:
+        mat = None
+        for pattern, m in bind.items():
+            if fnmatch.fnmatchcase(name, pattern) or fnmatch.fnmatchcase(
+                name.lower(), pattern.lower()
+            ):
+                mat = m
+                break
+        if mat is None:
+            for h in hints:
+                mat = library.match(h)
+                if mat is not None:
+                    break
+        if mat is None:
+            mat = default
+        if mat is None:
+            unbound.append(name)
+            continue
+        if mat not in library:
+            raise SceneError(f"object {name!r} is bound to unknown material {mat!r}")
+        bound.append((name, mesh, mat))
+    if unbound:
+        shown = ", ".join(unbound[:8]) + (
+            f" (+{len(unbound) - 8} more)" if len(unbound) > 8 else ""
+        )
+        raise SceneError(
+            f"{len(unbound)} object(s) without a material: {shown}; name them after a material, "
+            "add a 'bind' pattern, or give a default material"
+        )
+    return Scene.from_meshes(bound, library, metadata=metadata, source=str(p))
+
+
+def _read_trimesh(p: Path) -> tuple[list[tuple[str, Any, list[str]]], dict[str, Any]]:
+    """Objects of a mesh file as (name, mesh in world coordinates, name hints)."""
+    import trimesh
+
+    try:
+        loaded = trimesh.load(str(p), force="scene")
+    except Exception as exc:  # trimesh raises many types for unreadable files
+        raise SceneError(
+            f"cannot read scene {p.name}: {type(exc).__name__}: {exc}".splitlines()[0]
+        ) from None
+    named: list[tuple[str, Any, list[str]]] = []
+    for node in sorted(loaded.graph.nodes_geometry):
+        transform, geom_name = loaded.graph[node]
+        geom = loaded.geometry.get(geom_name)
+        if geom is None or not hasattr(geom, "faces") or len(geom.faces) == 0:
+            continue
+        mesh = geom.copy()
+        mesh.apply_transform(transform)
+        hints = [node, geom_name]
+        mat = getattr(getattr(geom, "visual", None), "material", None)
+        if mat is not None and getattr(mat, "name", None):
+            hints.append(str(mat.name))
+        named.append((str(node), mesh, hints))
+    if not named:
+        raise SceneError(f"scene {p.name} contains no triangles")
+    return named, dict(loaded.metadata or {})
+
+
+def _read_mitsuba(
+    p: Path,
+) -> tuple[list[tuple[str, Any, list[str]]], dict[str, Any], dict[str, Any]]:
+    """A Mitsuba 3 / Sionna RT scene: ply/obj shapes referencing ITU radio materials."""
+    import trimesh
+
+    try:
+        root = ET.parse(p).getroot()
+    except (ET.ParseError, OSError) as exc:
+        raise SceneError(f"cannot read scene XML {p.name}: {exc}") from None
+    bsdf_material: dict[str, str] = {}
+    user: dict[str, Any] = {}
+    for bsdf in root.iter("bsdf"):
+        bid = bsdf.get("id")
+        if not bid:
+            continue
+        if bsdf.get("type") == "itu-radio-material":
+            params = {c.get("name"): c.get("value") for c in bsdf if c.get("name")}
+            mtype = params.get("type", bid)
+            bsdf_material[bid] = str(mtype)
+            if params.get("thickness") is not None:
+                user[str(mtype)] = {"thickness": float(params["thickness"])}
+        else:
+            bsdf_material[bid] = bid
+    named: list[tuple[str, Any, list[str]]] = []
+    for i, shape in enumerate(root.iter("shape")):
+        stype = shape.get("type")
+        if stype not in ("ply", "obj"):
+            continue
+        fname = None
+        ref = None
+        for c in shape:
+            if c.tag == "string" and c.get("name") == "filename":
+                fname = c.get("value")
+            if c.tag == "ref":
+                ref = c.get("id")
+            if c.tag == "bsdf" and c.get("id"):
+                ref = c.get("id")
+        if fname is None:
+            continue
+        fpath = (p.parent / fname).resolve()
+        try:
+            mesh = trimesh.load(str(fpath), force="mesh")
+        except Exception as exc:
+            raise SceneError(
+                f"cannot read mesh {fname} of {p.name}: {exc}".splitlines()[0]
+            ) from None
+        name = shape.get("id") or Path(fname).stem or f"shape_{i}"
+        hints = [name]
+        if ref is not None:
+            hints = [bsdf_material.get(ref, ref), ref, name]
+        named.append((name, mesh, hints))
+    if not named:
+        raise SceneError(f"scene XML {p.name} has no ply/obj shapes")
+    return named, {}, user
