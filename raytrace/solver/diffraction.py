@@ -128,6 +128,109 @@ def _pure(ctx: TraceContext) -> Paths:
     return Paths.concatenate(parts) if parts else Paths.empty(ctx.tx, ctx.rx, ctx.f, 1)
 
 
+class _PairGeometry:
+    """What :func:`_facet_wedge_pairs` reuses for every end point: facet spheres and boxes, wedge
+    groups by object, and the edges' end points' distances from the facet planes."""
+
+    def __init__(self, ctx: TraceContext, restricted: bool) -> None:
+        fc, w = ctx.scene.facets, ctx.scene.wedges
+        self.fc, self.w = fc, w
+        self.f_centre, self.f_radius = accel.facet_spheres(fc)
+        self.g_order, self.g_start, self.g_count, self.g_centre, self.g_radius = accel.wedge_groups(
+            w
+        )
+        self.w_mid = 0.5 * (w.start + w.end)
+        self.w_half = 0.5 * w.length * (1 + 1e-9) + 1e-9
+        self.lo, self.hi = accel.facet_boxes(fc, ctx.scene.margin)
+        self.restricted = restricted
+        self.edge_ends = (w.start, w.end)
+        if restricted:
+            g_in = ctx.wedge_mask[self.g_order[self.g_start]]  # a group is one object's wedges
+            self.g_chosen, self.g_other = np.flatnonzero(g_in), np.flatnonzero(~g_in)
+            self.dist = None  # few candidates: distances per candidate
+        else:
+            # signed distances of the edges' end points from every facet plane: (W, K) each
+            self.dist = [x @ fc.normal.T - fc.offset for x in self.edge_ends]
+
+    def plane_dist(self, k: int, wi: np.ndarray, f_idx: np.ndarray) -> np.ndarray:
+        """Signed distance of end ``k`` (0: start, 1: end) of wedges ``wi`` from facets
+        ``f_idx``' planes, metres."""
+        if self.dist is not None:
+            return self.dist[k][wi, f_idx]
+        fc = self.fc
+        return np.einsum("ij,ij->i", self.edge_ends[k][wi], fc.normal[f_idx]) - fc.offset[f_idx]
+
+    def object_pairs(self, ctx, f_ok, sgn, nrm, off, f_beam) -> tuple[np.ndarray, np.ndarray]:
+        """(group, facet) pairs whose group sphere reaches the end's side of the facet plane and
+        the beam from the end's image through the facet (dense per block)."""
+        if self.restricted:
+            # only pairs with the wedge or the facet on a chosen object: two blocks of the
+            # (group, facet) matrix
+            f_all = np.arange(len(f_ok))
+            blocks = [(self.g_chosen, f_all), (self.g_other, np.flatnonzero(ctx.facet_mask[f_ok]))]
+        else:
+            blocks = [(np.arange(len(self.g_start)), np.arange(len(f_ok)))]
+        gi_parts, fj_parts = [np.zeros(0, np.int64)], [np.zeros(0, np.int64)]
+        for gs, fs in blocks:
+            if len(gs) == 0 or len(fs) == 0:
+                continue
+            c, r = self.g_centre[gs], self.g_radius[gs]
+            near = (c @ nrm[fs].T - off[fs]) * sgn[fs] + r[:, None] > accel.PLANE_TOL_M
+            near &= refl.beam_reaches(
+                refl.Beam(*(x[fs][None] for x in f_beam)), c[:, None], r[:, None]
+            )
+            gb, fb = np.nonzero(near)
+            gi_parts.append(gs[gb])
+            fj_parts.append(fs[fb])
+        return np.concatenate(gi_parts), np.concatenate(fj_parts)
+
+    def edge_pairs(self, gi, fj, f_ok, sgn, f_beam) -> tuple[np.ndarray, ...]:
+        """The wedges of the (group, facet) pairs that have a part strictly on the end's side of
+        the facet plane and whose own sphere meets the beam: ``wi, fj, f_idx, da, db``."""
+        cnt = self.g_count[gi]
+        first = np.cumsum(cnt) - cnt
+        wi = self.g_order[np.repeat(self.g_start[gi] - first, cnt) + np.arange(int(cnt.sum()))]
+        fj = np.repeat(fj, cnt)
+        f_idx = f_ok[fj]
+        eps = accel.PLANE_TOL_M
+        da = self.plane_dist(0, wi, f_idx) * sgn[fj]
+        db = self.plane_dist(1, wi, f_idx) * sgn[fj]
+        keep = (da > eps) | (db > eps)
+        wi, fj, f_idx, da, db = wi[keep], fj[keep], f_idx[keep], da[keep], db[keep]
+        keep = refl.beam_reaches(f_beam.take(fj), self.w_mid[wi], self.w_half[wi])
+        return wi[keep], fj[keep], f_idx[keep], da[keep], db[keep]
+
+    def visible_span(self, wi, f_idx, img, h, da, db) -> tuple[np.ndarray, ...]:
+        """The part of each edge seen from the image through the facet's box: ``ok`` (M,) bool
+        and, for the ok ones, ``t_lo, t_hi`` metres from the wedge's start, padded."""
+        w, eps = self.w, accel.PLANE_TOL_M
+        # clip the edge to the end's side
+        a, b = w.start[wi], w.end[wi]
+        cut_a, cut_b = da <= eps, db <= eps
+        u = np.where(cut_a | cut_b, (eps - da) / np.where(db != da, db - da, 1.0), 0.0)
+        pa = a + u[:, None] * (b - a)
+        a = np.where(cut_a[:, None], pa, a)
+        b = np.where(cut_b[:, None], pa, b)
+        # project from the image onto the facet plane: the image is at distance h on the other
+        # side, a point at distance s on this side projects at u = h / (h + s) from the image
+        d_a = h + np.maximum(da, eps)  # clipped ends sit at eps
+        d_b = h + np.maximum(db, eps)
+        qa = img + (h / d_a)[:, None] * (a - img)
+        qb = img + (h / d_b)[:, None] * (b - img)
+        s_in, s_out = _segment_box_span(qa, qb, self.lo[f_idx], self.hi[f_idx])
+        ok = s_in <= s_out
+        # the part of the edge that projects into the box: the projection is a perspective map,
+        # so the edge parameter of projected parameter s is s D_a / (s D_a + (1 - s) D_b)
+        d_a, d_b = d_a[ok], d_b[ok]
+        lam = [x * d_a / (x * d_a + (1 - x) * d_b) for x in (s_in[ok], s_out[ok])]
+        w_ok = wi[ok]
+        t_a = np.einsum("ij,ij->i", a[ok] - w.start[w_ok], w.direction[w_ok])
+        t_b = np.einsum("ij,ij->i", b[ok] - w.start[w_ok], w.direction[w_ok])
+        t_lo = t_a + lam[0] * (t_b - t_a) - SPAN_PAD_M
+        t_hi = t_a + lam[1] * (t_b - t_a) + SPAN_PAD_M
+        return ok, t_lo, t_hi
+
+
 def _facet_wedge_pairs(
     ctx: TraceContext, ends: np.ndarray, mixed_rdr: bool = False
 ) -> tuple[np.ndarray, ...]:
@@ -149,32 +252,9 @@ def _facet_wedge_pairs(
         image through the facet's bounding box, padded by :data:`SPAN_PAD_M`. A diffraction
         point of this reflection lies in it (necessary condition).
     """
-    fc, w = ctx.scene.facets, ctx.scene.wedges
+    fc = ctx.scene.facets
     side = refl.reflecting_side(fc, ends)  # (E, K)
-    f_centre, f_radius = accel.facet_spheres(fc)
-    g_order, g_start, g_count, g_centre, g_radius = accel.wedge_groups(w)
-    w_mid = 0.5 * (w.start + w.end)
-    w_half = 0.5 * w.length * (1 + 1e-9) + 1e-9
-    lo, hi = accel.facet_boxes(fc, ctx.scene.margin)
-    eps = accel.PLANE_TOL_M
-    restricted = ctx.facet_mask is not None and not mixed_rdr
-    all_groups = np.arange(len(g_start))
-    edge_ends = (w.start, w.end)
-    if restricted:
-        g_in = ctx.wedge_mask[g_order[g_start]]  # a group is one object's wedges
-        g_chosen, g_other = np.flatnonzero(g_in), np.flatnonzero(~g_in)
-
-        # few candidates: distances per candidate
-        def plane_dist(k, wi, f_idx):
-            return np.einsum("ij,ij->i", edge_ends[k][wi], fc.normal[f_idx]) - fc.offset[f_idx]
-
-    else:
-        # signed distances of the edges' end points from every facet plane: (W, K) each
-        dist = [x @ fc.normal.T - fc.offset for x in edge_ends]
-
-        def plane_dist(k, wi, f_idx):
-            return dist[k][wi, f_idx]
-
+    geo = _PairGeometry(ctx, ctx.facet_mask is not None and not mixed_rdr)
     outs = []
     for e in range(len(ends)):
         f_ok = np.flatnonzero(side[e] != 0)
@@ -183,75 +263,16 @@ def _facet_wedge_pairs(
         h_f = np.abs(ends[e] @ nrm.T - off)  # the end's distance from each plane
         img_f = ends[e] - 2.0 * (sgn * h_f)[:, None] * nrm
         # the beam from the image through each facet's bounding sphere
-        f_beam = refl.beam(img_f, f_centre[f_ok], f_radius[f_ok])
-        if restricted:
-            # only pairs with the wedge or the facet on a chosen object: two blocks of the
-            # (group, facet) matrix
-            f_all = np.arange(len(f_ok))
-            blocks = [(g_chosen, f_all), (g_other, np.flatnonzero(ctx.facet_mask[f_ok]))]
-        else:
-            blocks = [(all_groups, np.arange(len(f_ok)))]
-        gi_parts, fj_parts = [], []
-        for gs, fs in blocks:
-            if len(gs) == 0 or len(fs) == 0:
-                continue
-            # object level, dense: the group's sphere reaches the end's side and the beam
-            c, r = g_centre[gs], g_radius[gs]
-            near = (c @ nrm[fs].T - off[fs]) * sgn[fs] + r[:, None] > eps
-            near &= refl.beam_reaches(
-                refl.Beam(*(x[fs][None] for x in f_beam)), c[:, None], r[:, None]
-            )
-            gb, fb = np.nonzero(near)
-            gi_parts.append(gs[gb])
-            fj_parts.append(fs[fb])
-        if not gi_parts:
-            continue
-        gi, fj = np.concatenate(gi_parts), np.concatenate(fj_parts)
+        f_beam = refl.beam(img_f, geo.f_centre[f_ok], geo.f_radius[f_ok])
+        gi, fj = geo.object_pairs(ctx, f_ok, sgn, nrm, off, f_beam)
         if len(gi) == 0:
             continue
-        cnt = g_count[gi]
-        first = np.cumsum(cnt) - cnt
-        wi = g_order[np.repeat(g_start[gi] - first, cnt) + np.arange(int(cnt.sum()))]
-        fj = np.repeat(fj, cnt)
-        f_idx = f_ok[fj]
-        # the edge must have a part strictly on the end's side of the facet plane
-        da = plane_dist(0, wi, f_idx) * sgn[fj]
-        db = plane_dist(1, wi, f_idx) * sgn[fj]
-        keep = (da > eps) | (db > eps)
-        wi, fj, f_idx, da, db = wi[keep], fj[keep], f_idx[keep], da[keep], db[keep]
-        # beam test with the edge's own bounding sphere
-        keep = refl.beam_reaches(f_beam.take(fj), w_mid[wi], w_half[wi])
-        wi, fj, f_idx, da, db = wi[keep], fj[keep], f_idx[keep], da[keep], db[keep]
+        wi, fj, f_idx, da, db = geo.edge_pairs(gi, fj, f_ok, sgn, f_beam)
         if len(wi) == 0:
             continue
         img = img_f[fj]
-        # clip the edge to the end's side
-        a, b = w.start[wi], w.end[wi]
-        cut_a = da <= eps
-        cut_b = db <= eps
-        u = np.where(cut_a | cut_b, (eps - da) / np.where(db != da, db - da, 1.0), 0.0)
-        pa = a + u[:, None] * (b - a)
-        a = np.where(cut_a[:, None], pa, a)
-        b = np.where(cut_b[:, None], pa, b)
-        # project from the image onto the facet plane: the image is at distance h on the other
-        # side, a point at distance s on this side projects at u = h / (h + s) from the image
-        h = h_f[fj]
-        d_a = h + np.maximum(da, eps)  # clipped ends sit at eps
-        d_b = h + np.maximum(db, eps)
-        qa = img + (h / d_a)[:, None] * (a - img)
-        qb = img + (h / d_b)[:, None] * (b - img)
-        s_in, s_out = _segment_box_span(qa, qb, lo[f_idx], hi[f_idx])
-        ok = s_in <= s_out
-        # the part of the edge that projects into the box: the projection is a perspective map,
-        # so the edge parameter of projected parameter s is s D_a / (s D_a + (1 - s) D_b)
-        d_a, d_b = d_a[ok], d_b[ok]
-        lam = [x * d_a / (x * d_a + (1 - x) * d_b) for x in (s_in[ok], s_out[ok])]
-        w_ok = wi[ok]
-        t_a = np.einsum("ij,ij->i", a[ok] - w.start[w_ok], w.direction[w_ok])
-        t_b = np.einsum("ij,ij->i", b[ok] - w.start[w_ok], w.direction[w_ok])
-        t_lo = t_a + lam[0] * (t_b - t_a) - SPAN_PAD_M
-        t_hi = t_a + lam[1] * (t_b - t_a) + SPAN_PAD_M
-        outs.append((np.full(len(w_ok), e), f_idx[ok], w_ok, img[ok], t_lo, t_hi))
+        ok, t_lo, t_hi = geo.visible_span(wi, f_idx, img, h_f[fj], da, db)
+        outs.append((np.full(int(ok.sum()), e), f_idx[ok], wi[ok], img[ok], t_lo, t_hi))
     if not outs:
         z = np.zeros(0, np.int64)
         return z, z, z, np.zeros((0, 3)), np.zeros(0), np.zeros(0)

@@ -53,6 +53,102 @@ class Crossings:
 END_GUARD_MARGINS = 10.0
 
 
+class _Walk:
+    """Per-segment state of the walk along segments: recorded penetrations and the solid the
+    segment is inside of. Arrays over the n segments, K slots each."""
+
+    def __init__(self, scene: Scene, d: np.ndarray, k: int) -> None:
+        n, kk = len(d), max(k, 1)
+        self.scene, self.d, self.k = scene, d, k
+        self.closed = scene.object_closed
+        self.sheet_thickness = scene.material_thickness()[scene.object_material]
+        self.count = np.zeros(n, dtype=np.int64)
+        self.exceeded = np.zeros(n, dtype=bool)
+        self.dist = np.full((n, kk), np.inf)
+        self.obj = np.full((n, kk), -1, dtype=np.int64)
+        self.normal = np.zeros((n, kk, 3))
+        self.thick = np.zeros((n, kk))
+        self.inside = np.full(n, -1, dtype=np.int64)  # closed solid the segment is inside of
+        self.t_in = np.zeros(n)
+        self.face_in = np.zeros(n, dtype=np.int64)
+        self.t_last = np.zeros(n)  # distance of the last boundary crossed (0: the start)
+
+    def record(
+        self, rows: np.ndarray, t_entry: np.ndarray, o: np.ndarray, face: np.ndarray, th: np.ndarray
+    ) -> None:
+        """One penetration of object ``o`` entered at ``t_entry`` through ``face``, chord ``th``
+        (a sheet: its thickness); a solid's equivalent slab is the chord times cos(incidence)."""
+        slot = self.count[rows]
+        over = slot >= self.k
+        self.exceeded[rows[over]] = True
+        r, s = rows[~over], slot[~over]
+        self.dist[r, s] = t_entry[~over]
+        self.obj[r, s] = o[~over]
+        fn = self.scene.face_normal[face[~over]]
+        self.normal[r, s] = fn
+        cos_i = np.abs(np.einsum("ij,ij->i", fn, self.d[r]))
+        self.thick[r, s] = np.maximum(th[~over], 0.0) * np.where(self.closed[o[~over]], cos_i, 1.0)
+        self.count[rows] += 1
+
+    def boundary(self, rows: np.ndarray, face: np.ndarray, o: np.ndarray, t_hit: np.ndarray):
+        """The segments ``rows`` meet face ``face`` of object ``o`` at ``t_hit``."""
+        is_closed = self.closed[o]
+        cur = self.inside[rows]
+        # closed solids face outward: the hit face's orientation says whether the segment enters
+        # or leaves (the bookkeeping alone would miss an entry through a face coincident with
+        # the previous exit, two solids stacked, since each hit is stepped over by the margin)
+        dn = np.einsum("ij,ij->i", self.scene.face_normal[face], self.d[rows])
+        leave = is_closed & ((dn > 0) | ((dn == 0.0) & (cur == o)))
+        enter = is_closed & ~leave
+        # open sheet: one penetration through the material's thickness
+        m = ~is_closed
+        if m.any():
+            self.record(rows[m], t_hit[m], o[m], face[m], self.sheet_thickness[o[m]])
+        # leaving the solid we are inside of: one penetration through the chord
+        m = leave & (cur == o)
+        if m.any():
+            r = rows[m]
+            self.record(r, self.t_in[r], o[m], self.face_in[r], t_hit[m] - self.t_in[r])
+            self.inside[r] = -1
+        # leaving a solid we did not see entering, outside any other: it began at the previous
+        # boundary (a face coincident with it) or at the segment's start. (Leaving a solid while
+        # inside another is the end of an overlap, whose chord was closed on entering the other.)
+        m = leave & (cur < 0)
+        if m.any():
+            r = rows[m]
+            self.record(r, self.t_last[r], o[m], face[m], t_hit[m] - self.t_last[r])
+        # entering a solid (closing an overlapping one first)
+        if enter.any():
+            r = rows[enter]
+            ov = self.inside[r] >= 0
+            if ov.any():
+                rr = r[ov]
+                self.record(rr, self.t_in[rr], self.inside[rr], self.face_in[rr],
+                            t_hit[enter][ov] - self.t_in[rr])  # fmt: skip
+            self.inside[r] = o[enter]
+            self.t_in[r] = t_hit[enter]
+            self.face_in[r] = face[enter]
+        self.t_last[rows] = t_hit
+
+    def result(self, a: np.ndarray, tmax: np.ndarray) -> Crossings:
+        """The crossings, after closing the chord of segments that end inside a solid."""
+        m = (self.inside >= 0) & ~self.exceeded
+        if m.any():
+            r = np.flatnonzero(m)
+            self.record(r, self.t_in[r], self.inside[r], self.face_in[r], tmax[r] - self.t_in[r])
+        dist, k = self.dist, self.k
+        point = (
+            a[:, None, :]
+            + np.where(np.isfinite(dist), dist, np.nan)[:, :, None] * self.d[:, None, :]
+        )
+        arrays = [dist, point, self.obj, self.normal, self.thick]
+        if k == 0:
+            arrays = [x[:, :0] for x in arrays]
+        dist, point, obj, normal, thick = arrays
+        return Crossings(self.count, self.exceeded | (self.count > k), dist, point, obj, normal,
+                         thick)  # fmt: skip
+
+
 def segment_crossings(
     scene: Scene,
     a: np.ndarray,
@@ -63,7 +159,9 @@ def segment_crossings(
     """Objects crossed by the segments ``a -> b``, in order, with batched Embree queries.
 
     The segments' ends are shortened by ``scene.margin`` so that a segment that starts or ends on
-    a surface (a reflection or diffraction point) does not count that surface.
+    a surface (a reflection or diffraction point) does not count that surface. Each round asks
+    Embree for the next hit of every segment still walking, steps over it by the margin and
+    updates the penetration bookkeeping (:class:`_Walk`).
 
     Parameters
     ----------
@@ -82,42 +180,12 @@ def segment_crossings(
     b = np.asarray(b, dtype=float).reshape(-1, 3)
     n = len(a)
     k = max(int(max_crossings), 0)
-    kk = max(k, 1)
     margin = scene.margin
     v = b - a
     length = np.linalg.norm(v, axis=1)
     d = np.divide(v, length[:, None], out=np.zeros_like(v), where=length[:, None] > 0)
     tmax = length - margin
-
-    count = np.zeros(n, dtype=np.int64)
-    exceeded = np.zeros(n, dtype=bool)
-    dist = np.full((n, kk), np.inf)
-    obj = np.full((n, kk), -1, dtype=np.int64)
-    normal = np.zeros((n, kk, 3))
-    thick = np.zeros((n, kk))
-    inside = np.full(n, -1, dtype=np.int64)  # closed solid the segment is inside of
-    t_in = np.zeros(n)
-    face_in = np.zeros(n, dtype=np.int64)
-    t_last = np.zeros(n)  # distance of the last boundary crossed (0: the segment's start)
-
-    closed = scene.object_closed
-    sheet_thickness = scene.material_thickness()[scene.object_material]
-
-    def record(
-        rows: np.ndarray, t_entry: np.ndarray, o: np.ndarray, face: np.ndarray, th: np.ndarray
-    ):
-        slot = count[rows]
-        over = slot >= k
-        exceeded[rows[over]] = True
-        r, s = rows[~over], slot[~over]
-        dist[r, s] = t_entry[~over]
-        obj[r, s] = o[~over]
-        fn = scene.face_normal[face[~over]]
-        normal[r, s] = fn
-        cos_i = np.abs(np.einsum("ij,ij->i", fn, d[r]))
-        thick[r, s] = np.maximum(th[~over], 0.0) * np.where(closed[o[~over]], cos_i, 1.0)
-        count[rows] += 1
-
+    walk = _Walk(scene, d, k)
     guard = END_GUARD_MARGINS * margin
     if end_objects is None:
         end_objects = np.full((n, 2), -1, dtype=np.int64)
@@ -132,10 +200,10 @@ def segment_crossings(
             a[rows] + t[rows, None] * d[rows], d[rows], tmax[rows] - t[rows]
         )
         hit = o >= 0
-        done = rows[~hit]
-        active[done] = False
+        active[rows[~hit]] = False
         rows, th, face, o = rows[hit], th[hit], face[hit], o[hit]
         t_hit = t[rows] + th
+        # hits on a segment's own end objects within the guard are float32 noise of the vertex
         noise = ((o == end_objects[rows, 0]) & (t_hit < guard)) | (
             (o == end_objects[rows, 1]) & (t_hit > length[rows] - guard)
         )
@@ -144,61 +212,10 @@ def segment_crossings(
             active[rows[noise]] &= t[rows[noise]] < tmax[rows[noise]]
             keep = ~noise
             rows, face, o, t_hit = rows[keep], face[keep], o[keep], t_hit[keep]
-        is_closed = closed[o]
-        cur = inside[rows]
-        # closed solids face outward: the hit face's orientation says whether the segment enters
-        # or leaves (the bookkeeping alone would miss an entry through a face coincident with
-        # the previous exit, two solids stacked, since each hit is stepped over by the margin)
-        dn = np.einsum("ij,ij->i", scene.face_normal[face], d[rows])
-        grazing = dn == 0.0
-        leave = is_closed & ((dn > 0) | (grazing & (cur == o)))
-        enter = is_closed & ~leave
-        # open sheet: one penetration through the material's thickness
-        m = ~is_closed
-        if m.any():
-            record(rows[m], t_hit[m], o[m], face[m], sheet_thickness[o[m]])
-        # leaving the solid we are inside of: one penetration through the chord
-        m = leave & (cur == o)
-        if m.any():
-            r = rows[m]
-            record(r, t_in[r], o[m], face_in[r], t_hit[m] - t_in[r])
-            inside[r] = -1
-        # leaving a solid we did not see entering, outside any other: it began at the previous
-        # boundary (a face coincident with it) or at the segment's start. (Leaving a solid while
-        # inside another is the end of an overlap, whose chord was closed on entering the other.)
-        m = leave & (cur < 0)
-        if m.any():
-            r = rows[m]
-            record(r, t_last[r], o[m], face[m], t_hit[m] - t_last[r])
-        # entering a solid (closing an overlapping one first)
-        m = enter
-        if m.any():
-            r = rows[m]
-            ov = inside[r] >= 0
-            if ov.any():
-                rr = r[ov]
-                record(rr, t_in[rr], inside[rr], face_in[rr], t_hit[m][ov] - t_in[rr])
-            inside[r] = o[m]
-            t_in[r] = t_hit[m]
-            face_in[r] = face[m]
-        t_last[rows] = t_hit
+        walk.boundary(rows, face, o, t_hit)
         t[rows] = t_hit + margin
-        active[rows] &= (t[rows] < tmax[rows]) & ~exceeded[rows]
+        active[rows] &= (t[rows] < tmax[rows]) & ~walk.exceeded[rows]
     else:
         # still hitting after the last round: more crossings than allowed
-        exceeded |= active
-    # a segment that ends inside a solid (its end point is inside): close the chord there
-    m = (inside >= 0) & ~exceeded
-    if m.any():
-        r = np.flatnonzero(m)
-        record(r, t_in[r], inside[r], face_in[r], tmax[r] - t_in[r])
-    point = a[:, None, :] + np.where(np.isfinite(dist), dist, np.nan)[:, :, None] * d[:, None, :]
-    if k == 0:
-        dist, obj, normal, thick, point = (
-            dist[:, :0],
-            obj[:, :0],
-            normal[:, :0],
-            thick[:, :0],
-            point[:, :0],
-        )
-    return Crossings(count, exceeded | (count > k), dist, point, obj, normal, thick)
+        walk.exceeded |= active
+    return walk.result(a, tmax)
