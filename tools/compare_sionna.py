@@ -20,8 +20,9 @@ What it does, for every canonical scene (built here from code, see ``SCENES``):
    phase differences per mechanism;
 4. checks the total field of each tool (line of sight + reflections + the diffraction at the
    wedge's edge) for a jump at every shadow and reflection boundary of every sweep, and compares
-   it, for the perfectly conducting half-plane at normal incidence, with the exact solution for
-   a point source (Macdonald's closed form, checked here to satisfy the Helmholtz equation);
+   it, for the perfectly conducting wedges (corner and half-planes), with the exact solution for a
+   point source (Biot-Tolstoy-Medwin, :func:`wedge_exact`, checked here to satisfy the Helmholtz
+   equation, the boundary conditions and continuity);
 5. explains the diffraction differences with a numpy transcription of Sionna's diffraction matrix
    (``sionna_diffraction_gain``, its source lines cited there), first checked against Sionna's own
    output, then changed one ingredient at a time into hallray's coefficient.
@@ -500,20 +501,10 @@ def wedge_exact(src: np.ndarray, dst: np.ndarray, k: float, n: float, soft: bool
 
 
 def exact_ratio(src: np.ndarray, dst: np.ndarray, k: float, n: float, soft: bool) -> np.ndarray:
-    """Exact total field over the free-space field for Hertzian dipoles along the edge: electric
-    (soft, ``E_z = (d^2/dz^2 + k^2) u`` on the Dirichlet solution) or magnetic (hard, ``H_z``, the
-    same operator on the Neumann solution); d^2/dz^2 by central differences (step lambda/400)."""
-    h = 2 * np.pi / k / 400
-    dz = np.array([0.0, 0.0, h])
-
-    def op(fun):
-        return (fun(dst + dz) - 2 * fun(dst) + fun(dst - dz)) / h**2 + k**2 * fun(dst)
-
-    def g0(d):
-        r = np.linalg.norm(d - src, axis=-1)
-        return np.exp(-1j * k * r) / r
-
-    return op(lambda d: wedge_exact(src, d, k, n, soft)) / op(g0)
+    """Exact total field of the scalar point source over its free-space field ``exp(-j k R)/R``
+    (soft: Dirichlet, the field component along the edge; hard: Neumann, the magnetic one)."""
+    r = np.linalg.norm(dst - src, axis=-1)
+    return wedge_exact(src, dst, k, n, soft) / (np.exp(-1j * k * r) / r)
 
 
 def check_exact(k: float, n_points: int = 24) -> dict[str, float]:
@@ -687,17 +678,18 @@ def _extrapolate(values: np.ndarray) -> complex:
 
 
 def _pol_factor(c: Canon, k_dep: np.ndarray, k_arr: np.ndarray, soft: bool) -> np.ndarray:
-    """Factor turning a ray's gain between the tools' isotropic vertical antennas into its
-    contribution to the scalar of the exact problem (soft: E along the edge from an electric
-    dipole along the edge; hard: H along the edge from a magnetic one). Exact for a ray whose
-    polarisation stays purely soft or hard: perfect conductors, and for the horizontal edge only
-    in the plane normal to it (the sweeps the truth is used for)."""
+    """Sign turning a ray's gain between the tools' isotropic vertical antennas into the scalar
+    field of the exact problem (soft: E along the edge; hard: H along the edge). Each ray of a
+    perfectly conducting edge keeps its polarisation (soft: along beta0_hat, which is +-the
+    antennas' vertical vector for a vertical edge; hard: along phi_hat, in the plane normal to
+    the horizontal edge), so its gain is the scalar ray amplitude times the signs of the launch
+    and receive projections."""
     e = c.edge()["e"]
+    eb = np.broadcast_to(e, k_arr.shape)
     if soft:
         launch = e - (k_dep @ e)[:, None] * k_dep
-        return _dot(vpol(k_dep), launch) * _dot(vpol(k_arr), np.broadcast_to(e, k_arr.shape))
-    launch = np.cross(k_dep, e)
-    return _dot(vpol(k_dep), launch) * _dot(np.cross(k_arr, vpol(k_arr)), np.broadcast_to(e, k_arr.shape))
+        return np.sign(_dot(vpol(k_dep), launch) * _dot(vpol(k_arr), eb))
+    return np.sign(_dot(vpol(k_dep), np.cross(k_dep, e)) * _dot(np.cross(k_arr, vpol(k_arr)), eb))
 
 
 @dataclass
