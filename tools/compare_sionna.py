@@ -52,16 +52,16 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from raytrace import load_scene, trace  # noqa: E402
-from raytrace.constants import C0  # noqa: E402
-from raytrace.diffraction import (  # noqa: E402
+from raytrace import TraceConfig, load_scene, trace  # noqa: E402
+from raytrace.core.constants import C0  # noqa: E402
+from raytrace.core.errors import HallrayError  # noqa: E402
+from raytrace.physics.materials import fresnel, permittivity, slab  # noqa: E402
+from raytrace.physics.utd import (  # noqa: E402
     diffracted_field,
     face_reflection_matrix,
     transition_function,
     wedge_geometry,
 )
-from raytrace.errors import HallrayError  # noqa: E402
-from raytrace.materials import fresnel, permittivity, slab  # noqa: E402
 
 DEFAULT_SIONNA_PYTHON = "/tmp/sionna-venv/bin/python"
 #: Paths of the two tools are the same path when their vertices agree to this (m); Sionna works
@@ -590,7 +590,7 @@ def sionna_diffraction_gain(tx, q, rx, e, na, nb, refl, k, grouping="sionna", un
         Kouyoumjian-Pathak / Luebbers' ``-(D1 + D2) I + D4 R_0 + D3 R_n`` with the same matrices
     unlit : "minus_identity" for ``R_n = -I`` when the source does not light face n (lines
         1162-1165), or "luebbers": face n's matrix at Luebbers' angle of the diffracted ray, in
-        the face-frame construction of :func:`raytrace.diffraction.face_reflection_matrix` (D8a)
+        the face-frame construction of :func:`raytrace.physics.utd.face_reflection_matrix` (D8a)
 
     Returns
     -------
@@ -1011,9 +1011,9 @@ def main(argv: list[str] | None = None) -> int:
             scene = load_scene(xmls[nm])
             for i, sw in enumerate(c.sweeps):
                 t1 = time.perf_counter()
-                paths = trace(scene, c.tx(sw)[None], c.rx(sw), a.frequency_hz, max_reflections=1,
-                              max_penetrations=0, max_diffractions=1, max_interactions=1,
-                              slab_delay=False)
+                cfg = TraceConfig(max_reflections=1, max_penetrations=0, max_diffractions=1,
+                                  max_interactions=1, slab_delay=False)
+                paths = trace(scene, c.tx(sw)[None], c.rx(sw), a.frequency_hz, cfg)
                 h_seconds += time.perf_counter() - t1
                 h = hallray_table(paths)
                 s = sionna_table(sres, f"{nm}|{i}", a.frequency_hz)
