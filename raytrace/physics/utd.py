@@ -294,66 +294,15 @@ def wedge_geometry(
     p = src.shape[0]
     dst = _points("dst", dst, p)
     point = _points("point", point, p)
-    e, _ = _unit(_points("edge_dir", edge_dir, p))
-    n0 = _points("normal_0", normal_0, p)
-    nn = _points("normal_n", normal_n, p)
-    # mesh normals may be slightly off perpendicular to a merged edge: project and renormalise
-    n0, _ = _unit(n0 - _dot(n0, e)[:, None] * e)
-    nn, _ = _unit(nn - _dot(nn, e)[:, None] * e)
-    if not (np.all(np.isfinite(e)) and np.all(np.isfinite(n0)) and np.all(np.isfinite(nn))):
-        raise TraceInputError("edge_dir and face normals must be non-zero and not parallel")
-
-    t0 = np.cross(n0, e)
-    if face0_dir is None:
-        # convex wedge: face 0 lies behind the outward normal of face n
-        score = -_dot(t0, nn)
-        if np.any(np.abs(score) < 1e-9):
-            raise TraceInputError("face0_dir is required for half-plane (thin-sheet) edges")
-    else:
-        f0 = _points("face0_dir", face0_dir, p)
-        f0 = f0 - _dot(f0, e)[:, None] * e
-        score = _dot(t0, f0)
-        if np.any(np.abs(score) <= 1e-12 * np.maximum(np.linalg.norm(f0, axis=1), 1e-300)):
-            raise TraceInputError("face0_dir must point from the edge into face 0")
-    flip = score < 0
-    e = np.where(flip[:, None], -e, e)
-    t0 = np.where(flip[:, None], -t0, t0)
-    tn = np.cross(e, nn)
-
-    ext = np.mod(np.arctan2(_dot(np.cross(t0, tn), e), _dot(t0, tn)), _TWO_PI)
-    ext = np.where((ext < _HALF_PLANE_RAD) | (ext > _TWO_PI - _HALF_PLANE_RAD), _TWO_PI, ext)
-    n = ext / np.pi
-
+    e, t0, n0, nn, n = _oriented_wedge(edge_dir, normal_0, normal_n, face0_dir, p)
     s_hat_in, s_in = _unit(point - src)
     s_hat_out, s_out = _unit(dst - point)
     phi_in, in_wedge_s = _azimuth(src - point, t0, n0, n)
     phi, in_wedge_d = _azimuth(dst - point, t0, n0, n)
-
-    cross_in = np.cross(e, s_hat_in)
-    cross_out = np.cross(e, s_hat_out)
-    sin_beta0 = np.linalg.norm(cross_in, axis=1)
-    sin_beta0_out = np.linalg.norm(cross_out, axis=1)
-    valid = (
-        (s_in > 0)
-        & (s_out > 0)
-        & (sin_beta0 > _MIN_SIN_BETA0)
-        & (sin_beta0_out > _MIN_SIN_BETA0)
-        & ~in_wedge_s
-        & ~in_wedge_d
-    )
-    with np.errstate(divide="ignore", invalid="ignore"):
-        phi_hat_in = -cross_in / sin_beta0[:, None]
-        phi_hat_out = cross_out / sin_beta0_out[:, None]
-    beta_hat_in = np.cross(s_hat_in, phi_hat_in)
-    beta_hat_out = np.cross(s_hat_out, phi_hat_out)
-    # which faces the source lights, and the (virtual) incidence angle of each face's term
-    npi = n * np.pi
-    lit_0 = phi_in <= np.pi
-    lit_n = npi - phi_in <= np.pi
-    psi_0 = np.where(lit_0, phi_in, np.pi - phi)
-    psi_n = np.where(lit_n, npi - phi_in, np.pi - (npi - phi))
-    cos_theta_0 = sin_beta0 * np.abs(np.sin(psi_0))
-    cos_theta_n = sin_beta0 * np.abs(np.sin(psi_n))
+    sin_beta0, phi_hat_in, beta_hat_in, ok_in = _ray_fixed(e, s_hat_in, incident=True)
+    _, phi_hat_out, beta_hat_out, ok_out = _ray_fixed(e, s_hat_out, incident=False)
+    valid = (s_in > 0) & (s_out > 0) & ok_in & ok_out & ~in_wedge_s & ~in_wedge_d
+    lit_0, lit_n, psi_0, psi_n = _face_angles(n, phi_in, phi)
     return WedgeGeometry(
         edge_dir=e,
         face0_tangent=t0,
@@ -375,10 +324,76 @@ def wedge_geometry(
         lit_n=lit_n,
         psi_0=psi_0,
         psi_n=psi_n,
-        cos_theta_0=cos_theta_0,
-        cos_theta_n=cos_theta_n,
+        cos_theta_0=sin_beta0 * np.abs(np.sin(psi_0)),
+        cos_theta_n=sin_beta0 * np.abs(np.sin(psi_n)),
         valid=valid,
     )
+
+
+def _oriented_wedge(
+    edge_dir: np.ndarray,
+    normal_0: np.ndarray,
+    normal_n: np.ndarray,
+    face0_dir: np.ndarray | None,
+    p: int,
+) -> tuple[np.ndarray, ...]:
+    """Edge-fixed frame of P wedges: ``e`` oriented so that angles grow from face 0 towards face
+    n, the face-0 tangent ``t0``, the normals projected perpendicular to the edge, and the wedge
+    parameter ``n`` (exterior angle / pi; 2 for a half-plane). See :func:`wedge_geometry`."""
+    e, _ = _unit(_points("edge_dir", edge_dir, p))
+    n0 = _points("normal_0", normal_0, p)
+    nn = _points("normal_n", normal_n, p)
+    # mesh normals may be slightly off perpendicular to a merged edge: project and renormalise
+    n0, _ = _unit(n0 - _dot(n0, e)[:, None] * e)
+    nn, _ = _unit(nn - _dot(nn, e)[:, None] * e)
+    if not (np.all(np.isfinite(e)) and np.all(np.isfinite(n0)) and np.all(np.isfinite(nn))):
+        raise TraceInputError("edge_dir and face normals must be non-zero and not parallel")
+    t0 = np.cross(n0, e)
+    if face0_dir is None:
+        # convex wedge: face 0 lies behind the outward normal of face n
+        score = -_dot(t0, nn)
+        if np.any(np.abs(score) < 1e-9):
+            raise TraceInputError("face0_dir is required for half-plane (thin-sheet) edges")
+    else:
+        f0 = _points("face0_dir", face0_dir, p)
+        f0 = f0 - _dot(f0, e)[:, None] * e
+        score = _dot(t0, f0)
+        if np.any(np.abs(score) <= 1e-12 * np.maximum(np.linalg.norm(f0, axis=1), 1e-300)):
+            raise TraceInputError("face0_dir must point from the edge into face 0")
+    flip = score < 0
+    e = np.where(flip[:, None], -e, e)
+    t0 = np.where(flip[:, None], -t0, t0)
+    tn = np.cross(e, nn)
+    ext = np.mod(np.arctan2(_dot(np.cross(t0, tn), e), _dot(t0, tn)), _TWO_PI)
+    ext = np.where((ext < _HALF_PLANE_RAD) | (ext > _TWO_PI - _HALF_PLANE_RAD), _TWO_PI, ext)
+    return e, t0, n0, nn, ext / np.pi
+
+
+def _ray_fixed(
+    e: np.ndarray, s_hat: np.ndarray, *, incident: bool
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """KP ray-fixed unit vectors of a ray ``s_hat`` at the edge ``e``: ``sin beta0``, ``phi_hat``
+    (``-(e x s')/|e x s'|`` for the incident ray, ``(e x s)/|e x s|`` for the diffracted one),
+    ``beta0_hat = s x phi_hat``, and whether the ray is not along the edge."""
+    cross = np.cross(e, s_hat)
+    sin_beta0 = np.linalg.norm(cross, axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        phi_hat = (-cross if incident else cross) / sin_beta0[:, None]
+    return sin_beta0, phi_hat, np.cross(s_hat, phi_hat), sin_beta0 > _MIN_SIN_BETA0
+
+
+def _face_angles(
+    n: np.ndarray, phi_in: np.ndarray, phi: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Which faces the source lights and each face's (virtual) incidence angle (D8a): a lit face
+    takes the incident ray's angle, an unlit one Luebbers' reflection angle of the diffracted
+    ray. Returns ``lit_0, lit_n`` (bool) and ``psi_0, psi_n`` (rad)."""
+    npi = n * np.pi
+    lit_0 = phi_in <= np.pi
+    lit_n = npi - phi_in <= np.pi
+    psi_0 = np.where(lit_0, phi_in, np.pi - phi)
+    psi_n = np.where(lit_n, npi - phi_in, np.pi - (npi - phi))
+    return lit_0, lit_n, psi_0, psi_n
 
 
 # -- 3. UTD coefficients --------------------------------------------------------------------------
