@@ -321,10 +321,17 @@ class Scene:
         return d(lo[j]), d(lo[j] + 0.5 * np.pi), d(hi[j] - 0.5 * np.pi), width[j] / np.pi
 
     def __getstate__(self) -> dict[str, Any]:
-        # the per-subset Embree scenes are a cache of native objects: rebuilt on demand
+        # the Embree scenes are native objects: a pickled scene (for worker processes) carries the
+        # arrays only and rebuilds its intersector when unpickled
         state = self.__dict__.copy()
         state.pop("_subset_embree", None)
+        state["_embree"] = None
         return state
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state)
+        if self.__dict__.get("_embree") is None:
+            self._build_embree()
 
     def _build_embree(self) -> None:
         from embreex import rtcore_scene as rtcs

@@ -142,11 +142,24 @@ class Paths:
         kw = {k: getattr(self, k)[mask] for k in self._PER_PATH}
         return Paths(tx=self.tx, rx=self.rx, frequency_hz=self.frequency_hz, **kw)
 
+    def with_receivers(self, rx: np.ndarray, first: int) -> Paths:
+        """The same paths as paths of a larger receiver set ``rx`` (R, 3) in which this set's
+        receivers start at index ``first`` (link indices renumbered ``tx * R + rx``)."""
+        rx = np.asarray(rx, dtype=float)
+        rx_index = self.rx_index + int(first)
+        kw = {k: getattr(self, k) for k in self._PER_PATH}
+        kw.update(rx_index=rx_index, link=self.tx_index * len(rx) + rx_index)
+        return Paths(tx=self.tx, rx=rx, frequency_hz=self.frequency_hz, **kw)
+
     def sorted(self) -> Paths:
-        """Paths ordered by link, then delay, then kind (a canonical, reproducible order)."""
+        """Paths ordered by link, then delay, then kind, then the objects and elements they
+        interact with: a total, canonical order (two distinct paths differ in one of them), so
+        that the order does not depend on how the paths were found (stages, link chunks)."""
         codes = self.interaction.astype(np.int64)
-        keys = [codes[:, i] for i in range(codes.shape[1] - 1, -1, -1)]
-        order = np.lexsort((*keys, self.delay_s, self.link))
+        cols = range(codes.shape[1] - 1, -1, -1)
+        ties = [self.elements[:, i] for i in cols] + [self.objects[:, i] for i in cols]
+        keys = [codes[:, i] for i in cols]
+        order = np.lexsort((*ties, *keys, self.delay_s, self.link))
         return self.select(order)
 
     # -- derived ------------------------------------------------------------------------------

@@ -20,8 +20,9 @@ not depend on the number of threads.
 from __future__ import annotations
 
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
+from typing import Any
 
 import numpy as np
 
@@ -31,6 +32,7 @@ from . import diffraction, specular
 from .config import MIN_POWER_DB, TraceConfig
 from .context import TraceContext, opaque_objects
 from .evaluate import evaluate
+from .parallel import PROCESS_MIN_LINKS, ScenePool, receiver_chunks, resolve_workers
 from .paths import DIFFRACTION, Paths
 
 __all__ = [
@@ -102,6 +104,8 @@ def trace(
     involving: np.ndarray | list[int] | None = None,
     threads: int | None = None,
     opaque: np.ndarray | None = None,
+    workers: int | None = None,
+    chunk_links: int | None = None,
 ) -> Paths:
     """Find every path between every transmitter and every receiver.
 
@@ -113,38 +117,163 @@ def trace(
     frequency_hz : float, Hz
     config : TraceConfig, optional, the limits (default ``TraceConfig()``: 2 reflections, 2
         penetrations, 1 diffraction, 2 interactions, slab group delays on)
-    progress : bool or callable, a progress bar over the stages (or a callback per stage)
+    progress : bool or callable, a progress bar over the stages (or chunks), or a callback
     stats : dict, optional, filled with counters (candidates, segments tested, dropped paths)
-        and each stage's wall time in microseconds (``time_us[<stage>]``; stages overlap on threads)
+        and each stage's time in microseconds (``time_us[<stage>]``; summed over chunks, and
+        overlapping on threads)
     involving : object indices, optional; only paths that reflect or diffract on at least one of
         these objects (no line of sight). With :func:`reevaluate`, this is how a snapshot with
         moving objects is traced without retracing the static scene.
-    threads : int, optional, threads for the independent stages (default: all cores; 1 in a
-        process pool's workers avoids oversubscription)
+    threads : int, optional, threads for the independent stages of one trace in this process
+        (default: all cores)
     opaque : (O,) bool, optional, objects that block: a path through one is dropped before the
         crossing analysis (default :func:`opaque_objects` at this frequency and power cut; give
         the objects opaque at every band when tracing geometry once for several bands with
         ``min_power_db=-inf``)
+    workers : int, optional, processes over chunks of receivers (:func:`trace_chunks`). Default:
+        this process alone below :data:`~raytrace.solver.parallel.PROCESS_MIN_LINKS` links,
+        every core above. The paths do not depend on it.
+    chunk_links : int, optional, links per chunk (default
+        :data:`~raytrace.solver.parallel.CHUNK_LINKS` when chunked)
 
     Returns
     -------
-    Paths, sorted by link, delay and kind.
+    Paths, in their canonical order (:meth:`Paths.sorted`).
     """
+    cfg, f, tx, rx = _checked(scene, tx, rx, frequency_hz, config)
+    if workers is None and chunk_links is None and len(tx) * len(rx) < PROCESS_MIN_LINKS:
+        return _trace_links(scene, tx, rx, f, cfg, progress, stats, involving, threads, opaque)
+    chunks = _chunked(scene, tx, rx, f, cfg, None, workers, chunk_links, progress, stats,
+                      involving, opaque)  # fmt: skip
+    return Paths.concatenate([paths for _, paths in chunks]).sorted()
+
+
+def trace_chunks(
+    scene: Scene,
+    tx: np.ndarray,
+    rx: np.ndarray,
+    frequency_hz: float,
+    config: TraceConfig | None = None,
+    *,
+    reduce: Callable[[Paths], Any] | None = None,
+    workers: int | None = None,
+    chunk_links: int | None = None,
+    progress: bool | Callable[[int], None] = False,
+    stats: dict[str, int] | None = None,
+    involving: np.ndarray | list[int] | None = None,
+    opaque: np.ndarray | None = None,
+) -> Iterator[tuple[range, Any]]:
+    """Trace chunks of receivers (on worker processes) and yield each chunk's result in order.
+
+    Each chunk is traced on its own (a link's paths do not depend on the other links); the paths
+    of a chunk carry the global transmitter and receiver indices. With ``reduce``, a worker
+    returns ``reduce(paths)`` instead of the paths, so that memory stays bounded by one chunk
+    however many receivers there are.
+
+    Parameters
+    ----------
+    scene, tx, rx, frequency_hz, config, involving, opaque : as in :func:`trace`
+    reduce : callable, optional, a module-level function ``reduce(paths) -> result`` (it is sent to
+        the workers by reference)
+    workers : int, optional, processes (default every core, at most one per chunk; 1: this
+        process)
+    chunk_links : int, optional, links per chunk (default
+        :data:`~raytrace.solver.parallel.CHUNK_LINKS`)
+    progress : bool or callable, a progress bar over the chunks, or a callback per chunk
+    stats : dict, optional, counters summed over the chunks
+
+    Yields
+    ------
+    (receivers, result) : the chunk's receiver indices (a range) and its Paths or reduced result
+    """
+    cfg, f, tx, rx = _checked(scene, tx, rx, frequency_hz, config)
+    yield from _chunked(scene, tx, rx, f, cfg, reduce, workers, chunk_links, progress, stats,
+                        involving, opaque)  # fmt: skip
+
+
+def _chunked(
+    scene: Scene,
+    tx: np.ndarray,
+    rx: np.ndarray,
+    f: float,
+    cfg: TraceConfig,
+    reduce: Callable[[Paths], Any] | None,
+    workers: int | None,
+    chunk_links: int | None,
+    progress: bool | Callable[[int], None],
+    stats: dict[str, int] | None,
+    involving: np.ndarray | list[int] | None,
+    opaque: np.ndarray | None,
+) -> Iterator[tuple[range, Any]]:
+    """:func:`trace_chunks` on validated input."""
+    chunks = receiver_chunks(len(tx), len(rx), chunk_links)
+    n_workers = resolve_workers(workers, len(chunks))
+    jobs = [(tx, rx, c, f, cfg, involving, opaque, reduce, n_workers > 1) for c in chunks]
+    bar = None
+    if progress is True:
+        from tqdm import tqdm
+
+        bar = tqdm(total=len(rx) * len(tx), desc="tracing", unit="link", leave=False)
+    try:
+        with ScenePool(scene, n_workers) as pool:
+            for chunk, (result, chunk_stats) in zip(chunks, pool.map(_trace_job, jobs)):
+                if stats is not None:
+                    for key, v in chunk_stats.items():
+                        stats[key] = stats.get(key, 0) + v
+                if bar is not None:
+                    bar.update(len(chunk) * len(tx))
+                elif callable(progress):
+                    progress(1)
+                yield chunk, result
+    finally:
+        if bar is not None:
+            bar.close()
+
+
+def _trace_job(scene: Scene, job: tuple) -> tuple[Any, dict[str, int]]:
+    """One chunk of :func:`trace_chunks` (in a worker or in this process)."""
+    tx, rx, chunk, f, cfg, involving, opaque, reduce, in_worker = job
+    stats: dict[str, int] = {}
+    part = _trace_links(scene, tx, rx[chunk.start : chunk.stop], f, cfg, False, stats, involving,
+                        1 if in_worker else None, opaque)  # fmt: skip
+    paths = part.with_receivers(rx, chunk.start)
+    return (paths if reduce is None else reduce(paths)), stats
+
+
+def _checked(
+    scene: Scene, tx: np.ndarray, rx: np.ndarray, frequency_hz: float, config: TraceConfig | None
+) -> tuple[TraceConfig, float, np.ndarray, np.ndarray]:
+    """The config, frequency and positions of a trace, validated (:class:`TraceInputError`)."""
     cfg = TraceConfig() if config is None else config
     if not isinstance(cfg, TraceConfig):
         raise TraceInputError(f"config must be a TraceConfig, got {type(cfg).__name__}")
     f = float(frequency_hz)
     if not np.isfinite(f) or f <= 0:
         raise TraceInputError(f"frequency must be a positive number of Hz, got {frequency_hz}")
-    tx = check_positions(scene, tx, "transmitter")
-    rx = check_positions(scene, rx, "receiver")
+    return cfg, f, check_positions(scene, tx, "transmitter"), check_positions(scene, rx, "receiver")
+
+
+def _trace_links(
+    scene: Scene,
+    tx: np.ndarray,
+    rx: np.ndarray,
+    f: float,
+    cfg: TraceConfig,
+    progress: bool | Callable[[int], None],
+    stats: dict[str, int] | None,
+    involving: np.ndarray | list[int] | None,
+    threads: int | None,
+    opaque: np.ndarray | None,
+) -> Paths:
+    """Every path of the links ``tx x rx`` (validated) in this process: the stages on threads."""
     ctx = TraceContext(scene, tx, rx, f, cfg, involving, opaque)
     stages = specular.stages(ctx)
     if cfg.max_diffractions >= 1 and cfg.max_interactions >= 1 and len(scene.wedges):
         stages.extend(diffraction.stages(ctx))
     results = _run_stages(ctx, stages, progress, threads)
     if stats is not None:
-        stats.update(ctx.stats)
+        for key, v in ctx.stats.items():
+            stats[key] = stats.get(key, 0) + v
     parts = [p for r in results for p in r]
     if not parts:
         depth = cfg.max_reflections + cfg.max_penetrations + cfg.max_diffractions
