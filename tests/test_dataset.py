@@ -16,14 +16,8 @@ from raytrace.core.constants import K_BOLTZMANN
 from raytrace.core.errors import HallrayError, SceneError
 from raytrace.emulation.bands import get_band
 from raytrace.emulation.channel import LinkBudget, detection_snr_db
-from raytrace.emulation.dataset import (
-    CLOCK_OFFSET_MAX_S,
-    COLUMNS,
-    DELTA_S,
-    emulate_toa,
-    make_dataset,
-    make_datasets,
-)
+from raytrace.emulation.dataset import COLUMNS, make_dataset, make_datasets
+from raytrace.emulation.measurement import CLOCK_OFFSET_MAX_S, DELTA_S, emulate_toa
 from raytrace.solver.tracer import trace
 
 #: ToAs are sums of a schedule (<= 0.03 s), a clock offset (< 1 ms) and a delay: float64 keeps
@@ -434,16 +428,16 @@ def test_cli_refuses_a_non_empty_directory_unless_forced(tmp_path, tiny_glb, cap
 
 
 def test_failure_midway_leaves_no_output(tmp_path, monkeypatch):
-    import raytrace.emulation.dataset as dataset
+    from raytrace.emulation.measurement import ToaModel
 
-    real = dataset._epoch_rows
+    real = ToaModel.measure
 
-    def failing(fx, epoch, t, paths, prepared=None):
-        if epoch == 3:
+    def failing(self, paths, epochs, prepared=None):
+        if 3 in epochs:
             raise HallrayError("simulated failure in epoch 3")
-        return real(fx, epoch, t, paths, prepared)
+        return real(self, paths, epochs, prepared)
 
-    monkeypatch.setattr(dataset, "_epoch_rows", failing)
+    monkeypatch.setattr(ToaModel, "measure", failing)
     sc = _scene()
     with pytest.raises(HallrayError, match="simulated"):
         make_dataset(tmp_path / "ds", "semi-dynamic", "c-band", scene=sc, duration_s=1.0)

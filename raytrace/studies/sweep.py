@@ -450,7 +450,7 @@ def simulate_cell(
 
     from ..core.constants import C0
     from ..emulation.bands import get_band
-    from ..emulation.dataset import (
+    from ..emulation.measurement import (
         CLOCK_OFFSET_MAX_S,
         DELTA_S,
         emulate_toa,
