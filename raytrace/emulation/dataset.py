@@ -102,9 +102,9 @@ class DatasetConfig:
     duration_s : float, seconds of emulation (the paper: 60 s)
     rate_hz : float, snapshots (epochs) per second
     seed : int
-    toa_method : ToA estimator, one of :data:`raytrace.emulation.receivers.TOA_METHODS`: "first-lobe"
-        (default, the realistic receiver), "first-path" (ideal, the paper's eq. 3 model),
-        "peak" or "leading-edge"
+    toa_method : ToA estimator, one of :data:`raytrace.emulation.receivers.TOA_METHODS`:
+        "first-lobe" (default, the realistic receiver), "first-path" (ideal, the paper's eq. 3
+        model), "peak" or "leading-edge"
     noise : bool, estimation noise on (False: no noise; ``first-path`` gives exact delays)
     delta_s : float, seconds between two base stations' transmissions
     clock_offset_max_s : float, device clock offsets are uniform in [0, this)
