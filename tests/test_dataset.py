@@ -16,14 +16,16 @@ from raytrace.core.constants import K_BOLTZMANN
 from raytrace.core.errors import HallrayError, SceneError
 from raytrace.emulation.bands import get_band
 from raytrace.emulation.channel import LinkBudget, detection_snr_db
-from raytrace.emulation.dataset import (
+from raytrace.emulation.dataset import COLUMNS, make_dataset, make_datasets
+from raytrace.emulation.measurement import (
     CLOCK_OFFSET_MAX_S,
-    COLUMNS,
     DELTA_S,
+    Measurements,
+    ToaModel,
     emulate_toa,
-    make_dataset,
-    make_datasets,
+    epoch_rngs,
 )
+from raytrace.emulation.receivers import Receiver
 from raytrace.solver.tracer import trace
 
 #: ToAs are sums of a schedule (<= 0.03 s), a clock offset (< 1 ms) and a delay: float64 keeps
@@ -105,6 +107,53 @@ def test_emulate_toa_without_noise_is_the_first_detectable_delay():
     assert set(est.first_kind) <= set(paths.kind_label)
     los = np.array([paths.los[paths.link == k].any() for k in range(paths.n_links)])
     np.testing.assert_array_equal(est.los, los)
+
+
+# -- the measurement model --------------------------------------------------------------------
+def _small_paths(band):
+    tx = np.array([p for _, p in BS])
+    rx = np.array([p for _, p in POINTS])
+    return trace(_scene(), tx, rx, get_band(band).center_frequency_hz)
+
+
+def test_measurement_model_is_schedule_plus_clock_plus_first_detectable_delay():
+    """Noise-free first-path ToAs: delay = the independent first detectable delay, schedule
+    b * delta, one clock offset per (epoch, point) drawn from the epoch's first stream."""
+    paths = _small_paths("c-band")
+    model = ToaModel(Receiver("first-path", "c-band"), seed=7, noise=False)
+    m = model.measure(paths, [0, 1, 2, 5])
+    n_p, n_b = len(POINTS), len(BS)
+    assert m.toa_s.shape == (4, n_p, n_b) and m.clock_offset_s.shape == (4, n_p)
+    want = _first_detectable_delay(paths, get_band("c-band")).reshape(n_b, n_p).T  # (N, B)
+    for i, e in enumerate([0, 1, 2, 5]):
+        np.testing.assert_array_equal(m.delay_s[i], want)
+        clock = epoch_rngs(7, e)[0].uniform(0.0, CLOCK_OFFSET_MAX_S, n_p)
+        np.testing.assert_array_equal(m.clock_offset_s[i], clock)
+    np.testing.assert_array_equal(m.tx_offset_s, DELTA_S * np.arange(n_b))
+    rebuilt = m.tx_offset_s[None, None, :] + m.clock_offset_s[:, :, None] + want[None]
+    np.testing.assert_allclose(m.toa_s, rebuilt, rtol=0, atol=TOA_TOL_S)
+    np.testing.assert_array_equal(np.isnan(m.toa_s), ~m.detected)
+
+
+def test_measurements_do_not_depend_on_how_epochs_are_grouped():
+    """Each epoch draws from its own streams: measuring epochs together, in chunks or one by one
+    gives the same numbers, with the realistic receiver and its noise."""
+    paths = _small_paths("mmwave")
+    model = ToaModel(Receiver("first-lobe", "mmwave"), seed=2)
+    whole = model.measure(paths, range(6))
+    prep = model.prepare(paths)
+    parts = Measurements.concatenate(
+        [
+            model.measure(paths, [0, 1], prep),
+            model.measure(paths, [2]),
+            model.measure(paths, [3, 4, 5]),
+        ]
+    )
+    names = ("epochs", "toa_s", "delay_s", "clock_offset_s", "snr_db", "first_kind", "detected")
+    for name in names:
+        np.testing.assert_array_equal(getattr(parts, name), getattr(whole, name), err_msg=name)
+    assert np.isfinite(whole.toa_s).any()
+    assert not np.array_equal(whole.toa_s[0], whole.toa_s[1])  # other epoch, other draws
 
 
 # -- the time model ---------------------------------------------------------------------------
@@ -434,16 +483,16 @@ def test_cli_refuses_a_non_empty_directory_unless_forced(tmp_path, tiny_glb, cap
 
 
 def test_failure_midway_leaves_no_output(tmp_path, monkeypatch):
-    import raytrace.emulation.dataset as dataset
+    from raytrace.emulation.measurement import ToaModel
 
-    real = dataset._epoch_rows
+    real = ToaModel.measure
 
-    def failing(fx, epoch, t, paths, prepared=None):
-        if epoch == 3:
+    def failing(self, paths, epochs, prepared=None):
+        if 3 in epochs:
             raise HallrayError("simulated failure in epoch 3")
-        return real(fx, epoch, t, paths, prepared)
+        return real(self, paths, epochs, prepared)
 
-    monkeypatch.setattr(dataset, "_epoch_rows", failing)
+    monkeypatch.setattr(ToaModel, "measure", failing)
     sc = _scene()
     with pytest.raises(HallrayError, match="simulated"):
         make_dataset(tmp_path / "ds", "semi-dynamic", "c-band", scene=sc, duration_s=1.0)

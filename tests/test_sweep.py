@@ -277,9 +277,10 @@ def test_resume_recomputes_only_missing_cells(tmp_path):
 
 
 def test_datasets_are_the_dataset_writers_and_give_the_same_fixes(tmp_path):
-    """``datasets: true``: every cell's ToA dataset is written by raytrace.emulation.dataset.make_dataset;
-    its ToAs equal the sweep's in-memory ones exactly, and positioning the dataset file gives the
-    cell's errors. A missing dataset makes its cell count as not done."""
+    """``datasets: true``: every cell's ToA dataset is written by the dataset writer
+    (raytrace.emulation.dataset.write_dataset) from the cell's measurements; its ToAs equal the
+    sweep's in-memory ones exactly, and positioning the dataset file gives the cell's errors. A
+    missing dataset makes its cell count as not done."""
     from positioning import error_2d, locate, summarize
     from positioning.dataset import load_dataset
     from raytrace.studies.sweep import dataset_dir
@@ -315,6 +316,38 @@ def test_datasets_are_the_dataset_writers_and_give_the_same_fixes(tmp_path):
     assert (dataset_dir(out, victim) / "toa.csv").is_file()
     with pytest.raises(HallrayError, match="datasets"):
         parse_sweep_config(small_config(datasets="yes"))
+
+
+def test_sweep_dataset_is_byte_for_byte_what_make_dataset_writes(tmp_path):
+    """The sweep writes a cell's dataset from the ToAs it positions (no second trace): the files
+    are byte for byte those make_dataset writes for the cell's hall and settings, so the two
+    writers cannot drift apart (the realistic receiver with noise; a rate that is not 10 Hz)."""
+    from raytrace.emulation.dataset import make_dataset
+    from raytrace.halls.inf import generate_hall, scene_from_spec
+    from raytrace.solver.config import TraceConfig
+    from raytrace.studies.sweep import HALL_KEYS, dataset_dir
+
+    cfg = parse_sweep_config(
+        small_config(grid={"profile": ["InF-DH"]}, fixed={**small_config()["fixed"], "seed": 5},
+                     datasets=True)
+    )  # fmt: skip
+    (cell,) = cfg.cells()
+    assert cell.params["toa_method"] == "first-lobe" and cell.params["noise"] is True
+    run_sweep(cfg, tmp_path / "sweep", workers=1)
+    p = cell.params
+    spec = generate_hall(
+        p["profile"], p["size"], p["seed"], los_notes=False,
+        **{k: p[k] for k in HALL_KEYS if k not in ("profile", "size", "seed")},
+    )  # fmt: skip
+    make_dataset(
+        tmp_path / "made", "static", p["band"], scene=scene_from_spec(spec),
+        duration_s=p["duration_s"], rate_hz=p["rate_hz"], seed=p["seed"],
+        toa_method=p["toa_method"], noise=p["noise"], trace_settings=TraceConfig.from_mapping(p),
+    )  # fmt: skip
+    swept = dataset_dir(tmp_path / "sweep", cell.key)
+    assert sorted(f.name for f in swept.iterdir()) == ["meta.json", "toa.csv"]
+    for name in ("toa.csv", "meta.json"):
+        assert (swept / name).read_bytes() == (tmp_path / "made" / name).read_bytes(), name
 
 
 def test_local_pool_matches_in_process(tmp_path):

@@ -5,10 +5,8 @@ A dataset directory holds ``toa.csv`` (one row per epoch, point and base station
 read by :mod:`positioning.dataset`. For the semi-dynamic scenario it also holds
 ``forklifts.csv`` (the forklift poses of every epoch).
 
-Time model: base station k (in the scene's order) transmits its PRS at ``k * delta`` (delta =
-10 ms) after the start of each positioning epoch; the device measures the time of arrival with
-its own clock, which is off by an unknown ``clock_offset_s`` (one draw per epoch and point, the
-same for all base stations of that fix). So a measured ToA is::
+Measurements: :mod:`raytrace.emulation.measurement` (base station k transmits at ``k * delta``,
+one device clock offset per epoch and point, the receiver's estimated delay)::
 
     toa_s = tx_offset_s + clock_offset_s + estimated propagation delay
 
@@ -18,8 +16,14 @@ draws its own clock offsets and estimation noise (the same number of epochs, so 
 statistics are comparable).
 
 Reproducibility: the random numbers of epoch ``e`` come from
-``numpy.random.SeedSequence([seed, e]).spawn(2)`` (clock offsets, then estimator noise), so the
-files depend only on the inputs and the seed, not on the number of worker processes.
+``numpy.random.SeedSequence([seed, e]).spawn(2)`` (clock offsets, then estimator noise;
+:func:`raytrace.emulation.measurement.epoch_rngs`), so the files depend only on the inputs and the
+seed, not on the number of worker processes.
+
+Two ways in: :func:`make_datasets` traces a scene and writes its datasets;
+:func:`write_dataset` (and :func:`dataset_files`) writes a dataset from measurements already made
+with :meth:`DatasetConfig.model` (a sweep cell does this with the ToAs it positions). Both format
+the files with the same code, so the two give the same bytes for the same inputs.
 """
 
 from __future__ import annotations
@@ -46,17 +50,12 @@ from ..scene.metadata import SceneMetadata
 from ..scene.model import Scene
 from ..scene.motion import FORKLIFT_CLEARANCE_M, snapshot_times
 from ..solver.config import TraceConfig
-from ..solver.incremental import SnapshotTracer
+from ..solver.incremental import Fleet, SnapshotTracer
 from ..solver.paths import Paths
 from .bands import Band, get_band
 from .channel import LinkBudget, PulseShape
-from .receivers import (
-    DEFAULT_TOA_METHOD,
-    TOA_METHODS,
-    FirstLobeSettings,
-    PreparedLinks,
-    Receiver,
-)
+from .measurement import CLOCK_OFFSET_MAX_S, DELTA_S, Measurements, ToaModel
+from .receivers import DEFAULT_TOA_METHOD, TOA_METHODS, FirstLobeSettings, PreparedLinks, Receiver
 
 #: Version of the dataset schema (``meta.json`` ``schema_version``).
 SCHEMA_VERSION = 2
@@ -64,10 +63,6 @@ SCHEMA_VERSION = 2
 SCENARIOS = ("static", "semi-dynamic")
 #: Bands of the paper (any band of :func:`raytrace.emulation.bands.get_band` works in the library).
 PAPER_BANDS = ("c-band", "mmwave")
-#: Period between two base stations' transmissions, s (paper, section II).
-DELTA_S = 0.01
-#: The device clock offset of a fix is drawn uniformly from [0, CLOCK_OFFSET_MAX_S), s.
-CLOCK_OFFSET_MAX_S = 1e-3
 #: Header of ``toa.csv`` (the shared data contract).
 COLUMNS = (
     "epoch",
@@ -93,114 +88,6 @@ ALL_DATASETS = tuple((s, b) for s in SCENARIOS for b in PAPER_BANDS)
 
 
 # --------------------------------------------------------------------------------------------
-# paths -> per-link ToA
-# --------------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class LinkToA:
-    """Per-link ToA of one epoch (L = transmitters x receivers, link = tx * R + rx).
-
-    Attributes
-    ----------
-    toa_s : (L,) float, seconds, estimated propagation delay (no schedule, no clock offset);
-        NaN where not detected
-    detected : (L,) bool
-    snr_db : (L,) float, dB, SNR before processing gain (measured on the first lobe by
-        ``first-lobe``, the first detectable path's otherwise; NaN if none)
-    sigma_s : (L,) float, seconds, eq. 3 standard deviation at that SNR (NaN if none)
-    first_path : (L,) int, index of the first detectable path into the paths, -1 if none
-    first_kind : (L,) str, its interaction sequence ("LoS", "R", "TD", ...; "" if none)
-    los : (L,) bool, the link has an unobstructed line-of-sight path (detectable or not)
-    peak_ratio_db : (L,) float, dB, ``first-lobe``: first lobe's peak over the strongest (NaN else)
-    lobe_width : (L,) float, ``first-lobe``: first lobe's half-amplitude width over an isolated
-        pulse's (NaN else)
-    lobe_kind : (L,) str, kind of the path that dominates the measured lobe (``first-path``: the
-        first path's kind; "" if none or not known)
-    """
-
-    toa_s: np.ndarray
-    detected: np.ndarray
-    snr_db: np.ndarray
-    sigma_s: np.ndarray
-    first_path: np.ndarray
-    first_kind: np.ndarray
-    los: np.ndarray
-    peak_ratio_db: np.ndarray
-    lobe_width: np.ndarray
-    lobe_kind: np.ndarray
-
-
-def _kinds(paths: Paths, index: np.ndarray) -> np.ndarray:
-    """Kind labels of the paths ``index`` (-1: "")."""
-    kind = np.full(index.size, "", dtype=object)
-    has = index >= 0
-    if has.any():
-        kind[has] = paths.select(index[has]).kind_label
-    return kind.astype(str)
-
-
-def prepare_links(paths: Paths, receiver: Receiver) -> PreparedLinks:
-    """The receiver's path-only work for ``paths`` (reusable by every epoch of a snapshot)."""
-    return receiver.prepare(paths.link, paths.delay_s, paths.gain, paths.n_links)
-
-
-def emulate_toa(
-    paths: Paths,
-    band: Band | str,
-    *,
-    method: str = DEFAULT_TOA_METHOD,
-    budget: LinkBudget | None = None,
-    pulse: PulseShape | None = None,
-    first_lobe: FirstLobeSettings | None = None,
-    rng: np.random.Generator | None = None,
-    noise: bool = True,
-    receiver: Receiver | None = None,
-    prepared: PreparedLinks | None = None,
-) -> LinkToA:
-    """Times of arrival of every link of ``paths`` (:class:`raytrace.emulation.receivers.Receiver`) with
-    the first path's kind and the link's line-of-sight flag.
-
-    Parameters
-    ----------
-    paths : Paths
-    band : Band or band name
-    method, budget, pulse, first_lobe, rng, noise : as in :func:`raytrace.emulation.receivers.estimate_toa`
-    receiver : Receiver, optional, used instead of ``band, method, budget, pulse, first_lobe``
-    prepared : PreparedLinks, optional, ``prepare_links(paths, receiver)`` done before (a scene
-        that does not change between epochs)
-
-    Returns
-    -------
-    LinkToA
-    """
-    rx = receiver or Receiver(method, band, budget=budget, pulse=pulse, first_lobe=first_lobe)
-    prep = prepared if prepared is not None else prepare_links(paths, rx)
-    est = rx.measure(prep, rng, noise=noise)
-    n = paths.n_links
-    first = np.asarray(est.first_path, dtype=np.int64)
-    los = np.bincount(paths.link[paths.los], minlength=n) > 0
-    return LinkToA(
-        toa_s=np.asarray(est.toa_s, dtype=float),
-        detected=np.asarray(est.detected, dtype=bool),
-        snr_db=np.asarray(est.snr_db, dtype=float),
-        sigma_s=np.asarray(est.sigma_s, dtype=float),
-        first_path=first,
-        first_kind=_kinds(paths, first),
-        los=los,
-        peak_ratio_db=np.asarray(est.peak_ratio_db, dtype=float),
-        lobe_width=np.asarray(est.lobe_width, dtype=float),
-        lobe_kind=_kinds(paths, np.asarray(est.lobe_path, dtype=np.int64)),
-    )
-
-
-def epoch_rngs(seed: int, epoch: int) -> tuple[np.random.Generator, np.random.Generator]:
-    """The two random streams of an epoch: (clock offsets, estimator noise)."""
-    a, b = np.random.SeedSequence([int(seed), int(epoch)]).spawn(2)
-    return np.random.default_rng(a), np.random.default_rng(b)
-
-
-# --------------------------------------------------------------------------------------------
 # configuration
 # --------------------------------------------------------------------------------------------
 
@@ -216,9 +103,9 @@ class DatasetConfig:
     duration_s : float, seconds of emulation (the paper: 60 s)
     rate_hz : float, snapshots (epochs) per second
     seed : int
-    toa_method : ToA estimator, one of :data:`raytrace.emulation.receivers.TOA_METHODS`: "first-lobe"
-        (default, the realistic receiver), "first-path" (ideal, the paper's eq. 3 model),
-        "peak" or "leading-edge"
+    toa_method : ToA estimator, one of :data:`raytrace.emulation.receivers.TOA_METHODS`:
+        "first-lobe" (default, the realistic receiver), "first-path" (ideal, the paper's eq. 3
+        model), "peak" or "leading-edge"
     noise : bool, estimation noise on (False: no noise; ``first-path`` gives exact delays)
     delta_s : float, seconds between two base stations' transmissions
     clock_offset_max_s : float, device clock offsets are uniform in [0, this)
@@ -269,86 +156,311 @@ class DatasetConfig:
         """Epoch times, seconds."""
         return snapshot_times(self.duration_s, self.rate_hz)
 
-
-# --------------------------------------------------------------------------------------------
-# one epoch -> rows
-# --------------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class _Fixed:
-    """Per-dataset constants shared by all epochs (picklable, sent to workers)."""
-
-    cfg: DatasetConfig
-    band: Band
-    bs_names: list[str]
-    point_names: list[str]
-    bs_xyz: np.ndarray
-    point_xyz: np.ndarray
-
-    @property
-    def tx_offset_s(self) -> np.ndarray:
-        return np.arange(len(self.bs_names)) * self.cfg.delta_s
-
     def receiver(self) -> Receiver:
-        """The dataset's ToA receiver."""
-        c = self.cfg
-        return Receiver(c.toa_method, self.band, budget=c.budget, pulse=c.pulse,
-                        first_lobe=c.first_lobe)  # fmt: skip
+        """The dataset's ToA receiver (checks the settings first)."""
+        band = self.validate()
+        return Receiver(self.toa_method, band, budget=self.budget, pulse=self.pulse,
+                        first_lobe=self.first_lobe)  # fmt: skip
 
-
-def _num(value: float, fmt: str) -> str:
-    """CSV text of a float: empty for NaN."""
-    return format(float(value), fmt) if math.isfinite(value) else ""
-
-
-def _epoch_rows(
-    fx: _Fixed, epoch: int, t_s: float, paths: Paths, prepared: PreparedLinks | None = None
-) -> tuple[str, np.ndarray]:
-    """CSV rows of one epoch (point-major, then base station) and its counters
-    ``[rows, detected, los, first path LoS]``."""
-    clock_rng, noise_rng = epoch_rngs(fx.cfg.seed, epoch)
-    n_b, n_p = len(fx.bs_names), len(fx.point_names)
-    clock = clock_rng.uniform(0.0, fx.cfg.clock_offset_max_s, n_p) if n_p else np.zeros(0)
-    est = emulate_toa(
-        paths, fx.band, receiver=fx.receiver(), prepared=prepared, rng=noise_rng,
-        noise=fx.cfg.noise,
-    )  # fmt: skip
-    # link = bs * n_points + point; rows run over points, then base stations
-    link = (np.arange(n_b)[None, :] * n_p + np.arange(n_p)[:, None]).reshape(-1)
-    b_idx = np.tile(np.arange(n_b), n_p)
-    p_idx = np.repeat(np.arange(n_p), n_b)
-    tx_off = fx.tx_offset_s[b_idx]
-    toa = tx_off + clock[p_idx] + est.toa_s[link]
-    dist = np.linalg.norm(fx.bs_xyz[b_idx] - fx.point_xyz[p_idx], axis=1)
-    t_txt = repr(float(t_s))
-    lines = []
-    for i in range(len(link)):  # formatting only: ~100 rows per epoch
-        j = link[i]
-        p = fx.point_xyz[p_idx[i]]
-        det = bool(est.detected[j])
-        lines.append(
-            f"{epoch},{t_txt},{fx.point_names[p_idx[i]]},{fx.bs_names[b_idx[i]]},"
-            f"{repr(float(toa[i])) if det else ''},"
-            f"{float(p[0])!r},{float(p[1])!r},{float(p[2])!r},{float(dist[i])!r},"
-            f"{int(est.los[j])},{est.first_kind[j]},{_num(est.snr_db[j], '.3f')},"
-            f"{_num(est.peak_ratio_db[j], '.3f')},{_num(est.lobe_width[j], '.4f')},"
-            f"{est.lobe_kind[j]},{float(tx_off[i])!r},{float(clock[p_idx[i]])!r}\n"
-        )
-    det = est.detected[link]
-    counts = np.array(
-        [
-            len(link),
-            int(det.sum()),
-            int(est.los[link].sum()),
-            int((det & (est.first_kind[link] == "LoS")).sum()),
-        ]
-    )
-    return "".join(lines), counts
+    def model(self) -> ToaModel:
+        """The measurement model of this dataset (receiver, seed, schedule, clock offsets)."""
+        return ToaModel(
+            self.receiver(), int(self.seed), bool(self.noise), self.delta_s,
+            self.clock_offset_max_s,
+        )  # fmt: skip
 
 
 # --------------------------------------------------------------------------------------------
-# snapshot work (in-process or in worker processes)
+# files of one dataset
+# --------------------------------------------------------------------------------------------
+
+
+def _num(values: np.ndarray, fmt: str) -> list[str]:
+    """CSV texts of floats in ``fmt``: empty for NaN."""
+    return [format(v, fmt) if math.isfinite(v) else "" for v in values.ravel().tolist()]
+
+
+def _toa_csv(inputs: SceneMetadata, times_s: np.ndarray, m: Measurements) -> str:
+    """``toa.csv``: header and one row per (epoch, point, base station), in that order.
+
+    Floats are written with ``repr`` (shortest round trip), SNR and lobe figures with fixed
+    decimals; an undetected link has an empty ``toa_s``.
+    """
+    n_e, n_p, n_b = m.toa_s.shape
+    # the texts of what repeats (per epoch, point, base station, link, fix), then one join a row
+    epoch = [f"{e},{t!r}" for e, t in zip(m.epochs.tolist(), times_s[m.epochs].tolist())]
+    point_xyz = [",".join(map(repr, p)) for p in inputs.point_xyz.tolist()]
+    dist = np.linalg.norm(inputs.bs_xyz[None, :, :] - inputs.point_xyz[:, None, :], axis=2)
+    dist_txt = [[repr(d) for d in row] for row in dist.tolist()]
+    tx_txt = [repr(t) for t in m.tx_offset_s.tolist()]
+    clock_txt = [[repr(c) for c in row] for row in m.clock_offset_s.tolist()]
+    det = m.detected.ravel().tolist()
+    toa = [repr(t) if d else "" for t, d in zip(m.toa_s.ravel().tolist(), det)]
+    los = m.los.ravel().astype(np.int64).tolist()
+    snr, ratio = _num(m.snr_db, ".3f"), _num(m.peak_ratio_db, ".3f")
+    width = _num(m.lobe_width, ".4f")
+    first, lobe = m.first_kind.ravel().tolist(), m.lobe_kind.ravel().tolist()
+    lines = [",".join(COLUMNS) + "\n"]
+    i = 0
+    for e in range(n_e):  # formatting only; the numbers are in the arrays
+        for p in range(n_p):
+            for b in range(n_b):
+                lines.append(
+                    f"{epoch[e]},{inputs.point_names[p]},{inputs.bs_names[b]},{toa[i]},"
+                    f"{point_xyz[p]},{dist_txt[p][b]},{los[i]},{first[i]},{snr[i]},{ratio[i]},"
+                    f"{width[i]},{lobe[i]},{tx_txt[b]},{clock_txt[e][p]}\n"
+                )
+                i += 1
+    return "".join(lines)
+
+
+def _summary(m: Measurements) -> dict[str, Any]:
+    """``meta.json`` ``summary``: rows and the detected / LoS / first-path LoS fractions."""
+    rows, det, los, first_los = (int(v) for v in m.counts())
+    return {
+        "rows": rows,
+        "detected_fraction": det / rows if rows else 0.0,
+        "los_fraction": los / rows if rows else 0.0,
+        "first_path_los_fraction": first_los / rows if rows else 0.0,
+    }
+
+
+def _hall_width_depth(block: Mapping[str, Any]) -> tuple[float, float] | None:
+    """Width (x) and depth (y) of ``hall.size`` in the scene metadata, metres, if stated."""
+    hall = block.get("hall") if isinstance(block, Mapping) else None
+    try:
+        w, d = (float(v) for v in hall["size"][:2])  # type: ignore[index]
+    except (TypeError, KeyError, ValueError, IndexError):
+        return None
+    return w, d
+
+
+def _hall_xy(block: Mapping[str, Any], scene: Scene) -> list[list[float]]:
+    """``meta.json`` ``hall_xy``: the hall interior from the metadata, else the scene bounds."""
+    wd = _hall_width_depth(block)
+    if wd is not None:
+        return [[0.0, 0.0], [wd[0], wd[1]]]
+    lo, hi = scene.bounds
+    return [[float(lo[0]), float(lo[1])], [float(hi[0]), float(hi[1])]]
+
+
+def service_area(scene: Scene, meta: Mapping[str, Any]) -> dict[str, Any] | None:
+    """The dataset's service area: where a device can be, as positioning bounds its fixes.
+
+    The scene's floor outline inside its walls (:meth:`Scene.floor_outline`); for a scene without
+    a floor, the hall size of its metadata; otherwise None.
+    """
+    ring = scene.floor_outline()
+    if ring is not None:
+        src = "floor outline of the scene inside its walls"
+        return {"polygon": [[float(x), float(y)] for x, y in ring], "source": src}
+    wd = _hall_width_depth(meta)
+    if wd is None:
+        return None
+    w, d = wd
+    return {"polygon": [[0.0, 0.0], [w, 0.0], [w, d], [0.0, d]], "source": "hall size"}
+
+
+def _obstacles_2d(meta: Mapping[str, Any]) -> list[dict[str, Any]]:
+    """The scene's obstacle footprints, each with a ``polygon`` [[x, y], ...] (the positioning
+    package's plots read that key) besides the scene metadata's own ``xy``."""
+    out = []
+    for o in meta.get("obstacles_2d") or []:
+        if isinstance(o, Mapping) and "xy" in o:
+            out.append({**o, "polygon": o["xy"]})
+    return out
+
+
+def _meta(
+    cfg: DatasetConfig,
+    band: Band,
+    scene: Scene,
+    inputs: SceneMetadata,
+    m: Measurements,
+    scene_name: str,
+) -> dict[str, Any]:
+    """``meta.json``: every parameter that produced the dataset (schema in docs/dataset.md)."""
+    from ..core.version import __version__
+
+    routes = (
+        [dataclasses.asdict(r) for r in inputs.routes] if cfg.scenario == "semi-dynamic" else []
+    )
+    return {
+        "schema_version": SCHEMA_VERSION,
+        "scenario": cfg.scenario,
+        "band": band.name,
+        "band_parameters": {
+            "center_frequency_hz": band.center_frequency_hz,
+            "bandwidth_hz": band.bandwidth_hz,
+            "subcarrier_spacing_hz": band.subcarrier_spacing_hz,
+        },
+        "seed": int(cfg.seed),
+        "version": __version__,
+        "scene": scene_name,
+        "scene_sha256": scene.content_hash(),
+        "duration_s": float(cfg.duration_s),
+        "rate_hz": float(cfg.rate_hz),
+        "n_epochs": len(m.epochs),
+        "epoch_time_s": "epoch / rate_hz",
+        "toa_method": cfg.toa_method,
+        "noise": bool(cfg.noise),
+        "delta_s": float(cfg.delta_s),
+        "schedule_s": {n: float(o) for n, o in zip(inputs.bs_names, m.tx_offset_s)},
+        "clock_offset": {
+            "distribution": "uniform",
+            "low_s": 0.0,
+            "high_s": float(cfg.clock_offset_max_s),
+            "per": "epoch and point",
+        },
+        "random_streams": "numpy SeedSequence([seed, epoch]).spawn(2): clock offsets, noise",
+        "toa_model": "toa_s = tx_offset_s + clock_offset_s + estimated propagation delay",
+        "link_budget": dataclasses.asdict(cfg.budget),
+        "pulse": dataclasses.asdict(cfg.pulse),
+        "first_lobe": dataclasses.asdict(cfg.first_lobe),
+        "trace": dataclasses.asdict(cfg.trace),
+        "forklifts": {"clearance_m": float(cfg.clearance_m), "routes": routes},
+        "base_stations": [
+            {"name": n, "xyz": [float(v) for v in p]}
+            for n, p in zip(inputs.bs_names, inputs.bs_xyz)
+        ],
+        "points": [
+            {"name": n, "xyz": [float(v) for v in p]}
+            for n, p in zip(inputs.point_names, inputs.point_xyz)
+        ],
+        "hall_xy": _hall_xy(inputs.block, scene),
+        "service_area": service_area(scene, inputs.block),
+        "area_of_interest": inputs.block.get("area_of_interest"),
+        "obstacles_2d": _obstacles_2d(inputs.block),
+        "columns": list(COLUMNS),
+        "summary": _summary(m),
+    }
+
+
+def _forklift_csv(fleet: Fleet, times: np.ndarray) -> str:
+    lines = ["epoch,time_s,forklift,x,y,z,heading_rad\n"]
+    for e, t in enumerate(times):
+        centre, yaw = fleet.poses(float(t))
+        for name, c, h in zip(fleet.names, centre, yaw):
+            lines.append(
+                f"{e},{float(t)!r},{name},{float(c[0])!r},{float(c[1])!r},{float(c[2])!r},"
+                f"{float(h)!r}\n"
+            )
+    return "".join(lines)
+
+
+def _scene_name(scene: Scene) -> str:
+    """``meta.json`` ``scene``: the scene file's name."""
+    return Path(scene.source).name or "scene"
+
+
+def dataset_files(
+    scene: Scene,
+    cfg: DatasetConfig,
+    measured: Measurements,
+    *,
+    inputs: SceneMetadata | None = None,
+    fleet: Fleet | None = None,
+) -> dict[str, str]:
+    """The files of one dataset: file name -> text.
+
+    Parameters
+    ----------
+    scene : Scene, with base stations and points in its metadata (their order is the rows')
+    cfg : DatasetConfig
+    measured : Measurements of every epoch of ``cfg`` (0 .. n - 1, in order), made by
+        ``cfg.model()`` on the scene's paths: (n_epochs, points, base stations)
+    inputs : SceneMetadata of the scene, optional (read from the scene otherwise)
+    fleet : Fleet, the forklifts (semi-dynamic only: ``forklifts.csv``)
+
+    Returns
+    -------
+    dict: ``toa.csv``, ``meta.json`` and, for semi-dynamic, ``forklifts.csv``
+    """
+    band = cfg.validate()
+    inputs = inputs if inputs is not None else SceneMetadata.from_scene(scene, require=True)
+    times = cfg.times_s
+    shape = (len(times), len(inputs.point_names), len(inputs.bs_names))
+    if measured.toa_s.shape != shape:
+        raise HallrayError(
+            f"measurements of shape {measured.toa_s.shape} do not fit the dataset's "
+            f"(epochs, points, base stations) = {shape}"
+        )
+    if not np.array_equal(measured.epochs, np.arange(len(times))):
+        raise HallrayError("a dataset's measurements are of its epochs 0 .. n - 1, in order")
+    if (cfg.scenario == "semi-dynamic") != (fleet is not None):
+        raise HallrayError("a semi-dynamic dataset needs its forklift fleet, a static one none")
+    meta = _meta(cfg, band, scene, inputs, measured, _scene_name(scene))
+    files = {
+        "toa.csv": _toa_csv(inputs, times, measured),
+        "meta.json": json.dumps(meta, indent=1, sort_keys=False) + "\n",
+    }
+    if fleet is not None:
+        files["forklifts.csv"] = _forklift_csv(fleet, times)
+    return files
+
+
+def _write_files(directory: Path, files: Mapping[str, str]) -> None:
+    directory.mkdir(exist_ok=True)
+    for name, text in files.items():
+        (directory / name).write_text(text, encoding="utf-8")
+
+
+def write_dataset(
+    out_dir: str | os.PathLike[str],
+    scene: Scene,
+    cfg: DatasetConfig,
+    measured: Measurements,
+    *,
+    fleet: Fleet | None = None,
+    force: bool = False,
+) -> Path:
+    """Write one dataset from measurements already made (:func:`dataset_files`) to ``out_dir``.
+
+    The files are those :func:`make_dataset` writes for the same scene and configuration (the
+    same formatting code). Written to a temporary directory beside ``out_dir`` and renamed when
+    complete; ``force`` replaces a non-empty ``out_dir``.
+
+    Returns
+    -------
+    Path, the dataset directory
+    """
+    files = dataset_files(scene, cfg, measured, fleet=fleet)
+    out = Path(out_dir)
+    tmp = _prepare_output(out, force)
+    try:
+        _write_files(tmp, files)
+        _commit_output(tmp, out)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return out
+
+
+def _prepare_output(out: Path, force: bool) -> Path:
+    """Check the output directory and create the temporary one beside it."""
+    if out.exists() and not out.is_dir():
+        raise HallrayError(f"output path {out} exists and is not a directory")
+    if out.is_dir() and any(out.iterdir()) and not force:
+        raise HallrayError(f"output directory {out} is not empty (use --force to replace it)")
+    parent = out.resolve().parent
+    if not parent.is_dir():
+        raise HallrayError(f"parent directory of {out} does not exist")
+    return Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".tmp", dir=parent))
+
+
+def _commit_output(tmp: Path, out: Path) -> None:
+    """Move the finished temporary directory to ``out`` (replacing it)."""
+    if out.exists():
+        old = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".old", dir=tmp.parent))
+        os.rename(out, old / "previous")
+        os.rename(tmp, out)
+        shutil.rmtree(old, ignore_errors=True)
+    else:
+        os.rename(tmp, out)
+
+
+# --------------------------------------------------------------------------------------------
+# the epochs of one scenario (in-process or in worker processes)
 # --------------------------------------------------------------------------------------------
 
 _WORKER: dict[str, Any] = {}
@@ -356,27 +468,32 @@ _WORKER: dict[str, Any] = {}
 
 @dataclass
 class _Group:
-    """Datasets of one scenario (one per band) computed in one pass over the epochs."""
+    """Datasets of one scenario (one measurement model each) computed in one pass over the
+    epochs from one trace per snapshot."""
 
     scenario: str
-    fixed: list[_Fixed]
+    models: list[ToaModel]
     times_s: np.ndarray
     tracer: SnapshotTracer
     #: index of each dataset's carrier in the tracer's frequencies (receivers share a trace)
-    freq_index: list[int] = field(default_factory=list)
+    freq_index: list[int]
     #: static scene: each dataset's receiver work on its paths, done once
     prepared: list[PreparedLinks] | None = None
 
     def paths_of(self, paths: Sequence[Paths], k: int) -> Paths:
         """The paths of dataset ``k`` among the tracer's per-frequency ``paths``."""
-        return paths[self.freq_index[k] if self.freq_index else k]
+        return paths[self.freq_index[k]]
+
+    @property
+    def static(self) -> bool:
+        return self.scenario != "semi-dynamic"
 
 
 def _group_state(g: _Group) -> dict[str, Any]:
     tr = g.tracer
     return {
         "scenario": g.scenario,
-        "fixed": g.fixed,
+        "models": g.models,
         "times_s": g.times_s,
         "scene": dataclasses.replace(tr.scene, _embree=None),
         "tx": tr.tx,
@@ -405,41 +522,32 @@ def _init_worker(state: dict[str, Any]) -> None:
         threads=1,
     )
     _WORKER["group"] = _Group(
-        state["scenario"], state["fixed"], state["times_s"], tracer, state["freq_index"]
+        state["scenario"], state["models"], state["times_s"], tracer, state["freq_index"]
     )
 
 
-def _run_epochs(g: _Group, epochs: Sequence[int]) -> tuple[list[list[str]], np.ndarray, dict]:
-    """Rows of the given epochs for every dataset of the group.
-
-    Returns
-    -------
-    text : per dataset, per epoch, the CSV rows
-    counts : (n_datasets, 4) int, rows / detected / LoS / first path LoS
-    stats : the tracer's stage timings of this call
-    """
+def _run_epochs(g: _Group, epochs: Sequence[int]) -> tuple[list[Measurements], dict]:
+    """Measurements of the given epochs for every dataset of the group, and the tracer's stage
+    timings of this call."""
     tr = g.tracer
     tr.stats = {}
-    text: list[list[str]] = [[] for _ in g.fixed]
-    counts = np.zeros((len(g.fixed), 4), dtype=np.int64)
-    static = g.scenario != "semi-dynamic"
-    if static and g.prepared is None:
-        g.prepared = [
-            prepare_links(g.paths_of(tr.static_paths, k), fx.receiver())
-            for k, fx in enumerate(g.fixed)
+    if g.static:
+        if g.prepared is None:
+            g.prepared = [m.prepare(g.paths_of(tr.static_paths, k)) for k, m in enumerate(g.models)]
+        out = [
+            m.measure(g.paths_of(tr.static_paths, k), epochs, g.prepared[k])
+            for k, m in enumerate(g.models)
         ]
+        return out, dict(tr.stats)
+    parts: list[list[Measurements]] = [[] for _ in g.models]
     for e in epochs:
-        t = float(g.times_s[e])
-        paths = tr.static_paths if static else tr.paths_at(t)
-        for k, fx in enumerate(g.fixed):
-            prep = g.prepared[k] if static and g.prepared is not None else None
-            rows, c = _epoch_rows(fx, int(e), t, g.paths_of(paths, k), prep)
-            text[k].append(rows)
-            counts[k] += c
-    return text, counts, dict(tr.stats)
+        paths = tr.paths_at(float(g.times_s[e]))  # one trace of the snapshot for all datasets
+        for k, m in enumerate(g.models):
+            parts[k].append(m.measure(g.paths_of(paths, k), [e]))
+    return [Measurements.concatenate(p) for p in parts], dict(tr.stats)
 
 
-def _run_chunk(epochs: Sequence[int]) -> tuple[list[list[str]], np.ndarray, dict]:
+def _run_chunk(epochs: Sequence[int]) -> tuple[list[Measurements], dict]:
     return _run_epochs(_WORKER["group"], epochs)
 
 
@@ -449,27 +557,23 @@ def _chunks(n: int, size: int) -> list[list[int]]:
 
 def _compute_group(
     g: _Group, workers: int, progress: Callable[[int], None] | None
-) -> tuple[list[str], np.ndarray, dict]:
-    """All epochs of a group: CSV bodies per dataset, counters, summed stage timings."""
+) -> tuple[list[Measurements], dict]:
+    """All epochs of a group: the measurements of each dataset, summed stage timings."""
     n = len(g.times_s)
-    bodies: list[list[str]] = [[] for _ in g.fixed]
-    counts = np.zeros((len(g.fixed), 4), dtype=np.int64)
+    parts: list[list[Measurements]] = [[] for _ in g.models]
     stats: dict[str, float] = {}
 
-    def collect(res: tuple[list[list[str]], np.ndarray, dict], n_done: int) -> None:
-        text, c, st = res
-        for k in range(len(g.fixed)):
-            bodies[k].extend(text[k])
-        counts[:] += c
+    def collect(res: tuple[list[Measurements], dict], n_done: int) -> None:
+        measured, st = res
+        for k, m in enumerate(measured):
+            parts[k].append(m)
         for key, v in st.items():
             stats[key] = stats.get(key, 0.0) + v
         if progress is not None:
             progress(n_done)
 
     # static epochs with the first-path or first-lobe receiver cost milliseconds: no processes
-    cheap = g.scenario == "static" and all(
-        fx.cfg.toa_method in ("first-path", "first-lobe") for fx in g.fixed
-    )
+    cheap = g.static and all(m.receiver.method in ("first-path", "first-lobe") for m in g.models)
     if workers <= 1 or cheap or n < 2:
         for chunk in _chunks(n, 10):
             collect(_run_epochs(g, chunk), len(chunk))
@@ -489,159 +593,81 @@ def _compute_group(
             # map keeps the order of the chunks: the files do not depend on the worker count
             for chunk, res in zip(chunks, pool.map(_run_chunk, chunks)):
                 collect(res, len(chunk))
-    return ["".join(b) for b in bodies], counts, stats
-
-
-# --------------------------------------------------------------------------------------------
-# files
-# --------------------------------------------------------------------------------------------
-
-
-def _hall_xy(meta: Mapping[str, Any], scene: Scene) -> list[list[float]]:
-    hall = meta.get("hall") if isinstance(meta, Mapping) else None
-    try:
-        size = [float(v) for v in hall["size"]]  # type: ignore[index]
-        return [[0.0, 0.0], [size[0], size[1]]]
-    except (TypeError, KeyError, ValueError, IndexError):
-        lo, hi = scene.bounds
-        return [[float(lo[0]), float(lo[1])], [float(hi[0]), float(hi[1])]]
-
-
-def service_area(scene: Scene, meta: Mapping[str, Any]) -> dict[str, Any] | None:
-    """The dataset's service area: where a device can be, as positioning bounds its fixes.
-
-    The scene's floor outline inside its walls (:meth:`Scene.floor_outline`); for a scene without
-    a floor, the hall size of its metadata; otherwise None.
-    """
-    ring = scene.floor_outline()
-    if ring is not None:
-        src = "floor outline of the scene inside its walls"
-        return {"polygon": [[float(x), float(y)] for x, y in ring], "source": src}
-    hall = meta.get("hall") if isinstance(meta, Mapping) else None
-    try:
-        w, d = (float(v) for v in hall["size"][:2])  # type: ignore[index]
-    except (TypeError, KeyError, ValueError, IndexError):
-        return None
-    return {"polygon": [[0.0, 0.0], [w, 0.0], [w, d], [0.0, d]], "source": "hall size"}
-
-
-def _obstacles_2d(meta: Mapping[str, Any]) -> list[dict[str, Any]]:
-    """The scene's obstacle footprints, each with a ``polygon`` [[x, y], ...] (the positioning
-    package's plots read that key) besides the scene metadata's own ``xy``."""
-    out = []
-    for o in meta.get("obstacles_2d") or []:
-        if isinstance(o, Mapping) and "xy" in o:
-            out.append({**o, "polygon": o["xy"]})
-    return out
-
-
-def _meta(
-    fx: _Fixed,
-    scene: Scene,
-    inputs: SceneMetadata,
-    times: np.ndarray,
-    counts: np.ndarray,
-    scene_name: str,
-) -> dict[str, Any]:
-    from ..core.version import __version__
-
-    cfg = fx.cfg
-    rows, det, los, first_los = (int(v) for v in counts)
-    routes = (
-        [dataclasses.asdict(r) for r in inputs.routes] if cfg.scenario == "semi-dynamic" else []
-    )
-    return {
-        "schema_version": SCHEMA_VERSION,
-        "scenario": cfg.scenario,
-        "band": fx.band.name,
-        "band_parameters": {
-            "center_frequency_hz": fx.band.center_frequency_hz,
-            "bandwidth_hz": fx.band.bandwidth_hz,
-            "subcarrier_spacing_hz": fx.band.subcarrier_spacing_hz,
-        },
-        "seed": int(cfg.seed),
-        "version": __version__,
-        "scene": scene_name,
-        "scene_sha256": scene.content_hash(),
-        "duration_s": float(cfg.duration_s),
-        "rate_hz": float(cfg.rate_hz),
-        "n_epochs": len(times),
-        "epoch_time_s": "epoch / rate_hz",
-        "toa_method": cfg.toa_method,
-        "noise": bool(cfg.noise),
-        "delta_s": float(cfg.delta_s),
-        "schedule_s": {n: float(o) for n, o in zip(fx.bs_names, fx.tx_offset_s)},
-        "clock_offset": {
-            "distribution": "uniform",
-            "low_s": 0.0,
-            "high_s": float(cfg.clock_offset_max_s),
-            "per": "epoch and point",
-        },
-        "random_streams": "numpy SeedSequence([seed, epoch]).spawn(2): clock offsets, noise",
-        "toa_model": "toa_s = tx_offset_s + clock_offset_s + estimated propagation delay",
-        "link_budget": dataclasses.asdict(cfg.budget),
-        "pulse": dataclasses.asdict(cfg.pulse),
-        "first_lobe": dataclasses.asdict(cfg.first_lobe),
-        "trace": dataclasses.asdict(cfg.trace),
-        "forklifts": {"clearance_m": float(cfg.clearance_m), "routes": routes},
-        "base_stations": [
-            {"name": n, "xyz": [float(v) for v in p]} for n, p in zip(fx.bs_names, fx.bs_xyz)
-        ],
-        "points": [
-            {"name": n, "xyz": [float(v) for v in p]} for n, p in zip(fx.point_names, fx.point_xyz)
-        ],
-        "hall_xy": _hall_xy(inputs.block, scene),
-        "service_area": service_area(scene, inputs.block),
-        "area_of_interest": inputs.block.get("area_of_interest"),
-        "obstacles_2d": _obstacles_2d(inputs.block),
-        "columns": list(COLUMNS),
-        "summary": {
-            "rows": rows,
-            "detected_fraction": det / rows if rows else 0.0,
-            "los_fraction": los / rows if rows else 0.0,
-            "first_path_los_fraction": first_los / rows if rows else 0.0,
-        },
-    }
-
-
-def _forklift_csv(tracer: SnapshotTracer, times: np.ndarray) -> str:
-    lines = ["epoch,time_s,forklift,x,y,z,heading_rad\n"]
-    for e, t in enumerate(times):
-        centre, yaw = tracer.fleet.poses(float(t))
-        for name, c, h in zip(tracer.fleet.names, centre, yaw):
-            lines.append(
-                f"{e},{float(t)!r},{name},{float(c[0])!r},{float(c[1])!r},{float(c[2])!r},"
-                f"{float(h)!r}\n"
-            )
-    return "".join(lines)
-
-
-def _prepare_output(out: Path, force: bool) -> Path:
-    """Check the output directory and create the temporary one beside it."""
-    if out.exists() and not out.is_dir():
-        raise HallrayError(f"output path {out} exists and is not a directory")
-    if out.is_dir() and any(out.iterdir()) and not force:
-        raise HallrayError(f"output directory {out} is not empty (use --force to replace it)")
-    parent = out.resolve().parent
-    if not parent.is_dir():
-        raise HallrayError(f"parent directory of {out} does not exist")
-    return Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".tmp", dir=parent))
-
-
-def _commit_output(tmp: Path, out: Path) -> None:
-    """Move the finished temporary directory to ``out`` (replacing it)."""
-    if out.exists():
-        old = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".old", dir=tmp.parent))
-        os.rename(out, old / "previous")
-        os.rename(tmp, out)
-        shutil.rmtree(old, ignore_errors=True)
-    else:
-        os.rename(tmp, out)
+    return [Measurements.concatenate(p) for p in parts], stats
 
 
 # --------------------------------------------------------------------------------------------
 # public API
 # --------------------------------------------------------------------------------------------
+
+
+def _dataset_configs(
+    datasets: Iterable[tuple[str, str]],
+    methods: Sequence[str],
+    **settings: Any,
+) -> list[DatasetConfig]:
+    """One config per requested (scenario, band, receiver), in request order, duplicates
+    dropped; each validated (one-line :class:`HallrayError`)."""
+    triples = list(dict.fromkeys((str(s), str(b), m) for s, b in datasets for m in methods))
+    if not triples:
+        raise HallrayError("no dataset requested")
+    configs = [
+        DatasetConfig(s, b, toa_method=m, **settings)  # type: ignore[arg-type]
+        for s, b, m in triples
+    ]
+    for c in configs:
+        c.validate()
+    return configs
+
+
+def _open_scene(scene: str | os.PathLike[str] | Scene) -> Scene:
+    return scene if isinstance(scene, Scene) else load_scene(scene)
+
+
+def _scenario_group(
+    scenario: str,
+    configs: Sequence[DatasetConfig],
+    scene: Scene,
+    inputs: SceneMetadata,
+    static_cache: dict[float, Paths],
+) -> _Group:
+    """The tracer and measurement models of one scenario's datasets (the static scene's paths
+    per carrier come from ``static_cache`` when another scenario traced them; new ones are
+    added to it)."""
+    routes = inputs.routes if scenario == "semi-dynamic" else []
+    carriers = [get_band(c.band).center_frequency_hz for c in configs]
+    freqs = list(dict.fromkeys(carriers))
+    known = [static_cache.get(f) for f in freqs]
+    tracer = SnapshotTracer(
+        scene,
+        inputs.bs_xyz,
+        inputs.point_xyz,
+        routes,
+        freqs,
+        configs[0].trace,
+        clearance_m=configs[0].clearance_m,
+        static_paths=None if any(p is None for p in known) else known,
+    )
+    static_cache.update(zip(freqs, tracer.static_paths))
+    times = configs[0].times_s
+    tracer.check_clear(times, inputs.bs_names, inputs.point_names)
+    models = [c.model() for c in configs]
+    return _Group(scenario, models, times, tracer, [freqs.index(f) for f in carriers])
+
+
+def _measure_with_progress(
+    g: _Group, workers: int, progress: bool
+) -> tuple[list[Measurements], dict]:
+    """:func:`_compute_group`, with a tqdm bar on stderr if ``progress``."""
+    if not progress:
+        return _compute_group(g, workers, None)
+    from tqdm import tqdm
+
+    names = ", ".join(dict.fromkeys(m.receiver.band.name for m in g.models))
+    with tqdm(
+        total=len(g.times_s), desc=f"{g.scenario} ({names})", unit="epoch", file=sys.stderr
+    ) as bar:
+        return _compute_group(g, workers, bar.update)
 
 
 def make_datasets(
@@ -694,38 +720,17 @@ def make_datasets(
     methods = [toa_method] if isinstance(toa_method, str) else list(dict.fromkeys(toa_method))
     if not methods:
         raise HallrayError("no ToA receiver requested")
-    triples = list(dict.fromkeys((str(s), str(b), m) for s, b in datasets for m in methods))
-    if not triples:
-        raise HallrayError("no dataset requested")
-    if not subdirectories and len(triples) != 1:
+    configs = _dataset_configs(
+        datasets, methods, duration_s=duration_s, rate_hz=rate_hz, seed=seed, noise=noise,
+        budget=budget or LinkBudget(), first_lobe=first_lobe or FirstLobeSettings(),
+        trace=trace_settings or TraceConfig(),
+    )  # fmt: skip
+    if not subdirectories and len(configs) != 1:
         raise HallrayError("several datasets need subdirectories")
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise HallrayError(f"workers must be an integer >= 1, got {workers!r}")
-    budget = budget or LinkBudget()
-    settings = trace_settings or TraceConfig()
-    lobe = first_lobe or FirstLobeSettings()
-    configs = [
-        DatasetConfig(
-            s,
-            b,
-            duration_s,
-            rate_hz,
-            seed,
-            m,
-            noise,
-            budget=budget,
-            first_lobe=lobe,
-            trace=settings,
-        )
-        for s, b, m in triples
-    ]
-    bands = [c.validate() for c in configs]
     t_start = time.perf_counter()
-    if isinstance(scene, Scene):
-        sc, scene_name = scene, Path(scene.source).name or "scene"
-    else:
-        sc = load_scene(scene)
-        scene_name = Path(sc.source).name
+    sc = _open_scene(scene)
     inputs = SceneMetadata.from_scene(sc, require=True)
     if any(c.scenario == "semi-dynamic" for c in configs) and not inputs.routes:
         raise SceneError("the semi-dynamic scenario needs forklift routes in the scene metadata")
@@ -737,77 +742,28 @@ def make_datasets(
     static_cache: dict[float, Paths] = {}
     try:
         for scenario in SCENARIOS:
-            idx = [i for i, c in enumerate(configs) if c.scenario == scenario]
-            if not idx:
+            group = [c for c in configs if c.scenario == scenario]
+            if not group:
                 continue
             t0 = time.perf_counter()
-            times = configs[idx[0]].times_s
-            fixed = [
-                _Fixed(
-                    configs[i],
-                    bands[i],
-                    inputs.bs_names,
-                    inputs.point_names,
-                    inputs.bs_xyz,
-                    inputs.point_xyz,
-                )
-                for i in idx
-            ]
-            routes = inputs.routes if scenario == "semi-dynamic" else []
-            carriers = [bands[i].center_frequency_hz for i in idx]
-            freqs = list(dict.fromkeys(carriers))
-            known = [static_cache.get(f) for f in freqs]
-            tracer = SnapshotTracer(
-                sc,
-                inputs.bs_xyz,
-                inputs.point_xyz,
-                routes,
-                freqs,
-                settings,
-                static_paths=None if any(p is None for p in known) else known,
-            )
-            static_cache.update(zip(freqs, tracer.static_paths))
-            tracer.check_clear(times, inputs.bs_names, inputs.point_names)
+            g = _scenario_group(scenario, group, sc, inputs, static_cache)
             t_static = time.perf_counter() - t0
-            group = _Group(scenario, fixed, times, tracer, [freqs.index(f) for f in carriers])
-            bar = None
-            if progress:
-                from tqdm import tqdm
-
-                names = ", ".join(dict.fromkeys(bands[i].name for i in idx))
-                bar = tqdm(
-                    total=len(times), desc=f"{scenario} ({names})", unit="epoch", file=sys.stderr
-                )
-            try:
-                bodies, counts, stats = _compute_group(
-                    group, workers, bar.update if bar is not None else None
-                )
-            finally:
-                if bar is not None:
-                    bar.close()
-            for k, i in enumerate(idx):
-                cfg = configs[i]
-                name = f"{cfg.scenario}-{bands[i].name}"
+            measured, stats = _measure_with_progress(g, workers, progress)
+            fleet = g.tracer.fleet if scenario == "semi-dynamic" else None
+            for cfg, m in zip(group, measured):
+                name = f"{cfg.scenario}-{get_band(cfg.band).name}"
                 if cfg.toa_method != methods[0]:
                     name += f"-{cfg.toa_method}"
                 d = tmp / name if subdirectories else tmp
-                d.mkdir(exist_ok=True)
-                header = ",".join(COLUMNS) + "\n"
-                (d / "toa.csv").write_text(header + bodies[k], encoding="utf-8")
-                meta = _meta(fixed[k], sc, inputs, times, counts[k], scene_name)
-                (d / "meta.json").write_text(
-                    json.dumps(meta, indent=1, sort_keys=False) + "\n", encoding="utf-8"
-                )
-                if scenario == "semi-dynamic":
-                    (d / "forklifts.csv").write_text(_forklift_csv(tracer, times), encoding="utf-8")
+                _write_files(d, dataset_files(sc, cfg, m, inputs=inputs, fleet=fleet))
                 summaries.append(
                     {
                         "directory": str(out / d.relative_to(tmp)),
                         "scenario": cfg.scenario,
-                        "band": bands[i].name,
+                        "band": get_band(cfg.band).name,
                         "toa_method": cfg.toa_method,
-                        "epochs": len(times),
-                        **meta["summary"],
+                        "epochs": len(g.times_s),
+                        **_summary(m),
                         "static_trace_s": t_static,
                         "group_seconds": time.perf_counter() - t0,
                         "stage_seconds": stats,

@@ -2,9 +2,9 @@
 
 A sweep is a grid of *cells*; every cell runs::
 
-    InF hall (raytrace.halls.inf)  ->  trace  ->  ToA per epoch (raytrace.emulation.channel.estimate_toa, the
-    paper's time model: schedule + device clock offset + estimation noise)  ->  positioning of
-    every fix with every method (positioning.locate)  ->  errors and counts
+    InF hall (raytrace.halls.inf)  ->  trace  ->  ToA per epoch (the measurement model of
+    raytrace.emulation.measurement: schedule + device clock offset + the receiver's estimate)
+    ->  positioning of every fix with every method (positioning.locate)  ->  errors and counts
 
 and returns one small result (a JSON-able dict). Results are written one file per cell,
 ``OUT/cells/<key>.json``, atomically, where ``key`` is a hash of every parameter of the cell
@@ -36,14 +36,21 @@ import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from ..core.errors import HallrayError
+from ..core.fileio import write_atomic
 from ..emulation.receivers import DEFAULT_TOA_METHOD
 from ..solver.config import TRACE_KEYS as TRACE_FIELDS
 from ..solver.config import TraceConfig
+
+if TYPE_CHECKING:  # the pipeline's modules load lazily (the driver of a cluster sweep needs few)
+    from ..emulation.dataset import DatasetConfig
+    from ..emulation.measurement import Measurements
+    from ..scene.metadata import SceneMetadata
+    from ..scene.model import Scene
 
 #: Bumped when the pipeline's results change for the same parameters (old cell files are then
 #: not reused: their keys differ).
@@ -143,6 +150,17 @@ class Cell:
     key: str
     datasets: bool = False
 
+    def value(self, key: str) -> Any:
+        """The cell's value of a grid key: a parameter, or ``<method>.<parameter>``."""
+        if "." in key:
+            m, p = key.split(".", 1)
+            return self.methods[m][p]
+        return self.params[key]
+
+    def describe(self, keys: Sequence[str]) -> str:
+        """``key=value, ...`` of the given grid keys (the cell's key if there are none)."""
+        return ", ".join(f"{k}={self.value(k)}" for k in keys) or self.key
+
     def task(self) -> dict[str, Any]:
         """What a worker needs (plain data, picklable)."""
         return {
@@ -210,20 +228,10 @@ def _resolve_methods(
     return out
 
 
-def parse_sweep_config(data: Any, *, source: str = "") -> SweepConfig:
-    """Validate a sweep config given as a parsed YAML mapping (see ``docs/sweep.md``).
-
-    Every cell is checked here (generator parameters, tracer limits, band, ToA method, positioning
-    methods), so a bad cell fails before any work starts. Raises :class:`HallrayError` with a
-    one-line message.
-    """
+def _parse_methods(data: Mapping[str, Any], source: str) -> dict[str, dict[str, Any]]:
+    """``methods`` and ``method_params``: method -> its fixed parameters (not yet resolved)."""
     from positioning import METHODS
 
-    if not isinstance(data, Mapping):
-        _fail(source, "a sweep config is a mapping with 'grid', 'fixed', 'methods', ...")
-    for k in data:
-        if k not in _TOP_KEYS:
-            _fail(source, f"unknown key {k!r} (allowed: {', '.join(_TOP_KEYS)})")
     raw_methods = data.get("methods", list(DEFAULT_METHODS))
     if isinstance(raw_methods, str):
         raw_methods = [raw_methods]
@@ -242,8 +250,14 @@ def parse_sweep_config(data: Any, *, source: str = "") -> SweepConfig:
             _fail(source, f"method_params: {m!r} is not in methods")
         if not isinstance(p, Mapping):
             _fail(source, f"method_params.{m}: expected a mapping")
-    methods = {m: dict(mparams.get(m, {})) for m in raw_methods}
+    return {m: dict(mparams.get(m, {})) for m in raw_methods}
 
+
+def _parse_grid_and_fixed(
+    data: Mapping[str, Any], methods: Mapping[str, Any], source: str
+) -> tuple[Mapping[str, Any], Mapping[str, Any]]:
+    """``grid`` (parameter -> non-empty list of distinct values) and ``fixed`` (parameter ->
+    value): known parameters (``<method>.<parameter>`` in grid), none in both, a profile."""
     grid = data.get("grid") or {}
     fixed = data.get("fixed") or {}
     if not isinstance(grid, Mapping) or not isinstance(fixed, Mapping):
@@ -271,6 +285,36 @@ def parse_sweep_config(data: Any, *, source: str = "") -> SweepConfig:
         _fail(source, f"{both[0]!r} is in both grid and fixed")
     if "profile" not in grid and "profile" not in fixed:
         _fail(source, "give the profile (InF-SL, InF-DL, InF-SH, InF-DH) in grid or fixed")
+    return grid, fixed
+
+
+def _check_cells(cfg: SweepConfig) -> None:
+    """Validate every cell (dry layout of its hall included); refuse identical cells."""
+    seen: dict[str, int] = {}
+    for cell in cfg.cells():
+        try:
+            validate_cell(cell.params)
+        except HallrayError as exc:
+            _fail(cfg.source, f"cell {cell.index} ({cell.describe(cfg.varying)}): {exc}")
+        if cell.key in seen:
+            _fail(cfg.source, f"cells {seen[cell.key]} and {cell.index} are identical")
+        seen[cell.key] = cell.index
+
+
+def parse_sweep_config(data: Any, *, source: str = "") -> SweepConfig:
+    """Validate a sweep config given as a parsed YAML mapping (see ``docs/sweep.md``).
+
+    Every cell is checked here (generator parameters, tracer limits, band, ToA method, positioning
+    methods), so a bad cell fails before any work starts. Raises :class:`HallrayError` with a
+    one-line message.
+    """
+    if not isinstance(data, Mapping):
+        _fail(source, "a sweep config is a mapping with 'grid', 'fixed', 'methods', ...")
+    for k in data:
+        if k not in _TOP_KEYS:
+            _fail(source, f"unknown key {k!r} (allowed: {', '.join(_TOP_KEYS)})")
+    methods = _parse_methods(data, source)
+    grid, fixed = _parse_grid_and_fixed(data, methods, source)
     name = data.get("name", Path(source).stem if source else "sweep")
     if not isinstance(name, str) or not name:
         _fail(source, f"name: expected a string, got {name!r}")
@@ -290,16 +334,7 @@ def parse_sweep_config(data: Any, *, source: str = "") -> SweepConfig:
         source=source,
         datasets=datasets,
     )
-    cells = cfg.cells()
-    seen: dict[str, int] = {}
-    for cell in cells:
-        try:
-            validate_cell(cell.params)
-        except HallrayError as exc:
-            _fail(source, f"cell {cell.index} ({_describe(cell, cfg.varying)}): {exc}")
-        if cell.key in seen:
-            _fail(source, f"cells {seen[cell.key]} and {cell.index} are identical")
-        seen[cell.key] = cell.index
+    _check_cells(cfg)
     return cfg
 
 
@@ -319,17 +354,6 @@ def load_sweep_config(source: str | os.PathLike[str] | Mapping[str, Any]) -> Swe
     except yaml.YAMLError as exc:
         raise HallrayError(f"{path}: invalid YAML: {' '.join(str(exc).split())}") from None
     return parse_sweep_config(data, source=str(path))
-
-
-def _describe(cell: Cell, keys: Sequence[str]) -> str:
-    parts = []
-    for k in keys:
-        if "." in k:
-            m, p = k.split(".", 1)
-            parts.append(f"{k}={cell.methods[m][p]}")
-        else:
-            parts.append(f"{k}={cell.params[k]}")
-    return ", ".join(parts) or cell.key
 
 
 def _hall_kwargs(params: Mapping[str, Any]) -> dict[str, Any]:
@@ -428,6 +452,113 @@ class CellData:
         return error_2d(self.fixes[method], self.true_xyz)
 
 
+@dataclass(frozen=True)
+class CellHall:
+    """A cell's synthetic hall, built in memory.
+
+    Attributes
+    ----------
+    scene : Scene, with base stations and points in its metadata
+    inputs : SceneMetadata, the scene's base stations and points (names, (n, 3) float m)
+    info : dict, the generator's ``_inf`` block (3GPP ``k_subsce_m``, clutter count, density)
+    """
+
+    scene: Scene
+    inputs: SceneMetadata
+    info: dict[str, Any]
+
+
+def cell_hall(params: Mapping[str, Any]) -> CellHall:
+    """The hall of a cell: ``generate_hall(profile, size, seed, ...)`` as a scene."""
+    from ..halls.inf import generate_hall, scene_from_spec, split_spec
+    from ..halls.spec import parse_hall_spec
+    from ..scene.metadata import SceneMetadata
+
+    spec = generate_hall(
+        params["profile"], params["size"], params["seed"], los_notes=False, **_hall_kwargs(params)
+    )
+    hall_dict, info = split_spec(spec)
+    scene = scene_from_spec(parse_hall_spec(hall_dict))
+    return CellHall(scene, SceneMetadata.from_scene(scene, require=True), info)
+
+
+def cell_dataset_config(params: Mapping[str, Any]) -> DatasetConfig:
+    """The :class:`raytrace.emulation.dataset.DatasetConfig` of a cell: static scenario, the
+    cell's band, receiver, noise, epochs, seed and tracer limits. Its measurement model is the
+    cell's, and its dataset is what ``make-dataset`` writes for the cell's hall."""
+    from ..emulation.dataset import DatasetConfig
+
+    return DatasetConfig(
+        "static",
+        params["band"],
+        duration_s=float(params["duration_s"]),
+        rate_hz=float(params["rate_hz"]),
+        seed=int(params["seed"]),
+        toa_method=params["toa_method"],
+        noise=bool(params["noise"]),
+        trace=TraceConfig.from_mapping(params),
+    )
+
+
+#: Stream of an epoch's :func:`raytrace.emulation.measurement.epoch_rngs` for the NLoS injection
+#: (after the measurement model's clock-offset and noise streams).
+NLOS_STREAM = 2
+
+
+def inject_nlos(delay_s: np.ndarray, seed: int, fraction: float, bias_m: float) -> np.ndarray:
+    """Extra path lengths of the NLoS stress test (:data:`TOA_KEYS` ``inject_nlos_*``).
+
+    Each received ToA gets, with probability ``fraction``, an extra path length uniform in
+    ``[0.5, 1.5] * bias_m``; epoch ``e`` draws from its stream :data:`NLOS_STREAM`.
+
+    Parameters
+    ----------
+    delay_s : (E, N, B) float, s, estimated propagation delays, NaN where not received
+    seed : int; fraction : float in [0, 1]; bias_m : float, m
+
+    Returns
+    -------
+    (E, N, B) float, m, 0 where nothing is injected
+    """
+    from ..emulation.measurement import epoch_rngs
+
+    injected = np.zeros(delay_s.shape)
+    if fraction <= 0 or bias_m <= 0:
+        return injected
+    shape = delay_s.shape[1:]
+    for e in range(delay_s.shape[0]):  # one stream per epoch, as the measurement model's
+        rng = epoch_rngs(seed, e, NLOS_STREAM + 1)[NLOS_STREAM]
+        hit = rng.random(shape) < fraction
+        extra = bias_m * rng.uniform(0.5, 1.5, shape)
+        injected[e] = np.where(hit & np.isfinite(delay_s[e]), extra, 0.0)
+    return injected
+
+
+def _locate_fixes(
+    toa_s: np.ndarray,
+    bs_xyz: np.ndarray,
+    point_xyz: np.ndarray,
+    tx_offset_s: np.ndarray,
+    methods: Mapping[str, Mapping[str, Any]],
+    height: str,
+) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """Every fix (epoch-major) with every method: ``(fixes, true_xyz)``, (E * N, 3) m each.
+
+    ``height`` "known": 2D fixes with the device height known; "free": 3D fixes.
+    """
+    from positioning import locate
+
+    n_e, n_p, n_b = toa_s.shape
+    flat = toa_s.reshape(n_e * n_p, n_b)
+    true_xyz = np.tile(point_xyz, (n_e, 1))
+    h = true_xyz[:, 2] if height == "known" else None
+    fixes = {
+        m: np.asarray(locate(flat, bs_xyz, m, tx_offsets_s=tx_offset_s, height_m=h, **p))
+        for m, p in methods.items()
+    }
+    return fixes, true_xyz
+
+
 def simulate_cell(
     params: Mapping[str, Any],
     methods: Mapping[str, Mapping[str, Any]],
@@ -437,107 +568,61 @@ def simulate_cell(
 ) -> CellData:
     """Run the pipeline of one cell and keep the arrays (see :class:`CellData`).
 
-    Random streams: the hall from ``seed`` (:func:`raytrace.halls.inf.generate_hall`); epoch ``e``
-    draws its clock offsets and estimation noise from :func:`raytrace.emulation.dataset.epoch_rngs` (the
-    dataset writer's streams) and the NLoS injection from ``SeedSequence([seed, e]).spawn(3)[2]``.
+    Hall (:func:`cell_hall`), one trace of the static scene, the measurement model of the cell's
+    dataset config (:func:`cell_dataset_config`, :class:`raytrace.emulation.measurement.ToaModel`:
+    schedule, clock offsets and estimation noise from ``epoch_rngs(seed, e)``), the NLoS
+    injection (:func:`inject_nlos`), then every fix with every method.
 
-    With ``dataset_dir``, the cell's ToA dataset is also written there by
-    :func:`raytrace.emulation.dataset.make_dataset` (static scenario; it traces the scene again) and read
-    back with :func:`positioning.dataset.load_dataset`; ``CellData.dataset_max_diff_s`` is the
-    largest difference between its ToAs and the in-memory ones before injection (0 expected).
+    With ``dataset_dir``, the cell's ToA dataset (before injection) is also written there by
+    :func:`raytrace.emulation.dataset.write_dataset` from these measurements (the files
+    ``make-dataset`` writes for this hall and settings) and read back with
+    :func:`positioning.dataset.load_dataset`; ``CellData.dataset_max_diff_s`` is the largest
+    difference between the file's ToAs and the in-memory ones (0 expected: a round trip).
     """
-    from positioning import locate
-
     from ..core.constants import C0
-    from ..emulation.bands import get_band
-    from ..emulation.dataset import (
-        CLOCK_OFFSET_MAX_S,
-        DELTA_S,
-        emulate_toa,
-        epoch_rngs,
-        prepare_links,
-    )
-    from ..emulation.receivers import Receiver
-    from ..halls.inf import generate_hall, scene_from_spec, split_spec
-    from ..halls.spec import parse_hall_spec
     from ..solver.tracer import trace
 
     t0 = time.perf_counter()
-    spec = generate_hall(
-        params["profile"], params["size"], params["seed"], los_notes=False, **_hall_kwargs(params)
-    )
-    hall_dict, info = split_spec(spec)
-    hall = parse_hall_spec(hall_dict)
-    scene = scene_from_spec(hall)
-    bs, pts = hall.base_station_xyz, hall.point_xyz
-    n_bs, n_pts = len(bs), len(pts)
+    hall = cell_hall(params)
+    bs, pts = hall.inputs.bs_xyz, hall.inputs.point_xyz
     t1 = time.perf_counter()
-    band = get_band(params["band"])
-    cfg = TraceConfig.from_mapping(params)
-    paths = trace(scene, bs, pts, band.center_frequency_hz, cfg, threads=threads)
+    cfg = cell_dataset_config(params)
+    model = cfg.model()
+    paths = trace(hall.scene, bs, pts, model.receiver.band.center_frequency_hz, cfg.trace,
+                  threads=threads)  # fmt: skip
     t2 = time.perf_counter()
-    n_links = n_bs * n_pts  # link = tx * R + rx: BS-major
-    los = (np.bincount(paths.link[paths.los], minlength=n_links) > 0).reshape(n_bs, n_pts)
-    distance = np.linalg.norm(bs[:, None, :] - pts[None, :, :], axis=2)
-    n_ep = n_epochs(params)
-    prop = np.empty((n_ep, n_pts, n_bs))
-    injected = np.zeros((n_ep, n_pts, n_bs))
-    clock = np.empty((n_ep, n_pts))
-    sigma = np.full((n_bs, n_pts), np.nan)
-    tx_offset = DELTA_S * np.arange(n_bs)
-    frac, bias = float(params["inject_nlos_fraction"]), float(params["inject_nlos_bias_m"])
-    seed = int(params["seed"])
-    receiver = Receiver(params["toa_method"], band)
-    prepared = prepare_links(paths, receiver)  # the scene is static: once for all epochs
-    for e in range(n_ep):
-        # the dataset writer's streams (clock, noise), and a third one for the injection
-        rng_clock, rng_noise = epoch_rngs(seed, e)
-        rng_nlos = np.random.default_rng(np.random.SeedSequence([seed, e]).spawn(3)[2])
-        clock[e] = rng_clock.uniform(0.0, CLOCK_OFFSET_MAX_S, n_pts)
-        est = emulate_toa(
-            paths, band, receiver=receiver, prepared=prepared, rng=rng_noise,
-            noise=bool(params["noise"]),
-        )  # fmt: skip
-        prop[e] = np.where(est.detected, est.toa_s, np.nan).reshape(n_bs, n_pts).T
-        if e == 0:
-            sigma = np.asarray(est.sigma_s, dtype=float).reshape(n_bs, n_pts)
-        if frac > 0 and bias > 0:
-            hit = rng_nlos.random((n_pts, n_bs)) < frac
-            extra = bias * rng_nlos.uniform(0.5, 1.5, (n_pts, n_bs))
-            injected[e] = np.where(hit & np.isfinite(prop[e]), extra, 0.0)
-    toa = tx_offset[None, None, :] + clock[:, :, None] + prop + injected / C0
+    measured = model.measure(paths, range(len(cfg.times_s)))  # the scene is static
+    injected = inject_nlos(
+        measured.delay_s,
+        cfg.seed,
+        float(params["inject_nlos_fraction"]),
+        float(params["inject_nlos_bias_m"]),
+    )
+    toa = measured.toa_s + injected / C0
     t3 = time.perf_counter()
-    flat = toa.reshape(n_ep * n_pts, n_bs)
-    true_xyz = np.tile(pts, (n_ep, 1))
-    height = true_xyz[:, 2] if params["height"] == "known" else None
-    fixes = {
-        m: np.asarray(locate(flat, bs, m, tx_offsets_s=tx_offset, height_m=height, **p))
-        for m, p in methods.items()
-    }
+    fixes, true_xyz = _locate_fixes(toa, bs, pts, measured.tx_offset_s, methods, params["height"])
     t4 = time.perf_counter()
     timing = {"generate": t1 - t0, "trace": t2 - t1, "toa": t3 - t2, "locate": t4 - t3}
     diff = math.nan
     if dataset_dir is not None:
-        diff = _write_dataset(
-            dataset_dir, scene, params, [q.name for q in hall.points], toa - injected / C0
-        )
+        diff = _write_dataset(dataset_dir, hall, cfg, measured)
         timing["dataset"] = time.perf_counter() - t4
     return CellData(
         bs_xyz=bs,
         point_xyz=pts,
-        distance_m=distance,
-        los=los,
-        propagation_toa_s=prop,
-        sigma_s=sigma,
+        distance_m=np.linalg.norm(bs[:, None, :] - pts[None, :, :], axis=2),
+        los=measured.los[0].T,
+        propagation_toa_s=measured.delay_s,
+        sigma_s=measured.sigma_s[0].T,
         injected_m=injected,
         toa_s=toa,
-        tx_offset_s=tx_offset,
-        clock_offset_s=clock,
+        tx_offset_s=measured.tx_offset_s,
+        clock_offset_s=measured.clock_offset_s,
         fixes=fixes,
         true_xyz=true_xyz,
-        k_3gpp_m=float(info["k_subsce_m"]),
-        n_clutter=int(info["n_clutter"]),
-        achieved_density=float(info["achieved_density"]),
+        k_3gpp_m=float(hall.info["k_subsce_m"]),
+        n_clutter=int(hall.info["n_clutter"]),
+        achieved_density=float(hall.info["achieved_density"]),
         n_paths=int(paths.n_paths),
         timing_s=timing,
         dataset_max_diff_s=diff,
@@ -545,36 +630,21 @@ def simulate_cell(
 
 
 def _write_dataset(
-    out: str | os.PathLike[str],
-    scene: Any,
-    params: Mapping[str, Any],
-    point_names: Sequence[str],
-    toa_s: np.ndarray,
+    out: str | os.PathLike[str], hall: CellHall, cfg: DatasetConfig, measured: Measurements
 ) -> float:
-    """Write the cell's dataset with make_dataset; return max |dataset ToA - toa_s| (s)."""
+    """Write the cell's dataset from its measurements; return max |file ToA - measured ToA| (s),
+    inf if the file's detected ToAs are not the measured ones."""
     from positioning.dataset import load_dataset
 
-    from ..emulation.dataset import make_dataset
+    from ..emulation.dataset import write_dataset
 
-    make_dataset(
-        out,
-        "static",
-        params["band"],
-        scene=scene,
-        duration_s=float(params["duration_s"]),
-        rate_hz=float(params["rate_hz"]),
-        seed=int(params["seed"]),
-        toa_method=params["toa_method"],
-        noise=bool(params["noise"]),
-        trace_settings=TraceConfig.from_mapping(params),
-        force=True,
-    )
+    write_dataset(out, hall.scene, cfg, measured, force=True)
     ds = load_dataset(out)
-    col = {name: i for i, name in enumerate(point_names)}
-    mine = toa_s[ds.epoch, [col[p] for p in ds.point]]  # (F, N), the dataset's fix order
-    both = np.isfinite(mine) & np.isfinite(ds.toa_s)
+    col = {name: i for i, name in enumerate(hall.inputs.point_names)}
+    mine = measured.toa_s[ds.epoch, [col[p] for p in ds.point]]  # (F, B), the dataset's fix order
     if not np.array_equal(np.isfinite(mine), np.isfinite(ds.toa_s)):
         return math.inf
+    both = np.isfinite(mine)
     return float(np.max(np.abs(mine[both] - ds.toa_s[both]), initial=0.0))
 
 
@@ -654,18 +724,16 @@ def dataset_dir(out_dir: str | os.PathLike[str], key: str) -> Path:
 def write_cell_result(out_dir: str | os.PathLike[str], result: Mapping[str, Any]) -> Path:
     """Write a cell's result atomically to ``OUT/cells/<key>.json`` (and, first, its dataset
     files to ``OUT/datasets/<key>/``, so a cell file implies complete dataset files)."""
-    from ..halls.spec import write_bytes_atomic
-
     result = dict(result)
     files = result.pop("_files", None) or {}
     if files:
         d = dataset_dir(out_dir, result["key"])
         d.mkdir(parents=True, exist_ok=True)
         for name, text in files.items():
-            write_bytes_atomic(text.encode("utf-8"), d / name)
+            write_atomic(d / name, text.encode("utf-8"))
     path = cell_path(out_dir, result["key"])
     path.parent.mkdir(parents=True, exist_ok=True)
-    write_bytes_atomic((json.dumps(result, indent=1, sort_keys=True) + "\n").encode(), path)
+    write_atomic(path, (json.dumps(result, indent=1, sort_keys=True) + "\n").encode())
     return path
 
 
@@ -701,13 +769,7 @@ def table_rows(
         res = results.get(cell.key)
         if res is None:
             continue
-        row: list[Any] = [cell.key]
-        for k in config.varying:
-            if "." in k:
-                m, p = k.split(".", 1)
-                row.append(cell.methods[m][p])
-            else:
-                row.append(cell.params[k])
+        row: list[Any] = [cell.key, *(cell.value(k) for k in config.varying)]
         st = res["stats"]
         row += [st["los_fraction"], st["los_fraction_3gpp"], st["detected_fraction"]]
         for m in methods:
@@ -729,17 +791,23 @@ def _fmt(v: Any, digits: int = 3) -> str:
     return str(v)
 
 
-def table_markdown(head: Sequence[str], rows: Sequence[Sequence[Any]]) -> str:
+def results_table_markdown(head: Sequence[str], rows: Sequence[Sequence[Any]]) -> str:
+    """Markdown of the sweep's results table (:func:`table_rows`: any header, one row per cell).
+
+    Floats with 3 decimals (2 in the seconds columns, ``*_s``), lists as ``AxB`` (sizes,
+    grids), None as ``-``. Not :func:`positioning.report.table_markdown`, which writes the
+    paper's Table II (fixed columns: metric and dataset rows, the paper's values beside ours).
+    """
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for row in rows:
-        cells = []
-        for h, v in zip(head, row):
-            cells.append(_fmt(v, 2 if h.endswith("_s") else 3))
+        cells = [_fmt(v, 2 if h.endswith("_s") else 3) for h, v in zip(head, row)]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 
 
-def table_csv(head: Sequence[str], rows: Sequence[Sequence[Any]]) -> str:
+def results_table_csv(head: Sequence[str], rows: Sequence[Sequence[Any]]) -> str:
+    """CSV of the sweep's results table: full precision, lists as ``AxB``, None empty (unlike
+    :func:`positioning.report.table_csv`, Table II's fixed columns at 6 significant digits)."""
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(head)
@@ -757,12 +825,10 @@ def write_tables(
     out_dir: str | os.PathLike[str], config: SweepConfig, results: Mapping[str, Mapping[str, Any]]
 ) -> tuple[Path, Path]:
     """``OUT/results.csv`` and ``OUT/results.md`` (atomically) over the finished cells."""
-    from ..halls.spec import write_bytes_atomic
-
     out = Path(out_dir)
     head, rows = table_rows(config, results)
     csv_path, md_path = out / "results.csv", out / "results.md"
-    write_bytes_atomic(table_csv(head, rows).encode(), csv_path)
+    write_atomic(csv_path, results_table_csv(head, rows).encode())
     title = f"# Sweep {config.name}: {len(rows)} of {len(config.cells())} cells\n\n"
     if config.fixed:
         fixed = ", ".join(f"{k} = {_fmt(v)}" for k, v in config.fixed.items())
@@ -771,7 +837,7 @@ def write_tables(
         f"{m} ({', '.join(f'{k}={v}' for k, v in p.items())})" for m, p in config.methods.items()
     )
     title += ". Errors are 2D, in metres, over all fixes (epochs x points) of a cell.\n\n"
-    write_bytes_atomic((title + table_markdown(head, rows)).encode(), md_path)
+    write_atomic(md_path, (title + results_table_markdown(head, rows)).encode())
     return csv_path, md_path
 
 
@@ -911,6 +977,80 @@ def _execute_dask(
             client.close()
 
 
+def _output_dir(cfg: SweepConfig, out_dir: str | os.PathLike[str] | None) -> Path:
+    """The sweep's output directory (:func:`default_output` if not given), checked."""
+    out = Path(out_dir) if out_dir is not None else default_output(cfg)
+    if out.exists() and not out.is_dir():
+        raise HallrayError(f"output {out} exists and is not a directory")
+    if not out.parent.is_dir():
+        raise HallrayError(f"cannot create {out}: directory {out.parent} does not exist")
+    return out
+
+
+def _done_and_todo(
+    cells: Sequence[Cell], out: Path, limit: int | None
+) -> tuple[dict[str, dict[str, Any]], list[Cell]]:
+    """Stored results of the finished cells, and the cells to compute (at most ``limit``)."""
+    results: dict[str, dict[str, Any]] = {}
+    todo: list[Cell] = []
+    for cell in cells:
+        res = read_cell_result(out, cell)
+        if res is None:
+            todo.append(cell)
+        else:
+            results[cell.key] = res
+    if limit is not None:
+        todo = todo[: max(0, int(limit))]
+    return results, todo
+
+
+def _collect(
+    runner: Iterable[tuple[dict[str, Any], dict[str, Any] | None, str | None]],
+    out: Path,
+    results: dict[str, dict[str, Any]],
+    computed: list[str],
+    failed: dict[str, str],
+    tick: Callable[[int], None],
+) -> None:
+    """Write each finished cell (:func:`write_cell_result`), add it to ``results`` and its key
+    to ``computed`` (a failure to ``failed``, key -> error) as it comes, then call ``tick(cells
+    finished or failed)``: an interruption leaves them telling what was done."""
+    for task, result, error in runner:
+        if result is not None:
+            write_cell_result(out, result)
+            result.pop("_files", None)
+            results[task["key"]] = result
+            computed.append(task["key"])
+        else:
+            failed[task["key"]] = error or "unknown error"
+        tick(len(computed) + len(failed))
+
+
+def _write_summary(
+    out: Path,
+    cfg: SweepConfig,
+    results: Mapping[str, Any],
+    last_run: Mapping[str, Any],
+) -> None:
+    """``OUT/sweep.json``: the config, every cell's key and state, what the last run did."""
+    cells = cfg.cells()
+    summary = {
+        "name": cfg.name,
+        "description": cfg.description,
+        "source": cfg.source,
+        "grid": _canonical(cfg.grid),
+        "fixed": _canonical(cfg.fixed),
+        "methods": cfg.methods,
+        "pipeline_version": PIPELINE_VERSION,
+        "datasets": cfg.datasets,
+        "n_cells": len(cells),
+        "n_finished": len(results),
+        "last_run": dict(last_run),
+        "cells": [{"index": c.index, "key": c.key, "done": c.key in results} for c in cells],
+    }
+    write_atomic(out / "sweep.json", (json.dumps(summary, indent=1) + "\n").encode())
+
+
 def run_sweep(
     config: SweepConfig | str | os.PathLike[str] | Mapping[str, Any],
     out_dir: str | os.PathLike[str] | None = None,
@@ -937,88 +1077,56 @@ def run_sweep(
     -------
     SweepReport
     """
-    from ..halls.spec import write_bytes_atomic
-
     cfg = config if isinstance(config, SweepConfig) else load_sweep_config(config)
-    out = Path(out_dir) if out_dir is not None else default_output(cfg)
-    if out.exists() and not out.is_dir():
-        raise HallrayError(f"output {out} exists and is not a directory")
-    if not out.parent.is_dir():
-        raise HallrayError(f"cannot create {out}: directory {out.parent} does not exist")
+    out = _output_dir(cfg, out_dir)
     if workers is not None and (
         isinstance(workers, bool) or not isinstance(workers, int) or workers < 1
     ):
         raise HallrayError(f"workers must be an integer >= 1, got {workers!r}")
     cells = cfg.cells()
-    results: dict[str, dict[str, Any]] = {}
-    todo: list[Cell] = []
-    for cell in cells:
-        res = read_cell_result(out, cell)
-        if res is None:
-            todo.append(cell)
-        else:
-            results[cell.key] = res
+    results, todo = _done_and_todo(cells, out, limit)
     skipped = list(results)
-    if limit is not None:
-        todo = todo[: max(0, int(limit))]
     # connect before writing anything: an unreachable scheduler leaves no output behind
     dask_client = _connect_dask(scheduler) if scheduler is not None and todo else None
     out.mkdir(exist_ok=True)
     n_workers = workers if workers is not None else (os.cpu_count() or 1)
     mode = "dask" if scheduler is not None else ("local" if n_workers <= 1 else f"pool:{n_workers}")
     tasks = [c.task() for c in todo]
-    computed: list[str] = []
-    failed: dict[str, str] = {}
     bar = None
     if progress is True and tasks:
         from tqdm import tqdm
 
         bar = tqdm(total=len(tasks), desc=f"sweep {cfg.name}", unit="cell", file=sys.stderr)
+
+    def tick(n_done: int) -> None:
+        if bar is not None:
+            bar.update(1)
+        elif callable(progress):
+            progress(n_done, len(tasks))
+
     t0 = time.perf_counter()
     runner = (
         _execute_dask(tasks, *dask_client)
         if dask_client is not None
         else _execute_local(tasks, n_workers)
     )
+    computed: list[str] = []
+    failed: dict[str, str] = {}
     try:
-        for task, result, error in runner:
-            if result is not None:
-                write_cell_result(out, result)
-                result.pop("_files", None)
-                results[task["key"]] = result
-                computed.append(task["key"])
-            else:
-                failed[task["key"]] = error or "unknown error"
-            if bar is not None:
-                bar.update(1)
-            elif callable(progress):
-                progress(len(computed) + len(failed), len(tasks))
+        _collect(runner, out, results, computed, failed, tick)
     finally:
         if bar is not None:
             bar.close()
         wall = time.perf_counter() - t0
         write_tables(out, cfg, results)
-        summary = {
-            "name": cfg.name,
-            "description": cfg.description,
-            "source": cfg.source,
-            "grid": _canonical(cfg.grid),
-            "fixed": _canonical(cfg.fixed),
-            "methods": cfg.methods,
-            "pipeline_version": PIPELINE_VERSION,
-            "datasets": cfg.datasets,
-            "n_cells": len(cells),
-            "n_finished": len(results),
-            "last_run": {
-                "mode": mode,
-                "computed": len(computed),
-                "skipped": len(skipped),
-                "failed": failed,
-                "wall_s": wall,
-            },
-            "cells": [{"index": c.index, "key": c.key, "done": c.key in results} for c in cells],
+        last_run = {
+            "mode": mode,
+            "computed": len(computed),
+            "skipped": len(skipped),
+            "failed": failed,
+            "wall_s": wall,
         }
-        write_bytes_atomic((json.dumps(summary, indent=1) + "\n").encode(), out / "sweep.json")
+        _write_summary(out, cfg, results, last_run)
     return SweepReport(out, len(cells), computed, skipped, failed, wall, results, mode)
 
 
