@@ -495,7 +495,7 @@ def simulate_scan(
     if stations is None:
         gx = np.linspace(lo[0] + 0.15 * (hi[0] - lo[0]), hi[0] - 0.15 * (hi[0] - lo[0]), 4)
         gy = np.linspace(lo[1] + 0.15 * (hi[1] - lo[1]), hi[1] - 0.15 * (hi[1] - lo[1]), 4)
-        z0 = _floor_level(scene) + 1.6
+        z0 = floor_level(scene) + 1.6
         stations = np.array([[x, y, z0] for x in gx for y in gy])
         stations = stations[scene.inside_solid(stations) < 0]
     stations = np.asarray(stations, dtype=float).reshape(-1, 3)
@@ -518,10 +518,12 @@ def simulate_scan(
     return pts + rng.normal(0.0, noise_m, size=pts.shape)
 
 
-def _floor_level(scene: Any) -> float:
-    """Height of the lowest upward-facing horizontal facet with a large area (the floor), or the
-    bottom of the scene."""
+def floor_level(scene: Any) -> float:
+    """Height of a scene's floor, m: the lowest large upward-facing facet (normal within 8 deg
+    of vertical, at least 5 % of the largest facet's area), else the bottom of the scene."""
     f = scene.facets
+    if len(f) == 0:
+        return float(scene.bounds[0, 2])
     up = (f.normal[:, 2] > 0.99) & (f.area > 0.05 * f.area.max())
     return float(f.offset[up].min()) if up.any() else float(scene.bounds[0, 2])
 

@@ -548,26 +548,16 @@ def _parse_primitive(raw: Mapping[str, Any], where: str, materials: Sequence[str
     if kind == "box":
         _check_keys(raw, where, ("name", "type", "material", "size"), _BOX_KEYS)
         size = _vector(raw["size"], f"{where}.size", 3, positive=True)
-        if ("center" in raw) == ("min" in raw):
-            _fail(where, "give exactly one of 'center' or 'min'")
-        if "center" in raw:
-            center = _vector(raw["center"], f"{where}.center", 3)
-        else:
-            lo = _vector(raw["min"], f"{where}.min", 3)
-            center = tuple(lo[k] + 0.5 * size[k] for k in range(3))
+        key, xyz = _position(raw, where, ("center", "min"))
+        center = xyz if key == "center" else tuple(xyz[k] + 0.5 * size[k] for k in range(3))
         yaw = _number(raw.get("yaw_deg", 0.0), f"{where}.yaw_deg")
         return Box(name, material, center, size, yaw)
     if kind == "cylinder":
         _check_keys(raw, where, ("name", "type", "material", "radius", "height"), _CYL_KEYS)
         radius = _number(raw["radius"], f"{where}.radius", positive=True)
         height = _number(raw["height"], f"{where}.height", positive=True)
-        if ("center" in raw) == ("base" in raw):
-            _fail(where, "give exactly one of 'center' or 'base'")
-        if "base" in raw:
-            base = _vector(raw["base"], f"{where}.base", 3)
-        else:
-            c = _vector(raw["center"], f"{where}.center", 3)
-            base = (c[0], c[1], c[2] - 0.5 * height)
+        key, xyz = _position(raw, where, ("center", "base"))
+        base = xyz if key == "base" else (xyz[0], xyz[1], xyz[2] - 0.5 * height)
         sections = raw.get("sections", DEFAULT_CYLINDER_SECTIONS)
         if isinstance(sections, bool) or not isinstance(sections, int) or sections < 3:
             _fail(f"{where}.sections", f"expected an integer >= 3, got {sections!r}")
@@ -582,6 +572,17 @@ def _parse_primitive(raw: Mapping[str, Any], where: str, materials: Sequence[str
         return Sheet(name, material, origin, u, v)
     _fail(f"{where}.type", f"unknown type {kind!r} (box, cylinder, sheet, instance)")
     raise AssertionError  # unreachable
+
+
+def _position(
+    raw: Mapping[str, Any], where: str, keys: tuple[str, str]
+) -> tuple[str, tuple[float, ...]]:
+    """The one of two alternative position keys that ``raw`` gives, and its 3-vector (m)."""
+    a, b = keys
+    if (a in raw) == (b in raw):
+        _fail(where, f"give exactly one of '{a}' or '{b}'")
+    key = a if a in raw else b
+    return key, _vector(raw[key], f"{where}.{key}", 3)
 
 
 def _place(prim: Primitive, name: str, offset: np.ndarray, yaw_deg: float) -> Primitive:
@@ -741,6 +742,26 @@ def _route_swept_area(route: Route) -> Any:
 
 def _validate(spec: HallSpec) -> None:
     """Geometric checks across sections (names, bounds, clearances)."""
+    from shapely.geometry import Point
+
+    _validate_objects(spec)
+    if spec.area_of_interest is not None:
+        x0, y0, x1, y1 = spec.area_of_interest
+        if not (x0 < x1 and y0 < y1):
+            _fail("area_of_interest", "needs min < max in x and y")
+        if x0 < 0 or y0 < 0 or x1 > spec.size[0] or y1 > spec.size[1]:
+            _fail("area_of_interest", "extends outside the hall")
+    swept = {route.name: _validate_route(spec, route) for route in spec.routes}
+    _validate_sites(spec, "base station", spec.base_stations)
+    _validate_sites(spec, "point", spec.points)
+    for route in spec.routes:
+        for entry in spec.points:
+            if entry.xyz[2] < route.size[2] and swept[route.name].intersects(Point(entry.xyz[:2])):
+                _fail(f"point '{entry.name}'", f"lies on forklift route '{route.name}'")
+
+
+def _validate_objects(spec: HallSpec) -> None:
+    """Unique names, not ``shell_``, node names that bind their material, inside the hall."""
     size = np.asarray(spec.size)
     library = spec.material_library
     seen: set[str] = set()
@@ -766,51 +787,46 @@ def _validate(spec: HallSpec) -> None:
                 f"extends outside the hall interior (bounds {np.round(lo, 3).tolist()} .. "
                 f"{np.round(hi, 3).tolist()}, hall {list(spec.size)})",
             )
-    if spec.area_of_interest is not None:
-        x0, y0, x1, y1 = spec.area_of_interest
-        if not (x0 < x1 and y0 < y1):
-            _fail("area_of_interest", "needs min < max in x and y")
-        if x0 < 0 or y0 < 0 or x1 > size[0] or y1 > size[1]:
-            _fail("area_of_interest", "extends outside the hall")
-    swept = {}
-    for route in spec.routes:
-        area = _route_swept_area(route)
-        minx, miny, maxx, maxy = area.bounds
-        if minx < -BOUNDS_TOL_M or miny < -BOUNDS_TOL_M:
-            _fail(f"routes.{route.name}", "the forklift leaves the hall (too close to a wall)")
-        if maxx > size[0] + BOUNDS_TOL_M or maxy > size[1] + BOUNDS_TOL_M:
-            _fail(f"routes.{route.name}", "the forklift leaves the hall (too close to a wall)")
-        if route.size[2] > size[2]:
-            _fail(f"routes.{route.name}.size", "forklift taller than the hall")
-        for prim in spec.objects:
-            lo, hi = _bounds(prim)
-            if hi[2] <= DRIVE_OVER_HEIGHT_M or lo[2] >= route.size[2]:
-                continue
-            geom = _shapely_footprint(prim)
-            if geom.intersects(area) and not geom.touches(area):
-                _fail(f"routes.{route.name}", f"the forklift's path collides with '{prim.name}'")
-        swept[route.name] = area
-    for label, entries in (("base station", spec.base_stations), ("point", spec.points)):
-        xyz = np.array([e.xyz for e in entries], dtype=float).reshape(-1, 3)
-        for k, entry in enumerate(entries):
-            p = xyz[k]
-            if np.any(p <= POINT_CLEARANCE_M) or np.any(p >= size - POINT_CLEARANCE_M):
-                _fail(f"{label} '{entry.name}'", f"{list(entry.xyz)} is outside the hall interior")
-        for prim in spec.objects:
-            inside = prim.contains(xyz, POINT_CLEARANCE_M)
-            if np.any(inside):
-                k = int(np.argmax(inside))
-                verb = "is inside" if prim.closed else "lies on"
-                _fail(f"{label} '{entries[k].name}'", f"{verb} object '{prim.name}'")
-        if label == "point":
-            from shapely.geometry import Point
 
-            for route in spec.routes:
-                for entry in entries:
-                    if entry.xyz[2] < route.size[2] and swept[route.name].intersects(
-                        Point(entry.xyz[:2])
-                    ):
-                        _fail(f"point '{entry.name}'", f"lies on forklift route '{route.name}'")
+
+def _validate_route(spec: HallSpec, route: Route) -> Any:
+    """A forklift route stays inside the hall and clear of every object it cannot drive over;
+    returns its swept floor area (shapely)."""
+    size = np.asarray(spec.size)
+    area = _route_swept_area(route)
+    minx, miny, maxx, maxy = area.bounds
+    if minx < -BOUNDS_TOL_M or miny < -BOUNDS_TOL_M:
+        _fail(f"routes.{route.name}", "the forklift leaves the hall (too close to a wall)")
+    if maxx > size[0] + BOUNDS_TOL_M or maxy > size[1] + BOUNDS_TOL_M:
+        _fail(f"routes.{route.name}", "the forklift leaves the hall (too close to a wall)")
+    if route.size[2] > size[2]:
+        _fail(f"routes.{route.name}.size", "forklift taller than the hall")
+    for prim in spec.objects:
+        lo, hi = _bounds(prim)
+        if hi[2] <= DRIVE_OVER_HEIGHT_M or lo[2] >= route.size[2]:
+            continue
+        geom = _shapely_footprint(prim)
+        if geom.intersects(area) and not geom.touches(area):
+            _fail(f"routes.{route.name}", f"the forklift's path collides with '{prim.name}'")
+    return area
+
+
+def _validate_sites(
+    spec: HallSpec, label: str, entries: Sequence[BaseStation | PointOfInterest]
+) -> None:
+    """Base stations or points lie inside the hall, clear of every solid and sheet."""
+    size = np.asarray(spec.size)
+    xyz = np.array([e.xyz for e in entries], dtype=float).reshape(-1, 3)
+    for k, entry in enumerate(entries):
+        p = xyz[k]
+        if np.any(p <= POINT_CLEARANCE_M) or np.any(p >= size - POINT_CLEARANCE_M):
+            _fail(f"{label} '{entry.name}'", f"{list(entry.xyz)} is outside the hall interior")
+    for prim in spec.objects:
+        inside = prim.contains(xyz, POINT_CLEARANCE_M)
+        if np.any(inside):
+            k = int(np.argmax(inside))
+            verb = "is inside" if prim.closed else "lies on"
+            _fail(f"{label} '{entries[k].name}'", f"{verb} object '{prim.name}'")
 
 
 def _shapely_footprint(prim: Primitive) -> Any:

@@ -30,6 +30,7 @@ from ..core.constants import C0
 from ..core.errors import HallrayError
 from ..core.fileio import write_atomic
 from ..core.palette import material_colors
+from ..halls.scan import floor_level
 from ..scene.model import Scene
 from ..solver.paths import Paths
 from .export import KIND_COLOURS, path_category, path_polylines
@@ -137,15 +138,6 @@ def _object_arrays(scene: Scene) -> list[dict[str, Any]]:
             }
         )
     return out
-
-
-def _floor_z(scene: Scene) -> float:
-    """Height of the floor: the lowest large upward-facing facet, or the bottom of the scene."""
-    f = scene.facets
-    if len(f) == 0:
-        return float(scene.bounds[0, 2])
-    up = (f.normal[:, 2] > 0.99) & (f.area > 0.05 * f.area.max())
-    return float(f.offset[up].min()) if up.any() else float(scene.bounds[0, 2])
 
 
 def _shade(rgb: np.ndarray, normals: np.ndarray, two_sided: bool) -> np.ndarray:
@@ -292,7 +284,7 @@ class _View:
     @classmethod
     def of(cls, scene: Scene, cut_height_m: float | None) -> _View:
         lo, hi = scene.bounds
-        floor = _floor_z(scene)
+        floor = floor_level(scene)
         cut = cut_height_m if cut_height_m is not None else floor + 0.9 * (hi[2] - floor)
         rgb = {m: np.array(c) for m, c in material_colors(scene.material_names).items()}
         return cls(_object_arrays(scene), rgb, lo, hi, floor, cut)
