@@ -424,6 +424,8 @@ def _reference_los(hall):
 def test_loaded_glb_line_of_sight_equals_spec(hall, tmp_path):
     write_glb(hall, tmp_path / "hall.glb")
     assert line_of_sight(load_scene(tmp_path / "hall.glb")) == line_of_sight(hall)
+    with pytest.raises(HallrayError, match="needs a HallSpec or a Scene"):
+        line_of_sight(trimesh.load(tmp_path / "hall.glb"))
 
 
 def test_documented_los_table_matches_fresh_segment_tests(hall):

@@ -1126,10 +1126,10 @@ def segment_blockers(
 ) -> list[tuple[str, ...]]:
     """Objects crossed by each segment ``start[k] -> end[k]`` (both ``(n, 3)`` m).
 
-    The scene's Embree walk along the segments (:meth:`~raytrace.scene.model.Scene.
-    segment_objects`, with the scene's end margin). Returns, per segment, the blocking object
-    names (:func:`object_name`) ordered by first hit distance from ``start``, at most
-    ``max_blockers`` of them (None: all).
+    The scene's Embree walk along the segments
+    (:meth:`~raytrace.scene.model.Scene.segment_objects`, with the scene's end margin). Returns,
+    per segment, the blocking object names (:func:`object_name`) ordered by first hit distance
+    from ``start``, at most ``max_blockers`` of them (None: all).
     """
     rows = scene.segment_objects(start, end, max_objects=max_blockers)
     names = [object_name(o.name, o.material) for o in scene.objects]
@@ -1146,6 +1146,10 @@ def line_of_sight(
     whose points and base stations are used. Blockers as in :func:`segment_blockers`.
     """
     scene = tracer_scene(hall) if isinstance(hall, HallSpec) else hall
+    if not isinstance(scene, Scene):
+        raise SceneError(
+            f"line_of_sight needs a HallSpec or a Scene (load_scene), got {type(hall).__name__}"
+        )
     meta = scene.metadata.get("hallray", {})
     bss = [(b["name"], b["xyz"]) for b in meta.get("base_stations", [])]
     pts = [(p["name"], p["xyz"]) for p in meta.get("points", [])]
