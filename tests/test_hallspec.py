@@ -14,6 +14,8 @@ import trimesh
 import yaml
 
 from raytrace.core.errors import HallrayError, MaterialError
+from raytrace.core.fileio import write_atomic
+from raytrace.core.palette import material_colors
 from raytrace.halls.spec import (
     ITU_MATERIALS,
     SCHEMA_VERSION,
@@ -32,10 +34,11 @@ from raytrace.halls.spec import (
     parse_los_note,
     plot_top_view,
     segment_blockers,
-    write_bytes_atomic,
+    tracer_scene,
     write_glb,
 )
 from raytrace.physics.materials import MaterialLibrary
+from raytrace.scene.io import load_scene
 
 ROOT = Path(__file__).resolve().parent.parent
 HALL_YAML = ROOT / "scenes" / "hall.yaml"
@@ -373,14 +376,61 @@ def test_metadata_round_trip_through_glb(hall):
     np.testing.assert_allclose(loaded.bounds, [[-0.3] * 3, [42.3, 46.3, 9.1]], atol=GLB_COORD_TOL_M)
 
 
-def test_loaded_glb_line_of_sight_equals_spec(hall):
-    loaded = trimesh.load(io.BytesIO(glb_bytes(build_scene(hall))), file_type="glb")
-    assert line_of_sight(loaded) == line_of_sight(hall)
+def _reference_blockers(scene: trimesh.Scene, start, end, margin=1e-4):
+    """Independent segment test: trimesh's pure-Python ray-triangle intersector on the built
+    trimesh scene, all hits with a distance in (margin, length - margin), per segment the
+    objects (mesh extras ``object``) by first hit distance."""
+    from trimesh.ray.ray_triangle import RayMeshIntersector
+
+    vertices, faces, owner, names = [], [], [], []
+    offset = 0
+    for node in sorted(scene.graph.nodes_geometry):
+        transform, geom_name = scene.graph[node]
+        mesh = scene.geometry[geom_name]
+        vertices.append(trimesh.transformations.transform_points(mesh.vertices, transform))
+        faces.append(mesh.faces + offset)
+        offset += len(mesh.vertices)
+        owner.append(np.full(len(mesh.faces), len(names)))
+        names.append(str(mesh.metadata["object"]))
+    mesh = trimesh.Trimesh(np.vstack(vertices), np.vstack(faces), process=False)
+    owner = np.concatenate(owner)
+    start, end = np.atleast_2d(start).astype(float), np.atleast_2d(end).astype(float)
+    length = np.linalg.norm(end - start, axis=1)
+    direction = (end - start) / length[:, None]
+    loc, ray, tri = RayMeshIntersector(mesh).intersects_location(
+        start, direction, multiple_hits=True
+    )
+    dist = np.einsum("ij,ij->i", loc - start[ray], direction[ray])
+    keep = (dist > margin) & (dist < length[ray] - margin)
+    out = []
+    for k in range(len(start)):
+        sel = np.flatnonzero(keep & (ray == k))
+        order = sel[np.argsort(dist[sel], kind="stable")]
+        out.append(tuple(dict.fromkeys(names[owner[t]] for t in tri[order])))
+    return out
 
 
-def test_documented_los_table_matches_fresh_segment_tests(hall, hall_scene):
-    embree = line_of_sight(hall_scene, engine="embree")
-    python = line_of_sight(hall_scene, engine="python")
+def _reference_los(hall):
+    bs, pts = hall.base_station_xyz, hall.point_xyz
+    start, end = np.repeat(bs, len(pts), axis=0), np.tile(pts, (len(bs), 1))
+    blockers = iter(_reference_blockers(build_scene(hall), start, end))
+    table = {p.name: {} for p in hall.points}
+    for b in hall.base_stations:
+        for p in hall.points:
+            table[p.name][b.name] = next(blockers)
+    return table
+
+
+def test_loaded_glb_line_of_sight_equals_spec(hall, tmp_path):
+    write_glb(hall, tmp_path / "hall.glb")
+    assert line_of_sight(load_scene(tmp_path / "hall.glb")) == line_of_sight(hall)
+    with pytest.raises(HallrayError, match="needs a HallSpec or a Scene"):
+        line_of_sight(trimesh.load(tmp_path / "hall.glb"))
+
+
+def test_documented_los_table_matches_fresh_segment_tests(hall):
+    embree = line_of_sight(hall)
+    python = _reference_los(hall)
     assert embree == python
     for p in hall.points:
         assert parse_los_note(p.note) == embree[p.name], p.name
@@ -400,14 +450,50 @@ def test_los_note_round_trip():
 
 
 def test_segment_blockers_closed_form():
-    scene = build_scene(load_hall_spec(small_hall()))
+    spec = load_hall_spec(small_hall())
     start = np.array([[3.0, 5.0, 1.0], [3.0, 5.0, 1.0], [3.0, 5.0, 1.0], [4.7, 5.0, 1.0]])
     end = np.array([[7.0, 5.0, 1.0], [7.0, 6.0, 1.0], [7.0, 5.0, 4.0], [4.8, 5.0, 1.0]])
     # through the pillar (x 4.8..5.2 at y 5); beside it (at x = 5 the segment is at y 5.5);
     # over it? no: rising to 4 m it crosses x 4.8..5.2 at 2.2..2.5 m; the last one stops at the face
-    for engine in ("embree", "python"):
-        got = segment_blockers(scene, start, end, engine=engine)
-        assert got == [("pillar",), (), ("pillar",), ()]
+    expected = [("pillar",), (), ("pillar",), ()]
+    assert segment_blockers(tracer_scene(spec), start, end) == expected
+    assert _reference_blockers(build_scene(spec), start, end) == expected
+
+
+def test_segment_objects_order_limit_and_occluded(hall):
+    """Scene.segment_objects: objects in the order met, each once, cut at max_objects; a segment
+    names an object exactly when Scene.occluded says it is blocked."""
+    scene = tracer_scene(load_hall_spec(small_hall()))
+    start = np.array([[4.0, 5.0, 1.0], [9.0, 6.0, 1.0], [1.0, 8.25, 1.0], [10.0, 2.0, 1.0]])
+    end = np.array([[9.0, 6.0, 1.0], [4.0, 5.0, 1.0], [8.0, 8.25, 1.0], [12.0, 2.0, 1.0]])
+    # pillar (x 4.8..5.2, y < 5.2) then the pane at x = 8 (y 5.8 there); both rack frames; nothing
+    expected = [("pillar", "pane"), ("pane", "pillar"), ("row1_frame", "row2_frame"), ()]
+    assert segment_blockers(scene, start, end) == expected
+    assert segment_blockers(scene, start, end, max_blockers=1) == [e[:1] for e in expected]
+    assert _reference_blockers(build_scene(load_hall_spec(small_hall())), start, end) == expected
+    big = tracer_scene(hall)
+    rng = np.random.default_rng(3)
+    lo, hi = np.array([0.0, 0.0, 0.0]), np.array(HALL_SIZE_M)
+    a, b = rng.uniform(lo, hi, (3000, 3)), rng.uniform(lo, hi, (3000, 3))
+    rows = big.segment_objects(a, b)
+    np.testing.assert_array_equal(rows[:, 0] >= 0 if rows.shape[1] else False, big.occluded(a, b))
+    for row in rows:  # each object once, -1 only as padding at the end
+        met = row[row >= 0]
+        assert len(set(met.tolist())) == len(met) and np.all(row[len(met) :] == -1)
+
+
+def test_glb_colours_are_the_palette(hall):
+    """Every node's glTF base colour is the palette colour of its material (one palette for the
+    GLB, the top view and the rendered pictures)."""
+    scene = build_scene(hall)
+    colors = material_colors({p.material for p in hall.shell() + hall.objects})
+    for name, mesh in scene.geometry.items():
+        rgba = np.asarray(mesh.visual.material.baseColorFactor, dtype=float)
+        if rgba.max() > 1.0:  # trimesh may hold the factor as 0..255
+            rgba = rgba / 255.0
+        np.testing.assert_allclose(
+            rgba[:3], colors[mesh.metadata["material"]], atol=1 / 255, err_msg=name
+        )
 
 
 # --------------------------------------------------------------------------------------------
@@ -453,16 +539,16 @@ def test_build_hall_cli(tmp_path, capsys):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.yaml", "h.glb", "h.yaml"]
 
 
-def test_write_bytes_atomic_keeps_old_file_on_failure(tmp_path, monkeypatch):
+def test_write_atomic_keeps_old_file_on_failure(tmp_path, monkeypatch):
     target = tmp_path / "x.bin"
-    write_bytes_atomic(b"old", target)
+    write_atomic(target, b"old")
 
     def boom(*args):
         raise OSError("disk full")
 
     monkeypatch.setattr("os.replace", boom)
     with pytest.raises(OSError):
-        write_bytes_atomic(b"new", target)
+        write_atomic(target, b"new")
     assert target.read_bytes() == b"old"
     assert [p.name for p in tmp_path.iterdir()] == ["x.bin"]
 

@@ -325,10 +325,11 @@ def test_embree_los_matches_independent_slab_test(halls, profile):
             k += 1
 
 
-def test_convex_scene_inside_solid_is_exact(halls):
-    """scene_from_spec's point-in-solid test agrees with the primitives' closed-form containment,
-    also in the band below the wall tops where the generic ray-parity test miscounts (the exit
-    from a wall slab hides behind the entry into the ceiling slab that shares its top face)."""
+def test_hall_scene_inside_solid_is_exact(halls):
+    """Scene.inside_solid of a hall (convex solids: the exact facet-plane test) agrees with the
+    primitives' closed-form containment, also in the band below the wall tops where a ray-parity
+    test miscounts (the exit from a wall slab hides behind the entry into the ceiling slab that
+    shares its top face)."""
     hall = parse_hall_spec(split_spec(halls["InF-DL"])[0])
     scene = scene_from_spec(hall)
     rng = np.random.default_rng(0)

@@ -9,6 +9,7 @@ import trimesh
 from conftest import box, make_scene, quad
 
 from raytrace.cli.render_scene import render_scene_main
+from raytrace.core.palette import FALLBACK_COLORS, MATERIAL_COLORS, material_colors
 from raytrace.scene.io import load_scene
 from raytrace.solver.config import TraceConfig
 from raytrace.solver.tracer import trace
@@ -185,3 +186,15 @@ def test_bad_input_one_line_error(room_file, tmp_path, capsys, args, message):
     err = capsys.readouterr().err
     assert err.startswith("error: ") and err.count("\n") == 1 and message in err, err
     assert not list(tmp_path.glob("*.png")) and not list(tmp_path.glob(".*.tmp"))
+
+
+def test_palette_named_colours_and_fallbacks_in_turn():
+    """material_colors: a named material keeps its colour whatever else is in the scene; the
+    others get the fallback colours in their sorted order, independent of order and repeats."""
+    got = material_colors(["wet_ground", "metal", "foam", "metal", "aerogel"])
+    assert got["metal"] == MATERIAL_COLORS["metal"]
+    assert [got[m] for m in ("aerogel", "foam", "wet_ground")] == list(FALLBACK_COLORS[:3])
+    assert material_colors(reversed(list(got))) == got
+    many = material_colors(f"m{k}" for k in range(len(FALLBACK_COLORS) + 1))
+    assert many[f"m{len(FALLBACK_COLORS)}"] == FALLBACK_COLORS[0]  # the fallbacks repeat
+    assert all(0.0 <= c <= 1.0 for rgb in got.values() for c in rgb)

@@ -22,6 +22,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from raytrace.core.fileio import write_atomic  # noqa: E402
 from raytrace.halls.spec import (  # noqa: E402
     SCHEMA_VERSION,
     Box,
@@ -34,7 +35,6 @@ from raytrace.halls.spec import (  # noqa: E402
     los_markdown,
     los_note,
     scene_from_primitives,
-    write_bytes_atomic,
 )
 
 SCENES = ROOT / "scenes"
@@ -179,7 +179,7 @@ def _write_all(outputs: dict[Path, Callable[[], bytes]]) -> None:
         data = make()
         old = path.read_bytes() if path.exists() else None
         if old != data:
-            write_bytes_atomic(data, path)
+            write_atomic(path, data)
             print(f"wrote {path.relative_to(ROOT)} ({len(data)} bytes)")
         else:
             print(f"unchanged {path.relative_to(ROOT)}")
@@ -198,7 +198,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     if args.update_notes:
         text = updated_hall_yaml()
-        write_bytes_atomic(text.encode("utf-8"), HALL_YAML)
+        write_atomic(HALL_YAML, text.encode("utf-8"))
         print(f"updated notes in {HALL_YAML.relative_to(ROOT)}")
         return 0
     outputs: dict[Path, Callable[[], bytes]] = {HALL_GLB: hall_glb}

@@ -26,7 +26,8 @@ import matplotlib.pyplot as plt  # noqa: E402
 import trimesh  # noqa: E402
 
 from raytrace.core.errors import HallrayError  # noqa: E402
-from raytrace.halls.spec import load_hall_spec, plot_top_view, write_bytes_atomic  # noqa: E402
+from raytrace.core.fileio import write_atomic  # noqa: E402
+from raytrace.halls.spec import load_hall_spec, plot_top_view  # noqa: E402
 
 #: Area names drawn on the reference hall's plan (x, y in m).
 REFERENCE_LABELS = {
@@ -95,7 +96,7 @@ def main(argv: list[str] | None = None) -> int:
     # fixed metadata: no software version or date in the PNG, so a rebuild gives the same bytes
     fig.savefig(buf, format="png", dpi=args.dpi, metadata={"Software": None})
     plt.close(fig)
-    write_bytes_atomic(buf.getvalue(), args.output)
+    write_atomic(args.output, buf.getvalue())
     print(f"wrote {args.output}")
     return 0
 

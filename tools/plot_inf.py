@@ -24,15 +24,16 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from raytrace.core.fileio import write_atomic  # noqa: E402
 from raytrace.halls.inf import PROFILES, generate_hall, los_check, split_spec  # noqa: E402
-from raytrace.halls.spec import parse_hall_spec, plot_top_view, write_bytes_atomic  # noqa: E402
+from raytrace.halls.spec import parse_hall_spec, plot_top_view  # noqa: E402
 
 
 def _save(fig, path: Path) -> None:
     buf = io.BytesIO()
     fig.savefig(buf, format="png", bbox_inches="tight", dpi=110)
     plt.close(fig)
-    write_bytes_atomic(buf.getvalue(), path)
+    write_atomic(path, buf.getvalue())
     print(f"wrote {path}")
 
 

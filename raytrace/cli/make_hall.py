@@ -108,8 +108,9 @@ def make_hall(
     """Generate a hall and write ``hall.yaml``, ``hall.glb`` and ``inf.json`` into ``out_dir``
     (created if its parent exists). Everything is generated and validated before the first file
     is written; each file is written atomically. Returns ``{"dir", "spec", "info"}``."""
+    from ..core.fileio import write_atomic
     from ..halls.inf import generate_hall, hall_yaml, split_spec
-    from ..halls.spec import build_scene, glb_bytes, parse_hall_spec, write_bytes_atomic
+    from ..halls.spec import build_scene, glb_bytes, parse_hall_spec
 
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
@@ -122,9 +123,9 @@ def make_hall(
     glb = glb_bytes(build_scene(parse_hall_spec(hall)))
     meta = json.dumps(info, indent=1, sort_keys=True) + "\n"
     out.mkdir(exist_ok=True)
-    write_bytes_atomic(text.encode("utf-8"), out / HALL_YAML)
-    write_bytes_atomic(glb, out / HALL_GLB)
-    write_bytes_atomic(meta.encode("utf-8"), out / INF_JSON)
+    write_atomic(out / HALL_YAML, text.encode("utf-8"))
+    write_atomic(out / HALL_GLB, glb)
+    write_atomic(out / INF_JSON, meta.encode("utf-8"))
     return {"dir": str(out), "spec": hall, "info": info}
 
 
@@ -270,8 +271,8 @@ def _plot(sample: Any, summary: dict[str, Any], path: str) -> None:
     import matplotlib.pyplot as plt
     import numpy as np
 
+    from ..core.fileio import write_atomic
     from ..halls.inf import los_probability_3gpp
-    from ..halls.spec import write_bytes_atomic
 
     if not str(path).lower().endswith(".png"):
         raise HallrayError(f"--plot {path}: must end in .png")
@@ -303,4 +304,4 @@ def _plot(sample: Any, summary: dict[str, Any], path: str) -> None:
     fig.savefig(buf, format="png", bbox_inches="tight")
     plt.close(fig)
     out = Path(path)
-    write_bytes_atomic(buf.getvalue(), out)
+    write_atomic(out, buf.getvalue())

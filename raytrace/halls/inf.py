@@ -46,7 +46,14 @@ import numpy as np
 
 from ..core.errors import HallrayError
 from ..scene.model import Scene
-from .spec import ITU_MATERIALS, HallSpec, hall_metadata, los_note, parse_hall_spec
+from .spec import (
+    ITU_MATERIALS,
+    HallSpec,
+    line_of_sight,
+    los_note,
+    parse_hall_spec,
+    tracer_scene,
+)
 
 #: Version of the generator's algorithm: a change of the layout rules bumps it (seeds then give
 #: other halls). Stored in ``inf.json``.
@@ -146,6 +153,42 @@ def parse_size(text: str | Sequence[float]) -> tuple[float, float, float]:
 
 
 @dataclass(frozen=True)
+class InFOptions:
+    """The generator's options besides profile, size and seed (the keyword arguments of
+    :func:`generate_hall`, :func:`resolve_params` and :func:`check_hall`). None means the
+    profile's TR 38.901 default.
+
+    Attributes
+    ----------
+    density : clutter density r, fraction of the floor covered; default 0.2 (sparse) / 0.6
+        (dense); sparse profiles need ``0 <= r < 0.4``, dense ones ``0.4 <= r < 1``
+    clutter_size : d_clutter, m; default 10 (sparse) / 2 (dense); mean row depth and cell length
+    clutter_height : h_c, m; default 2 (sparse) / 6 (dense); above the UT, below the ceiling
+    height_spread : s in [0, 1): box heights uniform in ``h_c [1 - s, 1 + s]`` (default 0)
+    bs_height : h_BS, m; default 1.5 (low; must be below h_c) or min(8, D - 0.5) (high; above
+        h_c)
+    ut_height : h_UT of the test points, m (1.5)
+    bs_spacing : grid spacing, m (20); ``max(2, round(L / spacing))`` base stations along x, the
+        same along y, at the centres of an even split of the hall (D/2 from the walls)
+    bs_grid : (nx, ny), overrides ``bs_spacing``
+    n_points : number of test points (50)
+    materials : {ITU material: weight} of the clutter (default 80 % metal, 10 % wood, 10 %
+        concrete)
+    """
+
+    density: float | None = None
+    clutter_size: float | None = None
+    clutter_height: float | None = None
+    height_spread: float = 0.0
+    bs_height: float | None = None
+    ut_height: float = UT_HEIGHT_M
+    bs_spacing: float = BS_SPACING_M
+    bs_grid: Sequence[int] | None = None
+    n_points: int = DEFAULT_POINTS
+    materials: Mapping[str, float] | None = None
+
+
+@dataclass(frozen=True)
 class InFParams:
     """The resolved parameters of one InF hall (lengths in m).
 
@@ -206,42 +249,57 @@ class InFParams:
 
 
 def resolve_params(
-    profile: str,
-    size: str | Sequence[float] | None = None,
-    seed: int = 0,
-    *,
-    density: float | None = None,
-    clutter_size: float | None = None,
-    clutter_height: float | None = None,
-    height_spread: float = 0.0,
-    bs_height: float | None = None,
-    ut_height: float = UT_HEIGHT_M,
-    bs_spacing: float = BS_SPACING_M,
-    bs_grid: Sequence[int] | None = None,
-    n_points: int = DEFAULT_POINTS,
-    materials: Mapping[str, float] | None = None,
+    profile: str, size: str | Sequence[float] | None = None, seed: int = 0, **options: Any
 ) -> InFParams:
     """Fill in the TR 38.901 defaults of a profile and validate everything (one-line errors).
 
-    See :func:`generate_hall` for the parameters.
+    ``options`` are the fields of :class:`InFOptions`; see :func:`generate_hall`.
     """
+    opt = InFOptions(**options)
     name = canonical_profile(profile)
     dense, high = PROFILES[name]
     defaults = DENSE_DEFAULTS if dense else SPARSE_DEFAULTS
     lx, ly, lz = parse_size(DEFAULT_SIZE_M if size is None else size)
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise HallrayError(f"seed must be a non-negative integer, got {seed!r}")
+    r = _density(name, dense, _number(name, opt.density, "clutter density", defaults["density"]))
+    d_c = _number(name, opt.clutter_size, "clutter size", defaults["clutter_size"])
+    if d_c <= 0:
+        raise HallrayError(f"{name}: clutter size must be > 0 m, got {d_c:g}")
+    h_ut, h_c, spread, h_bs = _heights(name, high, lz, opt, defaults["clutter_height"])
+    grid = _bs_grid(name, lx, ly, opt)
+    n_points = opt.n_points
+    if isinstance(n_points, bool) or not isinstance(n_points, (int, np.integer)) or n_points < 0:
+        raise HallrayError(f"{name}: number of points must be an integer >= 0, got {n_points!r}")
+    return InFParams(
+        profile=name,
+        size=(lx, ly, lz),
+        seed=int(seed),
+        density=r,
+        clutter_size=d_c,
+        clutter_height=h_c,
+        height_spread=spread,
+        bs_height=h_bs,
+        ut_height=h_ut,
+        bs_grid=grid,
+        n_points=int(n_points),
+        materials=_clutter_materials(name, opt.materials),
+    )
 
-    def num(value: Any, what: str, default: float) -> float:
-        v = default if value is None else value
-        if isinstance(v, bool) or not isinstance(v, (int, float, np.floating, np.integer)):
-            raise HallrayError(f"{name}: {what} must be a number, got {v!r}")
-        v = float(v)
-        if not math.isfinite(v):
-            raise HallrayError(f"{name}: {what} must be finite, got {v!r}")
-        return v
 
-    r = num(density, "clutter density", defaults["density"])
+def _number(name: str, value: Any, what: str, default: float) -> float:
+    """``value`` (or ``default`` if None) as a finite float; a one-line error naming the profile."""
+    v = default if value is None else value
+    if isinstance(v, bool) or not isinstance(v, (int, float, np.floating, np.integer)):
+        raise HallrayError(f"{name}: {what} must be a number, got {v!r}")
+    v = float(v)
+    if not math.isfinite(v):
+        raise HallrayError(f"{name}: {what} must be finite, got {v!r}")
+    return v
+
+
+def _density(name: str, dense: bool, r: float) -> float:
+    """The clutter density, checked against the profile's range (TR 38.901 Table 7.2-4)."""
     if dense and not DENSE_THRESHOLD <= r < 1.0:
         raise HallrayError(
             f"{name}: clutter density {r:g} out of range for dense clutter "
@@ -252,23 +310,30 @@ def resolve_params(
             f"{name}: clutter density {r:g} out of range for sparse clutter "
             f"(0 <= r < {DENSE_THRESHOLD:g}); use InF-D{name[-1]} for dense clutter"
         )
-    d_c = num(clutter_size, "clutter size", defaults["clutter_size"])
-    if d_c <= 0:
-        raise HallrayError(f"{name}: clutter size must be > 0 m, got {d_c:g}")
-    h_ut = num(ut_height, "UT height", UT_HEIGHT_M)
+    return r
+
+
+def _heights(
+    name: str, high: bool, lz: float, opt: InFOptions, default_clutter_height: float
+) -> tuple[float, float, float, float]:
+    """``(h_UT, h_c, height spread, h_BS)``, m: UT < clutter < ceiling, and the base station
+    below the clutter (low) or between the tallest clutter and the ceiling (high)."""
+    h_ut = _number(name, opt.ut_height, "UT height", UT_HEIGHT_M)
     if not 0 < h_ut < lz:
         raise HallrayError(f"{name}: UT height {h_ut:g} m must be inside the hall (0 .. {lz:g})")
-    h_c = num(clutter_height, "clutter height", defaults["clutter_height"])
+    h_c = _number(name, opt.clutter_height, "clutter height", default_clutter_height)
     if not h_ut < h_c < lz:
         raise HallrayError(
             f"{name}: clutter height {h_c:g} m must be above the UT height {h_ut:g} m and below "
             f"the ceiling {lz:g} m"
         )
-    spread = num(height_spread, "height spread", 0.0)
+    spread = _number(name, opt.height_spread, "height spread", 0.0)
     if not 0.0 <= spread < 1.0:
         raise HallrayError(f"{name}: height spread must be in [0, 1), got {spread:g}")
     if high:
-        h_bs = num(bs_height, "BS height", min(HIGH_BS_HEIGHT_M, lz - CEILING_CLEARANCE_M))
+        h_bs = _number(
+            name, opt.bs_height, "BS height", min(HIGH_BS_HEIGHT_M, lz - CEILING_CLEARANCE_M)
+        )
         if not h_c < h_bs <= lz - CEILING_CLEARANCE_M:
             raise HallrayError(
                 f"{name}: BS height {h_bs:g} m must be above the clutter height {h_c:g} m and at "
@@ -280,7 +345,7 @@ def resolve_params(
                 f"BS height {h_bs:g} m; reduce the height spread"
             )
     else:
-        h_bs = num(bs_height, "BS height", LOW_BS_HEIGHT_M)
+        h_bs = _number(name, opt.bs_height, "BS height", LOW_BS_HEIGHT_M)
         if not 0 < h_bs < h_c:
             raise HallrayError(
                 f"{name}: BS height {h_bs:g} m must be above the floor and below the clutter "
@@ -290,21 +355,26 @@ def resolve_params(
         raise HallrayError(
             f"{name}: clutter up to {h_c * (1 + spread):g} m does not fit below the ceiling"
         )
-    if bs_grid is None:
-        spacing = num(bs_spacing, "BS spacing", BS_SPACING_M)
+    return h_ut, h_c, spread, h_bs
+
+
+def _bs_grid(name: str, lx: float, ly: float, opt: InFOptions) -> tuple[int, int]:
+    """Base stations along x and y: ``opt.bs_grid``, else from ``opt.bs_spacing``."""
+    if opt.bs_grid is None:
+        spacing = _number(name, opt.bs_spacing, "BS spacing", BS_SPACING_M)
         if spacing <= 0:
             raise HallrayError(f"{name}: BS spacing must be > 0 m, got {spacing:g}")
-        grid = (max(2, round(lx / spacing)), max(2, round(ly / spacing)))
-    else:
-        grid_list = list(bs_grid)
-        if len(grid_list) != 2 or not all(
-            isinstance(n, (int, np.integer)) and not isinstance(n, bool) and n >= 1
-            for n in grid_list
-        ):
-            raise HallrayError(f"{name}: bs_grid must be two integers >= 1, got {bs_grid!r}")
-        grid = (int(grid_list[0]), int(grid_list[1]))
-    if isinstance(n_points, bool) or not isinstance(n_points, (int, np.integer)) or n_points < 0:
-        raise HallrayError(f"{name}: number of points must be an integer >= 0, got {n_points!r}")
+        return (max(2, round(lx / spacing)), max(2, round(ly / spacing)))
+    grid = list(opt.bs_grid)
+    if len(grid) != 2 or not all(
+        isinstance(n, (int, np.integer)) and not isinstance(n, bool) and n >= 1 for n in grid
+    ):
+        raise HallrayError(f"{name}: bs_grid must be two integers >= 1, got {opt.bs_grid!r}")
+    return (int(grid[0]), int(grid[1]))
+
+
+def _clutter_materials(name: str, materials: Mapping[str, float] | None) -> dict[str, float]:
+    """ITU material -> probability (the weights normalised)."""
     mats = dict(DEFAULT_MATERIALS if materials is None else materials)
     if not mats:
         raise HallrayError(f"{name}: give at least one clutter material")
@@ -318,21 +388,7 @@ def resolve_params(
     total = float(sum(mats.values()))
     if total <= 0:
         raise HallrayError(f"{name}: clutter material weights sum to zero")
-    mats = {m: float(w) / total for m, w in mats.items()}
-    return InFParams(
-        profile=name,
-        size=(lx, ly, lz),
-        seed=int(seed),
-        density=r,
-        clutter_size=d_c,
-        clutter_height=h_c,
-        height_spread=spread,
-        bs_height=h_bs,
-        ut_height=h_ut,
-        bs_grid=grid,
-        n_points=int(n_points),
-        materials=mats,
-    )
+    return {m: float(w) / total for m, w in mats.items()}
 
 
 # --------------------------------------------------------------------------------------------
@@ -577,13 +633,13 @@ def _layout(
 
 
 def check_hall(
-    profile: str, size: str | Sequence[float] | None = None, seed: int = 0, **kwargs: Any
+    profile: str, size: str | Sequence[float] | None = None, seed: int = 0, **options: Any
 ) -> InFParams:
     """Validate the arguments of :func:`generate_hall` and lay the hall out (clutter and points,
     milliseconds) without building it: raises the same one-line errors, including clutter or
     points that cannot be placed. Returns the resolved parameters."""
-    kwargs.pop("los_notes", None)
-    p = resolve_params(profile, size, seed, **kwargs)
+    options.pop("los_notes", None)
+    p = resolve_params(profile, size, seed, **options)
     _layout(p)
     return p
 
@@ -593,17 +649,8 @@ def generate_hall(
     size: str | Sequence[float] | None = None,
     seed: int = 0,
     *,
-    density: float | None = None,
-    clutter_size: float | None = None,
-    clutter_height: float | None = None,
-    height_spread: float = 0.0,
-    bs_height: float | None = None,
-    ut_height: float = UT_HEIGHT_M,
-    bs_spacing: float = BS_SPACING_M,
-    bs_grid: Sequence[int] | None = None,
-    n_points: int = DEFAULT_POINTS,
-    materials: Mapping[str, float] | None = None,
     los_notes: bool = True,
+    **options: Any,
 ) -> dict[str, Any]:
     """A synthetic InF hall as a hall-spec mapping (the YAML schema of ``docs/hall.md``).
 
@@ -612,19 +659,10 @@ def generate_hall(
     profile : ``InF-SL``, ``InF-DL``, ``InF-SH`` or ``InF-DH`` (case-insensitive)
     size : ``"LxWxH"`` or (3,) float, m; default the TR 38.901 hall 120 x 60 x 10 m
     seed : int >= 0; the same arguments give the same hall (byte for byte once written)
-    density : clutter density r, fraction of the floor covered; default 0.2 (sparse) / 0.6 (dense);
-        sparse profiles need ``0 <= r < 0.4``, dense ones ``0.4 <= r < 1``
-    clutter_size : d_clutter, m; default 10 (sparse) / 2 (dense); mean row depth and cell length
-    clutter_height : h_c, m; default 2 (sparse) / 6 (dense); above the UT, below the ceiling
-    height_spread : s in [0, 1): box heights uniform in ``h_c [1 - s, 1 + s]`` (default 0)
-    bs_height : h_BS, m; default 1.5 (low; must be below h_c) or min(8, D - 0.5) (high; above h_c)
-    ut_height : h_UT of the test points, m (1.5)
-    bs_spacing : grid spacing, m (20); ``max(2, round(L / spacing))`` base stations along x, the
-        same along y, at the centres of an even split of the hall (D/2 from the walls)
-    bs_grid : (nx, ny), overrides ``bs_spacing``
-    n_points : number of test points (50)
-    materials : {ITU material: weight} of the clutter (default 80 % metal, 10 % wood, 10 % concrete)
-    los_notes : write each point's LoS status into its note (a segment test on the built mesh)
+    los_notes : write each point's LoS status into its note: per base station LoS, or the first
+        object blocking the segment (:func:`raytrace.halls.spec.line_of_sight`, Embree)
+    **options : the fields of :class:`InFOptions` (density, clutter_size, clutter_height,
+        height_spread, bs_height, ut_height, bs_spacing, bs_grid, n_points, materials)
 
     Returns
     -------
@@ -640,40 +678,54 @@ def generate_hall(
         Unknown profile, bad size, density out of range for the profile, heights inconsistent
         with it, clutter that cannot be placed, points that cannot be placed.
     """
-    p = resolve_params(
-        profile,
-        size,
-        seed,
-        density=density,
-        clutter_size=clutter_size,
-        clutter_height=clutter_height,
-        height_spread=height_spread,
-        bs_height=bs_height,
-        ut_height=ut_height,
-        bs_spacing=bs_spacing,
-        bs_grid=bs_grid,
-        n_points=n_points,
-        materials=materials,
-    )
-    lx, ly, lz = p.size
+    p = resolve_params(profile, size, seed, **options)
     bs, footprints, heights, mats, pts = _layout(p)
+    lx, ly, _ = p.size
+    covered = (footprints[:, 2] - footprints[:, 0]) * (footprints[:, 3] - footprints[:, 1])
+    achieved = float(np.sum(covered)) / (lx * ly)
+    spec = _hall_mapping(p, achieved, bs, _clutter_objects(footprints, heights, mats), pts)
+    hall = parse_hall_spec(spec)  # the generated hall must pass the schema's own validation
+    if los_notes and hall.points and hall.base_stations:
+        los = line_of_sight(hall, max_blockers=1)
+        for entry in spec["points"]:
+            entry["note"] = f"UT drop; {los_note(los[entry['name']])}"
+    spec["_inf"] = {
+        "generator_version": GENERATOR_VERSION,
+        "params": p.to_dict(),
+        "k_subsce_m": p.k_subsce_m,
+        "achieved_density": achieved,
+        "n_clutter": len(spec["objects"]),
+    }
+    return spec
 
+
+def _clutter_objects(
+    footprints: np.ndarray, heights: np.ndarray, mats: Sequence[str]
+) -> list[dict[str, Any]]:
+    """The clutter boxes as hall-spec objects ``clutter_0001, ...`` standing on the floor."""
     width = max(4, len(str(len(footprints))))
-    objects = []
-    for k, (fp, hgt, mat) in enumerate(zip(footprints, heights, mats, strict=True)):
-        objects.append(
-            {
-                "name": f"clutter_{k + 1:0{width}d}",
-                "type": "box",
-                "material": mat,
-                "min": [_r(fp[0]), _r(fp[1]), 0.0],
-                "size": [_r(fp[2] - fp[0]), _r(fp[3] - fp[1]), _r(hgt)],
-            }
-        )
-    covered = float(
-        np.sum((footprints[:, 2] - footprints[:, 0]) * (footprints[:, 3] - footprints[:, 1]))
-    )
-    achieved = covered / (lx * ly)
+    return [
+        {
+            "name": f"clutter_{k + 1:0{width}d}",
+            "type": "box",
+            "material": mat,
+            "min": [_r(fp[0]), _r(fp[1]), 0.0],
+            "size": [_r(fp[2] - fp[0]), _r(fp[3] - fp[1]), _r(hgt)],
+        }
+        for k, (fp, hgt, mat) in enumerate(zip(footprints, heights, mats, strict=True))
+    ]
+
+
+def _hall_mapping(
+    p: InFParams,
+    achieved: float,
+    bs: np.ndarray,
+    objects: list[dict[str, Any]],
+    pts: np.ndarray,
+) -> dict[str, Any]:
+    """The hall spec mapping (without the ``_inf`` block): name, description, shell, clutter,
+    base stations ``BS1, ...``, points ``P01, ...`` and the area inside the wall aisle."""
+    lx, ly, lz = p.size
     pw = max(2, len(str(len(pts))))
     dense = "dense" if p.dense else "sparse"
     high = "high" if p.high else "low"
@@ -695,27 +747,12 @@ def generate_hall(
             {"name": f"P{k + 1:0{pw}d}", "xyz": [float(c) for c in xyz], "note": "UT drop"}
             for k, xyz in enumerate(pts)
         ],
-        "area_of_interest": {
+    }
+    if lx > 2 * WALL_AISLE_M and ly > 2 * WALL_AISLE_M:
+        spec["area_of_interest"] = {
             "min": [_r(WALL_AISLE_M), _r(WALL_AISLE_M)],
             "max": [_r(lx - WALL_AISLE_M), _r(ly - WALL_AISLE_M)],
         }
-        if lx > 2 * WALL_AISLE_M and ly > 2 * WALL_AISLE_M
-        else None,
-    }
-    if spec["area_of_interest"] is None:
-        del spec["area_of_interest"]
-    hall = parse_hall_spec(spec)  # the generated hall must pass the schema's own validation
-    if los_notes and hall.points and hall.base_stations:
-        los = los_table(scene_from_spec(hall), hall)
-        for entry in spec["points"]:
-            entry["note"] = f"UT drop; {los_note(los[entry['name']])}"
-    spec["_inf"] = {
-        "generator_version": GENERATOR_VERSION,
-        "params": p.to_dict(),
-        "k_subsce_m": p.k_subsce_m,
-        "achieved_density": achieved,
-        "n_clutter": len(objects),
-    }
     return spec
 
 
@@ -744,119 +781,11 @@ def hall_yaml(spec: Mapping[str, Any]) -> str:
 # --------------------------------------------------------------------------------------------
 
 
-class ConvexSolidScene(Scene):
-    """A :class:`Scene` whose closed solids are all convex (what a hall spec builds: boxes and
-    prisms), with an exact point-in-solid test.
-
-    :meth:`Scene.inside_solid` counts ray crossings per object; where two solids share a face
-    (the hall shell's wall and ceiling slabs touch along the top of every wall) the ray's exit
-    from one is hidden behind the entry into the other, and points in a band below the wall tops
-    come out "inside the wall" (for example (10, 19.7, 1.5) in an empty 30 x 24 x 8 m hall). For
-    a convex solid, a point is inside exactly when it is on the inner side of every face plane;
-    that test is used here.
-    """
-
-    def inside_solid(self, points: np.ndarray) -> np.ndarray:
-        """Index of the closed (convex) solid that strictly contains each point, or -1.
-
-        Parameters
-        ----------
-        points : (n, 3) float, m
-
-        Returns
-        -------
-        (n,) int, the lowest such object index
-        """
-        pts = np.asarray(points, dtype=float).reshape(-1, 3)
-        out = np.full(len(pts), -1, dtype=np.int64)
-        closed = np.flatnonzero(self.object_closed)
-        if len(pts) == 0 or len(closed) == 0:
-            return out
-        counts = np.array([self.objects[i].face_count for i in closed])
-        starts = np.array([self.objects[i].face_start for i in closed])
-        f_max = int(counts.max())
-        # padded face planes per solid: n . x <= offset inside; padding n = 0, offset = 1
-        idx = starts[:, None] + np.arange(f_max)[None, :]
-        valid = np.arange(f_max)[None, :] < counts[:, None]
-        idx = np.where(valid, idx, 0)
-        normal = np.where(valid[..., None], self.face_normal[idx], 0.0)
-        v0 = self.vertices[self.faces[idx, 0]]
-        offset = np.where(valid, np.einsum("ofk,ofk->of", normal, v0), 1.0)
-        lo = np.full((len(closed), 3), np.inf)
-        hi = np.full((len(closed), 3), -np.inf)
-        for j, i in enumerate(closed):
-            obj = self.objects[i]
-            v = self.vertices[self.faces[obj.face_start : obj.face_start + obj.face_count]]
-            lo[j], hi[j] = v.reshape(-1, 3).min(axis=0), v.reshape(-1, 3).max(axis=0)
-        chunk = max(1, (1 << 22) // len(closed))
-        for a in range(0, len(pts), chunk):
-            p = pts[a : a + chunk]
-            cand = np.all((p[:, None, :] > lo[None]) & (p[:, None, :] < hi[None]), axis=2)
-            pi, oj = np.nonzero(cand)
-            if not len(pi):
-                continue
-            s = np.einsum("kfd,kd->kf", normal[oj], p[pi]) - offset[oj]
-            inside = np.all(s < 0.0, axis=1)
-            hit = np.full(len(p), np.iinfo(np.int64).max)
-            np.minimum.at(hit, pi[inside], closed[oj[inside]])
-            found = hit != np.iinfo(np.int64).max
-            out[a : a + chunk][found] = hit[found]
-        return out
-
-
 def scene_from_spec(spec: HallSpec | Mapping[str, Any]) -> Scene:
-    """The tracer's :class:`Scene` of a hall spec, built in memory (no GLB round trip).
-
-    Objects are named and ordered as :func:`raytrace.scene.model.load_scene` would name and order them
-    from the GLB; vertices stay float64 (the GLB stores float32, a difference of < 1e-5 m). The
-    scene is a :class:`ConvexSolidScene` (exact point-in-solid test).
-    """
-    import trimesh
-
+    """The tracer's :class:`Scene` of a hall spec or of a :func:`generate_hall` mapping, built
+    in memory (:func:`raytrace.halls.spec.tracer_scene`)."""
     hall = spec if isinstance(spec, HallSpec) else parse_hall_spec(split_spec(spec)[0])
-    meshes = []
-    for prim in hall.shell() + hall.objects:
-        v, f = prim.mesh_arrays()
-        meshes.append((hall.node_name(prim), trimesh.Trimesh(v, f, process=False), prim.material))
-    meshes.sort(key=lambda m: m[0])
-    return ConvexSolidScene.from_meshes(
-        meshes, hall.material_library, metadata={"hallray": hall_metadata(hall)}, source=hall.name
-    )
-
-
-def los_table(scene: Scene, hall: HallSpec) -> dict[str, dict[str, tuple[str, ...]]]:
-    """``{point: {bs: blocking objects}}`` like :func:`raytrace.halls.spec.line_of_sight`, from
-    Embree segment tests on ``scene``; a blocked link names its first blocking object only."""
-    bs = hall.base_station_xyz
-    pts = hall.point_xyz
-    o = np.repeat(bs, len(pts), axis=0)
-    e = np.tile(pts, (len(bs), 1))
-    blocked = scene.occluded(o, e)
-    out: dict[str, dict[str, tuple[str, ...]]] = {p.name: {} for p in hall.points}
-    idx = np.flatnonzero(blocked)
-    first_obj = np.full(len(o), -1)
-    if len(idx):
-        d = e[idx] - o[idx]
-        length = np.linalg.norm(d, axis=1)
-        t, _, obj = scene.intersect(o[idx], d / length[:, None], length)
-        first_obj[idx] = obj
-    names = [_object_name(n) for n in scene.object_names]
-    k = 0
-    for b in hall.base_stations:
-        for p in hall.points:
-            out[p.name][b.name] = (
-                (names[first_obj[k]],)
-                if blocked[k] and first_obj[k] >= 0
-                else (("?",) if blocked[k] else ())
-            )
-            k += 1
-    return out
-
-
-def _object_name(node: str) -> str:
-    """``clutter_0012_itu_metal`` -> ``clutter_0012``."""
-    cut = node.find("_itu_")
-    return node[:cut] if cut >= 0 else node
+    return tracer_scene(hall)
 
 
 @dataclass

@@ -21,7 +21,7 @@ Pipeline (details, options and limits in ``docs/scan.md``):
 6. materials by rules (YAML, first match wins: bounding -> concrete, floor-to-ceiling ->
    concrete, by size or height, then a default), names carrying them
    (``plane_03_itu_concrete``, ``object_12_itu_metal``), written as a GLB that
-   :func:`raytrace.scene.model.load_scene` binds without further input;
+   :func:`raytrace.scene.io.load_scene` binds without further input;
 7. the residual distance of the points to the mesh (open3d ``RaycastingScene``).
 
 open3d is an optional dependency (``pip install 'hallray[scan]'``); it is imported only inside
@@ -42,6 +42,8 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import HallrayError, MaterialError, SceneError
+from ..core.fileio import write_atomic
+from ..core.palette import material_colors
 from ..physics.materials import MaterialLibrary
 
 #: Point-cloud formats read by :func:`read_cloud`.
@@ -493,7 +495,7 @@ def simulate_scan(
     if stations is None:
         gx = np.linspace(lo[0] + 0.15 * (hi[0] - lo[0]), hi[0] - 0.15 * (hi[0] - lo[0]), 4)
         gy = np.linspace(lo[1] + 0.15 * (hi[1] - lo[1]), hi[1] - 0.15 * (hi[1] - lo[1]), 4)
-        z0 = _floor_level(scene) + 1.6
+        z0 = floor_level(scene) + 1.6
         stations = np.array([[x, y, z0] for x in gx for y in gy])
         stations = stations[scene.inside_solid(stations) < 0]
     stations = np.asarray(stations, dtype=float).reshape(-1, 3)
@@ -516,10 +518,12 @@ def simulate_scan(
     return pts + rng.normal(0.0, noise_m, size=pts.shape)
 
 
-def _floor_level(scene: Any) -> float:
-    """Height of the lowest upward-facing horizontal facet with a large area (the floor), or the
-    bottom of the scene."""
+def floor_level(scene: Any) -> float:
+    """Height of a scene's floor, m: the lowest large upward-facing facet (normal within 8 deg
+    of vertical, at least 5 % of the largest facet's area), else the bottom of the scene."""
     f = scene.facets
+    if len(f) == 0:
+        return float(scene.bounds[0, 2])
     up = (f.normal[:, 2] > 0.99) & (f.area > 0.05 * f.area.max())
     return float(f.offset[up].min()) if up.any() else float(scene.bounds[0, 2])
 
@@ -945,6 +949,50 @@ def reconstruct(
     rules = rules or MaterialRules.load()
     times: dict[str, float] = {}
     t0 = time.perf_counter()
+    pts, nrm, counts = _prepare(points, opt, o3d)  # 2. downsample, outliers, normals
+    times["prepare_s"] = time.perf_counter() - t0
+
+    t1 = time.perf_counter()
+    pieces = _find_planes(pts, nrm, opt, o3d)  # 3. planes
+    if not pieces:
+        raise HallrayError(
+            f"no plane found in the point cloud (none with >= {opt.plane_min_points} points "
+            f"within {opt.plane_distance_m} m and >= {opt.plane_min_area_m2} m^2); "
+            "is it a scan of a room?"
+        )
+    assigned = np.zeros(len(pts), dtype=bool)
+    for piece in pieces:
+        assigned[piece.members] = True
+    # the scanner's noise, from the largest plane: RMS distance of its inliers
+    dist0 = pts[pieces[0].members] @ pieces[0].n - pieces[0].d
+    noise = float(np.sqrt(np.mean(dist0[np.abs(dist0) < opt.plane_distance_m] ** 2)))
+    times["planes_s"] = time.perf_counter() - t1
+
+    t2 = time.perf_counter()
+    elements = _plane_elements(pieces, pts, opt)  # 4. slabs and sheets
+    times["outlines_s"] = time.perf_counter() - t2
+
+    t3 = time.perf_counter()  # 5. residual: absorb edge points, cluster into objects
+    residual = np.flatnonzero(~assigned)
+    residual = residual[~_near_planes(pts[residual], elements, opt)]
+    objects, counts["object_points"] = _object_elements(pts[residual], opt, o3d, noise)
+    elements += objects
+    times["objects_s"] = time.perf_counter() - t3
+
+    _assign_materials(elements, pts, opt, rules)  # 6. materials and names
+
+    t4 = time.perf_counter()
+    dist = _distance_to_mesh(pts, elements, o3d)  # 7. residual distance
+    times["residual_s"] = time.perf_counter() - t4
+    times["total_s"] = time.perf_counter() - t0
+    return elements, _summary(elements, counts, noise, dist, times)
+
+
+def _prepare(
+    points: np.ndarray, opt: ScanOptions, o3d: Any
+) -> tuple[np.ndarray, np.ndarray, dict[str, int]]:
+    """Step 2: finite points, voxel downsampling, statistical outlier removal, normals.
+    Returns the points (n, 3) m, their unit normals (n, 3) and the point counts of the steps."""
     pts_in = np.asarray(points, dtype=float).reshape(-1, 3)
     finite = np.isfinite(pts_in).all(axis=1)
     n_in = len(pts_in)
@@ -954,8 +1002,6 @@ def reconstruct(
     extent = float(np.linalg.norm(pts_in.max(axis=0) - pts_in.min(axis=0)))
     if extent > MAX_EXTENT_M:
         raise HallrayError(f"the point cloud spans {extent:.0f} m; are the coordinates in metres?")
-
-    # -- 2. downsample, outliers, normals ------------------------------------------------------
     pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts_in))
     down = pcd.voxel_down_sample(opt.voxel_size_m)
     n_down = len(down.points)
@@ -968,64 +1014,35 @@ def reconstruct(
             f"points {opt.plane_min_points}); use a smaller voxel size"
         )
     down.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(opt.normal_radius_m, 20))
-    nrm = np.asarray(down.normals, dtype=float)
-    times["prepare_s"] = time.perf_counter() - t0
+    counts = {"input": n_in, "finite": int(finite.sum()), "downsampled": n_down}
+    return pts, np.asarray(down.normals, dtype=float), counts
 
-    # -- 3. planes ----------------------------------------------------------------------------
-    t1 = time.perf_counter()
-    pieces = _find_planes(pts, nrm, opt, o3d)
-    if not pieces:
-        raise HallrayError(
-            f"no plane found in the point cloud (none with >= {opt.plane_min_points} points "
-            f"within {opt.plane_distance_m} m and >= {opt.plane_min_area_m2} m^2); "
-            "is it a scan of a room?"
-        )
-    assigned = np.full(len(pts), -1, dtype=np.int64)
-    for k, piece in enumerate(pieces):
-        assigned[piece.members] = k
-    # the scanner's noise, from the largest plane: RMS distance of its inliers
-    dist0 = pts[pieces[0].members] @ pieces[0].n - pieces[0].d
-    noise = float(np.sqrt(np.mean(dist0[np.abs(dist0) < opt.plane_distance_m] ** 2)))
-    times["planes_s"] = time.perf_counter() - t1
 
-    # -- 4. bounding planes: close, join, extrude; others: sheets -----------------------------
-    t2 = time.perf_counter()
-    elements = _plane_elements(pieces, pts, opt)
-    times["outlines_s"] = time.perf_counter() - t2
-
-    # -- 5. residual: absorb edge points, cluster into objects -------------------------------
-    t3 = time.perf_counter()
-    residual = np.flatnonzero(assigned < 0)
-    residual = residual[~_near_planes(pts[residual], elements, opt)]
-    objects, n_clustered = _object_elements(pts[residual], opt, o3d, noise)
-    elements += objects
-    times["objects_s"] = time.perf_counter() - t3
-
-    # -- 6. materials and names ----------------------------------------------------------------
-    _assign_materials(elements, pts, opt, rules)
-
-    # -- 7. residual distance -------------------------------------------------------------------
-    t4 = time.perf_counter()
-    dist = _distance_to_mesh(pts, elements, o3d)
-    times["residual_s"] = time.perf_counter() - t4
-    times["total_s"] = time.perf_counter() - t0
-
+def _summary(
+    elements: list[Element],
+    counts: dict[str, int],
+    noise: float,
+    dist: np.ndarray,
+    times: dict[str, float],
+) -> dict[str, Any]:
+    """The summary of :func:`reconstruct` (keys in ``docs/scan.md``)."""
     planes = [e for e in elements if e.kind == "plane"]
+    n_pts = len(dist)
     mats: dict[str, int] = {}
     for e in elements:
         mats[e.material] = mats.get(e.material, 0) + 1
-    summary = {
-        "input_points": int(n_in),
-        "nonfinite_points_dropped": int(n_in - int(finite.sum())),
-        "downsampled_points": int(n_down),
-        "points_used": int(len(pts)),
-        "outliers_removed": int(n_down - len(pts)),
+    return {
+        "input_points": int(counts["input"]),
+        "nonfinite_points_dropped": int(counts["input"] - counts["finite"]),
+        "downsampled_points": int(counts["downsampled"]),
+        "points_used": int(n_pts),
+        "outliers_removed": int(counts["downsampled"] - n_pts),
         "planes": len(planes),
         "bounding_planes": int(sum(e.bounding for e in planes)),
         "plane_points": int(sum(e.n_points for e in planes)),
-        "objects": len(objects),
-        "object_points": int(n_clustered),
-        "unexplained_points": int(len(pts) - sum(e.n_points for e in elements)),
+        "objects": len(elements) - len(planes),
+        "object_points": int(counts["object_points"]),
+        "unexplained_points": int(n_pts - sum(e.n_points for e in elements)),
         "triangles": int(sum(len(e.mesh.faces) for e in elements)),
         "noise_estimate_m": noise,
         "residual_mean_m": float(dist.mean()),
@@ -1034,77 +1051,51 @@ def reconstruct(
         "materials": dict(sorted(mats.items())),
         "floor_z_m": elements[0].features.get("floor_z_m") if elements else None,
         "time_s": {k: round(v, 3) for k, v in times.items()},
-        "elements": [
-            {
-                "name": e.name,
-                "kind": e.kind,
-                "material": e.material,
-                "closed": e.closed,
-                "bounding": e.bounding,
-                "points": e.n_points,
-                "triangles": int(len(e.mesh.faces)),
-                "area_m2": round(e.features["area"], 4),
-                "size_m": round(e.features["size"], 4),
-                "volume_m3": round(e.features["volume"], 4),
-                **(
-                    {
-                        "normal": [round(float(x), 6) for x in e.normal],
-                        "offset_m": round(float(e.offset), 6),
-                    }
-                    if e.normal is not None
-                    else {}
-                ),
-            }
-            for e in elements
-        ],
+        "elements": [_element_summary(e) for e in elements],
     }
-    return elements, summary
+
+
+def _element_summary(e: Element) -> dict[str, Any]:
+    """One element of the summary: name, kind, material, points, triangles, sizes (and the
+    plane of a plane piece)."""
+    out = {
+        "name": e.name,
+        "kind": e.kind,
+        "material": e.material,
+        "closed": e.closed,
+        "bounding": e.bounding,
+        "points": e.n_points,
+        "triangles": int(len(e.mesh.faces)),
+        "area_m2": round(e.features["area"], 4),
+        "size_m": round(e.features["size"], 4),
+        "volume_m3": round(e.features["volume"], 4),
+    }
+    if e.normal is not None:
+        out["normal"] = [round(float(x), 6) for x in e.normal]
+        out["offset_m"] = round(float(e.offset), 6)
+    return out
 
 
 def _find_planes(pts: np.ndarray, nrm: np.ndarray, opt: ScanOptions, o3d: Any) -> list[_PlanePiece]:
     """RANSAC planes, largest first, split into connected pieces (see the module docstring)."""
     rng = np.random.default_rng(opt.seed)
     o3d.utility.random.seed(int(opt.seed))
-    cos_tol = math.cos(math.radians(opt.plane_normal_deg))
     pool = np.ones(len(pts), dtype=bool)
     pieces: list[_PlanePiece] = []
     misses = 0
     n_planes = 0
-    n_all = len(pts)
     while n_planes < opt.max_planes and misses < MAX_PLANE_MISSES:
         idx = np.flatnonzero(pool)
         if len(idx) < opt.plane_min_points:
             break
-        # RANSAC among the points whose normals share the pool's dominant orientation: a plane
-        # then cannot collect inliers from the strips where it slices perpendicular surfaces
-        pts_p, nrm_p = pts[idx], nrm[idx]
-        cand = idx[np.abs(nrm_p @ _dominant_direction(nrm_p, cos_tol, rng)) >= cos_tol]
-        if len(cand) < opt.plane_min_points:
-            cand = idx
-        if len(cand) > opt.ransac_sample:
-            cand = np.unique(cand[rng.integers(0, len(cand), opt.ransac_sample)])
-        sub = cand
-        sub_pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts[sub]))
-        model, ransac_inliers = sub_pcd.segment_plane(
-            opt.plane_distance_m, 3, opt.ransac_iterations
-        )
-        n = np.asarray(model[:3], dtype=float)
-        scale = np.linalg.norm(n)
-        if not np.isfinite(scale) or scale == 0:
+        plane = _ransac_plane(pts, nrm, idx, opt, o3d, rng)
+        if plane is None:
             break
-        n, d = n / scale, -float(model[3]) / scale
-        members = idx
-        for _ in range(2):  # inliers by distance and normal, then a least-squares refit
-            near = np.abs(pts_p @ n - d) < opt.plane_distance_m
-            near &= np.abs(nrm_p @ n) >= cos_tol
-            members = idx[near]
-            if len(members) < opt.plane_min_points:
-                break
-            n, d = _fit_plane(pts[members], n)
+        n, d, members, tried = plane
         if len(members) < opt.plane_min_points:
             # too small: take these points out of the search (they stay in the residual)
             pool[members] = False
-            pool[sub[np.asarray(ransac_inliers, dtype=np.int64)]] = False
+            pool[tried] = False
             misses += 1
             continue
         pool[members] = False
@@ -1114,36 +1105,91 @@ def _find_planes(pts: np.ndarray, nrm: np.ndarray, opt: ScanOptions, o3d: Any) -
             continue
         misses = 0
         n_planes += 1
-        traced = (n, d)  # the frame the outlines were traced in
-        # orient towards the bulk of the points; bounding if almost nothing lies beyond
-        side = pts @ n - d
-        if np.count_nonzero(side > 0) < np.count_nonzero(side < 0):
-            n, d, side = -n, -d, -side
-        outside = np.count_nonzero(side < -3.0 * opt.plane_distance_m)
-        bounding = outside <= BOUNDING_OUTSIDE_FRACTION * n_all
-        # the noise tail beyond the inlier distance (within twice it, over the piece) belongs
-        # to the plane too: left alone it would make a ghost plane or flat objects beside it
-        tail = np.flatnonzero(pool)
-        tail = tail[np.abs(pts[tail] @ traced[0] - traced[1]) < 2.0 * opt.plane_distance_m]
-        tail = tail[np.abs(nrm[tail] @ traced[0]) >= cos_tol]
-        tails = [_inside_polygons(pts[tail], traced, ps, opt.grid_cell_m) for _, ps in found]
-        if bounding:
-            mem = np.concatenate([m for m, _ in found])
-            n_b, d_b = _fit_plane(pts[mem], n)
-            polys = [_reframe(p, traced, (n_b, d_b)) for _, ps in found for p in ps]
-            mem = np.union1d(mem, tail[np.logical_or.reduce(tails)])
-            pool[mem] = False
-            pieces.append(_PlanePiece(n_b, d_b, polys, mem, True))
-        else:
-            for (mem, polys), in_tail in zip(found, tails):
-                n_p, d_p = _fit_plane(pts[mem], n)
-                polys = [_reframe(p, traced, (n_p, d_p)) for p in polys]
-                mem = np.union1d(mem, tail[in_tail])
-                pool[mem] = False
-                pieces.append(_PlanePiece(n_p, d_p, polys, mem, False))
+        pieces += _plane_pieces(pts, nrm, pool, (n, d), found, opt)
     # largest first (total polygon area)
     pieces.sort(key=lambda p: -sum(q.area for q in p.polygons))
     return pieces
+
+
+def _ransac_plane(
+    pts: np.ndarray,
+    nrm: np.ndarray,
+    idx: np.ndarray,
+    opt: ScanOptions,
+    o3d: Any,
+    rng: np.random.Generator,
+) -> tuple[np.ndarray, float, np.ndarray, np.ndarray] | None:
+    """One RANSAC plane among the points ``idx`` still free: ``(n, d, members, tried)`` with
+    the unit normal and offset of ``n . x = d`` after a least-squares refit, its inliers by
+    distance and normal agreement, and RANSAC's own inliers (to take out of the search when the
+    plane is too small); None when RANSAC returns no plane."""
+    cos_tol = math.cos(math.radians(opt.plane_normal_deg))
+    # RANSAC among the points whose normals share the pool's dominant orientation: a plane
+    # then cannot collect inliers from the strips where it slices perpendicular surfaces
+    pts_p, nrm_p = pts[idx], nrm[idx]
+    cand = idx[np.abs(nrm_p @ _dominant_direction(nrm_p, cos_tol, rng)) >= cos_tol]
+    if len(cand) < opt.plane_min_points:
+        cand = idx
+    if len(cand) > opt.ransac_sample:
+        cand = np.unique(cand[rng.integers(0, len(cand), opt.ransac_sample)])
+    sub_pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts[cand]))
+    model, ransac_inliers = sub_pcd.segment_plane(opt.plane_distance_m, 3, opt.ransac_iterations)
+    n = np.asarray(model[:3], dtype=float)
+    scale = np.linalg.norm(n)
+    if not np.isfinite(scale) or scale == 0:
+        return None
+    n, d = n / scale, -float(model[3]) / scale
+    members = idx
+    for _ in range(2):  # inliers by distance and normal, then a least-squares refit
+        near = np.abs(pts_p @ n - d) < opt.plane_distance_m
+        near &= np.abs(nrm_p @ n) >= cos_tol
+        members = idx[near]
+        if len(members) < opt.plane_min_points:
+            break
+        n, d = _fit_plane(pts[members], n)
+    return n, d, members, cand[np.asarray(ransac_inliers, dtype=np.int64)]
+
+
+def _plane_pieces(
+    pts: np.ndarray,
+    nrm: np.ndarray,
+    pool: np.ndarray,
+    traced: tuple[np.ndarray, float],
+    found: list[tuple[np.ndarray, list[Any]]],
+    opt: ScanOptions,
+) -> list[_PlanePiece]:
+    """The pieces of one plane ``traced`` = (n, d) (the frame its outlines were traced in):
+    oriented towards the bulk of the points, refitted, joined by their noise tail; one piece
+    for a bounding plane. Takes their points out of ``pool`` (updated in place)."""
+    cos_tol = math.cos(math.radians(opt.plane_normal_deg))
+    n, d = traced
+    # orient towards the bulk of the points; bounding if almost nothing lies beyond
+    side = pts @ n - d
+    if np.count_nonzero(side > 0) < np.count_nonzero(side < 0):
+        n, d, side = -n, -d, -side
+    outside = np.count_nonzero(side < -3.0 * opt.plane_distance_m)
+    bounding = outside <= BOUNDING_OUTSIDE_FRACTION * len(pts)
+    # the noise tail beyond the inlier distance (within twice it, over the piece) belongs
+    # to the plane too: left alone it would make a ghost plane or flat objects beside it
+    tail = np.flatnonzero(pool)
+    tail = tail[np.abs(pts[tail] @ traced[0] - traced[1]) < 2.0 * opt.plane_distance_m]
+    tail = tail[np.abs(nrm[tail] @ traced[0]) >= cos_tol]
+    tails = [_inside_polygons(pts[tail], traced, ps, opt.grid_cell_m) for _, ps in found]
+    if bounding:
+        mem = np.concatenate([m for m, _ in found])
+        n_b, d_b = _fit_plane(pts[mem], n)
+        polys = [_reframe(p, traced, (n_b, d_b)) for _, ps in found for p in ps]
+        mem = np.union1d(mem, tail[np.logical_or.reduce(tails)])
+        pool[mem] = False
+        return [_PlanePiece(n_b, d_b, polys, mem, True)]
+    out = []
+    for (mem, polys), in_tail in zip(found, tails):
+        n_p, d_p = _fit_plane(pts[mem], n)
+        polys = [_reframe(p, traced, (n_p, d_p)) for p in polys]
+        mem = np.union1d(mem, tail[in_tail])
+        pool[mem] = False
+        out.append(_PlanePiece(n_p, d_p, polys, mem, False))
+    return out
 
 
 def _inside_polygons(
@@ -1187,8 +1233,47 @@ def _split_plane(
     the plane)."""
     from scipy import ndimage
 
-    origin, u, v = _plane_frame(n, d)
     noise = min(float(np.sqrt(np.mean((pts[members] @ n - d) ** 2))), 0.5 * opt.plane_distance_m)
+    cell = float(opt.grid_cell_m)
+    grid, ij, lo = _plane_raster(pts, nrm, members, n, d, opt)
+    labels, n_lab = ndimage.label(grid, structure=np.ones((3, 3), dtype=bool))
+    if n_lab == 0:
+        return []
+    counts = np.bincount(labels.ravel(), minlength=n_lab + 1)
+    min_cells = max(opt.plane_min_area_m2 / cell**2, 1.0)
+    point_label = labels[ij[:, 1], ij[:, 0]]
+    out = []
+    slices = ndimage.find_objects(labels)
+    for k in range(1, n_lab + 1):
+        if counts[k] < min_cells:
+            continue
+        sl = slices[k - 1]
+        sub_lo = lo + np.array([sl[1].start, sl[0].start]) * cell
+        # the outline runs on average half a cell beyond the outermost points, which lie half a
+        # point spacing inside the true edge plus about one noise deviation outside it
+        spacing = math.sqrt(counts[k] * cell * cell / max(np.count_nonzero(point_label == k), 1))
+        shrink = noise + 0.5 * max(0.0, cell - spacing)
+        polys = _piece_outlines(labels[sl] == k, sub_lo, shrink, opt)
+        if polys and sum(p.area for p in polys) >= opt.plane_min_area_m2:
+            out.append((members[point_label == k], polys))
+    return out
+
+
+def _plane_raster(
+    pts: np.ndarray,
+    nrm: np.ndarray,
+    members: np.ndarray,
+    n: np.ndarray,
+    d: float,
+    opt: ScanOptions,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The occupancy raster of a plane's inliers in its frame (rows along v, columns along u,
+    cells of ``grid_cell_m``): the inliers' cells, the edge band (below) and gaps closed.
+    Returns the raster, the inliers' cells (m, 2) as (column, row), and the (u, v) of the
+    raster's corner, m."""
+    from scipy import ndimage
+
+    origin, u, v = _plane_frame(n, d)
     rel = pts[members] - origin
     uv = np.column_stack([rel @ u, rel @ v])
     cell = float(opt.grid_cell_m)
@@ -1222,117 +1307,97 @@ def _split_plane(
     if r > 0:
         yy, xx = np.mgrid[-r : r + 1, -r : r + 1]
         grid = ndimage.binary_closing(grid, structure=xx**2 + yy**2 <= r * r)
-    labels, n_lab = ndimage.label(grid, structure=np.ones((3, 3), dtype=bool))
-    if n_lab == 0:
-        return []
-    counts = np.bincount(labels.ravel(), minlength=n_lab + 1)
-    min_cells = max(opt.plane_min_area_m2 / cell**2, 1.0)
-    point_label = labels[ij[:, 1], ij[:, 0]]
-    out = []
-    slices = ndimage.find_objects(labels)
-    for k in range(1, n_lab + 1):
-        if counts[k] < min_cells:
-            continue
-        sl = slices[k - 1]
-        sub = labels[sl] == k
-        sub_lo = lo + np.array([sl[1].start, sl[0].start]) * cell
-        # the outline runs on average half a cell beyond the outermost points, which lie half a
-        # point spacing inside the true edge plus about one noise deviation outside it
-        spacing = math.sqrt(counts[k] * cell * cell / max(np.count_nonzero(point_label == k), 1))
-        shrink = noise + 0.5 * max(0.0, cell - spacing)
-        polys = []
-        for poly in _polygons_from_mask(sub, sub_lo, cell):
-            poly = _clean_polygon(
-                poly, fill_all=False, max_hole_area=opt.max_hole_area_m2, simplify=opt.simplify_m
-            )
-            poly = _rectangle_fit(poly, cell)
-            shrunk = poly.buffer(-shrink, join_style="mitre")
-            polys.extend(
-                q for q in _polygon_parts(shrunk) if q.area >= 0.25 * opt.plane_min_area_m2
-            )
-        if polys and sum(p.area for p in polys) >= opt.plane_min_area_m2:
-            out.append((members[point_label == k], polys))
-    return out
+    return grid, ij, lo
+
+
+def _piece_outlines(mask: np.ndarray, lo: np.ndarray, shrink: float, opt: ScanOptions) -> list:
+    """Outline polygons of one connected piece of a plane raster (corner ``lo`` (2,) m): traced,
+    small holes filled, simplified, snapped to a rectangle when it is one, pulled in by
+    ``shrink`` m; parts under a quarter of the smallest plane area dropped."""
+    cell = float(opt.grid_cell_m)
+    polys = []
+    for poly in _polygons_from_mask(mask, lo, cell):
+        poly = _clean_polygon(
+            poly, fill_all=False, max_hole_area=opt.max_hole_area_m2, simplify=opt.simplify_m
+        )
+        poly = _rectangle_fit(poly, cell)
+        shrunk = poly.buffer(-shrink, join_style="mitre")
+        polys.extend(q for q in _polygon_parts(shrunk) if q.area >= 0.25 * opt.plane_min_area_m2)
+    return polys
 
 
 def _plane_elements(pieces: list[_PlanePiece], pts: np.ndarray, opt: ScanOptions) -> list[Element]:
     """Elements of the plane pieces: bounding planes closed, grown, cut where they meet and
     extruded outward; the others open sheets."""
-    import shapely
-
-    bnd = [k for k, p in enumerate(pieces) if p.bounding]
-    tol = math.sin(math.radians(ORIENTATION_TOL_DEG))
     elements = []
     for i, piece in enumerate(pieces):
-        origin, u, v = _plane_frame(piece.n, piece.d)
-        if not piece.bounding:
-            counts = _points_per_polygon(pts[piece.members], (piece.n, piece.d), piece.polygons)
-            for poly, count in zip(piece.polygons, counts):
-                mesh = _sheet_mesh(poly, origin, u, v)
-                if len(mesh.faces):
-                    elements.append(
-                        Element(
-                            "plane", mesh, False, count, piece.n, piece.d,
-                            False, poly.area, poly, (origin, u, v),
-                        )
-                    )  # fmt: skip
-            continue
-        # bounding: holes filled (unseen floor under machines), grown, cut by the others
-        seen = shapely.unary_union(
-            [
-                _clean_polygon(p, fill_all=True, max_hole_area=0.0, simplify=opt.simplify_m)
-                for p in piece.polygons
-            ]
-        )
-        grown = seen.buffer(opt.snap_m, join_style="mitre")
-        region = shapely.box(*grown.bounds)
-        horizontal_i = abs(piece.n[2]) > 0.5
-        for j in bnd:
-            other = pieces[j]
-            if j == i:
-                continue
-            g = np.array([other.n @ u, other.n @ v])
-            if np.linalg.norm(g) < tol:
-                continue  # parallel
-            # which one runs through the joint: horizontal planes pass under/over vertical ones,
-            # between two vertical planes the earlier (larger) one
-            horizontal_j = abs(other.n[2]) > 0.5
-            if horizontal_i != horizontal_j:
-                through = horizontal_i
-            else:
-                through = i < j
-            d_cut = other.d - (opt.wall_thickness_m if through else 0.0)
-            c0 = float(other.n @ origin - d_cut)
-            region = region.intersection(_half_plane(g, c0, region.bounds))
-        geom = grown.intersection(region)
-        # strips the scanner could not see (floor under racks along a wall, a wall behind
-        # them): parts of the region left uncovered in which no disc of radius hidden_fill_m fits
-        missing = _polygon_parts(region.difference(geom))
-        hidden = [m for m in missing if m.buffer(-opt.hidden_fill_m).is_empty]
-        if hidden:
-            geom = shapely.unary_union([geom, *hidden])
-        geom = geom.simplify(opt.simplify_m, preserve_topology=True)
-        parts = [
-            shapely.Polygon(p.exterior)  # no holes in a bounding plane
-            for p in _polygon_parts(geom)
-            if p.area >= 0.25 * opt.plane_min_area_m2
-        ]
-        counts = _points_per_polygon(pts[piece.members], (piece.n, piece.d), parts)
-        for poly, count in zip(parts, counts):
-            if opt.wall_thickness_m > 0:
-                mesh = _slab_mesh(poly, origin, u, v, -opt.wall_thickness_m * piece.n)
+        frame = _plane_frame(piece.n, piece.d)
+        if piece.bounding:
+            polys = _bounding_polygons(pieces, i, opt)
+        else:
+            polys = piece.polygons
+        counts = _points_per_polygon(pts[piece.members], (piece.n, piece.d), polys)
+        for poly, count in zip(polys, counts):
+            if piece.bounding and opt.wall_thickness_m > 0:
+                mesh = _slab_mesh(poly, *frame, -opt.wall_thickness_m * piece.n)
                 closed = True
             else:
-                mesh = _sheet_mesh(poly, origin, u, v)
+                mesh = _sheet_mesh(poly, *frame)
                 closed = False
             if len(mesh.faces):
                 elements.append(
                     Element(
                         "plane", mesh, closed, count, piece.n, piece.d,
-                        True, poly.area, poly, (origin, u, v),
+                        piece.bounding, poly.area, poly, frame,
                     )
                 )  # fmt: skip
     return elements
+
+
+def _bounding_polygons(pieces: list[_PlanePiece], i: int, opt: ScanOptions) -> list[Any]:
+    """The outline of bounding plane ``i`` in its frame: holes filled (unseen floor under
+    machines), grown by ``snap_m``, cut where the other bounding planes meet it, unseen strips
+    along it filled; its polygons (no holes) of at least a quarter of the smallest plane area."""
+    import shapely
+
+    piece = pieces[i]
+    origin, u, v = _plane_frame(piece.n, piece.d)
+    tol = math.sin(math.radians(ORIENTATION_TOL_DEG))
+    seen = shapely.unary_union(
+        [
+            _clean_polygon(p, fill_all=True, max_hole_area=0.0, simplify=opt.simplify_m)
+            for p in piece.polygons
+        ]
+    )
+    grown = seen.buffer(opt.snap_m, join_style="mitre")
+    region = shapely.box(*grown.bounds)
+    horizontal_i = abs(piece.n[2]) > 0.5
+    for j, other in enumerate(pieces):
+        if j == i or not other.bounding:
+            continue
+        g = np.array([other.n @ u, other.n @ v])
+        if np.linalg.norm(g) < tol:
+            continue  # parallel
+        # which one runs through the joint: horizontal planes pass under/over vertical ones,
+        # between two vertical planes the earlier (larger) one
+        horizontal_j = abs(other.n[2]) > 0.5
+        through = horizontal_i if horizontal_i != horizontal_j else i < j
+        d_cut = other.d - (opt.wall_thickness_m if through else 0.0)
+        c0 = float(other.n @ origin - d_cut)
+        region = region.intersection(_half_plane(g, c0, region.bounds))
+    geom = grown.intersection(region)
+    # strips the scanner could not see (floor under racks along a wall, a wall behind
+    # them): parts of the region left uncovered in which no disc of radius hidden_fill_m fits
+    missing = _polygon_parts(region.difference(geom))
+    hidden = [m for m in missing if m.buffer(-opt.hidden_fill_m).is_empty]
+    if hidden:
+        geom = shapely.unary_union([geom, *hidden])
+    geom = geom.simplify(opt.simplify_m, preserve_topology=True)
+    return [
+        shapely.Polygon(p.exterior)  # no holes in a bounding plane
+        for p in _polygon_parts(geom)
+        if p.area >= 0.25 * opt.plane_min_area_m2
+    ]
 
 
 def _points_per_polygon(
@@ -1546,24 +1611,14 @@ def scene_from_elements(
     """A ``trimesh.Scene`` with one node per element, named after its material, the glTF
     material named after the radio material, and ``metadata["hallray"]``."""
     import trimesh
-    from trimesh.visual import TextureVisuals
-    from trimesh.visual.material import PBRMaterial
 
-    from .spec import MATERIAL_COLORS
+    from .spec import paint
 
+    colors = material_colors(e.material for e in elements)
     scene = trimesh.Scene()
     for e in sorted(elements, key=lambda e: e.name):
         mesh = e.mesh.copy()
-        rgb = MATERIAL_COLORS.get(e.material, (0.55, 0.35, 0.65))
-        mesh.visual = TextureVisuals(
-            material=PBRMaterial(
-                name=e.material,
-                baseColorFactor=[*rgb, 1.0],
-                metallicFactor=0.0,
-                roughnessFactor=1.0,
-                doubleSided=True,
-            )
-        )
+        paint(mesh, e.material, colors[e.material])
         mesh.metadata = {
             "object": e.name.rsplit("_itu_", 1)[0] if "_itu_" in e.name else e.name,
             "material": e.material,
@@ -1650,7 +1705,7 @@ def scan_to_scene(
     HallrayError
         Bad input of any kind (one-line message).
     """
-    from .spec import glb_bytes, write_bytes_atomic
+    from .spec import glb_bytes
 
     out = Path(out_path)
     if out.suffix.lower() != ".glb":
@@ -1683,7 +1738,7 @@ def scan_to_scene(
     scene = scene_from_elements(elements, meta, rules)
     data = glb_bytes(scene)
     try:
-        write_bytes_atomic(data, out)
+        write_atomic(out, data)
     except OSError as exc:
         raise SceneError(f"cannot write {out}: {exc}") from None
     summary["output"] = str(out)

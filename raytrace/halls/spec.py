@@ -30,10 +30,11 @@ import numpy as np
 import trimesh
 import yaml
 
-from raytrace.core.errors import HallrayError, MaterialError, SceneError
-from raytrace.core.fileio import write_atomic
-from raytrace.physics.materials import MaterialLibrary
-
+from ..core.errors import HallrayError, MaterialError, SceneError
+from ..core.fileio import write_atomic
+from ..core.palette import material_colors
+from ..physics.materials import MaterialLibrary
+from ..scene.model import Scene
 from ..scene.motion import ROUTE_MODES, Route
 
 #: Version of the hall YAML schema and of the ``metadata["hallray"]`` block of the built GLB.
@@ -47,29 +48,10 @@ ITU_MATERIALS: tuple[str, ...] = MaterialLibrary.itu().names
 POINT_CLEARANCE_M = 0.01
 #: Tolerance for "object inside the hall" (m).
 BOUNDS_TOL_M = 1e-6
-#: Segment-test margin at both ends (m): a hit closer than this to an end does not block.
-SEGMENT_MARGIN_M = 1e-4
 #: Objects whose top is below this height do not obstruct a forklift route (floor markings), m.
 DRIVE_OVER_HEIGHT_M = 0.05
 #: Default number of sides of a cylinder.
 DEFAULT_CYLINDER_SECTIONS = 16
-
-#: Colours for drawings and for the glTF materials (RGB in 0..1).
-MATERIAL_COLORS: dict[str, tuple[float, float, float]] = {
-    "concrete": (0.62, 0.62, 0.60),
-    "brick": (0.70, 0.35, 0.25),
-    "plasterboard": (0.88, 0.85, 0.76),
-    "wood": (0.64, 0.45, 0.25),
-    "glass": (0.55, 0.82, 0.92),
-    "ceiling_board": (0.92, 0.92, 0.88),
-    "chipboard": (0.80, 0.66, 0.45),
-    "plywood": (0.76, 0.60, 0.38),
-    "marble": (0.90, 0.90, 0.92),
-    "floorboard": (0.58, 0.40, 0.24),
-    "metal": (0.33, 0.44, 0.62),
-    "plastic": (0.95, 0.62, 0.18),
-}
-_FALLBACK_COLORS = ((0.55, 0.35, 0.65), (0.30, 0.60, 0.35), (0.80, 0.30, 0.50), (0.40, 0.40, 0.40))
 
 _NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_-]*$")
 _MATERIAL_NAME_RE = re.compile(r"^[a-z][a-z0-9_]*$")
@@ -566,26 +548,16 @@ def _parse_primitive(raw: Mapping[str, Any], where: str, materials: Sequence[str
     if kind == "box":
         _check_keys(raw, where, ("name", "type", "material", "size"), _BOX_KEYS)
         size = _vector(raw["size"], f"{where}.size", 3, positive=True)
-        if ("center" in raw) == ("min" in raw):
-            _fail(where, "give exactly one of 'center' or 'min'")
-        if "center" in raw:
-            center = _vector(raw["center"], f"{where}.center", 3)
-        else:
-            lo = _vector(raw["min"], f"{where}.min", 3)
-            center = tuple(lo[k] + 0.5 * size[k] for k in range(3))
+        key, xyz = _position(raw, where, ("center", "min"))
+        center = xyz if key == "center" else tuple(xyz[k] + 0.5 * size[k] for k in range(3))
         yaw = _number(raw.get("yaw_deg", 0.0), f"{where}.yaw_deg")
         return Box(name, material, center, size, yaw)
     if kind == "cylinder":
         _check_keys(raw, where, ("name", "type", "material", "radius", "height"), _CYL_KEYS)
         radius = _number(raw["radius"], f"{where}.radius", positive=True)
         height = _number(raw["height"], f"{where}.height", positive=True)
-        if ("center" in raw) == ("base" in raw):
-            _fail(where, "give exactly one of 'center' or 'base'")
-        if "base" in raw:
-            base = _vector(raw["base"], f"{where}.base", 3)
-        else:
-            c = _vector(raw["center"], f"{where}.center", 3)
-            base = (c[0], c[1], c[2] - 0.5 * height)
+        key, xyz = _position(raw, where, ("center", "base"))
+        base = xyz if key == "base" else (xyz[0], xyz[1], xyz[2] - 0.5 * height)
         sections = raw.get("sections", DEFAULT_CYLINDER_SECTIONS)
         if isinstance(sections, bool) or not isinstance(sections, int) or sections < 3:
             _fail(f"{where}.sections", f"expected an integer >= 3, got {sections!r}")
@@ -600,6 +572,17 @@ def _parse_primitive(raw: Mapping[str, Any], where: str, materials: Sequence[str
         return Sheet(name, material, origin, u, v)
     _fail(f"{where}.type", f"unknown type {kind!r} (box, cylinder, sheet, instance)")
     raise AssertionError  # unreachable
+
+
+def _position(
+    raw: Mapping[str, Any], where: str, keys: tuple[str, str]
+) -> tuple[str, tuple[float, ...]]:
+    """The one of two alternative position keys that ``raw`` gives, and its 3-vector (m)."""
+    a, b = keys
+    if (a in raw) == (b in raw):
+        _fail(where, f"give exactly one of '{a}' or '{b}'")
+    key = a if a in raw else b
+    return key, _vector(raw[key], f"{where}.{key}", 3)
 
 
 def _place(prim: Primitive, name: str, offset: np.ndarray, yaw_deg: float) -> Primitive:
@@ -759,6 +742,26 @@ def _route_swept_area(route: Route) -> Any:
 
 def _validate(spec: HallSpec) -> None:
     """Geometric checks across sections (names, bounds, clearances)."""
+    from shapely.geometry import Point
+
+    _validate_objects(spec)
+    if spec.area_of_interest is not None:
+        x0, y0, x1, y1 = spec.area_of_interest
+        if not (x0 < x1 and y0 < y1):
+            _fail("area_of_interest", "needs min < max in x and y")
+        if x0 < 0 or y0 < 0 or x1 > spec.size[0] or y1 > spec.size[1]:
+            _fail("area_of_interest", "extends outside the hall")
+    swept = {route.name: _validate_route(spec, route) for route in spec.routes}
+    _validate_sites(spec, "base station", spec.base_stations)
+    _validate_sites(spec, "point", spec.points)
+    for route in spec.routes:
+        for entry in spec.points:
+            if entry.xyz[2] < route.size[2] and swept[route.name].intersects(Point(entry.xyz[:2])):
+                _fail(f"point '{entry.name}'", f"lies on forklift route '{route.name}'")
+
+
+def _validate_objects(spec: HallSpec) -> None:
+    """Unique names, not ``shell_``, node names that bind their material, inside the hall."""
     size = np.asarray(spec.size)
     library = spec.material_library
     seen: set[str] = set()
@@ -784,51 +787,46 @@ def _validate(spec: HallSpec) -> None:
                 f"extends outside the hall interior (bounds {np.round(lo, 3).tolist()} .. "
                 f"{np.round(hi, 3).tolist()}, hall {list(spec.size)})",
             )
-    if spec.area_of_interest is not None:
-        x0, y0, x1, y1 = spec.area_of_interest
-        if not (x0 < x1 and y0 < y1):
-            _fail("area_of_interest", "needs min < max in x and y")
-        if x0 < 0 or y0 < 0 or x1 > size[0] or y1 > size[1]:
-            _fail("area_of_interest", "extends outside the hall")
-    swept = {}
-    for route in spec.routes:
-        area = _route_swept_area(route)
-        minx, miny, maxx, maxy = area.bounds
-        if minx < -BOUNDS_TOL_M or miny < -BOUNDS_TOL_M:
-            _fail(f"routes.{route.name}", "the forklift leaves the hall (too close to a wall)")
-        if maxx > size[0] + BOUNDS_TOL_M or maxy > size[1] + BOUNDS_TOL_M:
-            _fail(f"routes.{route.name}", "the forklift leaves the hall (too close to a wall)")
-        if route.size[2] > size[2]:
-            _fail(f"routes.{route.name}.size", "forklift taller than the hall")
-        for prim in spec.objects:
-            lo, hi = _bounds(prim)
-            if hi[2] <= DRIVE_OVER_HEIGHT_M or lo[2] >= route.size[2]:
-                continue
-            geom = _shapely_footprint(prim)
-            if geom.intersects(area) and not geom.touches(area):
-                _fail(f"routes.{route.name}", f"the forklift's path collides with '{prim.name}'")
-        swept[route.name] = area
-    for label, entries in (("base station", spec.base_stations), ("point", spec.points)):
-        xyz = np.array([e.xyz for e in entries], dtype=float).reshape(-1, 3)
-        for k, entry in enumerate(entries):
-            p = xyz[k]
-            if np.any(p <= POINT_CLEARANCE_M) or np.any(p >= size - POINT_CLEARANCE_M):
-                _fail(f"{label} '{entry.name}'", f"{list(entry.xyz)} is outside the hall interior")
-        for prim in spec.objects:
-            inside = prim.contains(xyz, POINT_CLEARANCE_M)
-            if np.any(inside):
-                k = int(np.argmax(inside))
-                verb = "is inside" if prim.closed else "lies on"
-                _fail(f"{label} '{entries[k].name}'", f"{verb} object '{prim.name}'")
-        if label == "point":
-            from shapely.geometry import Point
 
-            for route in spec.routes:
-                for entry in entries:
-                    if entry.xyz[2] < route.size[2] and swept[route.name].intersects(
-                        Point(entry.xyz[:2])
-                    ):
-                        _fail(f"point '{entry.name}'", f"lies on forklift route '{route.name}'")
+
+def _validate_route(spec: HallSpec, route: Route) -> Any:
+    """A forklift route stays inside the hall and clear of every object it cannot drive over;
+    returns its swept floor area (shapely)."""
+    size = np.asarray(spec.size)
+    area = _route_swept_area(route)
+    minx, miny, maxx, maxy = area.bounds
+    if minx < -BOUNDS_TOL_M or miny < -BOUNDS_TOL_M:
+        _fail(f"routes.{route.name}", "the forklift leaves the hall (too close to a wall)")
+    if maxx > size[0] + BOUNDS_TOL_M or maxy > size[1] + BOUNDS_TOL_M:
+        _fail(f"routes.{route.name}", "the forklift leaves the hall (too close to a wall)")
+    if route.size[2] > size[2]:
+        _fail(f"routes.{route.name}.size", "forklift taller than the hall")
+    for prim in spec.objects:
+        lo, hi = _bounds(prim)
+        if hi[2] <= DRIVE_OVER_HEIGHT_M or lo[2] >= route.size[2]:
+            continue
+        geom = _shapely_footprint(prim)
+        if geom.intersects(area) and not geom.touches(area):
+            _fail(f"routes.{route.name}", f"the forklift's path collides with '{prim.name}'")
+    return area
+
+
+def _validate_sites(
+    spec: HallSpec, label: str, entries: Sequence[BaseStation | PointOfInterest]
+) -> None:
+    """Base stations or points lie inside the hall, clear of every solid and sheet."""
+    size = np.asarray(spec.size)
+    xyz = np.array([e.xyz for e in entries], dtype=float).reshape(-1, 3)
+    for k, entry in enumerate(entries):
+        p = xyz[k]
+        if np.any(p <= POINT_CLEARANCE_M) or np.any(p >= size - POINT_CLEARANCE_M):
+            _fail(f"{label} '{entry.name}'", f"{list(entry.xyz)} is outside the hall interior")
+    for prim in spec.objects:
+        inside = prim.contains(xyz, POINT_CLEARANCE_M)
+        if np.any(inside):
+            k = int(np.argmax(inside))
+            verb = "is inside" if prim.closed else "lies on"
+            _fail(f"{label} '{entries[k].name}'", f"{verb} object '{prim.name}'")
 
 
 def _shapely_footprint(prim: Primitive) -> Any:
@@ -1002,34 +1000,32 @@ def hall_metadata(spec: HallSpec) -> dict[str, Any]:
     }
 
 
-def _color(material: str, palette_index: int = 0) -> tuple[float, float, float]:
-    if material in MATERIAL_COLORS:
-        return MATERIAL_COLORS[material]
-    return _FALLBACK_COLORS[palette_index % len(_FALLBACK_COLORS)]
-
-
-def object_mesh(prim: Primitive, *, user_materials: Mapping[str, Any] = ()) -> trimesh.Trimesh:
-    """A primitive as a ``trimesh.Trimesh`` (vertices in world coordinates, not merged).
-
-    Its ``metadata`` (stored as glTF mesh extras) holds ``object``, ``material``, ``kind`` and
-    ``closed``; its glTF material is named after the radio material.
-    """
+def paint(mesh: trimesh.Trimesh, material: str, rgb: Sequence[float]) -> None:
+    """Give a mesh its glTF material: named after the radio material, base colour ``rgb`` (the
+    palette's, :mod:`raytrace.core.palette`), matte and two-sided."""
     from trimesh.visual import TextureVisuals
     from trimesh.visual.material import PBRMaterial
 
-    vertices, faces = prim.mesh_arrays()
-    mesh = trimesh.Trimesh(vertices=vertices + 0.0, faces=faces, process=False)
-    user = sorted(_new_materials(user_materials))
-    rgb = _color(prim.material, user.index(prim.material) if prim.material in user else 0)
     mesh.visual = TextureVisuals(
         material=PBRMaterial(
-            name=prim.material,
+            name=material,
             baseColorFactor=[*rgb, 1.0],
             metallicFactor=0.0,
             roughnessFactor=1.0,
             doubleSided=True,
         )
     )
+
+
+def object_mesh(prim: Primitive, rgb: Sequence[float]) -> trimesh.Trimesh:
+    """A primitive as a ``trimesh.Trimesh`` (vertices in world coordinates, not merged).
+
+    Its ``metadata`` (stored as glTF mesh extras) holds ``object``, ``material``, ``kind`` and
+    ``closed``; its glTF material is named after the radio material, coloured ``rgb``.
+    """
+    vertices, faces = prim.mesh_arrays()
+    mesh = trimesh.Trimesh(vertices=vertices + 0.0, faces=faces, process=False)
+    paint(mesh, prim.material, rgb)
     mesh.metadata = {
         "object": prim.name,
         "material": prim.material,
@@ -1045,16 +1041,18 @@ def scene_from_primitives(
     *,
     user_materials: Mapping[str, Any] = (),
 ) -> trimesh.Scene:
-    """A scene with one node per primitive, named ``node_name(...)``, sorted by node name."""
+    """A scene with one node per primitive, named ``node_name(...)``, sorted by node name, each
+    coloured by :func:`raytrace.core.palette.material_colors` over the primitives' materials."""
     nodes = {}
     for prim in primitives:
         name = node_name(prim.name, prim.material, user_materials)
         if name in nodes:
             raise SceneError(f"duplicate node name '{name}'")
         nodes[name] = prim
+    colors = material_colors(p.material for p in primitives)
     scene = trimesh.Scene()
     for name in sorted(nodes):
-        mesh = object_mesh(nodes[name], user_materials=user_materials)
+        mesh = object_mesh(nodes[name], colors[nodes[name].material])
         scene.add_geometry(mesh, geom_name=name, node_name=name)
     scene.metadata["hallray"] = dict(metadata)
     return scene
@@ -1077,106 +1075,86 @@ def glb_bytes(scene: trimesh.Scene) -> bytes:
     return bytes(scene.export(file_type="glb"))
 
 
-def write_bytes_atomic(data: bytes, path: str | os.PathLike[str]) -> None:
-    """Write ``data`` to ``path`` atomically (see :func:`raytrace.core.fileio.write_atomic`)."""
-    write_atomic(path, data)
-
-
 def write_glb(spec_or_scene: HallSpec | trimesh.Scene, path: str | os.PathLike[str]) -> bytes:
     """Build (if given a spec) and write the GLB atomically; returns the bytes written."""
     scene = build_scene(spec_or_scene) if isinstance(spec_or_scene, HallSpec) else spec_or_scene
     data = glb_bytes(scene)
-    write_bytes_atomic(data, path)
+    write_atomic(path, data)
     return data
 
 
 # --------------------------------------------------------------------------------------------
-# line-of-sight table (segment test on the built mesh)
+# the tracer's scene and the line-of-sight table (Embree queries of the scene)
 # --------------------------------------------------------------------------------------------
 
 
-def _scene_triangles(scene: trimesh.Scene) -> tuple[trimesh.Trimesh, list[str], np.ndarray]:
-    """All triangles of a scene in world coordinates, their object names and face -> object."""
-    vertices, faces, owner, names = [], [], [], []
-    offset = 0
-    for node in sorted(scene.graph.nodes_geometry):
-        transform, geom_name = scene.graph[node]
-        mesh = scene.geometry[geom_name]
-        v = trimesh.transformations.transform_points(mesh.vertices, transform)
-        vertices.append(v)
-        faces.append(mesh.faces + offset)
-        offset += len(v)
-        owner.append(np.full(len(mesh.faces), len(names)))
-        names.append(str(mesh.metadata.get("object", node)))
-    combined = trimesh.Trimesh(np.vstack(vertices), np.vstack(faces), process=False)
-    return combined, names, np.concatenate(owner)
+def tracer_scene(spec: HallSpec) -> Scene:
+    """The tracer's :class:`~raytrace.scene.model.Scene` of a hall, built in memory (no GLB).
+
+    Objects are named and ordered as :func:`raytrace.scene.io.load_scene` names and orders
+    them from the GLB; vertices stay float64 (the GLB stores float32, a difference of < 1e-5 m).
+    ``scene.metadata["hallray"]`` is :func:`hall_metadata`.
+    """
+    meshes = []
+    for prim in spec.shell() + spec.objects:
+        v, f = prim.mesh_arrays()
+        meshes.append((spec.node_name(prim), trimesh.Trimesh(v, f, process=False), prim.material))
+    meshes.sort(key=lambda m: m[0])
+    return Scene.from_meshes(
+        meshes, spec.material_library, metadata={"hallray": hall_metadata(spec)}, source=spec.name
+    )
+
+
+def object_name(node: str, material: str) -> str:
+    """The object name in a node name: ``clutter_0012_itu_metal`` -> ``clutter_0012`` (the
+    inverse of :func:`node_name` for the node's own material)."""
+    for suffix in (f"_itu_{material}", f"_{material}"):
+        if node.endswith(suffix) and len(node) > len(suffix):
+            return node[: -len(suffix)]
+    return node
 
 
 def segment_blockers(
-    scene: trimesh.Scene,
-    start: np.ndarray,
-    end: np.ndarray,
-    *,
-    engine: str = "embree",
-    margin: float = SEGMENT_MARGIN_M,
+    scene: Scene, start: np.ndarray, end: np.ndarray, *, max_blockers: int | None = None
 ) -> list[tuple[str, ...]]:
     """Objects crossed by each segment ``start[k] -> end[k]`` (both ``(n, 3)`` m).
 
-    A triangle blocks when a ray from ``start`` towards ``end`` hits it at a distance in
-    ``(margin, length - margin)``. ``engine`` is ``"embree"`` (trimesh's Embree intersector) or
-    ``"python"`` (trimesh's pure-Python ``ray_triangle`` intersector, an independent check).
-    Returns, per segment, the blocking object names ordered by first hit distance from ``start``.
+    The scene's Embree walk along the segments
+    (:meth:`~raytrace.scene.model.Scene.segment_objects`, with the scene's end margin). Returns,
+    per segment, the blocking object names (:func:`object_name`) ordered by first hit distance
+    from ``start``, at most ``max_blockers`` of them (None: all).
     """
-    mesh, names, owner = _scene_triangles(scene)
-    start = np.atleast_2d(np.asarray(start, dtype=float))
-    end = np.atleast_2d(np.asarray(end, dtype=float))
-    delta = end - start
-    length = np.linalg.norm(delta, axis=1)
-    direction = delta / length[:, None]
-    if engine == "embree":
-        from trimesh.ray.ray_pyembree import RayMeshIntersector
-    elif engine == "python":
-        from trimesh.ray.ray_triangle import RayMeshIntersector
-    else:
-        raise ValueError(f"unknown engine {engine!r}")
-    locations, index_ray, index_tri = RayMeshIntersector(mesh).intersects_location(
-        start, direction, multiple_hits=True
-    )
-    dist = np.einsum("ij,ij->i", locations - start[index_ray], direction[index_ray])
-    keep = (dist > margin) & (dist < length[index_ray] - margin)
-    out: list[tuple[str, ...]] = []
-    for k in range(len(start)):
-        sel = np.flatnonzero(keep & (index_ray == k))
-        order = sel[np.argsort(dist[sel], kind="stable")]
-        out.append(tuple(dict.fromkeys(names[owner[t]] for t in index_tri[order])))
-    return out
+    rows = scene.segment_objects(start, end, max_objects=max_blockers)
+    names = [object_name(o.name, o.material) for o in scene.objects]
+    return [tuple(names[i] for i in row if i >= 0) for row in rows]
 
 
 def line_of_sight(
-    spec_or_scene: HallSpec | trimesh.Scene, *, engine: str = "embree"
+    hall: HallSpec | Scene, *, max_blockers: int | None = None
 ) -> dict[str, dict[str, tuple[str, ...]]]:
     """``{point: {base_station: blocking object names}}``; an empty tuple means line of sight.
 
-    Points and base stations come from the spec, or from ``scene.metadata["hallray"]``.
+    ``hall`` is a spec (its :func:`tracer_scene` is built) or a scene with
+    ``metadata["hallray"]`` (a hall GLB loaded with :func:`raytrace.scene.io.load_scene`),
+    whose points and base stations are used. Blockers as in :func:`segment_blockers`.
     """
-    if isinstance(spec_or_scene, HallSpec):
-        scene = build_scene(spec_or_scene)
-    else:
-        scene = spec_or_scene
-    meta = scene.metadata["hallray"]
-    bss = [(b["name"], np.asarray(b["xyz"], dtype=float)) for b in meta["base_stations"]]
-    pts = [(p["name"], np.asarray(p["xyz"], dtype=float)) for p in meta["points"]]
-    if not bss or not pts:
-        return {p: {} for p, _ in pts}
-    start = np.array([b for _, b in bss for _ in pts])
-    end = np.array([p for _ in bss for _, p in pts])
-    blockers = segment_blockers(scene, start, end, engine=engine)
+    scene = tracer_scene(hall) if isinstance(hall, HallSpec) else hall
+    if not isinstance(scene, Scene):
+        raise SceneError(
+            f"line_of_sight needs a HallSpec or a Scene (load_scene), got {type(hall).__name__}"
+        )
+    meta = scene.metadata.get("hallray", {})
+    bss = [(b["name"], b["xyz"]) for b in meta.get("base_stations", [])]
+    pts = [(p["name"], p["xyz"]) for p in meta.get("points", [])]
     table: dict[str, dict[str, tuple[str, ...]]] = {p: {} for p, _ in pts}
-    k = 0
+    if not bss or not pts:
+        return table
+    start = np.array([b for _, b in bss for _ in pts], dtype=float)
+    end = np.array([p for _ in bss for _, p in pts], dtype=float)
+    blockers = iter(segment_blockers(scene, start, end, max_blockers=max_blockers))
     for bname, _ in bss:
         for pname, _ in pts:
-            table[pname][bname] = blockers[k]
-            k += 1
+            table[pname][bname] = next(blockers)
     return table
 
 
@@ -1247,14 +1225,12 @@ def plot_top_view(
 ) -> None:
     """Draw a hall seen from above on a matplotlib ``ax``.
 
-    Obstacles are filled by material (taller ones on top), sheets drawn as thick lines, base
-    stations as triangles, points of interest as numbered red squares, the area of interest as a
-    dashed rectangle and forklift routes as dashed arrows. Accepts a :class:`HallSpec`, a scene
-    with ``metadata["hallray"]`` (e.g. a loaded GLB) or that metadata mapping itself.
+    Obstacles are filled by material (taller ones on top; colours of
+    :mod:`raytrace.core.palette`), sheets drawn as thick lines, base stations as triangles,
+    points of interest as numbered red squares, the area of interest as a dashed rectangle and
+    forklift routes as dashed arrows. Accepts a :class:`HallSpec`, a scene with
+    ``metadata["hallray"]`` (e.g. a loaded GLB) or that metadata mapping itself.
     """
-    from matplotlib.lines import Line2D
-    from matplotlib.patches import Patch, Polygon, Rectangle
-
     if isinstance(spec_or_scene, HallSpec):
         meta: Mapping[str, Any] = hall_metadata(spec_or_scene)
     elif isinstance(spec_or_scene, trimesh.Scene):
@@ -1262,17 +1238,37 @@ def plot_top_view(
     else:
         meta = spec_or_scene
     sx, sy, _ = meta["hall"]["size"]
+    handles = _draw_obstacles(ax, meta, label_objects)
+    handles += _draw_area(ax, meta.get("area_of_interest"))
+    if show_routes:
+        handles += _draw_routes(ax, meta.get("routes") or [])
+    points = (meta.get("points") or []) if show_points else []
+    handles += _draw_sites(ax, meta.get("base_stations") or [], points)
+    ax.set_xlim(-1.5, sx + 1.5)
+    ax.set_ylim(-1.5, sy + 1.5)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    if show_legend:
+        ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=7.5)
+
+
+def _draw_obstacles(ax: Any, meta: Mapping[str, Any], label_objects: bool) -> list[Any]:
+    """The shell, the interior and the obstacles (lowest first); legend patches of their
+    materials."""
+    from matplotlib.patches import Patch, Polygon, Rectangle
+
+    sx, sy, _ = meta["hall"]["size"]
     t = meta["hall"].get("wall_thickness", 0.3)
+    shell = meta["hall"].get("material", "concrete")
+    colors = material_colors([shell, *(o["material"] for o in meta["obstacles_2d"])])
     ax.add_patch(
-        Rectangle((-t, -t), sx + 2 * t, sy + 2 * t, fc=_color("concrete"), ec="k", lw=1, zorder=0.4)
+        Rectangle((-t, -t), sx + 2 * t, sy + 2 * t, fc=colors[shell], ec="k", lw=1, zorder=0.4)
     )
     ax.add_patch(Rectangle((0, 0), sx, sy, facecolor="white", edgecolor="k", lw=0.8, zorder=0.5))
-    user = sorted(m for m in meta.get("materials", {}) if m not in ITU_MATERIALS)
     used: dict[str, tuple[float, float, float]] = {}
     for obs in sorted(meta["obstacles_2d"], key=lambda o: (o["z"][1], o["name"])):
-        mat = obs["material"]
-        rgb = _color(mat, user.index(mat) if mat in user else 0)
-        used[mat] = rgb
+        rgb = used[obs["material"]] = colors[obs["material"]]
         xy = np.asarray(obs["xy"], dtype=float)
         z = 1.0 + 0.001 * obs["z"][1]
         if len(xy) == 2:  # vertical sheet: a thick line
@@ -1288,63 +1284,78 @@ def plot_top_view(
         if label_objects:
             c = xy.mean(axis=0)
             ax.text(c[0], c[1], obs["name"], fontsize=4, ha="center", va="center", zorder=9)
-    aoi = meta.get("area_of_interest")
-    handles: list[Any] = [
+    return [
         Patch(facecolor=rgb, edgecolor="0.15", label=m.replace("_", " ")) for m, rgb in used.items()
     ]
-    if aoi is not None:
-        (x0, y0), (x1, y1) = aoi["min"], aoi["max"]
-        ax.add_patch(
-            Rectangle(
-                (x0, y0), x1 - x0, y1 - y0, fill=False, ls=(0, (6, 3)), lw=1.4, ec="green", zorder=6
-            )
+
+
+def _draw_area(ax: Any, aoi: Mapping[str, Any] | None) -> list[Any]:
+    """The area of interest as a dashed green rectangle (if any); its legend line."""
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Rectangle
+
+    if aoi is None:
+        return []
+    (x0, y0), (x1, y1) = aoi["min"], aoi["max"]
+    ax.add_patch(
+        Rectangle(
+            (x0, y0), x1 - x0, y1 - y0, fill=False, ls=(0, (6, 3)), lw=1.4, ec="green", zorder=6
         )
-        handles.append(Line2D([], [], color="green", ls="--", label="area of interest"))
-    if show_routes and meta.get("routes"):
-        for k, route in enumerate(meta["routes"]):
-            wp = np.asarray(route["waypoints"], dtype=float)
-            if route["mode"] == "loop":
-                wp = np.vstack([wp, wp[:1]])
-            ax.plot(wp[:, 0], wp[:, 1], ls=(0, (4, 3)), color="0.25", lw=1.2, zorder=5)
-            for a, b in zip(wp[:-1], wp[1:], strict=True):
-                mid = 0.5 * (a + b)
-                d = 0.01 * (b - a) / max(np.linalg.norm(b - a), 1e-9)
-                ax.annotate(
-                    "",
-                    xy=mid + d,
-                    xytext=mid - d,
-                    arrowprops={"arrowstyle": "-|>", "color": "0.25", "lw": 1.0},
-                    zorder=5,
-                )
-            ax.text(wp[0, 0], wp[0, 1] + 0.6, route["name"], fontsize=6.5, color="0.2", zorder=7)
-            if k == 0:
-                handles.append(Line2D([], [], color="0.25", ls="--", label="forklift route"))
-    for bs in meta.get("base_stations", []):
+    )
+    return [Line2D([], [], color="green", ls="--", label="area of interest")]
+
+
+def _draw_routes(ax: Any, routes: Sequence[Mapping[str, Any]]) -> list[Any]:
+    """Forklift routes as dashed polylines with an arrow on every leg; one legend line."""
+    from matplotlib.lines import Line2D
+
+    for route in routes:
+        wp = np.asarray(route["waypoints"], dtype=float)
+        if route["mode"] == "loop":
+            wp = np.vstack([wp, wp[:1]])
+        ax.plot(wp[:, 0], wp[:, 1], ls=(0, (4, 3)), color="0.25", lw=1.2, zorder=5)
+        for a, b in zip(wp[:-1], wp[1:], strict=True):
+            mid = 0.5 * (a + b)
+            d = 0.01 * (b - a) / max(np.linalg.norm(b - a), 1e-9)
+            ax.annotate(
+                "",
+                xy=mid + d,
+                xytext=mid - d,
+                arrowprops={"arrowstyle": "-|>", "color": "0.25", "lw": 1.0},
+                zorder=5,
+            )
+        ax.text(wp[0, 0], wp[0, 1] + 0.6, route["name"], fontsize=6.5, color="0.2", zorder=7)
+    return [Line2D([], [], color="0.25", ls="--", label="forklift route")] if routes else []
+
+
+def _draw_sites(
+    ax: Any, base_stations: Sequence[Mapping[str, Any]], points: Sequence[Mapping[str, Any]]
+) -> list[Any]:
+    """Base stations (gold triangles, name and height) and points of interest (red squares,
+    numbered); their legend markers."""
+    from matplotlib.lines import Line2D
+
+    handles: list[Any] = []
+    for bs in base_stations:
         x, y, z = bs["xyz"]
         ax.plot(x, y, marker="^", ms=10, mfc="gold", mec="k", zorder=8)
         ax.text(x + 0.5, y + 0.5, f"{bs['name']}\n{z:g} m", fontsize=7, weight="bold", zorder=9)
-    if meta.get("base_stations"):
+    if base_stations:
         handles.append(
             Line2D([], [], marker="^", ls="", mfc="gold", mec="k", ms=8, label="base station")
         )
-    if show_points and meta.get("points"):
-        for p in meta["points"]:
-            x, y, _ = p["xyz"]
-            ax.plot(x, y, marker="s", ms=5, mfc="red", mec="darkred", zorder=8)
-            label = re.sub(r"^\D*0*(?=\d)", "", p["name"]) or p["name"]
-            ax.text(x + 0.35, y - 0.75, label, fontsize=6.5, color="darkred", zorder=9)
+    for p in points:
+        x, y, _ = p["xyz"]
+        ax.plot(x, y, marker="s", ms=5, mfc="red", mec="darkred", zorder=8)
+        label = re.sub(r"^\D*0*(?=\d)", "", p["name"]) or p["name"]
+        ax.text(x + 0.35, y - 0.75, label, fontsize=6.5, color="darkred", zorder=9)
+    if points:
         handles.append(
             Line2D(
                 [], [], marker="s", ls="", mfc="red", mec="darkred", ms=6, label="point of interest"
             )
         )
-    ax.set_xlim(-1.5, sx + 1.5)
-    ax.set_ylim(-1.5, sy + 1.5)
-    ax.set_aspect("equal")
-    ax.set_xlabel("x (m)")
-    ax.set_ylabel("y (m)")
-    if show_legend:
-        ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=7.5)
+    return handles
 
 
 # --------------------------------------------------------------------------------------------
@@ -1393,7 +1404,7 @@ def build_hall_cli(argv: Sequence[str] | None = None) -> int:
     n_faces = sum(len(g.faces) for g in scene.geometry.values())
     print(f"wrote {out}: {len(scene.geometry)} objects, {n_faces} triangles, {len(data)} bytes")
     if args.los:
-        table = line_of_sight(scene)
+        table = line_of_sight(spec)
         for point, status in table.items():
             print(f"{point}: {los_note(status)}")
     return 0

@@ -486,6 +486,73 @@ class Scene:
             hit[ok] = np.asarray(res) != -1
         return hit
 
+    def segment_objects(
+        self,
+        origins: np.ndarray,
+        ends: np.ndarray,
+        max_objects: int | None = None,
+        margin: float | None = None,
+    ) -> np.ndarray:
+        """The objects on the segments ``origins -> ends``, in the order the segments meet them.
+
+        Each segment is walked with :meth:`intersect` (one Embree query per step for all
+        segments still going): after a hit it goes on ``margin`` beyond it. A surface less than
+        ``margin`` behind another along the segment (two faces in contact) is therefore not met
+        separately; a solid behind such a contact still counts where the segment leaves it. The
+        first step is the ray of :meth:`occluded` with the same margin, so a segment is occluded
+        exactly when its row names an object.
+
+        Parameters
+        ----------
+        origins, ends : (n, 3) float, metres
+        max_objects : int, stop a segment once it has met this many objects (None: all)
+        margin : float, metres, shaved off both ends (defaults to :attr:`margin`)
+
+        Returns
+        -------
+        (n, K) int, object indices ordered by the distance of their first hit from the origin,
+        each object once, padded with -1; K is the most objects on one segment (0 if none)
+        """
+        m = self.margin if margin is None else margin
+        o, d, length = _rays(origins, ends, m)
+        n, n_obj = len(o), len(self.objects)
+        walked = np.zeros(n)
+        distinct = np.zeros(n, dtype=np.int64)
+        known = np.zeros(0, dtype=np.int64)  # ray * n_obj + object, of the objects met so far
+        keys: list[np.ndarray] = []  # in walk order
+        active = np.flatnonzero(length > 0)
+        while active.size:  # every step moves a segment on by >= m or ends it: terminates
+            rest = length[active] - walked[active]
+            start = o[active] + walked[active, None] * d[active]
+            t, _, obj = self.intersect(start, d[active], rest)
+            hit = obj >= 0
+            ray = active[hit]
+            key = ray * n_obj + obj[hit]
+            new = ~np.isin(key, known)
+            distinct[ray[new]] += 1
+            known = np.union1d(known, key[new])
+            keys.append(key)
+            walked[ray] += t[hit] + m
+            go = walked[ray] < length[ray]
+            if max_objects is not None:
+                go &= distinct[ray] < max_objects
+            active = ray[go]
+        if not keys:
+            return np.full((n, 0), -1, dtype=np.int64)
+        walk = np.concatenate(keys)
+        first = np.sort(np.unique(walk, return_index=True)[1])  # first meeting of each object
+        ray, obj = np.divmod(walk[first], max(n_obj, 1))
+        order = np.argsort(ray, kind="stable")  # by segment, walk order kept within one
+        ray, obj = ray[order], obj[order]
+        col = np.arange(len(ray)) - np.searchsorted(ray, ray)  # rank within the segment
+        width = int(col.max()) + 1 if len(col) else 0
+        if max_objects is not None:
+            width = min(width, max_objects)
+        out = np.full((n, width), -1, dtype=np.int64)
+        keep = col < width
+        out[ray[keep], col[keep]] = obj[keep]
+        return out
+
     def first_hit_among(
         self,
         objects: np.ndarray,

@@ -28,6 +28,9 @@ import numpy as np
 
 from ..core.constants import C0
 from ..core.errors import HallrayError
+from ..core.fileio import write_atomic
+from ..core.palette import material_colors
+from ..halls.scan import floor_level
 from ..scene.model import Scene
 from ..solver.paths import Paths
 from .export import KIND_COLOURS, path_category, path_polylines
@@ -38,6 +41,8 @@ DEFAULT_DPI = 150
 #: Light direction (towards the light) for the perspective shading, and the ambient share.
 LIGHT_DIR = np.array([-0.35, -0.55, 0.76])
 AMBIENT = 0.45
+#: Font size of the picture's labels, points.
+_FS = 7.5
 #: Category names in the legend.
 CATEGORY_LABELS = {
     "los": "line of sight",
@@ -45,7 +50,6 @@ CATEGORY_LABELS = {
     "penetration": "penetration only",
     "diffraction": "diffraction",
 }
-_FALLBACK_RGB = ((0.55, 0.35, 0.65), (0.30, 0.60, 0.35), (0.80, 0.30, 0.50), (0.40, 0.40, 0.40))
 
 
 @dataclass
@@ -62,15 +66,6 @@ class LinkPaths:
     distance_m: float
     strongest_kind: str = "-"
     strongest_power_db: float = float("nan")
-
-
-def material_rgb(material: str, user_index: int = 0) -> tuple[float, float, float]:
-    """The drawing colour of a material (``raytrace.halls.spec.MATERIAL_COLORS``, else a fallback)."""
-    from ..halls.spec import MATERIAL_COLORS
-
-    if material in MATERIAL_COLORS:
-        return tuple(MATERIAL_COLORS[material])  # type: ignore[return-value]
-    return _FALLBACK_RGB[user_index % len(_FALLBACK_RGB)]
 
 
 def link_paths(
@@ -143,15 +138,6 @@ def _object_arrays(scene: Scene) -> list[dict[str, Any]]:
             }
         )
     return out
-
-
-def _floor_z(scene: Scene) -> float:
-    """Height of the floor: the lowest large upward-facing facet, or the bottom of the scene."""
-    f = scene.facets
-    if len(f) == 0:
-        return float(scene.bounds[0, 2])
-    up = (f.normal[:, 2] > 0.99) & (f.area > 0.05 * f.area.max())
-    return float(f.offset[up].min()) if up.any() else float(scene.bounds[0, 2])
 
 
 def _shade(rgb: np.ndarray, normals: np.ndarray, two_sided: bool) -> np.ndarray:
@@ -247,12 +233,6 @@ def render_scene(
 
     matplotlib.use("Agg", force=False)
     import matplotlib.pyplot as plt
-    from matplotlib.collections import LineCollection, PolyCollection
-    from matplotlib.lines import Line2D
-    from matplotlib.patches import Patch
-    from mpl_toolkits.mplot3d.art3d import Line3DCollection, Poly3DCollection
-
-    from ..halls.spec import write_bytes_atomic
 
     out = Path(out_path)
     if out.suffix.lower() != ".png":
@@ -267,36 +247,65 @@ def render_scene(
         base_stations = [(b["name"], b["xyz"]) for b in meta.get("base_stations", []) or []]
     if points is None:
         points = [(p["name"], p["xyz"]) for p in meta.get("points", []) or []]
-
-    objs = _object_arrays(scene)
-    lo, hi = scene.bounds
-    floor = _floor_z(scene)
-    top = hi[2]
-    cut = cut_height_m if cut_height_m is not None else floor + 0.9 * (top - floor)
-    user = sorted({o["material"] for o in objs} - _known_colours())
-    rgb = {
-        m: np.array(material_rgb(m, user.index(m) if m in user else 0))
-        for m in scene.material_names
-    }
+    view = _View.of(scene, cut_height_m)
 
     fig = plt.figure(figsize=(w / dpi, h / dpi), dpi=dpi)
-    fs = 7.5
     ax2 = fig.add_axes((0.045, 0.17, 0.40, 0.70))
     ax3 = fig.add_axes((0.46, 0.08, 0.54, 0.78), projection="3d")
+    n_tri = _draw_top_view(ax2, view)
+    hidden = _draw_perspective(ax3, view, elev, azim)
+    used_cats = _draw_paths(ax2, ax3, links)
+    _draw_sites(ax2, ax3, view, base_stations, points)
+    _draw_legend(fig, view, used_cats, bool(links), bool(base_stations), bool(points))
+    _draw_titles(fig, scene, view, meta, links, title, subtitle, frequency_hz)
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=dpi)
+    plt.close(fig)
+    write_atomic(out, buf.getvalue())
+    return {
+        "size_px": [w, h],
+        "objects_drawn": len(view.objs) - len(hidden),
+        "triangles_drawn": n_tri,
+        "paths_drawn": sum(len(lk.lines) for lk in links),
+    }
 
-    # -- top view -----------------------------------------------------------------------------
-    shown = [o for o in objs if o["lo"][2] < cut]
-    order = sorted(shown, key=lambda o: (o["hi"][2], o["index"]))
+
+@dataclass
+class _View:
+    """What both views draw: the objects, their colours and the scene's heights, metres."""
+
+    objs: list[dict[str, Any]]
+    rgb: dict[str, np.ndarray]
+    lo: np.ndarray
+    hi: np.ndarray
+    floor: float
+    cut: float
+
+    @classmethod
+    def of(cls, scene: Scene, cut_height_m: float | None) -> _View:
+        lo, hi = scene.bounds
+        floor = floor_level(scene)
+        cut = cut_height_m if cut_height_m is not None else floor + 0.9 * (hi[2] - floor)
+        rgb = {m: np.array(c) for m, c in material_colors(scene.material_names).items()}
+        return cls(_object_arrays(scene), rgb, lo, hi, floor, cut)
+
+
+def _draw_top_view(ax: Any, view: _View) -> int:
+    """The triangles seen from above, lowest object first, those above the cut left out;
+    returns the number of triangles drawn."""
+    from matplotlib.collections import PolyCollection
+
+    shown = [o for o in view.objs if o["lo"][2] < view.cut]
     n_tri = 0
-    for o in order:
+    for o in sorted(shown, key=lambda o: (o["hi"][2], o["index"])):
         tri = o["tri"]
         # faces seen from above: the upward ones of solids, every face of a sheet
         vis = np.ones(len(tri), bool) if not o["closed"] else o["normal"][:, 2] > -1e-6
         tri = tri[vis]
         if len(tri) == 0:
             continue
-        base = rgb[o["material"]]
-        on_floor = o["hi"][2] <= floor + 0.05
+        base = view.rgb[o["material"]]
+        on_floor = o["hi"][2] <= view.floor + 0.05
         face = np.clip(base * (0.82 + 0.18 * np.abs(o["normal"][vis, 2]))[:, None], 0, 1)
         horizontal_sheet = (not o["closed"]) and (o["hi"][2] - o["lo"][2] < 0.05) and not on_floor
         alpha = 0.28 if on_floor else (0.45 if horizontal_sheet else 1.0)
@@ -304,7 +313,7 @@ def render_scene(
         lw = 1.4 if (not o["closed"] and not horizontal_sheet and not on_floor) else 0.15
         if on_floor:
             lw = 0.0
-        ax2.add_collection(
+        ax.add_collection(
             PolyCollection(
                 tri[:, :, :2],
                 facecolors=np.column_stack([face, np.full(len(face), alpha)]),
@@ -314,26 +323,33 @@ def render_scene(
             )
         )
         n_tri += len(tri)
-    ax2.set_xlim(lo[0] - 0.02 * (hi[0] - lo[0]), hi[0] + 0.02 * (hi[0] - lo[0]))
-    ax2.set_ylim(lo[1] - 0.02 * (hi[1] - lo[1]), hi[1] + 0.02 * (hi[1] - lo[1]))
-    ax2.set_aspect("equal")
-    ax2.set_xlabel("x (m)", fontsize=fs)
-    ax2.set_ylabel("y (m)", fontsize=fs)
-    ax2.tick_params(labelsize=fs - 0.5)
-    ax2.set_title("top view", fontsize=fs + 1, loc="left")
+    lo, hi = view.lo, view.hi
+    ax.set_xlim(lo[0] - 0.02 * (hi[0] - lo[0]), hi[0] + 0.02 * (hi[0] - lo[0]))
+    ax.set_ylim(lo[1] - 0.02 * (hi[1] - lo[1]), hi[1] + 0.02 * (hi[1] - lo[1]))
+    ax.set_aspect("equal")
+    ax.set_xlabel("x (m)", fontsize=_FS)
+    ax.set_ylabel("y (m)", fontsize=_FS)
+    ax.tick_params(labelsize=_FS - 0.5)
+    ax.set_title("top view", fontsize=_FS + 1, loc="left")
+    return n_tri
 
-    # -- perspective view -----------------------------------------------------------------------
-    hidden = _camera_cut(objs, lo, hi, azim)
+
+def _draw_perspective(ax: Any, view: _View, elev: float, azim: float) -> set:
+    """The cut-away perspective view, Lambert-shaded; returns the objects left out."""
+    from mpl_toolkits.mplot3d.art3d import Poly3DCollection
+
+    lo, hi = view.lo, view.hi
+    hidden = _camera_cut(view.objs, lo, hi, azim)
     max_edge = 0.12 * float(np.max(hi - lo))
     floor_polys, floor_cols, polys, cols, edges = [], [], [], [], []
-    for o in objs:
+    for o in view.objs:
         if o["index"] in hidden:
             continue
         tri, nrm = o["tri"], o["normal"]
-        col = _shade(rgb[o["material"]], nrm, not o["closed"])
+        col = _shade(view.rgb[o["material"]], nrm, not o["closed"])
         if (
-            o["hi"][2] <= floor + 0.05
-            and o["lo"][2] < floor + 0.05
+            o["hi"][2] <= view.floor + 0.05
+            and o["lo"][2] < view.floor + 0.05
             and (o["hi"] - o["lo"])[:2].min() > 0.3 * (hi - lo)[:2].min()
         ):
             floor_polys.append(tri)
@@ -351,14 +367,14 @@ def render_scene(
         polys.append(tri)
         cols.append(col)
         edges.append(edge)
-    ax3.computed_zorder = False
+    ax.computed_zorder = False
     if floor_polys:
         fp = np.concatenate(floor_polys)
-        ax3.add_collection3d(
+        ax.add_collection3d(
             Poly3DCollection(fp, facecolors=np.concatenate(floor_cols), edgecolors="none", zorder=1)
         )
     if polys:
-        ax3.add_collection3d(
+        ax.add_collection3d(
             Poly3DCollection(
                 np.concatenate(polys),
                 facecolors=np.concatenate(cols),
@@ -368,15 +384,21 @@ def render_scene(
             )
         )
     span = hi - lo
-    ax3.set_xlim(lo[0], hi[0])
-    ax3.set_ylim(lo[1], hi[1])
-    ax3.set_zlim(lo[2], hi[2])
-    ax3.set_box_aspect(tuple(span / span.max()), zoom=1.25)
-    ax3.view_init(elev=elev, azim=azim)
-    ax3.set_axis_off()
+    ax.set_xlim(lo[0], hi[0])
+    ax.set_ylim(lo[1], hi[1])
+    ax.set_zlim(lo[2], hi[2])
+    ax.set_box_aspect(tuple(span / span.max()), zoom=1.25)
+    ax.view_init(elev=elev, azim=azim)
+    ax.set_axis_off()
+    return hidden
 
-    # -- positions and paths -------------------------------------------------------------------
-    n_paths = 0
+
+def _draw_paths(ax2: Any, ax3: Any, links: Sequence[LinkPaths]) -> list[str]:
+    """The links' paths in both views, coloured by category, first arrivals bold; returns the
+    categories drawn, in drawing order."""
+    from matplotlib.collections import LineCollection
+    from mpl_toolkits.mplot3d.art3d import Line3DCollection
+
     used_cats: list[str] = []
     for lk in links:
         for k, (line, cat) in enumerate(zip(lk.lines, lk.categories)):
@@ -391,28 +413,48 @@ def render_scene(
             )
             if cat not in used_cats:
                 used_cats.append(cat)
-            n_paths += 1
+    return used_cats
+
+
+def _draw_sites(
+    ax2: Any,
+    ax3: Any,
+    view: _View,
+    base_stations: Sequence[tuple[str, Sequence[float]]],
+    points: Sequence[tuple[str, Sequence[float]]],
+) -> None:
+    """Base stations (gold triangles, named) and points (red squares) in both views."""
+    span = view.hi - view.lo
     for name, xyz in base_stations:
         x, y, z = (float(v) for v in xyz)
         ax2.plot(x, y, marker="^", ms=8, mfc="gold", mec="k", mew=0.8, zorder=30)
-        ax2.annotate(name, (x, y), xytext=(4, 4), textcoords="offset points", fontsize=fs - 0.5,
+        ax2.annotate(name, (x, y), xytext=(4, 4), textcoords="offset points", fontsize=_FS - 0.5,
                      weight="bold", zorder=31)  # fmt: skip
         ax3.plot([x], [y], [z], marker="^", ms=7, mfc="gold", mec="k", mew=0.8, zorder=30)
-        ax3.text(x, y, z + 0.04 * span[2] + 0.3, name, fontsize=fs - 1, weight="bold", zorder=31)
+        ax3.text(x, y, z + 0.04 * span[2] + 0.3, name, fontsize=_FS - 1, weight="bold", zorder=31)
     for name, xyz in points:
         x, y, z = (float(v) for v in xyz)
         ax2.plot(x, y, marker="s", ms=3.5, mfc="red", mec="darkred", mew=0.5, zorder=30)
         ax2.annotate(name, (x, y), xytext=(3, -7), textcoords="offset points",
-                     fontsize=fs - 2, color="darkred", zorder=31)  # fmt: skip
+                     fontsize=_FS - 2, color="darkred", zorder=31)  # fmt: skip
         ax3.plot([x], [y], [z], marker="s", ms=2.5, mfc="red", mec="darkred", mew=0.4, zorder=30)
 
-    # -- legend and titles --------------------------------------------------------------------
+
+def _draw_legend(
+    fig: Any, view: _View, used_cats: list[str], links: bool, base_stations: bool, points: bool
+) -> None:
+    """Materials (most triangles first), path categories drawn, and the markers shown."""
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+
+    objs = view.objs
     mats = sorted(
         {o["material"] for o in objs},
         key=lambda m: -sum(len(o["tri"]) for o in objs if o["material"] == m),
     )
     handles: list[Any] = [
-        Patch(facecolor=rgb[m], edgecolor="0.3", lw=0.5, label=m.replace("_", " ")) for m in mats
+        Patch(facecolor=view.rgb[m], edgecolor="0.3", lw=0.5, label=m.replace("_", " "))
+        for m in mats
     ]
     for cat in KIND_COLOURS:
         if cat in used_cats:
@@ -428,15 +470,29 @@ def render_scene(
         handles.append(
             Line2D([], [], marker="s", ls="", mfc="red", mec="darkred", ms=4, label="point")
         )
-    fig.legend(handles=handles, loc="lower center", ncol=min(len(handles), 9), fontsize=fs,
+    fig.legend(handles=handles, loc="lower center", ncol=min(len(handles), 9), fontsize=_FS,
                frameon=False, bbox_to_anchor=(0.5, 0.0))  # fmt: skip
+
+
+def _draw_titles(
+    fig: Any,
+    scene: Scene,
+    view: _View,
+    meta: dict[str, Any],
+    links: Sequence[LinkPaths],
+    title: str | None,
+    subtitle: str | None,
+    frequency_hz: float | None,
+) -> None:
+    """Title (the scene's name), subtitle (its size) and one line per link: first arrival and
+    strongest path."""
     name = meta.get("name") or Path(scene.source).stem or "scene"
-    size = " x ".join(f"{v:.1f}" for v in span)
-    fig.text(0.045, 0.965, title or f"{name}", fontsize=fs + 4, weight="bold", va="top")
-    sub = subtitle or f"{len(objs)} objects, {len(scene.faces)} triangles, {size} m" + (
+    size = " x ".join(f"{v:.1f}" for v in view.hi - view.lo)
+    fig.text(0.045, 0.965, title or f"{name}", fontsize=_FS + 4, weight="bold", va="top")
+    sub = subtitle or f"{len(view.objs)} objects, {len(scene.faces)} triangles, {size} m" + (
         f"; paths traced at {frequency_hz / 1e9:.4g} GHz" if frequency_hz and links else ""
     )
-    fig.text(0.045, 0.925, sub, fontsize=fs + 0.5, va="top", color="0.25")
+    fig.text(0.045, 0.925, sub, fontsize=_FS + 0.5, va="top", color="0.25")
     if links:
         lines = [
             f"{lk.tx_name} \u2192 {lk.rx_name}  {lk.distance_m:5.1f} m  "
@@ -449,20 +505,4 @@ def render_scene(
             )
             for lk in links
         ]
-        fig.text(0.47, 0.925, "\n".join(lines), fontsize=fs, va="top", family="monospace")
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=dpi)
-    plt.close(fig)
-    write_bytes_atomic(buf.getvalue(), out)
-    return {
-        "size_px": [w, h],
-        "objects_drawn": len(objs) - len(hidden),
-        "triangles_drawn": n_tri,
-        "paths_drawn": n_paths,
-    }
-
-
-def _known_colours() -> set[str]:
-    from ..halls.spec import MATERIAL_COLORS
-
-    return set(MATERIAL_COLORS)
+        fig.text(0.47, 0.925, "\n".join(lines), fontsize=_FS, va="top", family="monospace")
