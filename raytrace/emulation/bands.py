@@ -24,10 +24,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 from ..core.constants import wavelength
 from ..core.errors import HallrayError
+from ..core.fileio import read_yaml
 
 __all__ = [
     "BUILTIN_BANDS",
@@ -156,14 +155,7 @@ def band_from_dict(name: str, entry: Mapping[str, Any]) -> Band:
 
 
 def _read_yaml(path: Path) -> Any:
-    try:
-        with open(path, encoding="utf-8") as fh:
-            return yaml.safe_load(fh)
-    except FileNotFoundError:
-        raise HallrayError(f"band file not found: {path}") from None
-    except (OSError, yaml.YAMLError) as exc:
-        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise HallrayError(f"cannot read band file {path}: {first}") from None
+    return read_yaml(path, "band file")
 
 
 def _user_bands(source: str | os.PathLike[str] | Mapping[str, Any]) -> dict[str, Band]:

@@ -42,7 +42,7 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import HallrayError, MaterialError, SceneError
-from ..core.fileio import write_atomic
+from ..core.fileio import read_yaml, write_atomic
 from ..core.palette import material_colors
 from ..physics.materials import MaterialLibrary
 
@@ -126,7 +126,6 @@ class MaterialRules:
     ) -> MaterialRules:
         """Rules from a YAML file or mapping (``materials``, ``rules``, ``default``); the built-in
         :data:`DEFAULT_RULES` when ``source`` is None. Raises :class:`MaterialError` (one line)."""
-        import yaml
 
         if source is None:
             data: Any = DEFAULT_RULES
@@ -136,13 +135,7 @@ class MaterialRules:
         else:
             p = Path(source)
             origin = p.name
-            if not p.is_file():
-                raise MaterialError(f"material rules file not found: {source}")
-            try:
-                data = yaml.safe_load(p.read_text())
-            except (yaml.YAMLError, UnicodeDecodeError) as exc:
-                first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-                raise MaterialError(f"{origin}: not valid YAML ({first})") from None
+            data = read_yaml(p, "material rules file", MaterialError)
         if not isinstance(data, Mapping):
             raise MaterialError(f"{origin}: expected a mapping with 'rules' and 'default'")
         unknown = sorted(set(map(str, data)) - {"materials", "rules", "default"})
@@ -1634,7 +1627,6 @@ def scene_from_elements(
 def _load_positions(source: str | os.PathLike[str]) -> dict[str, list[dict[str, Any]]]:
     """``base_stations`` and ``points`` (``[{name, xyz}]``) from a YAML/JSON file (a hall YAML
     works) or from a scene file's ``hallray`` metadata."""
-    import yaml
 
     p = Path(source)
     if not p.is_file():
@@ -1649,10 +1641,7 @@ def _load_positions(source: str | os.PathLike[str]) -> dict[str, list[dict[str, 
                 f"cannot read positions from {p.name}: {exc}".splitlines()[0]
             ) from None
     else:
-        try:
-            data = yaml.safe_load(p.read_text())
-        except (yaml.YAMLError, UnicodeDecodeError) as exc:
-            raise HallrayError(f"{p.name}: not valid YAML/JSON ({type(exc).__name__})") from None
+        data = read_yaml(p, "positions file")
     if not isinstance(data, Mapping):
         raise HallrayError(f"{p.name}: expected a mapping with base_stations and/or points")
     out: dict[str, list[dict[str, Any]]] = {}

@@ -28,10 +28,9 @@ from typing import Any
 
 import numpy as np
 import trimesh
-import yaml
 
 from ..core.errors import HallrayError, MaterialError, SceneError
-from ..core.fileio import write_atomic
+from ..core.fileio import read_yaml, write_atomic
 from ..core.palette import material_colors
 from ..physics.materials import MaterialLibrary
 from ..scene.model import Scene
@@ -927,16 +926,7 @@ def load_hall_spec(source: str | os.PathLike[str] | Mapping[str, Any]) -> HallSp
     if isinstance(source, Mapping):
         return parse_hall_spec(source)
     path = Path(source)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise SceneError(f"cannot read {path}: {exc.strerror or exc}") from None
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        msg = " ".join(str(exc).split())
-        raise SceneError(f"{path}: invalid YAML: {msg}") from None
-    return parse_hall_spec(data, source=path.name)
+    return parse_hall_spec(read_yaml(path, "hall description", SceneError), source=path.name)
 
 
 # --------------------------------------------------------------------------------------------

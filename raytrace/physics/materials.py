@@ -28,10 +28,11 @@ from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
-import yaml
 
 from raytrace.core.constants import C0, EPS0
-from raytrace.core.errors import MaterialError
+
+from ..core.errors import MaterialError
+from ..core.fileio import read_yaml
 
 __all__ = [
     "DEFAULT_USER_THICKNESS_M",
@@ -452,17 +453,7 @@ def _load_yaml(source: str | os.PathLike[str] | Mapping[str, Any]) -> tuple[Mapp
         return source, "material definition"
     path = Path(source)
     origin = f"material file {path}"
-    if not path.is_file():
-        raise MaterialError(f"material file not found: {path}")
-    try:
-        data = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f" at line {mark.line + 1}" if mark is not None else ""
-        problem = getattr(exc, "problem", None) or type(exc).__name__
-        raise MaterialError(f"{origin}: cannot parse YAML{where}: {problem}") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise MaterialError(f"{origin}: cannot read: {exc}") from None
+    data = read_yaml(path, "material file", MaterialError)
     if data is None:
         data = {}
     if not isinstance(data, Mapping):

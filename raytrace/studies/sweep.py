@@ -41,7 +41,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..core.errors import HallrayError
-from ..core.fileio import write_atomic
+from ..core.fileio import read_yaml, write_atomic
 from ..emulation.receivers import DEFAULT_TOA_METHOD
 from ..solver.config import TRACE_KEYS as TRACE_FIELDS
 from ..solver.config import TraceConfig
@@ -340,20 +340,11 @@ def parse_sweep_config(data: Any, *, source: str = "") -> SweepConfig:
 
 def load_sweep_config(source: str | os.PathLike[str] | Mapping[str, Any]) -> SweepConfig:
     """Read and validate a sweep config file (YAML) or mapping; see :func:`parse_sweep_config`."""
-    import yaml
 
     if isinstance(source, Mapping):
         return parse_sweep_config(source)
     path = Path(source)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise HallrayError(f"cannot read {path}: {exc.strerror or exc}") from None
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        raise HallrayError(f"{path}: invalid YAML: {' '.join(str(exc).split())}") from None
-    return parse_sweep_config(data, source=str(path))
+    return parse_sweep_config(read_yaml(path, "sweep config"), source=str(path))
 
 
 def _hall_kwargs(params: Mapping[str, Any]) -> dict[str, Any]:
