@@ -12,8 +12,22 @@ from typing import Any
 import numpy as np
 
 
+class _ElementArrays:
+    """Structure-of-arrays behaviour shared by :class:`Facets` and :class:`Wedges`.
+
+    Every dataclass field but the trailing ``cache`` is an array with one row per element.
+    """
+
+    def __len__(self) -> int:
+        return int(getattr(self, fields(self)[0].name).shape[0])  # type: ignore[arg-type]
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """The per-element arrays by field name (everything but the cache)."""
+        return {f.name: getattr(self, f.name) for f in fields(self) if f.name != "cache"}  # type: ignore[arg-type]
+
+
 @dataclass(frozen=True)
-class Facets:
+class Facets(_ElementArrays):
     """Planar facets (connected coplanar triangles of one object), structure of arrays.
 
     Attributes
@@ -42,16 +56,9 @@ class Facets:
     #: :mod:`raytrace.scene.accel`; never copied to another Facets.
     cache: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)
 
-    def __len__(self) -> int:
-        return int(self.normal.shape[0])
-
-    def arrays(self) -> dict[str, np.ndarray]:
-        """The per-facet arrays by field name (everything but the cache)."""
-        return {f.name: getattr(self, f.name) for f in fields(self) if f.name != "cache"}
-
 
 @dataclass(frozen=True)
-class Wedges:
+class Wedges(_ElementArrays):
     """Diffracting edges, structure of arrays.
 
     Attributes
@@ -79,13 +86,6 @@ class Wedges:
     material: np.ndarray
     #: Derived arrays (groups by object), computed on first use by :mod:`raytrace.scene.accel`.
     cache: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)
-
-    def __len__(self) -> int:
-        return int(self.start.shape[0])
-
-    def arrays(self) -> dict[str, np.ndarray]:
-        """The per-wedge arrays by field name (everything but the cache)."""
-        return {f.name: getattr(self, f.name) for f in fields(self) if f.name != "cache"}
 
 
 @dataclass

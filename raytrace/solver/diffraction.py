@@ -26,7 +26,7 @@ from ..physics.utd import diffracted_field, keller_points, wedge_geometry
 from ..scene import accel
 from . import reflection as refl
 from .context import TraceContext
-from .evaluate import DiffractionModel, evaluate
+from .evaluate import DiffractionModel, candidates, evaluate
 from .paths import DIFFRACTION, REFLECTION, Paths
 
 #: Work is split into chunks of about this many candidates.
@@ -117,11 +117,14 @@ def _pure(ctx: TraceContext) -> Paths:
         parts.append(
             evaluate(
                 ctx,
-                t_idx,
-                r_idx,
-                pt[:, None, :],
-                w_idx[:, None],
-                kinds=np.full((len(t_idx), 1), DIFFRACTION, np.int8),
+                candidates(
+                    ctx,
+                    t_idx,
+                    r_idx,
+                    pt[:, None, :],
+                    w_idx[:, None],
+                    kinds=np.full((len(t_idx), 1), DIFFRACTION, np.int8),
+                ),
                 diffraction=field_model(ctx),
             )
         )
@@ -354,11 +357,14 @@ def _one_reflection(ctx: TraceContext, before: bool) -> list[Paths]:
             out.append(
                 evaluate(
                     ctx,
-                    t_idx[ok],
-                    r_idx[ok],
-                    verts[ok],
-                    fac[ok],
-                    kinds=np.repeat(kinds, int(ok.sum()), axis=0),
+                    candidates(
+                        ctx,
+                        t_idx[ok],
+                        r_idx[ok],
+                        verts[ok],
+                        fac[ok],
+                        kinds=np.repeat(kinds, int(ok.sum()), axis=0),
+                    ),
                     diffraction=field_model(ctx),
                 )
             )
@@ -422,12 +428,15 @@ def _two_reflections(ctx: TraceContext) -> list[Paths]:
             out.append(
                 evaluate(
                     ctx,
-                    t_e[ia][ok],
-                    r_e[ib][ok],
-                    np.stack([p1[ok], dpt[ok], p2[ok]], axis=1),
-                    np.stack([f1[ok], ww[ok], f2[ok]], axis=1),
-                    kinds=np.repeat(
-                        np.array([[REFLECTION, DIFFRACTION, REFLECTION]], np.int8), n, axis=0
+                    candidates(
+                        ctx,
+                        t_e[ia][ok],
+                        r_e[ib][ok],
+                        np.stack([p1[ok], dpt[ok], p2[ok]], axis=1),
+                        np.stack([f1[ok], ww[ok], f2[ok]], axis=1),
+                        kinds=np.repeat(
+                            np.array([[REFLECTION, DIFFRACTION, REFLECTION]], np.int8), n, axis=0
+                        ),
                     ),
                     diffraction=field_model(ctx),
                 )

@@ -101,23 +101,14 @@ def candidates(
 
 
 def evaluate(
-    ctx: TraceContext,
-    t_idx: np.ndarray,
-    r_idx: np.ndarray,
-    verts: np.ndarray,
-    elem: np.ndarray,
-    kinds: np.ndarray | None = None,
-    diffraction: DiffractionModel | None = None,
+    ctx: TraceContext, cand: Candidates, diffraction: DiffractionModel | None = None
 ) -> Paths:
     """Check visibility and penetrations of candidate paths and compute their fields.
 
     Parameters
     ----------
     ctx : TraceContext
-    t_idx, r_idx : (M,) int
-    verts : (M, k, 3) float, interaction points in order, metres
-    elem : (M, k) int, facet of each reflection (or wedge index of a diffraction)
-    kinds : (M, k) int8, interaction codes (default: all reflections)
+    cand : Candidates, from :func:`candidates` (a stage's vertex chains)
     diffraction : DiffractionModel applied at diffraction vertices
         (:func:`raytrace.solver.diffraction.field_model`)
 
@@ -125,7 +116,6 @@ def evaluate(
     -------
     Paths, in candidate order, without the blocked, over-limit and powerless ones.
     """
-    cand = candidates(ctx, t_idx, r_idx, verts, elem, kinds)
     depth = cand.depth + ctx.cfg.max_penetrations
     blocked = blocked_by_opaque(ctx, cand)
     if blocked.any():

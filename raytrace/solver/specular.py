@@ -16,7 +16,7 @@ import numpy as np
 from ..scene import accel
 from . import reflection as refl
 from .context import TraceContext
-from .evaluate import evaluate
+from .evaluate import candidates, evaluate
 from .paths import Paths
 
 #: Work is split into chunks of about this many candidate paths to bound memory.
@@ -40,7 +40,12 @@ def line_of_sight(ctx: TraceContext) -> list[Paths]:
     """Line of sight: every link, no vertex."""
     t_idx, r_idx = np.divmod(np.arange(len(ctx.tx) * len(ctx.rx)), len(ctx.rx))
     return [
-        evaluate(ctx, t_idx, r_idx, np.zeros((len(t_idx), 0, 3)), np.zeros((len(t_idx), 0), int))
+        evaluate(
+            ctx,
+            candidates(
+                ctx, t_idx, r_idx, np.zeros((len(t_idx), 0, 3)), np.zeros((len(t_idx), 0), int)
+            ),
+        )
     ]
 
 
@@ -59,7 +64,9 @@ def first_order(ctx: TraceContext) -> list[Paths]:
     u, p = refl.segment_plane_point(ctx.rx[r_idx], img, fc.normal[k_idx], fc.offset[k_idx])
     ok = (u > 0) & (u < 1)
     ok[ok] = accel.points_in_facets(p[ok], k_idx[ok], fc)
-    return [evaluate(ctx, t_idx[ok], r_idx[ok], p[ok][:, None, :], k_idx[ok][:, None])]
+    return [
+        evaluate(ctx, candidates(ctx, t_idx[ok], r_idx[ok], p[ok][:, None, :], k_idx[ok][:, None]))
+    ]
 
 
 def second_order(ctx: TraceContext) -> list[Paths]:
@@ -127,5 +134,7 @@ def second_order(ctx: TraceContext) -> list[Paths]:
             if ok.any():
                 verts = np.stack([p1[ok], p2[ok]], axis=1)
                 fac = np.stack([ff1[ok], ff2[ok]], axis=1)
-                out.append(evaluate(ctx, np.full(int(ok.sum()), t), r_idx[ok], verts, fac))
+                out.append(
+                    evaluate(ctx, candidates(ctx, np.full(int(ok.sum()), t), r_idx[ok], verts, fac))
+                )
     return out

@@ -31,7 +31,7 @@ from ..scene.model import Scene
 from . import diffraction, specular
 from .config import MIN_POWER_DB, TraceConfig
 from .context import TraceContext, opaque_objects
-from .evaluate import evaluate
+from .evaluate import candidates, evaluate
 from .parallel import PROCESS_MIN_LINKS, ScenePool, receiver_chunks, resolve_workers
 from .paths import DIFFRACTION, Paths
 
@@ -358,11 +358,14 @@ def reevaluate(scene: Scene, paths: Paths, config: TraceConfig | None = None) ->
         parts.append(
             evaluate(
                 ctx,
-                paths.tx_index[sel],
-                paths.rx_index[sel],
-                pts[sel, :k],
-                elem[sel, :k],
-                kinds=kinds[sel, :k],
+                candidates(
+                    ctx,
+                    paths.tx_index[sel],
+                    paths.rx_index[sel],
+                    pts[sel, :k],
+                    elem[sel, :k],
+                    kinds=kinds[sel, :k],
+                ),
                 diffraction=model,
             )  # fmt: skip
         )
