@@ -13,6 +13,7 @@ import pytest
 import trimesh
 import yaml
 
+from raytrace.cli.build_hall import build_hall_main
 from raytrace.core.errors import HallrayError, MaterialError
 from raytrace.core.fileio import write_atomic
 from raytrace.core.palette import material_colors
@@ -24,7 +25,6 @@ from raytrace.halls.spec import (
     HallSpec,
     Route,
     Sheet,
-    build_hall_cli,
     build_scene,
     glb_bytes,
     line_of_sight,
@@ -515,11 +515,11 @@ def test_route_pose_closed_form():
     np.testing.assert_allclose(np.abs(heading), [0, math.pi, math.pi], atol=POSE_TOL_RAD)
 
 
-def test_build_hall_cli(tmp_path, capsys):
+def test_build_hall_main(tmp_path, capsys):
     good = tmp_path / "h.yaml"
     good.write_text(yaml.safe_dump(small_hall()))
     out = tmp_path / "h.glb"
-    assert build_hall_cli([str(good), "-o", str(out), "--los"]) == 0
+    assert build_hall_main([str(good), "-o", str(out), "--los"]) == 0
     stdout = capsys.readouterr().out
     assert "P1: LoS to" in stdout
     loaded = trimesh.load(out, file_type="glb")
@@ -533,7 +533,7 @@ def test_build_hall_cli(tmp_path, capsys):
                  [str(tmp_path / "none.yaml"), "-o", str(tmp_path / "none.glb")],
                  [str(good), "-o", str(tmp_path / "nodir" / "x.glb")],
                  [str(good), "--frobnicate"]):  # fmt: skip
-        assert build_hall_cli(argv) == 2
+        assert build_hall_main(argv) == 2
         err = capsys.readouterr().err
         assert err.startswith("error: ") and err.count("\n") == 1, err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.yaml", "h.glb", "h.yaml"]

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 import yaml
 
+from raytrace.cli.build_hall import build_hall_main
 from raytrace.cli.make_hall import hall_los_check_main, make_hall_main
 from raytrace.core.errors import HallrayError
 from raytrace.halls.inf import (
@@ -34,7 +35,7 @@ from raytrace.halls.inf import (
     split_spec,
     wilson_interval,
 )
-from raytrace.halls.spec import build_hall_cli, load_hall_spec, parse_hall_spec, parse_los_note
+from raytrace.halls.spec import load_hall_spec, parse_hall_spec, parse_los_note
 from raytrace.scene.io import load_scene
 
 SMALL = "30x24x8"
@@ -421,7 +422,7 @@ def test_make_hall_writes_reproducible_files(tmp_path, capsys):
     for name in ("hall.yaml", "hall.glb", "inf.json"):
         assert (tmp_path / "a" / name).read_bytes() == (tmp_path / "b" / name).read_bytes()
     # build-hall on the YAML gives the same GLB bytes; load_scene reads it
-    assert build_hall_cli([str(tmp_path / "a" / "hall.yaml"), "-o", str(tmp_path / "c.glb")]) == 0
+    assert build_hall_main([str(tmp_path / "a" / "hall.yaml"), "-o", str(tmp_path / "c.glb")]) == 0
     assert (tmp_path / "c.glb").read_bytes() == (tmp_path / "a" / "hall.glb").read_bytes()
     info = json.loads((tmp_path / "a" / "inf.json").read_text())
     scene = load_scene(tmp_path / "a" / "hall.glb")

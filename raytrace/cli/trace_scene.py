@@ -200,11 +200,3 @@ def _print_links(rows: list[dict[str, Any]]) -> None:
             f"{ex:>8} {r['first_kind'] or '-':>6} {r['n_los']:>4} {r['n_reflection']:>4} "
             f"{r['n_penetration']:>4} {r['n_diffraction']:>4} {r['strongest_kind'] or '-':>9} {sp:>8}"
         )
-
-
-# -- build-hall -------------------------------------------------------------------------------
-def build_hall_main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of ``build-hall HALL.yaml -o HALL.glb``."""
-    from ..halls.spec import build_hall_cli
-
-    return build_hall_cli(argv)

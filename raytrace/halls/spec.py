@@ -16,11 +16,9 @@ solids are watertight with outward normals; sheets are two triangles, open and t
 
 from __future__ import annotations
 
-import argparse
 import math
 import os
 import re
-import sys
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -1346,55 +1344,3 @@ def _draw_sites(
             )
         )
     return handles
-
-
-# --------------------------------------------------------------------------------------------
-# command line
-# --------------------------------------------------------------------------------------------
-
-
-class _ArgumentParser(argparse.ArgumentParser):
-    def error(self, message: str) -> None:  # one line, exit 2, as for every other bad input
-        print(f"error: {message}", file=sys.stderr)
-        raise SystemExit(2)
-
-
-def build_hall_cli(argv: Sequence[str] | None = None) -> int:
-    """``build-hall HALL.yaml -o HALL.glb [--los]``: validate the YAML and write the GLB.
-
-    Returns the exit status: 0 on success, 2 on bad input (one line ``error: ...`` on stderr, no
-    output file written).
-    """
-    parser = _ArgumentParser(
-        prog="build-hall",
-        description="Build a hall GLB (one node per object, material in the node name) from YAML.",
-    )
-    parser.add_argument("hall", help="hall description (YAML, see docs/hall.md)")
-    parser.add_argument("-o", "--output", help="output GLB (default: HALL with suffix .glb)")
-    parser.add_argument(
-        "--los", action="store_true", help="print the line-of-sight table (points x base stations)"
-    )
-    try:
-        args = parser.parse_args(argv)
-    except SystemExit as exc:  # --help (0) or a usage error (2, its message already printed)
-        return int(exc.code or 0)
-    try:
-        spec = load_hall_spec(args.hall)
-        out = Path(args.output) if args.output else Path(args.hall).with_suffix(".glb")
-        if out.suffix.lower() != ".glb":
-            raise SceneError(f"output {out} must end in .glb")
-        scene = build_scene(spec)
-        data = write_glb(scene, out)
-    except HallrayError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    except OSError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    n_faces = sum(len(g.faces) for g in scene.geometry.values())
-    print(f"wrote {out}: {len(scene.geometry)} objects, {n_faces} triangles, {len(data)} bytes")
-    if args.los:
-        table = line_of_sight(spec)
-        for point, status in table.items():
-            print(f"{point}: {los_note(status)}")
-    return 0
