@@ -13,6 +13,36 @@ from typing import Any
 
 from .harness import OneLineParser, run_tool
 
+#: The reconstruction options: flag, ScanOptions field, type, help (the default is appended).
+_OPTIONS: tuple[tuple[str, str, type, str], ...] = (
+    ("--voxel", "voxel_size_m", float, "voxel size, m"),
+    (
+        "--plane-distance",
+        "plane_distance_m",
+        float,
+        "RANSAC inlier distance, m (about 2.5 x the scan noise)",
+    ),
+    ("--plane-min-points", "plane_min_points", int, "smallest plane, points after downsampling"),
+    ("--plane-min-area", "plane_min_area_m2", float, "smallest plane piece kept as a polygon, m^2"),
+    ("--max-planes", "max_planes", int, "most planes extracted"),
+    (
+        "--simplify",
+        "simplify_m",
+        float,
+        "outline simplification tolerance, m (default 1.5 voxels); larger: fewer triangles",
+    ),
+    (
+        "--wall-thickness",
+        "wall_thickness_m",
+        float,
+        "floor, ceiling and outer walls become slabs this thick (0: sheets), m",
+    ),
+    ("--decimate", "max_object_triangles", int, "at most N triangles per object (hull, mesh)"),
+    ("--box-fill", "box_fill", float, "split a cluster's box while it is filled less than this"),
+    ("--object-min-points", "object_min_points", int, "smallest cluster turned into an object"),
+    ("--seed", "seed", int, "random seed"),
+)
+
 
 def scan_to_scene_parser() -> argparse.ArgumentParser:
     from ..halls.scan import OBJECT_MODES, ScanOptions
@@ -29,65 +59,18 @@ def scan_to_scene_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("cloud", help="point cloud file")
     p.add_argument("-o", "--output", required=True, help="output scene (.glb)")
-    p.add_argument(
-        "--voxel", type=float, default=d.voxel_size_m, help=f"voxel size, m [{d.voxel_size_m}]"
-    )
-    p.add_argument(
-        "--plane-distance",
-        type=float,
-        default=d.plane_distance_m,
-        help=f"RANSAC inlier distance, m (about 2.5 x the scan noise) [{d.plane_distance_m}]",
-    )
-    p.add_argument(
-        "--plane-min-points",
-        type=int,
-        default=d.plane_min_points,
-        help=f"smallest plane, points after downsampling [{d.plane_min_points}]",
-    )
-    p.add_argument(
-        "--plane-min-area",
-        type=float,
-        default=d.plane_min_area_m2,
-        help=f"smallest plane piece kept as a polygon, m^2 [{d.plane_min_area_m2}]",
-    )
-    p.add_argument("--max-planes", type=int, default=d.max_planes, help=f"[{d.max_planes}]")
-    p.add_argument(
-        "--simplify",
-        type=float,
-        help="outline simplification tolerance, m [1.5 voxels]; larger: fewer triangles",
-    )
-    p.add_argument(
-        "--wall-thickness",
-        type=float,
-        default=d.wall_thickness_m,
-        help=f"floor, ceiling and outer walls become slabs this thick (0: sheets), m "
-        f"[{d.wall_thickness_m}]",
-    )
+    for flag, name, kind, text in _OPTIONS:
+        default = getattr(d, name)
+        shown = "" if default is None else f" [{default}]"
+        metavar = "N" if flag == "--decimate" else flag[2:].upper().replace("-", "_")
+        p.add_argument(flag, dest=name, type=kind, default=default, metavar=metavar,
+                       help=text + shown)  # fmt: skip
     p.add_argument(
         "--objects",
         choices=OBJECT_MODES,
         default=d.objects,
         help="what the clusters left after the planes become: upright boxes, convex hulls, "
         f"decimated alpha-shape meshes, or nothing [{d.objects}]",
-    )
-    p.add_argument(
-        "--decimate",
-        type=int,
-        default=d.max_object_triangles,
-        metavar="N",
-        help=f"at most N triangles per object (hull, mesh) [{d.max_object_triangles}]",
-    )
-    p.add_argument(
-        "--box-fill",
-        type=float,
-        default=d.box_fill,
-        help=f"split a cluster's box while it is filled less than this [{d.box_fill}]",
-    )
-    p.add_argument(
-        "--object-min-points",
-        type=int,
-        default=d.object_min_points,
-        help=f"smallest cluster turned into an object [{d.object_min_points}]",
     )
     p.add_argument(
         "--materials",
@@ -99,7 +82,6 @@ def scan_to_scene_parser() -> argparse.ArgumentParser:
         metavar="FILE",
         help="base_stations and points to store in the scene (YAML/JSON, a hall YAML, or a GLB)",
     )
-    p.add_argument("--seed", type=int, default=d.seed, help=f"random seed [{d.seed}]")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.add_argument("--elements", action="store_true", help="list every plane and object")
     return p
@@ -114,18 +96,7 @@ def _scan_to_scene(args: argparse.Namespace) -> int:
     from ..halls.scan import ScanOptions, scan_to_scene
 
     opt = ScanOptions(
-        voxel_size_m=args.voxel,
-        plane_distance_m=args.plane_distance,
-        plane_min_points=args.plane_min_points,
-        plane_min_area_m2=args.plane_min_area,
-        max_planes=args.max_planes,
-        simplify_m=args.simplify,
-        wall_thickness_m=args.wall_thickness,
-        objects=args.objects,
-        max_object_triangles=args.decimate,
-        box_fill=args.box_fill,
-        object_min_points=args.object_min_points,
-        seed=args.seed,
+        objects=args.objects, **{name: getattr(args, name) for _, name, _, _ in _OPTIONS}
     )
     summary = scan_to_scene(
         args.cloud, args.output, opt, rules=args.materials, positions=args.positions
