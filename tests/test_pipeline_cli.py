@@ -30,3 +30,23 @@ def test_refuses_a_non_empty_output_directory(tmp_path, capsys):
     assert reproduce_paper_main(["-o", str(out), "-q"]) == 2
     assert "not empty" in capsys.readouterr().err
     assert (out / "keep.txt").read_text() == "mine"
+
+
+def test_unknown_receiver_lists_the_known_ones(tmp_path, capsys):
+    out = tmp_path / "run"
+    assert reproduce_paper_main(["-o", str(out), "-q", "--receiver", "oracle"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "first-lobe, first-path, peak, leading-edge" in err
+    assert not out.exists()
+
+
+@pytest.mark.slow
+def test_reproduce_paper_writes_both_receivers_and_the_comparison(tmp_path, capsys):
+    out = tmp_path / "run"
+    assert reproduce_paper_main(["-o", str(out), "-q", "--duration", "0.3", "--workers", "1"]) == 0
+    assert (out / "report" / "table.csv").is_file()
+    assert (out / "report-first-path" / "table.csv").is_file()
+    text = (out / "paper.md").read_text()
+    for needle in ("IRLS <= LS", "mmWave <= C-band", "static <= semi-dynamic", "first-lobe LS"):
+        assert needle in text
+    assert "| first-path | static | C-band | LoS |" in text

@@ -1,9 +1,11 @@
 """``reproduce-paper``: from the bundled hall to the paper's comparison in one command.
 
-Writes the paper's four ToA datasets (static and semi-dynamic, C-band and mmWave) with
-:func:`raytrace.emulation.dataset.make_datasets`, then positions every epoch with every method and writes
-the paper's Table II and CDF plots with ``accuracy-report`` (the positioning package), printing
-the table.
+Writes the paper's four ToA datasets (static and semi-dynamic, C-band and mmWave) under the
+realistic receiver and under the ideal one (``first-path``), from one trace, with
+:func:`raytrace.emulation.dataset.make_datasets`; positions every epoch with every method and
+writes the paper's Table II and CDF plots with ``accuracy-report`` (the positioning package) for
+each receiver; then ``paper.md``: Table II beside the paper's and the findings
+(:mod:`raytrace.studies.paper`).
 """
 
 from __future__ import annotations
@@ -16,6 +18,9 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from .harness import OneLineParser, run_tool
+
+#: The receiver whose report is written beside the main one: the paper's ideal eq. 3 model.
+IDEAL_RECEIVER = "first-path"
 
 PAIRS = (
     ("static", "c-band"),
@@ -41,6 +46,12 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--rate", type=float, default=10.0, help="snapshots per second [10]")
     p.add_argument("--seed", type=int, default=1)
     p.add_argument(
+        "--receiver",
+        default=None,
+        help="ToA receiver of the main report (default first-lobe); the ideal first-path "
+        "receiver's report is written beside it",
+    )
+    p.add_argument(
         "--workers",
         type=int,
         default=os.cpu_count() or 1,
@@ -61,10 +72,15 @@ def _main(args: argparse.Namespace) -> int:
 
     from ..core.errors import HallrayError
     from ..emulation.dataset import make_datasets
+    from ..emulation.receivers import DEFAULT_TOA_METHOD, TOA_METHODS
+    from ..studies.paper import write_comparison
 
+    receiver = args.receiver or DEFAULT_TOA_METHOD
+    if receiver not in TOA_METHODS:
+        raise HallrayError(f"unknown receiver {receiver!r}; use one of {', '.join(TOA_METHODS)}")
+    receivers = list(dict.fromkeys([receiver, IDEAL_RECEIVER]))
     out = Path(args.output)
     data_dir = out / "datasets"
-    report_dir = out / "report"
     if out.exists() and any(out.iterdir()) and not args.force:
         raise HallrayError(f"output directory {out} is not empty (use --force to replace it)")
     created = not out.exists()
@@ -81,19 +97,27 @@ def _main(args: argparse.Namespace) -> int:
             workers=args.workers,
             force=args.force,
             progress=not args.quiet,
+            toa_method=receivers,
         )
     except BaseException:
         # leave nothing behind that this run created
         if created and out.is_dir() and not any(out.iterdir()):
             out.rmdir()
         raise
-    t_data = time.perf_counter() - t0
-    print(f"datasets written to {data_dir} in {t_data:.1f} s:")
+    print(f"datasets written to {data_dir} in {time.perf_counter() - t0:.1f} s:")
     for s in summaries:
-        print(f"  {Path(s['directory']).name:<22} {s['epochs']} epochs")
-    sys.stdout.flush()
-    argv = [s["directory"] for s in summaries] + ["-o", str(report_dir)]
-    code = accuracy_report_main(argv)
-    if code == 0:
-        print(f"\nreport written to {report_dir} (total {time.perf_counter() - t0:.1f} s)")
-    return code
+        print(f"  {Path(s['directory']).name:<33} {s['epochs']} epochs, receiver {s['toa_method']}")
+    reports, datasets = {}, {}
+    for r in receivers:
+        datasets[r] = [s["directory"] for s in summaries if s["toa_method"] == r]
+        reports[r] = out / ("report" if r == receiver else f"report-{r}")
+        print(f"\n== receiver {r} ==")
+        sys.stdout.flush()
+        code = accuracy_report_main([*datasets[r], "-o", str(reports[r])])
+        if code != 0:
+            return code
+    text = write_comparison(out / "paper.md", reports, datasets)
+    print("\n" + text.split("## Why, by mechanism")[0].rstrip())
+    print(f"\nreports in {', '.join(str(p) for p in reports.values())}; comparison and findings "
+          f"in {out / 'paper.md'} (total {time.perf_counter() - t0:.1f} s)")  # fmt: skip
+    return 0
