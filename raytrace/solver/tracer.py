@@ -145,7 +145,10 @@ def trace(
         return _trace_links(scene, tx, rx, f, cfg, progress, stats, involving, threads, opaque)
     chunks = _chunked(scene, tx, rx, f, cfg, None, workers, chunk_links, progress, stats,
                       involving, opaque)  # fmt: skip
-    return Paths.concatenate([paths for _, paths in chunks]).sorted()
+    joined = Paths.concatenate([paths for _, paths in chunks])
+    # Each chunk is in canonical order and holds whole links: a stable sort by link alone gives
+    # the canonical order of the whole (Paths.sorted) at a fifth of its cost (serial time).
+    return joined.select(np.argsort(joined.link, kind="stable"))
 
 
 def trace_chunks(
