@@ -652,6 +652,8 @@ def write_outputs(
     return [out / n for n in names]
 
 
+#: Lower end of the error pictures' log colour scale, m.
+ERR_FLOOR_M = 0.01
 #: Pictures of a map: (file, quantity, colour-bar label, colour map, discrete).
 PICTURES = (
     ("n_los.png", "n_los", "base stations in line of sight", "viridis", True),
@@ -688,25 +690,25 @@ def map_pictures(scene: Scene, amap: AccuracyMap) -> list[tuple[str, bytes]]:
             "excess_worst": np.nanmax(f.excess_m, axis=1),
         }
     jobs = [(name, per_cell[key], label, cmap, disc, 0.0 if disc else None,
-             float(f.n_bs) if disc else None)
+             float(f.n_bs) if disc else None, False)
             for name, key, label, cmap, disc in PICTURES]  # fmt: skip
     for k, m in enumerate(f.methods):
-        err = f.err_p90_m[k]
-        # a few cells of tens of metres would flatten the scale: cap it at the 95th percentile
-        cap = float(np.nanpercentile(err, 95)) if np.isfinite(err).any() else None
-        jobs.append((f"err_p90_{m}.png", err, f"p90 2D error, {m}, m (scale capped at p95)",
-                     "turbo", False, 0.0, cap))  # fmt: skip
+        err = f.err_p90_m[k]  # centimetres to tens of metres: a log scale from 1 cm
+        top = float(np.nanmax(err)) if np.isfinite(err).any() else 1.0
+        jobs.append((f"err_p90_{m}.png", err, f"p90 2D error, {m}, m (log scale)", "turbo",
+                     False, ERR_FLOOR_M, max(top, 10 * ERR_FLOOR_M), True))  # fmt: skip
         jobs.append((f"availability_{m}.png", f.availability[k],
-                     f"share of draws with a fix, {m}", "cividis", False, 0.0, 1.0))  # fmt: skip
+                     f"share of draws with a fix, {m}", "cividis", False, 0.0, 1.0, False))  # fmt: skip
     outlines = footprints(scene)
     pts = np.asarray(g.test_xyz, dtype=float).reshape(-1, 3)[:, :2]
     meta = f.meta
     sub = (f"{meta.get('scene', '')} {meta.get('band', '')}, receiver {meta.get('receiver', '')}, "
            f"step {g.step_m:g} m, h {meta.get('height_m', 0):g} m")  # fmt: skip
     out = []
-    for name, vals, label, cmap, disc, vmin, vmax in jobs:
+    for name, vals, label, cmap, disc, vmin, vmax, log in jobs:
         png = heatmap_png(scene, g.raster(vals), g.origin_xy, g.step_m, title=f"{label}\n{sub}",
                           label=label, bs_xyz=f.bs_xyz, bs_names=list(f.bs_names), points_xy=pts,
-                          cmap=cmap, vmin=vmin, vmax=vmax, discrete=disc, outlines=outlines)  # fmt: skip
+                          cmap=cmap, vmin=vmin, vmax=vmax, discrete=disc, log=log,
+                          outlines=outlines)  # fmt: skip
         out.append((name, png))
     return out

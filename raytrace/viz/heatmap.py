@@ -57,6 +57,7 @@ def heatmap_png(
     vmin: float | None = None,
     vmax: float | None = None,
     discrete: bool = False,
+    log: bool = False,
     outlines: list[np.ndarray] | None = None,
 ) -> bytes:
     """One heatmap as PNG bytes.
@@ -71,6 +72,7 @@ def heatmap_png(
     points_xy : (P, 2) float, m, optional, test points
     cmap, vmin, vmax : colour map and limits (default: the finite values' range)
     discrete : integer values (one colour per value, e.g. a count of base stations)
+    log : logarithmic colour scale (values below ``vmin`` take its colour)
     outlines : optional, :func:`footprints` computed once for several pictures
     """
     import matplotlib
@@ -90,8 +92,16 @@ def heatmap_png(
     colours = plt.get_cmap(cmap, int(hi - lo + 1) if discrete else None)
     if discrete:
         lo, hi = lo - 0.5, hi + 0.5
-    mesh = ax.pcolormesh(x_edges, y_edges, np.ma.masked_invalid(v).T, cmap=colours,
-                         vmin=lo, vmax=max(hi, lo + 1e-12), shading="flat")  # fmt: skip
+    if log:
+        from matplotlib.colors import LogNorm
+
+        norm = LogNorm(vmin=lo, vmax=max(hi, lo * 1.01), clip=True)
+    else:
+        from matplotlib.colors import Normalize
+
+        norm = Normalize(vmin=lo, vmax=max(hi, lo + 1e-12))
+    mesh = ax.pcolormesh(x_edges, y_edges, np.ma.masked_invalid(v).T, cmap=colours, norm=norm,
+                         shading="flat")  # fmt: skip
     bar = fig.colorbar(mesh, ax=ax, shrink=0.85)
     bar.set_label(label)
     if discrete:
