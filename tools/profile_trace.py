@@ -24,6 +24,18 @@ from raytrace import TraceConfig, load_scene, trace  # noqa: E402
 from raytrace.scene.metadata import SceneMetadata  # noqa: E402
 
 
+def _module(file: str) -> str:
+    """A short name for the module of a profiled function."""
+    if "raytrace" in file:
+        return Path(file).name
+    if file == "~":
+        return "C built-ins (numpy ufuncs, einsum, Embree calls)"
+    for lib in ("numpy", "embree", "scipy"):
+        if lib in file:
+            return f"{lib} (Python)"
+    return file
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scene", default="hall")
@@ -54,11 +66,11 @@ def main() -> int:
     for k, v in sorted(stage_s.items(), key=lambda kv: -kv[1]):
         print(f"  {k:<36} {v:7.3f}  {100 * v / wall:5.1f} %")
     ps = pstats.Stats(prof)
+    print(f"{ps.total_calls} Python function calls ({ps.total_calls / n_links:.0f} per link)")  # type: ignore[attr-defined]
     by_module: dict[str, float] = defaultdict(float)
     rows = []
     for (file, line, func), (_, _, tottime, _, _) in ps.stats.items():  # type: ignore[attr-defined]
-        mod = Path(file).name if "raytrace" in file else ("numpy" if "numpy" in file else
-                                                          ("embree" if "embree" in file else file))  # fmt: skip
+        mod = _module(file)
         by_module[mod] += tottime
         rows.append((tottime, f"{Path(file).name}:{line}({func})"))
     print("own time by module (s):")
