@@ -165,8 +165,7 @@ def _serial_parts(scene, tx, rx, f, cfg, workers: int) -> dict:
     """Seconds spent outside the chunks' tracing: the input checks, the start of a pool of
     ``workers`` processes (each receiving the scene), joining and sorting the chunks' paths."""
     from raytrace.solver.parallel import ScenePool
-    from raytrace.solver.paths import Paths
-    from raytrace.solver.tracer import _checked, trace_chunks
+    from raytrace.solver.tracer import _checked, join_chunks, trace_chunks
 
     t0 = time.perf_counter()
     _checked(scene, tx, rx, f, cfg)
@@ -177,8 +176,7 @@ def _serial_parts(scene, tx, rx, f, cfg, workers: int) -> dict:
     t2 = time.perf_counter()
     parts = [p for _, p in trace_chunks(scene, tx, rx, f, cfg, workers=1)]
     t3 = time.perf_counter()
-    joined = Paths.concatenate(parts)  # what trace() does with the chunks
-    joined.select(np.argsort(joined.link, kind="stable"))
+    join_chunks(parts, len(tx))  # what trace() does with the chunks
     t4 = time.perf_counter()
     return {"check_s": t1 - t0, "pool_start_s": t2 - t1, "join_s": t4 - t3}
 
