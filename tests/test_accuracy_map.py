@@ -201,3 +201,19 @@ def test_command_on_the_hall_and_workers_do_not_change_the_map(tmp_path):
     for key, arr in a.arrays().items():
         np.testing.assert_array_equal(getattr(b, key), arr, err_msg=key)
     assert all(t["nearest_cell_m"] >= 0.25 for t in a.meta["test_points"])
+
+
+def test_dask_cluster_gives_the_same_map(shoebox_map):
+    """The chunks on a Dask LocalCluster in this process: the same map as in this process."""
+    distributed = pytest.importorskip("distributed")
+    sc, ref = shoebox_map
+    with distributed.LocalCluster(
+        n_workers=2, threads_per_worker=1, processes=False, dashboard_address=None
+    ) as cluster:
+        amap = compute_map(sc, _settings(chunk_links=24), bs_xyz=SHOEBOX_BS,
+                           scheduler=cluster.scheduler_address)  # fmt: skip
+    local = compute_map(sc, _settings(chunk_links=24), bs_xyz=SHOEBOX_BS, workers=1)
+    assert amap.fmap.meta["workers"] == "dask"
+    for key, arr in local.fmap.arrays().items():
+        np.testing.assert_array_equal(getattr(amap.fmap, key), arr, err_msg=key)
+    assert ref.fmap.n_cells == amap.fmap.n_cells

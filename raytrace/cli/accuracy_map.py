@@ -1,7 +1,7 @@
 """``accuracy-map``: the positioning-accuracy map of a hall from its digital twin.
 
     accuracy-map SCENE [--step 2] [--height H] [--band c-band] [--receiver first-lobe]
-                 [--methods ls irls] [--draws 100] [--seed 1] [--workers N]
+                 [--methods ls irls] [--draws 100] [--seed 1] [--workers N | --scheduler ADDR]
                  [--clearance 0.25] [--max-cells 20000] [--no-pictures] [--force] [-q] -o DIR
 
 Writes DIR/map.npz (schema ``hallray-accuracy-map`` v1, :mod:`positioning.fingerprint`),
@@ -48,6 +48,8 @@ def accuracy_map_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=am.DEFAULT_SEED, help="random seed (default 1)")
     p.add_argument("--workers", type=int, default=None, metavar="N",
                    help="processes (default: every core)")  # fmt: skip
+    p.add_argument("--scheduler", metavar="ADDRESS",
+                   help="run the chunks on this Dask scheduler (tcp://host:8786) instead")  # fmt: skip
     p.add_argument("--clearance", type=float, default=am.DEFAULT_CLEARANCE_M, metavar="M",
                    help="least distance of a cell centre from a test point, m (default 0.25)")  # fmt: skip
     p.add_argument("--max-cells", type=int, default=am.MAX_CELLS, metavar="N",
@@ -84,7 +86,7 @@ def _accuracy_map(args: argparse.Namespace) -> int:
     check_output(args.output, args.force)
     scene = load_scene(args.scene, args.materials, default_material=args.default_material)
     amap = compute_map(scene, settings, scene_name=str(args.scene), workers=args.workers,
-                       progress=not args.quiet)  # fmt: skip
+                       scheduler=args.scheduler, progress=not args.quiet)  # fmt: skip
     files = write_outputs(args.output, scene, amap, force=args.force,
                           pictures=not args.no_pictures)  # fmt: skip
     if not args.quiet:

@@ -437,6 +437,7 @@ def compute_map(
     bs_names: Sequence[str] | None = None,
     area_xy: np.ndarray | None = None,
     workers: int | None = None,
+    scheduler: Any = None,
     progress: bool | Callable[[int], None] = False,
 ) -> AccuracyMap:
     """The accuracy map of ``scene`` (module docstring).
@@ -450,6 +451,9 @@ def compute_map(
     bs_names : sequence of str, optional (default BS1, BS2, ... for given positions)
     area_xy : (K, 2) float, m, optional, polygon for the cells (default :func:`area_polygon`)
     workers : int, optional, processes (default every core, at most one per chunk; 1: this one)
+    scheduler : Dask scheduler address or ``distributed.Client``, optional: the chunks run on
+        that cluster instead (as :func:`raytrace.studies.sweep.run_sweep`'s cells; the scene is
+        sent to every worker once)
     progress : bool or callable, a tqdm bar over the cells, or a callback with cells done
 
     Returns
@@ -470,10 +474,14 @@ def compute_map(
     receiver = Receiver(settings.receiver, band)
     chunks = receiver_chunks(len(bs_xyz), len(grid.cell_xyz), settings.chunk_links)
     n_workers = resolve_workers(workers, len(chunks))
-    threads = 1 if n_workers > 1 else None
+    threads = 1 if n_workers > 1 or scheduler is not None else None
     jobs = [(bs_xyz, grid.cell_xyz[c.start : c.stop], c.start, settings, receiver, threads)
             for c in chunks]  # fmt: skip
-    parts = _run_chunks(scene, jobs, chunks, n_workers, progress)
+    if scheduler is not None:
+        parts = _run_chunks_dask(scene, jobs, chunks, scheduler, progress)
+        n_workers = 0  # recorded as "dask"
+    else:
+        parts = _run_chunks(scene, jobs, chunks, n_workers, progress)
     arrays = _join(parts, len(settings.methods))
     timing = {k: float(sum(p["time_s"][k] for p in parts)) for k in ("trace", "measure", "locate")}
     timing["total_wall"] = time.perf_counter() - t_start
@@ -509,6 +517,38 @@ def _run_chunks(
         if bar is not None:
             bar.close()
     return parts
+
+
+def _run_chunks_dask(
+    scene: Scene, jobs: list[tuple], chunks: list[range], scheduler: Any,
+    progress: bool | Callable[[int], None],
+) -> list[dict[str, Any]]:  # fmt: skip
+    """:func:`_run_chunks` on a Dask cluster (the sweep's connection and allocator settings)."""
+    from .sweep import _connect_dask, tune_malloc
+
+    client, own = _connect_dask(scheduler)
+    bar = None
+    if progress is True:
+        from tqdm import tqdm
+
+        bar = tqdm(total=chunks[-1].stop, desc="accuracy map (dask)", unit="cell")
+    try:
+        client.run(tune_malloc)
+        scene_f = client.scatter(scene, broadcast=True)
+        futures = client.map(_chunk_job, [scene_f] * len(jobs), jobs, pure=False)
+        parts = []
+        for chunk, fut in zip(chunks, futures):
+            parts.append(fut.result())
+            if bar is not None:
+                bar.update(len(chunk))
+            elif callable(progress):
+                progress(len(chunk))
+        return parts
+    finally:
+        if bar is not None:
+            bar.close()
+        if own:
+            client.close()
 
 
 def _join(parts: list[dict[str, Any]], n_methods: int) -> dict[str, np.ndarray]:
@@ -561,7 +601,7 @@ def _meta(
         "gdop": "horizontal, base stations the noiseless receiver detects (NaN below 3)",
         "trace": asdict(settings.trace),
         "version": __version__,
-        "workers": n_workers,
+        "workers": n_workers if n_workers else "dask",
         "n_paths": int(n_paths),
         "timing_s": timing,
     }
