@@ -382,3 +382,25 @@ def test_bad_settings_and_unknown_receiver():
         FirstLobeSettings(cfar_cells=0)
     cir = discrete_cir(np.array([0]), np.array([1e-7]), np.array([1e-4 + 0j]), 1)
     assert cir.n_links == 1
+
+
+def test_preparing_some_links_again_gives_their_rows_of_the_full_plan():
+    """The first-lobe refit prepares only the refitted links (``only``), padded to the width of
+    the plan of all links (``min_width``): the same rows, so the same noise draws."""
+    rng = np.random.default_rng(5)
+    n_links, per = 12, 9
+    link = np.repeat(np.arange(n_links), per)
+    delay = 3e-8 + rng.uniform(0, 4e-7, link.size)
+    gain = 1e-5 * rng.lognormal(0, 1, link.size) * np.exp(2j * np.pi * rng.random(link.size))
+    cir = discrete_cir(link, delay, gain, n_links)
+    args = (cir, C_BAND, LinkBudget(), PULSE, FirstLobeSettings())
+    whole = np.zeros(n_links, dtype=bool)
+    whole[[2, 7, 8]] = True
+    every = receivers.prepare_first_lobe(*args, full=whole)
+    others = every.n_samples[~whole[every.links]].max()
+    some = receivers.prepare_first_lobe(*args, full=whole, only=whole, min_width=others)
+    np.testing.assert_array_equal(some.links, np.flatnonzero(whole))
+    assert some.signal.shape[1] == every.signal.shape[1]
+    rows = np.searchsorted(every.links, some.links)
+    for name in ("t0_s", "n_samples", "signal", "peak_signal", "peak_time_s"):
+        np.testing.assert_array_equal(getattr(some, name), getattr(every, name)[rows], err_msg=name)

@@ -1,14 +1,19 @@
 #!/usr/bin/env python3
 """Benchmark: links traced per second on the bundled hall, and positions solved per second.
 
-Run from a checkout: ``python tools/bench.py [--json] [--repeat N] [--scene hall] [--snapshots N]``.
-Also times the incremental retrace of forklift snapshots against a full retrace.
+Run from a checkout: ``python tools/bench.py [--json] [--repeat N] [--scene hall] [--snapshots N]
+[--grid-step 2] [--no-scaling]``.
+Also times the incremental retrace of forklift snapshots against a full retrace, and the scaling
+over cores: links/s and paths/s at 1, 2 and all cores (CPU affinity) on the hall's links and on a
+grid of receivers over its floor, the parallel efficiency, the serial part of a trace over worker
+processes (checks, pool start-up, joining the chunks) and the Amdahl bound it implies for 16 cores.
 Not a test: it prints figures to quote, it asserts nothing.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import platform
@@ -133,6 +138,130 @@ def bench_snapshots(scene_name: str, n: int) -> dict:
     }
 
 
+#: Cores of the Amdahl extrapolation.
+AMDAHL_CORES = 16
+
+
+@contextlib.contextmanager
+def _cores(n: int):
+    """Run the block on the first ``n`` cores of this process's affinity (Linux), then restore."""
+    if not hasattr(os, "sched_setaffinity"):
+        yield
+        return
+    before = os.sched_getaffinity(0)
+    os.sched_setaffinity(0, sorted(before)[:n])
+    try:
+        yield
+    finally:
+        os.sched_setaffinity(0, before)
+
+
+def _noop(scene, item):
+    """A job that does nothing: times a worker pool's start-up (scene sent, Embree rebuilt)."""
+    return item
+
+
+def _serial_parts(scene, tx, rx, f, cfg, workers: int) -> dict:
+    """Seconds spent outside the chunks' tracing: the input checks, the start of a pool of
+    ``workers`` processes (each receiving the scene), joining and sorting the chunks' paths."""
+    from raytrace.solver.parallel import ScenePool
+    from raytrace.solver.tracer import _checked, join_chunks, trace_chunks
+
+    t0 = time.perf_counter()
+    _checked(scene, tx, rx, f, cfg)
+    t1 = time.perf_counter()
+    if workers > 1:
+        with ScenePool(scene, workers) as pool:
+            list(pool.map(_noop, range(workers)))
+    t2 = time.perf_counter()
+    parts = [p for _, p in trace_chunks(scene, tx, rx, f, cfg, workers=1)]
+    t3 = time.perf_counter()
+    join_chunks(parts, len(tx))  # what trace() does with the chunks
+    t4 = time.perf_counter()
+    return {"check_s": t1 - t0, "pool_start_s": t2 - t1, "join_s": t4 - t3}
+
+
+def _amdahl(serial_fraction: float, n: int = AMDAHL_CORES) -> float:
+    """Parallel efficiency on ``n`` cores by Amdahl's law: ``1 / (n s + 1 - s)``."""
+    s = min(max(serial_fraction, 0.0), 1.0)
+    return 1.0 / (n * s + 1.0 - s)
+
+
+def bench_scaling(scene_name: str, repeat: int, grid_step: float) -> dict:
+    """Links/s and paths/s at 1, 2 and all cores on the hall's links and on a grid over its
+    floor (all mechanisms, depth 2), the parallel efficiency, and the serial fraction."""
+    from raytrace.scene.metadata import SceneMetadata
+    from raytrace.solver.parallel import cpu_count
+    from raytrace.studies.accuracy_map import MapSettings, make_grid
+
+    scene = load_scene(scene_name)
+    inp = SceneMetadata.from_scene(scene, require=True)
+    grid = make_grid(scene, MapSettings(step_m=grid_step), inp.point_names, inp.point_xyz)
+    cfg, f = TraceConfig(), 3.775e9
+    n_all = cpu_count()
+    counts = sorted({1, min(2, n_all), n_all})
+    out = {"cores_available": n_all, "load_average": list(os.getloadavg()), "workloads": {}}
+    for name, rx in (("hall", inp.point_xyz), (f"grid_{grid_step:g}m", grid.cell_xyz)):
+        links = len(inp.bs_xyz) * len(rx)
+        rows = {}
+        for n in counts:
+            with _cores(n):
+                for mode, kw in (("processes", {"workers": n}), ("default", {})):
+                    best, paths = _best_of(
+                        lambda kw=kw, rx=rx: trace(scene, inp.bs_xyz, rx, f, cfg, **kw), repeat
+                    )
+                    rows[f"{mode}@{n}"] = {
+                        "cores": n,
+                        "seconds": round(best, 4),
+                        "links_per_s": round(links / best, 1),
+                        "paths_per_s": round(paths.n_paths / best, 0),
+                    }
+        t1 = rows["processes@1"]["seconds"]
+        for r in rows.values():
+            r["speedup"] = round(t1 / r["seconds"], 3)
+            r["efficiency"] = round(t1 / r["seconds"] / r["cores"], 3)
+        entry = {"links": links, "paths": paths.n_paths, "runs": rows}
+        if n_all >= 2:
+            ser = _serial_parts(scene, inp.bs_xyz, rx, f, cfg, 2)
+            serial = sum(ser.values())
+            s_meas = serial / (t1 + ser["pool_start_s"])
+            s_fit = 2.0 * rows["processes@2"]["seconds"] / t1 - 1.0  # t2 = t1 (s + (1 - s) / 2)
+            entry["serial"] = {
+                **{k: round(v, 4) for k, v in ser.items()},
+                "serial_fraction_measured": round(s_meas, 4),
+                "serial_fraction_from_1_vs_2": round(s_fit, 4),
+                f"amdahl_efficiency_{AMDAHL_CORES}_measured": round(_amdahl(s_meas), 3),
+                f"amdahl_efficiency_{AMDAHL_CORES}_from_1_vs_2": round(_amdahl(s_fit), 3),
+            }
+        out["workloads"][name] = entry
+    return out
+
+
+def _print_scaling(sc: dict) -> None:
+    print(
+        f"scaling over cores ({sc['cores_available']} available, load average "
+        f"{', '.join(f'{v:.1f}' for v in sc['load_average'])} at the start):"
+    )
+    for name, w in sc["workloads"].items():
+        print(f"  {name}: {w['links']} links, {w['paths']} paths")
+        for key, r in w["runs"].items():
+            print(
+                f"    {key:<12} {r['seconds']:8.3f} s {r['links_per_s']:9.1f} links/s "
+                f"{r['paths_per_s']:10.0f} paths/s  speed-up {r['speedup']:.2f} "
+                f"efficiency {r['efficiency']:.2f}"
+            )
+        s = w.get("serial")
+        if s:
+            print(
+                f"    serial part with 2 workers: checks {s['check_s']:.3f} s, pool start "
+                f"{s['pool_start_s']:.3f} s, join {s['join_s']:.3f} s -> serial fraction "
+                f"{s['serial_fraction_measured']:.3f} measured, "
+                f"{s['serial_fraction_from_1_vs_2']:.3f} from 1 vs 2 workers; Amdahl "
+                f"efficiency on {AMDAHL_CORES} cores {s[f'amdahl_efficiency_{AMDAHL_CORES}_measured']:.2f} "
+                f"/ {s[f'amdahl_efficiency_{AMDAHL_CORES}_from_1_vs_2']:.2f}"
+            )
+
+
 def bench_positioning(n_epochs: int) -> dict:
     try:
         sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -156,6 +285,8 @@ def main() -> int:
         default=4,
         help="forklift snapshots for the incremental-retrace benchmark (0: skip)",
     )
+    ap.add_argument("--grid-step", type=float, default=2.0, help="grid of the scaling runs, m")
+    ap.add_argument("--no-scaling", action="store_true", help="skip the scaling over cores")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args()
     res = {
@@ -167,6 +298,9 @@ def main() -> int:
         "trace": bench_trace(args.scene, args.repeat),
         "snapshots": bench_snapshots(args.scene, args.snapshots),
         "positioning": bench_positioning(args.epochs),
+        "scaling": {}
+        if args.no_scaling
+        else bench_scaling(args.scene, args.repeat, args.grid_step),
     }
     if args.json:
         print(json.dumps(res, indent=1))
@@ -200,6 +334,8 @@ def main() -> int:
             "      incremental stages (s): "
             + ", ".join(f"{k} {v:.3f}" for k, v in sn["incremental_stages_s"].items())
         )
+    if res["scaling"]:
+        _print_scaling(res["scaling"])
     pos = res["positioning"]
     if "error" in pos:
         print(f"positioning: {pos['error']}")

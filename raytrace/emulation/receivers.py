@@ -326,6 +326,8 @@ def prepare_first_lobe(
     settings: FirstLobeSettings,
     *,
     full: np.ndarray | None = None,
+    only: np.ndarray | None = None,
+    min_width: int = 0,
 ) -> LobePlan:
     """Noiseless windows of the first-lobe receiver for every link of ``cir``.
 
@@ -335,6 +337,10 @@ def prepare_first_lobe(
     band, budget, pulse, settings : the receiver
     full : (n_links,) bool, optional
         Links whose window spans their whole response (the fallback), not just the first lobe.
+    only : (n_links,) bool, optional
+        Prepare these links alone (each link's window does not depend on the others).
+    min_width : int, pad the signal rows to at least this many samples (the width of the plan
+        of every link, so that the noise drawn per row is the same as with all links)
     """
     n_links = cir.n_links
     period = pulse.period_s(band)
@@ -347,7 +353,7 @@ def prepare_first_lobe(
     link_of_path = np.repeat(np.arange(n_links), np.diff(cir.offsets))
     keep = amp >= noise_std * 10.0 ** (NEGLIGIBLE_DB / 20.0)
     counts = np.bincount(link_of_path[keep], minlength=n_links)
-    links = np.flatnonzero(counts > 0)
+    links = np.flatnonzero((counts > 0) & (True if only is None else np.asarray(only, bool)))
     kept = DiscreteCIR(
         np.concatenate([[0], np.cumsum(counts)]).astype(np.int64),
         cir.path_index[keep],
@@ -400,7 +406,7 @@ def prepare_first_lobe(
         n_samples[r] = max(int(np.floor((t_end - t0[r]) / dt)) + 1, 5)
         t = t0[r] + np.arange(n_samples[r]) * dt
         rows.append(_response(d, g, t, half_width, period, table))
-    signal = np.zeros((m, int(n_samples.max())), dtype=complex)
+    signal = np.zeros((m, max(int(n_samples.max()), int(min_width))), dtype=complex)
     for r, row in enumerate(rows):
         signal[r, : row.size] = row
     return LobePlan(n_links, links, t0, n_samples, signal, peak_signal, t_peak, *fixed)
@@ -575,9 +581,15 @@ def measure_first_lobe(plan: LobePlan, rng: np.random.Generator | None) -> LobeM
         # Lobe outside the window: the whole response of those links, fresh noise, same thresholds.
         whole = np.zeros(n, dtype=bool)
         whole[plan.links[refit]] = True
+        # only the refitted links are prepared again; the others' windows keep their widths,
+        # which set the noise rows' width as if every link had been prepared again
+        others = np.ones(m, dtype=bool)
+        others[refit] = False
+        wide = int(plan.n_samples[others].max()) if others.any() else 0
         full_plan = prepare_first_lobe(
-            plan.cir, plan.band, plan.budget, plan.pulse, plan.settings, full=whole
-        )
+            plan.cir, plan.band, plan.budget, plan.pulse, plan.settings, full=whole, only=whole,
+            min_width=wide,
+        )  # fmt: skip
         sub = np.searchsorted(full_plan.links, plan.links[refit])
         t2, p2, w2, ok2 = _measure_rows(full_plan, sub, gamma_cfar[refit], pmax[refit], rng)
         pos = np.searchsorted(rows, refit)

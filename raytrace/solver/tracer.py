@@ -145,7 +145,19 @@ def trace(
         return _trace_links(scene, tx, rx, f, cfg, progress, stats, involving, threads, opaque)
     chunks = _chunked(scene, tx, rx, f, cfg, None, workers, chunk_links, progress, stats,
                       involving, opaque)  # fmt: skip
-    return Paths.concatenate([paths for _, paths in chunks]).sorted()
+    return join_chunks([paths for _, paths in chunks], len(tx))
+
+
+def join_chunks(parts: list[Paths], n_tx: int) -> Paths:
+    """The paths of chunks of consecutive receivers, in order, as one set in canonical order.
+
+    Each chunk is in canonical order (by link ``tx * R + rx``, then ...) and holds whole links,
+    so the whole is, per transmitter, each chunk's slice of that transmitter in chunk order:
+    slices are views, and the arrays are copied once (the serial step after a pool's work).
+    """
+    bounds = [np.searchsorted(p.tx_index, np.arange(n_tx + 1)) for p in parts]
+    pieces = [p.select(slice(b[t], b[t + 1])) for t in range(n_tx) for p, b in zip(parts, bounds)]
+    return Paths.concatenate(pieces)
 
 
 def trace_chunks(

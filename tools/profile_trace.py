@@ -1,0 +1,86 @@
+#!/usr/bin/env python3
+"""Where the time of a trace goes: cProfile of the hall's links on one thread, by stage and by
+function.
+
+Run from a checkout: ``python tools/profile_trace.py [--scene hall] [--grid-step M] [--top 25]``.
+``--grid-step`` traces a grid of receivers over the floor (as ``accuracy-map``) instead of the
+scene's points. Prints each stage's time (the tracer's own ``time_us`` counters), then the
+functions with the most time of their own, grouped by module. Not a test.
+"""
+
+from __future__ import annotations
+
+import argparse
+import cProfile
+import pstats
+import sys
+import time
+from collections import defaultdict
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+from raytrace import TraceConfig, load_scene, trace  # noqa: E402
+from raytrace.scene.metadata import SceneMetadata  # noqa: E402
+
+
+def _module(file: str) -> str:
+    """A short name for the module of a profiled function."""
+    if "raytrace" in file:
+        return Path(file).name
+    if file == "~":
+        return "C built-ins (numpy ufuncs, einsum, Embree calls)"
+    for lib in ("numpy", "embree", "scipy"):
+        if lib in file:
+            return f"{lib} (Python)"
+    return file
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--scene", default="hall")
+    ap.add_argument("--grid-step", type=float, default=None)
+    ap.add_argument("--top", type=int, default=25)
+    args = ap.parse_args()
+    scene = load_scene(args.scene)
+    inp = SceneMetadata.from_scene(scene, require=True)
+    rx = inp.point_xyz
+    if args.grid_step:
+        from raytrace.studies.accuracy_map import MapSettings, make_grid
+
+        rx = make_grid(scene, MapSettings(step_m=args.grid_step), inp.point_names, rx).cell_xyz
+    f, cfg = 3.775e9, TraceConfig()
+    trace(scene, inp.bs_xyz, rx[:2], f, cfg, threads=1)  # warm caches (facets, wedges, Embree)
+    stats: dict[str, int] = {}
+    prof = cProfile.Profile()
+    t0, c0 = time.perf_counter(), time.process_time()
+    prof.enable()
+    paths = trace(scene, inp.bs_xyz, rx, f, cfg, threads=1, stats=stats)
+    prof.disable()
+    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+    n_links = len(inp.bs_xyz) * len(rx)
+    print(f"{n_links} links, {paths.n_paths} paths: {wall:.3f} s wall, {cpu:.3f} s CPU, one "
+          "thread, under cProfile")  # fmt: skip
+    print("stages (tracer counters, s):")
+    stage_s = {k[8:-1]: v / 1e6 for k, v in stats.items() if k.startswith("time_us[")}
+    for k, v in sorted(stage_s.items(), key=lambda kv: -kv[1]):
+        print(f"  {k:<36} {v:7.3f}  {100 * v / wall:5.1f} %")
+    ps = pstats.Stats(prof)
+    print(f"{ps.total_calls} Python function calls ({ps.total_calls / n_links:.0f} per link)")  # type: ignore[attr-defined]
+    by_module: dict[str, float] = defaultdict(float)
+    rows = []
+    for (file, line, func), (_, _, tottime, _, _) in ps.stats.items():  # type: ignore[attr-defined]
+        mod = _module(file)
+        by_module[mod] += tottime
+        rows.append((tottime, f"{Path(file).name}:{line}({func})"))
+    print("own time by module (s):")
+    for mod, v in sorted(by_module.items(), key=lambda kv: -kv[1])[:12]:
+        print(f"  {mod:<44} {v:7.3f}  {100 * v / wall:5.1f} %")
+    print(f"top {args.top} functions by own time (s):")
+    for v, name in sorted(rows, reverse=True)[: args.top]:
+        print(f"  {v:7.3f}  {name}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
