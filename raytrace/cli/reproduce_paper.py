@@ -15,6 +15,7 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
+from ..core.errors import HallrayError
 from .harness import OneLineParser, run_tool
 
 PAIRS = (
@@ -57,43 +58,39 @@ def reproduce_paper_main(argv: Sequence[str] | None = None) -> int:
 
 
 def _main(args: argparse.Namespace) -> int:
-    from positioning.cli import accuracy_report_main
-
-    from ..core.errors import HallrayError
-    from ..emulation.dataset import make_datasets
+    from positioning.output import output_dir
 
     out = Path(args.output)
-    data_dir = out / "datasets"
-    report_dir = out / "report"
-    if out.exists() and any(out.iterdir()) and not args.force:
-        raise HallrayError(f"output directory {out} is not empty (use --force to replace it)")
-    created = not out.exists()
-    out.mkdir(parents=True, exist_ok=True)
+    scene = None if args.scene == "hall" else args.scene
     t0 = time.perf_counter()
-    try:
-        summaries = make_datasets(
-            data_dir,
-            PAIRS,
-            scene=args.scene,
-            duration_s=args.duration,
-            rate_hz=args.rate,
-            seed=args.seed,
-            workers=args.workers,
-            force=args.force,
-            progress=not args.quiet,
-        )
-    except BaseException:
-        # leave nothing behind that this run created
-        if created and out.is_dir() and not any(out.iterdir()):
-            out.rmdir()
-        raise
-    t_data = time.perf_counter() - t0
-    print(f"datasets written to {data_dir} in {t_data:.1f} s:")
+    # the whole output (datasets and report) is built in a temporary directory beside OUT and
+    # renamed when complete: an error, Ctrl-C or SIGTERM leaves nothing, and a rerun starts clean
+    with output_dir(out, force=args.force, inputs=[scene]) as tmp:
+        code = _build(args, tmp, out, t0)
+        if code != 0:
+            raise HallrayError(f"the accuracy report failed (exit status {code}); nothing written")
+    print(f"\nreport written to {out / 'report'} (total {time.perf_counter() - t0:.1f} s)")
+    return 0
+
+
+def _build(args: argparse.Namespace, tmp: Path, out: Path, t0: float) -> int:
+    """Datasets into ``tmp/datasets``, the report into ``tmp/report``; the report's exit status."""
+    from positioning.cli import accuracy_report_main
+
+    from ..emulation.dataset import make_datasets
+
+    summaries = make_datasets(
+        tmp / "datasets",
+        PAIRS,
+        scene=args.scene,
+        duration_s=args.duration,
+        rate_hz=args.rate,
+        seed=args.seed,
+        workers=args.workers,
+        progress=not args.quiet,
+    )
+    print(f"datasets written to {out / 'datasets'} in {time.perf_counter() - t0:.1f} s:")
     for s in summaries:
         print(f"  {Path(s['directory']).name:<22} {s['epochs']} epochs")
     sys.stdout.flush()
-    argv = [s["directory"] for s in summaries] + ["-o", str(report_dir)]
-    code = accuracy_report_main(argv)
-    if code == 0:
-        print(f"\nreport written to {report_dir} (total {time.perf_counter() - t0:.1f} s)")
-    return code
+    return accuracy_report_main([s["directory"] for s in summaries] + ["-o", str(tmp / "report")])

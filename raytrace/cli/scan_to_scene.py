@@ -127,6 +127,9 @@ def _scan_to_scene(args: argparse.Namespace) -> int:
         object_min_points=args.object_min_points,
         seed=args.seed,
     )
+    from positioning.output import check_output
+
+    check_output(args.output, inputs=[args.cloud, args.materials, args.positions])
     summary = scan_to_scene(
         args.cloud, args.output, opt, rules=args.materials, positions=args.positions
     )

@@ -400,7 +400,7 @@ def dataset_files(
 
 
 def _write_files(directory: Path, files: Mapping[str, str]) -> None:
-    directory.mkdir(exist_ok=True)
+    directory.mkdir(exist_ok=True)  # inside a staged directory: whole or not at all
     for name, text in files.items():
         (directory / name).write_text(text, encoding="utf-8")
 
@@ -445,7 +445,11 @@ def _prepare_output(out: Path, force: bool) -> Path:
     parent = out.resolve().parent
     if not parent.is_dir():
         raise HallrayError(f"parent directory of {out} does not exist")
-    return Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".tmp", dir=parent))
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".tmp", dir=parent))
+    umask = os.umask(0o022)
+    os.umask(umask)
+    os.chmod(tmp, 0o777 & ~umask)  # mkdtemp makes 0700: a dataset is for others to read too
+    return tmp
 
 
 def _commit_output(tmp: Path, out: Path) -> None:
@@ -687,6 +691,7 @@ def make_datasets(
     first_lobe: FirstLobeSettings | None = None,
     trace_settings: TraceConfig | None = None,
     subdirectories: bool = True,
+    staging: bool = True,
 ) -> list[dict[str, Any]]:
     """Write several ToA datasets, sharing the traces between them.
 
@@ -712,6 +717,9 @@ def make_datasets(
     trace_settings : TraceConfig, optional, the tracer limits
     subdirectories : bool, each dataset in ``out_dir/<scenario>-<band>`` (True) or, for a
         single dataset, directly in ``out_dir``
+    staging : bool, build in a temporary directory and rename it (True), or write straight into
+        ``out_dir``, an empty directory the caller stages itself (False: the command-line tools,
+        through :mod:`positioning.output`)
 
     Returns
     -------
@@ -735,7 +743,12 @@ def make_datasets(
     if any(c.scenario == "semi-dynamic" for c in configs) and not inputs.routes:
         raise SceneError("the semi-dynamic scenario needs forklift routes in the scene metadata")
     out = Path(out_dir)
-    tmp = _prepare_output(out, force)
+    if staging:
+        tmp = _prepare_output(out, force)
+    elif not out.is_dir() or any(out.iterdir()):
+        raise HallrayError(f"unstaged output {out} must be an empty directory")
+    else:
+        tmp = out
     committed = False
     summaries: list[dict[str, Any]] = []
     # the static scene's paths per carrier, traced once for both scenarios
@@ -769,10 +782,11 @@ def make_datasets(
                         "stage_seconds": stats,
                     }
                 )
-        _commit_output(tmp, out)
+        if staging:
+            _commit_output(tmp, out)
         committed = True
     finally:
-        if not committed:
+        if not committed and staging:
             shutil.rmtree(tmp, ignore_errors=True)
     for s in summaries:
         s["total_seconds"] = time.perf_counter() - t_start
