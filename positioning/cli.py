@@ -139,10 +139,13 @@ def fixes_csv(ds: ToaDataset, fixes: Fixes) -> str:
     return buf.getvalue()
 
 
-def _summary_line(method: str, fixes: Fixes, err: np.ndarray) -> str:
+def _summary_line(method: str, fixes: Fixes, err: np.ndarray, counts: dict | None = None) -> str:
     s = summarize(err)
+    extra = ""
+    if counts:
+        extra = f"{counts['not_converged']} not converged, {counts['ill_conditioned']} ill-conditioned, "
     return (
-        f"{method}: {fixes.n_epochs} fixes, {fixes.n_unsolved} unsolved, "
+        f"{method}: {fixes.n_epochs} fixes, {fixes.n_unsolved} unsolved, {extra}"
         f"mean {s['mean_m']:.3f} m, median {s['median_m']:.3f} m, p90 {s['p90_m']:.3f} m"
     )
 
@@ -191,6 +194,7 @@ def _run(main: Any, argv: Sequence[str] | None) -> int:
 def _estimate(argv: Sequence[str] | None) -> int:
     from .output import STDOUT, check_output, write_file
     from .report import solve_dataset
+    from .sanity import check_height, check_trustworthy, trust_counts
 
     p = _Parser(
         prog="estimate-positions",
@@ -229,20 +233,24 @@ def _estimate(argv: Sequence[str] | None) -> int:
     height = _height_mode(args)
     params = _parse_params(args.param, [args.method])
     ds = load_dataset(args.dataset)
+    check_height(height, ds.bs_xyz)
     _check_params(params, ds)
     fixes = solve_dataset(ds, args.method, params[args.method], height)
     if fixes.n_unsolved == fixes.n_epochs:
         raise _all_unsolved(ds)
+    counts = trust_counts(ds, fixes, height)
+    check_trustworthy(counts, str(ds.path), height)
     write_file(out, fixes_csv(ds, fixes), inputs=inputs, stdout_ok=True)
     err = error_2d(fixes.xyz, ds.true_xyz)
     summary = sys.stderr if out == STDOUT else sys.stdout  # stdout holds the CSV
-    print(f"{_summary_line(args.method, fixes, err)} -> {out}", file=summary)
+    print(f"{_summary_line(args.method, fixes, err, counts)} -> {out}", file=summary)
     return 0
 
 
 def _report(argv: Sequence[str] | None) -> int:
     from .output import check_output, output_dir
     from .report import evaluate, is_report_dir, write_report
+    from .sanity import check_height
 
     p = _Parser(
         prog="accuracy-report",
@@ -283,11 +291,13 @@ def _report(argv: Sequence[str] | None) -> int:
     datasets = [load_dataset(d) for d in args.datasets]
     results = []
     for ds in datasets:
+        check_height(height, ds.bs_xyz)
         _check_params(params, ds)
     for ds in datasets:
         r = evaluate(ds, methods, params, height)
         if all(f.n_unsolved == f.n_epochs for f in r.fixes.values()):
             raise _all_unsolved(ds)
+        _trust_lines(ds, r.fixes, height)
         results.append(r)
     # the report appears whole or not at all; a previous report there is replaced
     with output_dir(out, inputs=args.datasets, replaceable=is_report_dir) as tmp:
@@ -295,6 +305,23 @@ def _report(argv: Sequence[str] | None) -> int:
     print(md, end="")
     print(f"wrote {len(written)} files to {out}")
     return 0
+
+
+def _trust_lines(ds: ToaDataset, fixes: dict[str, Fixes], height: str | float) -> None:
+    """accuracy-report: refuse a dataset no method has a trustworthy fix of; count the doubtful
+    fixes on stderr (stdout holds the table)."""
+    from .sanity import check_trustworthy, trust_counts
+
+    counts = {m: trust_counts(ds, f, height) for m, f in fixes.items()}
+    best = max(counts.values(), key=lambda c: c["trustworthy"])
+    check_trustworthy(best, str(ds.path), height)
+    for m, c in counts.items():
+        if c["trustworthy"] < fixes[m].n_epochs:
+            print(
+                f"{ds.name} {m}: {c['unsolved']} unsolved, {c['not_converged']} not converged, "
+                f"{c['ill_conditioned']} ill-conditioned of {fixes[m].n_epochs} fixes",
+                file=sys.stderr,
+            )
 
 
 def estimate_positions_main(argv: Sequence[str] | None = None) -> int:
