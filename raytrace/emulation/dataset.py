@@ -586,6 +586,9 @@ def _compute_group(
 
         size = max(1, min(25, n // (4 * workers)))
         chunks = _chunks(n, size)
+        from ..solver.parallel import resolve_workers
+
+        workers = resolve_workers(workers, len(chunks))  # never more than the cores, the chunks
         # spawn, not fork: Embree's and the tracer's threads do not survive a fork
         ctx = multiprocessing.get_context("spawn")
         with ProcessPoolExecutor(
