@@ -110,7 +110,8 @@ def check_output(
             kind = "not a directory" if directory and stat.S_ISREG(mode) else _kind(mode)
             raise OutputError(f"{what} {path} is {kind}: refusing to replace it")
     if not real.parent.is_dir():
-        raise OutputError(f"{what} {path}: output directory does not exist: {real.parent}")
+        where = "parent directory" if directory else "output directory"
+        raise OutputError(f"{what} {path}: {where} does not exist: {real.parent}")
     for item in inputs:
         if item is None or os.fspath(item) == STDOUT:
             continue
