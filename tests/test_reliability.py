@@ -499,3 +499,13 @@ def test_trace_of_a_20k_receiver_grid_stays_under_the_rss_limit():
                          text=True, timeout=600)  # fmt: skip
     assert res.returncode == 0, res.stderr
     assert int(res.stdout.split()[-1]) < RSS_LIMIT_MB
+
+
+@pytest.mark.slow
+def test_fault_injection_reproduce_paper(tmp_path):
+    out = tmp_path / "rp"
+    args = ["-o", str(out), "--duration", "0.5", "--rate", "2", "--workers", "1", "-q", "--force"]
+    _kill_and_rerun("raytrace.cli.reproduce_paper", "reproduce_paper_main", args, out,
+                    random.Random(3), (3.0, 12.0), kills=2)  # fmt: skip
+    assert (out / "report" / "table.md").is_file()
+    assert len(list((out / "datasets").iterdir())) == 4

@@ -82,10 +82,16 @@ def make_hall_main(argv: Sequence[str] | None = None) -> int:
 
 
 def _make_hall(args: argparse.Namespace) -> int:
-    written = make_hall(
-        args.profile, args.size, args.seed, args.output, n_points=args.points,
-        **_generator_kwargs(args),
-    )  # fmt: skip
+    from positioning.output import output_dir
+
+    # the three files appear together or not at all; a previous make-hall output is replaced,
+    # any other non-empty directory refused
+    with output_dir(args.output, replaceable=lambda d: (d / INF_JSON).is_file()) as tmp:
+        written = make_hall(
+            args.profile, args.size, args.seed, tmp, n_points=args.points,
+            **_generator_kwargs(args),
+        )  # fmt: skip
+    written["dir"] = args.output
     info = written["info"]
     p = info["params"]
     print(
