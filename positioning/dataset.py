@@ -257,8 +257,7 @@ def _check_row_count(meta: dict[str, Any], n_rows: int, csv_path: Path) -> None:
     expected = summary.get("rows") if isinstance(summary, dict) else None
     if isinstance(expected, int) and not isinstance(expected, bool) and expected != n_rows:
         raise PositioningError(
-            f"{csv_path}: {n_rows} data rows, meta.json says {expected} "
-            "(truncated or edited file?)"
+            f"{csv_path}: {n_rows} data rows, meta.json says {expected} (truncated or edited file?)"
         )
 
 

@@ -117,7 +117,9 @@ def check_output(
             continue
         src = _real(item)
         if _same(real, src) or (directory and real in src.parents):
-            raise OutputError(f"{what} {path} is an input of this command ({item}): refusing to overwrite it")
+            raise OutputError(
+                f"{what} {path} is an input of this command ({item}): refusing to overwrite it"
+            )
     return real
 
 

@@ -159,7 +159,11 @@ def check_trustworthy(counts: dict[str, int], where: str, height: str | float) -
     """Refuse a result without a single trustworthy fix (exit non-zero, nothing written)."""
     if counts["trustworthy"] > 0:
         return
-    why = "collinear base stations" if height != "3d" else "base stations in one plane (all at one height?): give --height"
+    why = (
+        "collinear base stations"
+        if height != "3d"
+        else "base stations in one plane (all at one height?): give --height"
+    )
     raise PositioningError(
         f"{where}: no trustworthy fix ({counts['ill_conditioned']} ill-conditioned by the "
         f"geometry: {why}; {counts['not_converged']} not converged; {counts['unsolved']} "

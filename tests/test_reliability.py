@@ -103,7 +103,9 @@ def test_dash_is_stdout(ds, tmp_path, capsys, monkeypatch):
     assert not (tmp_path / "-").exists()
 
 
-@pytest.mark.parametrize("mask, file_mode, dir_mode", [(0o022, 0o644, 0o755), (0o027, 0o640, 0o750)])
+@pytest.mark.parametrize(
+    "mask, file_mode, dir_mode", [(0o022, 0o644, 0o755), (0o027, 0o640, 0o750)]
+)
 def test_modes_follow_the_umask(ds, tmp_path, capsys, mask, file_mode, dir_mode):
     old = os.umask(mask)
     try:
@@ -181,7 +183,10 @@ def test_positions_beyond_the_scale_rule_are_refused(capsys):
 
 
 def test_negative_coordinates(capsys):
-    assert trace_scene_main([str(CANON / "floor.glb"), "--tx", "-1,-2,2", "--rx", "-1,2,1.5", "-q"]) == 0
+    assert (
+        trace_scene_main([str(CANON / "floor.glb"), "--tx", "-1,-2,2", "--rx", "-1,2,1.5", "-q"])
+        == 0
+    )
 
 
 def test_tx_equal_rx_is_one_line(capsys):
@@ -212,7 +217,9 @@ def test_nan_vertices_are_refused_naming_the_file(tmp_path, capsys, suffix):
     v[0, 0] = np.nan
     bad = trimesh.Trimesh(v, m.faces, process=False)
     path = tmp_path / f"wall.{suffix}"
-    path.write_bytes(bad.export(file_type=suffix) if suffix != "obj" else bad.export(file_type="obj").encode())
+    path.write_bytes(
+        bad.export(file_type=suffix) if suffix != "obj" else bad.export(file_type="obj").encode()
+    )
     code = trace_scene_main([str(path), "--default-material", "concrete", "--summary-only"])
     assert code == 2
     line = _only_line(_err(capsys))
@@ -297,7 +304,9 @@ def test_render_refuses_truncated_and_nan_paths(tmp_path, capsys):
 
 
 def test_hall_los_check_never_prints_nan(capsys):
-    assert hall_los_check_main(["InF-SL", "--seeds", "1", "--size", "20x20x5", "--points", "0"]) == 2
+    assert (
+        hall_los_check_main(["InF-SL", "--seeds", "1", "--size", "20x20x5", "--points", "0"]) == 2
+    )
     assert "--points" in _only_line(_err(capsys))
     summary = {
         "params": {"profile": "InF-SL", "size": [20, 20, 5], "bs_grid": [1, 1], "n_points": 1,
@@ -317,7 +326,12 @@ def test_scene_in_millimetres_is_refused_before_tracing(tmp_path, capsys):
     path = tmp_path / "mm.ply"
     path.write_bytes(m.export(file_type="ply"))
     t0 = time.perf_counter()
-    assert trace_scene_main([str(path), "--default-material", "concrete", "--tx", "1,1,1", "--rx", "2,2,1"]) == 2
+    assert (
+        trace_scene_main(
+            [str(path), "--default-material", "concrete", "--tx", "1,1,1", "--rx", "2,2,1"]
+        )
+        == 2
+    )
     assert time.perf_counter() - t0 < 5.0
     assert "millimetres (x1000)" in _only_line(_err(capsys))
 
@@ -355,7 +369,9 @@ def test_station_in_millimetres_is_refused(ds, tmp_path, capsys):
 
 
 def test_height_in_millimetres_is_refused(ds, tmp_path, capsys):
-    assert estimate_positions_main([str(ds), "--height", "1500", "-o", str(tmp_path / "f.csv")]) == 2
+    assert (
+        estimate_positions_main([str(ds), "--height", "1500", "-o", str(tmp_path / "f.csv")]) == 2
+    )
     assert "--height 1500" in _only_line(_err(capsys))
     assert estimate_positions_main([str(ds), "--height", "1.5", "-o", str(tmp_path / "f.csv")]) == 0
 
@@ -460,7 +476,9 @@ def test_fault_injection_make_dataset(tmp_path):
     out = tmp_path / "ds"
     args = ["--scenario", "static", "--band", "c-band", "--duration", "20", "--rate", "10", "-q",
             "--force", "-o", str(out)]  # fmt: skip
-    _kill_and_rerun("raytrace.cli.make_dataset", "make_dataset_main", args, out, random.Random(18), (1.5, 6.0))
+    _kill_and_rerun(
+        "raytrace.cli.make_dataset", "make_dataset_main", args, out, random.Random(18), (1.5, 6.0)
+    )
     assert (out / "toa.csv").is_file() and (out / "meta.json").is_file()
 
 
@@ -470,7 +488,9 @@ def test_fault_injection_accuracy_report(tmp_path):
     out = tmp_path / "out" / "rep"
     out.parent.mkdir()
     args = [str(d), "-o", str(out)]
-    _kill_and_rerun("positioning.cli", "accuracy_report_main", args, out, random.Random(7), (1.0, 5.0))
+    _kill_and_rerun(
+        "positioning.cli", "accuracy_report_main", args, out, random.Random(7), (1.0, 5.0)
+    )
     assert (out / "table.md").is_file()
 
 

@@ -193,9 +193,7 @@ def _toa_csv(inputs: SceneMetadata, times_s: np.ndarray, m: Measurements) -> str
 CSV_BLOCK_EPOCHS = 100
 
 
-def _toa_csv_blocks(
-    inputs: SceneMetadata, times_s: np.ndarray, m: Measurements
-) -> Iterator[str]:
+def _toa_csv_blocks(inputs: SceneMetadata, times_s: np.ndarray, m: Measurements) -> Iterator[str]:
     """The text of ``toa.csv`` (:func:`_toa_csv`) in blocks of :data:`CSV_BLOCK_EPOCHS` epochs,
     so that a writer streams it."""
     n_e, n_p, n_b = m.toa_s.shape

@@ -307,7 +307,9 @@ class Paths:
         except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, zlib.error) as exc:
             # a truncated or foreign file: one line, not a BadZipFile traceback
             why = " ".join(str(exc).split()) or type(exc).__name__
-            raise HallrayError(f"cannot read paths file {p.name} (truncated or not .npz?): {why}") from None
+            raise HallrayError(
+                f"cannot read paths file {p.name} (truncated or not .npz?): {why}"
+            ) from None
         bad = int(np.count_nonzero(~np.isfinite(paths.delay_s)))
         if bad:
             raise HallrayError(f"paths file {p.name}: {bad} path delay(s) are NaN or infinite")
