@@ -139,10 +139,13 @@ def fixes_csv(ds: ToaDataset, fixes: Fixes) -> str:
     return buf.getvalue()
 
 
-def _summary_line(method: str, fixes: Fixes, err: np.ndarray) -> str:
+def _summary_line(method: str, fixes: Fixes, err: np.ndarray, counts: dict | None = None) -> str:
     s = summarize(err)
+    extra = ""
+    if counts:
+        extra = f"{counts['not_converged']} not converged, {counts['ill_conditioned']} ill-conditioned, "
     return (
-        f"{method}: {fixes.n_epochs} fixes, {fixes.n_unsolved} unsolved, "
+        f"{method}: {fixes.n_epochs} fixes, {fixes.n_unsolved} unsolved, {extra}"
         f"mean {s['mean_m']:.3f} m, median {s['median_m']:.3f} m, p90 {s['p90_m']:.3f} m"
     )
 
@@ -169,8 +172,11 @@ def _common_args(p: argparse.ArgumentParser) -> None:
 
 
 def _run(main: Any, argv: Sequence[str] | None) -> int:
+    from .command import _sigterm_as_interrupt
+
     try:
-        return main(argv)
+        with _sigterm_as_interrupt():
+            return main(argv)
     except SystemExit as exc:  # argparse: --help (0) or a usage error (2, already printed)
         return exc.code if isinstance(exc.code, int) else 2
     except PositioningError as exc:
@@ -180,13 +186,15 @@ def _run(main: Any, argv: Sequence[str] | None) -> int:
         name = f"{exc.filename}: " if getattr(exc, "filename", None) else ""
         print(f"error: {name}{exc.strerror or exc}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
+    except KeyboardInterrupt:  # Ctrl-C or SIGTERM: the output layer removed its temporary files
         print("error: interrupted", file=sys.stderr)
         return 130
 
 
 def _estimate(argv: Sequence[str] | None) -> int:
-    from .report import atomic_write_text, solve_dataset
+    from .output import STDOUT, check_output, write_file
+    from .report import solve_dataset
+    from .sanity import check_height, check_trustworthy, trust_counts
 
     p = _Parser(
         prog="estimate-positions",
@@ -203,7 +211,7 @@ def _estimate(argv: Sequence[str] | None) -> int:
         metavar="NAME=VALUE",
         help="method parameter, repeatable (e.g. u_max=2.5)",
     )
-    p.add_argument("-o", "--output", metavar="FIXES_CSV", help="output CSV file")
+    p.add_argument("-o", "--output", metavar="FIXES_CSV", help="output CSV file ('-': stdout)")
     p.add_argument("--list-methods", action="store_true", help="list the methods and exit")
     _common_args(p)
     args = p.parse_args(argv)
@@ -218,26 +226,31 @@ def _estimate(argv: Sequence[str] | None) -> int:
         raise PositioningError(
             f"unknown method {args.method!r}; choose one of: {', '.join(METHODS)}"
         )
-    out = Path(args.output)
-    if out.is_dir():
-        raise PositioningError(f"{out}: is a directory")
-    if not out.parent.exists():
-        raise PositioningError(f"{out.parent}: output directory not found")
+    inputs = [Path(args.dataset) / n for n in ("toa.csv", "meta.json")]
+    out = args.output
+    if out != STDOUT:
+        check_output(out, inputs=inputs)  # before any work
     height = _height_mode(args)
     params = _parse_params(args.param, [args.method])
     ds = load_dataset(args.dataset)
+    check_height(height, ds.bs_xyz)
     _check_params(params, ds)
     fixes = solve_dataset(ds, args.method, params[args.method], height)
     if fixes.n_unsolved == fixes.n_epochs:
         raise _all_unsolved(ds)
-    atomic_write_text(out, fixes_csv(ds, fixes))
+    counts = trust_counts(ds, fixes, height)
+    check_trustworthy(counts, str(ds.path), height)
+    write_file(out, fixes_csv(ds, fixes), inputs=inputs, stdout_ok=True)
     err = error_2d(fixes.xyz, ds.true_xyz)
-    print(f"{_summary_line(args.method, fixes, err)} -> {out}")
+    summary = sys.stderr if out == STDOUT else sys.stdout  # stdout holds the CSV
+    print(f"{_summary_line(args.method, fixes, err, counts)} -> {out}", file=summary)
     return 0
 
 
 def _report(argv: Sequence[str] | None) -> int:
-    from .report import evaluate, write_report
+    from .output import check_output, output_dir
+    from .report import evaluate, is_report_dir, write_report
+    from .sanity import check_height
 
     p = _Parser(
         prog="accuracy-report",
@@ -272,23 +285,43 @@ def _report(argv: Sequence[str] | None) -> int:
             raise PositioningError(f"unknown method {m!r}; choose one of: {', '.join(METHODS)}")
     methods = list(dict.fromkeys(methods))
     out = Path(args.output)
-    if out.exists() and not out.is_dir():
-        raise PositioningError(f"{out}: exists and is not a directory")
+    check_output(out, inputs=args.datasets, directory=True)  # before any work
     height = _height_mode(args)
     params = _parse_params(args.param, methods)
     datasets = [load_dataset(d) for d in args.datasets]
     results = []
     for ds in datasets:
+        check_height(height, ds.bs_xyz)
         _check_params(params, ds)
     for ds in datasets:
         r = evaluate(ds, methods, params, height)
         if all(f.n_unsolved == f.n_epochs for f in r.fixes.values()):
             raise _all_unsolved(ds)
+        _trust_lines(ds, r.fixes, height)
         results.append(r)
-    md, written = write_report(results, methods, out)
+    # the report appears whole or not at all; a previous report there is replaced
+    with output_dir(out, inputs=args.datasets, replaceable=is_report_dir) as tmp:
+        md, written = write_report(results, methods, tmp)
     print(md, end="")
     print(f"wrote {len(written)} files to {out}")
     return 0
+
+
+def _trust_lines(ds: ToaDataset, fixes: dict[str, Fixes], height: str | float) -> None:
+    """accuracy-report: refuse a dataset no method has a trustworthy fix of; count the doubtful
+    fixes on stderr (stdout holds the table)."""
+    from .sanity import check_trustworthy, trust_counts
+
+    counts = {m: trust_counts(ds, f, height) for m, f in fixes.items()}
+    best = max(counts.values(), key=lambda c: c["trustworthy"])
+    check_trustworthy(best, str(ds.path), height)
+    for m, c in counts.items():
+        if c["trustworthy"] < fixes[m].n_epochs:
+            print(
+                f"{ds.name} {m}: {c['unsolved']} unsolved, {c['not_converged']} not converged, "
+                f"{c['ill_conditioned']} ill-conditioned of {fixes[m].n_epochs} fixes",
+                file=sys.stderr,
+            )
 
 
 def estimate_positions_main(argv: Sequence[str] | None = None) -> int:

@@ -93,12 +93,13 @@ def _read_meta(path: Path) -> dict[str, Any]:
     if not path.is_file():
         raise PositioningError(f"{path}: file not found")
     try:
-        meta = json.loads(path.read_text(encoding="utf-8"))
+        meta = json.loads(path.read_text(encoding="utf-8-sig"))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         raise PositioningError(f"{path}: cannot read JSON ({msg})") from None
     if not isinstance(meta, dict):
         raise PositioningError(f"{path}: top level must be an object")
+    _check_schema(meta, path)
     bss = meta.get("base_stations")
     if not isinstance(bss, list) or not bss:
         raise PositioningError(f"{path}: 'base_stations' must be a non-empty list")
@@ -150,7 +151,7 @@ def load_dataset(directory: str | Path) -> ToaDataset:
     off_rows: list[list[float]] = []
     seen: set[tuple[int, int]] = set()
     try:
-        with csv_path.open(newline="", encoding="utf-8") as fh:
+        with csv_path.open(newline="", encoding="utf-8-sig") as fh:  # a BOM is fine
             reader = csv.reader(fh)
             header = next(reader, None)
             if header is None:
@@ -189,6 +190,8 @@ def load_dataset(directory: str | Path) -> ToaDataset:
                     off = float(schedule.get(bsn, 0.0))
                 key = (ep, pt)
                 f = fixes.get(key)
+                if f is not None:
+                    _check_truth(truth[f], row, ix, line, key)
                 if f is None:
                     f = fixes[key] = len(epochs)
                     epochs.append(ep)
@@ -215,8 +218,9 @@ def load_dataset(directory: str | Path) -> ToaDataset:
         raise PositioningError(f"{csv_path}: cannot read ({exc})") from None
     if not epochs:
         raise PositioningError(f"{csv_path}: no data rows")
+    _check_row_count(meta, len(seen), csv_path)
     off_arr = np.array(off_rows, dtype=float)
-    return ToaDataset(
+    ds = ToaDataset(
         path=d,
         meta=meta,
         bs_names=bs_names,
@@ -228,3 +232,42 @@ def load_dataset(directory: str | Path) -> ToaDataset:
         toa_s=np.array(toa_rows, dtype=float),
         tx_offset_s=off_arr,
     )
+    from .sanity import check_dataset
+
+    check_dataset(ds)  # the scale rule: stations in mm, ToAs in ms
+    return ds
+
+
+#: ``meta.json`` ``schema_version`` values this reader understands (absent: hand-made, fine).
+KNOWN_SCHEMA_VERSIONS = (1, 2)
+
+
+def _check_schema(meta: dict[str, Any], path: Path) -> None:
+    v = meta.get("schema_version")
+    if v is not None and (isinstance(v, bool) or v not in KNOWN_SCHEMA_VERSIONS):
+        raise PositioningError(
+            f"{path}: schema_version {v!r} is not one this reader knows "
+            f"({', '.join(map(str, KNOWN_SCHEMA_VERSIONS))}): update hallray or regenerate it"
+        )
+
+
+def _check_row_count(meta: dict[str, Any], n_rows: int, csv_path: Path) -> None:
+    """A truncated toa.csv reads as valid CSV: compare with ``meta.json`` ``summary.rows``."""
+    summary = meta.get("summary")
+    expected = summary.get("rows") if isinstance(summary, dict) else None
+    if isinstance(expected, int) and not isinstance(expected, bool) and expected != n_rows:
+        raise PositioningError(
+            f"{csv_path}: {n_rows} data rows, meta.json says {expected} (truncated or edited file?)"
+        )
+
+
+def _check_truth(first: tuple[float, ...], row: list[str], ix: dict[str, int], line: int,
+                 key: tuple[int, str]) -> None:  # fmt: skip
+    """Every row of one fix must carry the same true position (1 mm)."""
+    cols = ("x_true", "y_true", "z_true")
+    here = tuple(_float(row[ix[c]], c, line) for c in cols)
+    if max(abs(a - b) for a, b in zip(first, here)) > 1e-3:
+        raise PositioningError(
+            f"toa.csv line {line}: true position {list(here)} of epoch {key[0]}, point "
+            f"{key[1]!r} differs from its first row's {list(first)}"
+        )

@@ -11,7 +11,6 @@ import csv
 import io
 import os
 import re
-import tempfile
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -61,21 +60,24 @@ def band_label(band: str) -> str:
 
 
 def atomic_write(path: str | Path, write: Callable[[Any], None], *, binary: bool = False) -> None:
-    """Call ``write(fh)`` on a temporary file beside ``path``, then rename it to ``path``."""
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent or ".")
-    try:
-        mode = "wb" if binary else "w"
-        kw = {} if binary else {"encoding": "utf-8", "newline": ""}
-        with os.fdopen(fd, mode, **kw) as fh:
-            write(fh)
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
+    """Call ``write(fh)`` on a temporary file beside ``path``, then rename it to ``path``
+    (:func:`positioning.output.replace_atomic`: the umask's mode, symlinks followed)."""
+    from .output import replace_atomic
+
+    real = Path(os.path.realpath(path))
+    replace_atomic(real, write if binary else lambda fh: _write_text(fh, write))
+
+
+def _write_text(fh: Any, write: Callable[[Any], None]) -> None:
+    text = io.TextIOWrapper(fh, encoding="utf-8", newline="")
+    write(text)
+    text.flush()
+    text.detach()  # leave the binary file open for the caller's fsync
+
+
+def is_report_dir(path: Path) -> bool:
+    """Whether a directory holds a previous report (``table.md``): accuracy-report replaces it."""
+    return (path / "table.md").is_file()
 
 
 def atomic_write_text(path: str | Path, text: str) -> None:

@@ -80,7 +80,7 @@ def test_export_glb(scene_file, tmp_path):
     "args, message",
     [
         (["missing.glb"], "scene file not found"),
-        (["{scene}", "--tx", "0,0,2", "--rx", "500,0,1"], "outside the scene"),
+        (["{scene}", "--tx", "0,0,2", "--rx", "500000,0,1"], "outside the scene"),
         (["{scene}", "--tx", "2.5,0,1", "--rx", "5,5,1"], "inside the solid 'machine_itu_metal'"),
         (["{scene}", "--band", "x-band"], "unknown band"),
         (["{scene}", "--frequency-hz", "150e9"], "concrete"),

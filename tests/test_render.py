@@ -170,7 +170,7 @@ def test_render_scene_library_call_on_the_hall(tmp_path):
         (["{scene}", "-o", "{tmp}/x.png", "--tx", "1,1,1"], "add --link"),
         (["{scene}", "-o", "{tmp}/x.png", "--size", "big"], "expected WIDTHxHEIGHT"),
         (["{scene}", "-o", "{tmp}/x.png", "--size", "20x20"], "picture size must be"),
-        (["{scene}", "-o", "{tmp}/x.png", "--link", "0,0", "--tx", "50,5,1"], "outside"),
+        (["{scene}", "-o", "{tmp}/x.png", "--link", "0,0", "--tx", "50000,5,1"], "outside"),
         (["{scene}", "-o", "{tmp}/x.png", "--dpi", "5"], "--dpi must be"),
         (["{scene}", "-o", "{tmp}/x.png", "--bogus"], "unrecognized arguments"),
     ],

@@ -251,7 +251,7 @@ def test_bad_positions(shoebox):
     with pytest.raises(TraceInputError, match="NaN"):
         trace(shoebox, [[np.nan, 0, 0]], [[1, 1, 1]], F_C)
     with pytest.raises(TraceInputError, match="outside the scene"):
-        trace(shoebox, [[2, 3, 1.5]], [[2000, 3, 1.5]], F_C)
+        trace(shoebox, [[2, 3, 1.5]], [[2e6, 3, 1.5]], F_C)  # beyond the scale rule
     with pytest.raises(TraceInputError, match="positive"):
         trace(shoebox, [[2, 3, 1.5]], [[5, 3, 1.5]], -1.0)
     sc = _box_scene("concrete")

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 from collections.abc import Sequence
+from pathlib import Path
 
 from ..core.errors import HallrayError
 from ..emulation.receivers import DEFAULT_TOA_METHOD, TOA_METHODS, FirstLobeSettings
@@ -95,8 +96,9 @@ def make_dataset_main(argv: Sequence[str] | None = None) -> int:
 
 
 def _make_dataset(args: argparse.Namespace) -> int:
-    from ..emulation.dataset import ALL_DATASETS, make_datasets
-    from ..solver.config import config_from_args
+    from positioning.output import output_dir
+
+    from ..emulation.dataset import ALL_DATASETS
 
     if args.all:
         if args.scenario or args.band:
@@ -106,22 +108,13 @@ def _make_dataset(args: argparse.Namespace) -> int:
         if not args.scenario or not args.band:
             raise HallrayError("give --scenario and --band, or --all")
         pairs, subdirs = [(args.scenario, args.band)], False
-    summaries = make_datasets(
-        args.output,
-        pairs,
-        scene=args.scene,
-        duration_s=args.duration,
-        rate_hz=args.rate,
-        seed=args.seed,
-        toa_method=args.toa_method,
-        first_lobe=FirstLobeSettings(args.relative_threshold_db, _cells(args.cfar_cells)),
-        trace_settings=config_from_args(args),
-        noise=not args.no_noise,
-        workers=args.workers,
-        force=args.force,
-        progress=not args.quiet,
-        subdirectories=subdirs,
-    )
+    scene = None if args.scene == "hall" else args.scene
+    # built in a temporary directory beside the output, renamed when whole; locked against a
+    # second writer
+    with output_dir(args.output, force=args.force, inputs=[scene]) as tmp:
+        summaries = _make(args, tmp, pairs, subdirs)
+    for s in summaries:  # name the final directory, not the staging one
+        s["directory"] = str(Path(args.output) / Path(s["directory"]).relative_to(tmp))
     if not args.quiet:
         for s in summaries:
             print(
@@ -132,6 +125,29 @@ def _make_dataset(args: argparse.Namespace) -> int:
             )
         print(f"done in {summaries[-1]['total_seconds']:.1f} s")
     return 0
+
+
+def _make(args: argparse.Namespace, tmp: Path, pairs: list, subdirs: bool) -> list[dict]:
+    """Write the datasets into the empty staging directory ``tmp``."""
+    from ..emulation.dataset import make_datasets
+    from ..solver.config import config_from_args
+
+    return make_datasets(
+        tmp,
+        pairs,
+        scene=args.scene,
+        duration_s=args.duration,
+        rate_hz=args.rate,
+        seed=args.seed,
+        toa_method=args.toa_method,
+        first_lobe=FirstLobeSettings(args.relative_threshold_db, _cells(args.cfar_cells)),
+        trace_settings=config_from_args(args),
+        noise=not args.no_noise,
+        workers=args.workers,
+        progress=not args.quiet,
+        subdirectories=subdirs,
+        staging=False,
+    )
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -82,10 +82,16 @@ def make_hall_main(argv: Sequence[str] | None = None) -> int:
 
 
 def _make_hall(args: argparse.Namespace) -> int:
-    written = make_hall(
-        args.profile, args.size, args.seed, args.output, n_points=args.points,
-        **_generator_kwargs(args),
-    )  # fmt: skip
+    from positioning.output import output_dir
+
+    # the three files appear together or not at all; a previous make-hall output is replaced,
+    # any other non-empty directory refused
+    with output_dir(args.output, replaceable=lambda d: (d / INF_JSON).is_file()) as tmp:
+        written = make_hall(
+            args.profile, args.size, args.seed, tmp, n_points=args.points,
+            **_generator_kwargs(args),
+        )  # fmt: skip
+    written["dir"] = args.output
     info = written["info"]
     p = info["params"]
     print(
@@ -157,7 +163,11 @@ def hall_los_check_main(argv: Sequence[str] | None = None) -> int:
 
 
 def _hall_los_check(args: argparse.Namespace) -> int:
+    if args.points is not None and args.points < 1:
+        raise HallrayError(f"--points must be >= 1, got {args.points}")
     sample, params = _los_sample(args)
+    if sample.n_links == 0:
+        raise HallrayError("no base station -> point links to check: give more --points")
     width = args.bin if args.bin is not None else max(2.0, params["clutter_size"] / 2.0)
     if not (math.isfinite(width) and width > 0):
         raise HallrayError(f"--bin must be a positive number of metres, got {args.bin!r}")
@@ -244,13 +254,18 @@ def format_los_report(summary: dict[str, Any]) -> str:
     n_bs = p["bs_grid"][0] * p["bs_grid"][1]
     k3, kf = summary["k_3gpp_m"], summary["k_fit_m"]
     ratio = kf / k3 if math.isfinite(k3) and math.isfinite(kf) and k3 > 0 else math.nan
+    if math.isfinite(kf) and kf > 0:
+        fitted = f"{kf:.2f} m (ratio to 3GPP {ratio:.2f})"
+    else:  # every link LoS (k = inf) or none (k = 0): exp(-d/k) has nothing to fit
+        which = "every" if kf == math.inf else "no"
+        fitted = f"not defined: {which} link is LoS (use more points or seeds)"
     lines = [
         f"{p['profile']}: {summary['n_halls']} hall(s) {size} m, {n_bs} BS x {p['n_points']} "
         f"points, {summary['n_links']} links",
         f"3GPP TR 38.901: r = {p['density']:g}, d_clutter = {p['clutter_size']:g} m, "
         f"h_c = {p['clutter_height']:g} m, h_BS = {p['bs_height']:g} m, "
         f"h_UT = {p['ut_height']:g} m -> k = {k3:.2f} m",
-        f"fitted k (max. likelihood of exp(-d/k)) = {kf:.2f} m (ratio to 3GPP {ratio:.2f})",
+        f"fitted k (max. likelihood of exp(-d/k)) = {fitted}",
         f"LoS fraction: generated {summary['los_fraction']:.3f}, "
         f"3GPP for the same distances {summary['los_fraction_3gpp']:.3f}",
         "",

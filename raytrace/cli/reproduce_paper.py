@@ -17,6 +17,7 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
+from ..core.errors import HallrayError
 from .harness import OneLineParser, run_tool
 
 #: The receiver whose report is written beside the main one: the paper's ideal eq. 3 model.
@@ -68,56 +69,64 @@ def reproduce_paper_main(argv: Sequence[str] | None = None) -> int:
 
 
 def _main(args: argparse.Namespace) -> int:
-    from positioning.cli import accuracy_report_main
+    from positioning.output import output_dir
 
-    from ..core.errors import HallrayError
-    from ..emulation.dataset import make_datasets
     from ..emulation.receivers import DEFAULT_TOA_METHOD, TOA_METHODS
-    from ..studies.paper import write_comparison
 
     receiver = args.receiver or DEFAULT_TOA_METHOD
     if receiver not in TOA_METHODS:
         raise HallrayError(f"unknown receiver {receiver!r}; use one of {', '.join(TOA_METHODS)}")
     receivers = list(dict.fromkeys([receiver, IDEAL_RECEIVER]))
     out = Path(args.output)
-    data_dir = out / "datasets"
-    if out.exists() and any(out.iterdir()) and not args.force:
-        raise HallrayError(f"output directory {out} is not empty (use --force to replace it)")
-    created = not out.exists()
-    out.mkdir(parents=True, exist_ok=True)
+    scene = None if args.scene == "hall" else args.scene
     t0 = time.perf_counter()
-    try:
-        summaries = make_datasets(
-            data_dir,
-            PAIRS,
-            scene=args.scene,
-            duration_s=args.duration,
-            rate_hz=args.rate,
-            seed=args.seed,
-            workers=args.workers,
-            force=args.force,
-            progress=not args.quiet,
-            toa_method=receivers,
-        )
-    except BaseException:
-        # leave nothing behind that this run created
-        if created and out.is_dir() and not any(out.iterdir()):
-            out.rmdir()
-        raise
-    print(f"datasets written to {data_dir} in {time.perf_counter() - t0:.1f} s:")
+    # the whole output (datasets, reports, paper.md) is built in a temporary directory beside OUT
+    # and renamed when complete: an error, Ctrl-C or SIGTERM leaves nothing, and a rerun starts
+    # clean
+    with output_dir(out, force=args.force, inputs=[scene]) as tmp:
+        text = _build(args, receivers, tmp, out, t0)
+    print("\n" + text.split("## Why, by mechanism")[0].rstrip())
+    reports = ", ".join(str(out / _report_name(r, receivers)) for r in receivers)
+    print(f"\nreports in {reports}; comparison and findings in {out / 'paper.md'} "
+          f"(total {time.perf_counter() - t0:.1f} s)")  # fmt: skip
+    return 0
+
+
+def _report_name(receiver: str, receivers: Sequence[str]) -> str:
+    return "report" if receiver == receivers[0] else f"report-{receiver}"
+
+
+def _build(
+    args: argparse.Namespace, receivers: Sequence[str], tmp: Path, out: Path, t0: float
+) -> str:
+    """Datasets of every receiver into ``tmp/datasets`` (one trace), a report per receiver, and
+    ``tmp/paper.md``; returns the text of ``paper.md``."""
+    from positioning.cli import accuracy_report_main
+
+    from ..emulation.dataset import make_datasets
+    from ..studies.paper import write_comparison
+
+    summaries = make_datasets(
+        tmp / "datasets",
+        PAIRS,
+        scene=args.scene,
+        duration_s=args.duration,
+        rate_hz=args.rate,
+        seed=args.seed,
+        workers=args.workers,
+        progress=not args.quiet,
+        toa_method=receivers,
+    )
+    print(f"datasets written to {out / 'datasets'} in {time.perf_counter() - t0:.1f} s:")
     for s in summaries:
         print(f"  {Path(s['directory']).name:<33} {s['epochs']} epochs, receiver {s['toa_method']}")
     reports, datasets = {}, {}
     for r in receivers:
         datasets[r] = [s["directory"] for s in summaries if s["toa_method"] == r]
-        reports[r] = out / ("report" if r == receiver else f"report-{r}")
+        reports[r] = tmp / _report_name(r, receivers)
         print(f"\n== receiver {r} ==")
         sys.stdout.flush()
         code = accuracy_report_main([*datasets[r], "-o", str(reports[r])])
         if code != 0:
-            return code
-    text = write_comparison(out / "paper.md", reports, datasets)
-    print("\n" + text.split("## Why, by mechanism")[0].rstrip())
-    print(f"\nreports in {', '.join(str(p) for p in reports.values())}; comparison and findings "
-          f"in {out / 'paper.md'} (total {time.perf_counter() - t0:.1f} s)")  # fmt: skip
-    return 0
+            raise HallrayError(f"the accuracy report failed (exit status {code}); nothing written")
+    return write_comparison(tmp / "paper.md", reports, datasets)

@@ -69,6 +69,7 @@ def _trace_scene(args: argparse.Namespace) -> int:
     from ..solver.config import config_from_args
     from ..solver.tracer import check_positions, trace
 
+    _check_outputs(args)
     scene = load_scene(args.scene, args.materials, default_material=args.default_material)
     summary = scene.summary()
     sites = SceneMetadata.from_scene(scene)
@@ -135,6 +136,17 @@ def _trace_scene(args: argparse.Namespace) -> int:
     if args.export_glb:
         print(f"scene with paths written to {args.export_glb}")
     return 0
+
+
+def _check_outputs(args: argparse.Namespace) -> None:
+    """Refuse, before any work, an output that is special, an input, or both outputs at once."""
+    from positioning.output import check_output
+
+    inputs = [args.scene if args.scene != "hall" else None, args.materials]
+    if args.output:
+        check_output(args.output, inputs=inputs, what="-o")
+    if args.export_glb:
+        check_output(args.export_glb, inputs=[*inputs, args.output], what="--export-glb")
 
 
 def link_table(paths: Any, tx_names: list[str], rx_names: list[str]) -> list[dict[str, Any]]:

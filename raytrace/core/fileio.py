@@ -4,6 +4,7 @@ one-line errors."""
 from __future__ import annotations
 
 import os
+import stat
 import tempfile
 from pathlib import Path
 from typing import Any
@@ -13,19 +14,25 @@ from .errors import HallrayError
 
 def write_atomic(path: str | os.PathLike[str], data: bytes) -> None:
     """Write ``data`` to ``path`` through a temporary file in the same directory and
-    ``os.replace``. The file gets the mode an ordinary ``open()`` would give it (or keeps the
-    mode of the file it replaces); a missing directory is a one-line :class:`HallrayError`."""
-    p = Path(path)
-    parent = p.parent if str(p.parent) else Path(".")
+    ``os.replace``. A symlink at ``path`` is followed (its target is replaced, the link stays); a
+    device node, FIFO, socket or directory there is refused. The file gets the mode an ordinary
+    ``open()`` would give it (``0666 & ~umask``) or keeps the mode of the file it replaces; a
+    missing directory is a one-line :class:`HallrayError`. (The command-line tools go through
+    :mod:`positioning.output`, which also refuses inputs and locks; this is the library's writer.)
+    """
+    p = Path(os.path.realpath(os.fspath(path)))
+    if p.exists() and not stat.S_ISREG(p.stat().st_mode):
+        raise HallrayError(f"output {path} is not a regular file: refusing to replace it")
+    parent = p.parent
     if not parent.is_dir():
-        raise HallrayError(f"output directory does not exist: {parent}")
+        raise HallrayError(f"output directory does not exist: {Path(path).parent}")
     fd, tmp = tempfile.mkstemp(dir=parent, prefix=f".{p.name}.", suffix=".tmp")
     try:
         # mkstemp creates 0600
         if p.exists():
             mode = p.stat().st_mode & 0o777
         else:
-            umask = os.umask(0)
+            umask = os.umask(0o022)
             os.umask(umask)
             mode = 0o666 & ~umask
         os.chmod(tmp, mode)

@@ -36,7 +36,7 @@ import shutil
 import sys
 import tempfile
 import time
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -186,32 +186,46 @@ def _toa_csv(inputs: SceneMetadata, times_s: np.ndarray, m: Measurements) -> str
     Floats are written with ``repr`` (shortest round trip), SNR and lobe figures with fixed
     decimals; an undetected link has an empty ``toa_s``.
     """
+    return "".join(_toa_csv_blocks(inputs, times_s, m))
+
+
+#: Epochs formatted per block of ``toa.csv`` text (memory: one block, not the whole file).
+CSV_BLOCK_EPOCHS = 100
+
+
+def _toa_csv_blocks(inputs: SceneMetadata, times_s: np.ndarray, m: Measurements) -> Iterator[str]:
+    """The text of ``toa.csv`` (:func:`_toa_csv`) in blocks of :data:`CSV_BLOCK_EPOCHS` epochs,
+    so that a writer streams it."""
     n_e, n_p, n_b = m.toa_s.shape
-    # the texts of what repeats (per epoch, point, base station, link, fix), then one join a row
-    epoch = [f"{e},{t!r}" for e, t in zip(m.epochs.tolist(), times_s[m.epochs].tolist())]
+    yield ",".join(COLUMNS) + "\n"
+    # the texts of what repeats (per point, base station, link), then one join a row
     point_xyz = [",".join(map(repr, p)) for p in inputs.point_xyz.tolist()]
     dist = np.linalg.norm(inputs.bs_xyz[None, :, :] - inputs.point_xyz[:, None, :], axis=2)
     dist_txt = [[repr(d) for d in row] for row in dist.tolist()]
     tx_txt = [repr(t) for t in m.tx_offset_s.tolist()]
-    clock_txt = [[repr(c) for c in row] for row in m.clock_offset_s.tolist()]
-    det = m.detected.ravel().tolist()
-    toa = [repr(t) if d else "" for t, d in zip(m.toa_s.ravel().tolist(), det)]
-    los = m.los.ravel().astype(np.int64).tolist()
-    snr, ratio = _num(m.snr_db, ".3f"), _num(m.peak_ratio_db, ".3f")
-    width = _num(m.lobe_width, ".4f")
-    first, lobe = m.first_kind.ravel().tolist(), m.lobe_kind.ravel().tolist()
-    lines = [",".join(COLUMNS) + "\n"]
-    i = 0
-    for e in range(n_e):  # formatting only; the numbers are in the arrays
-        for p in range(n_p):
-            for b in range(n_b):
-                lines.append(
-                    f"{epoch[e]},{inputs.point_names[p]},{inputs.bs_names[b]},{toa[i]},"
-                    f"{point_xyz[p]},{dist_txt[p][b]},{los[i]},{first[i]},{snr[i]},{ratio[i]},"
-                    f"{width[i]},{lobe[i]},{tx_txt[b]},{clock_txt[e][p]}\n"
-                )
-                i += 1
-    return "".join(lines)
+    for e0 in range(0, n_e, CSV_BLOCK_EPOCHS):
+        sl = slice(e0, min(n_e, e0 + CSV_BLOCK_EPOCHS))
+        ep = m.epochs[sl]
+        epoch = [f"{e},{t!r}" for e, t in zip(ep.tolist(), times_s[ep].tolist())]
+        clock_txt = [[repr(c) for c in row] for row in m.clock_offset_s[sl].tolist()]
+        det = m.detected[sl].ravel().tolist()
+        toa = [repr(t) if d else "" for t, d in zip(m.toa_s[sl].ravel().tolist(), det)]
+        los = m.los[sl].ravel().astype(np.int64).tolist()
+        snr, ratio = _num(m.snr_db[sl], ".3f"), _num(m.peak_ratio_db[sl], ".3f")
+        width = _num(m.lobe_width[sl], ".4f")
+        first, lobe = m.first_kind[sl].ravel().tolist(), m.lobe_kind[sl].ravel().tolist()
+        lines = []
+        i = 0
+        for e in range(len(epoch)):  # formatting only; the numbers are in the arrays
+            for p in range(n_p):
+                for b in range(n_b):
+                    lines.append(
+                        f"{epoch[e]},{inputs.point_names[p]},{inputs.bs_names[b]},{toa[i]},"
+                        f"{point_xyz[p]},{dist_txt[p][b]},{los[i]},{first[i]},{snr[i]},"
+                        f"{ratio[i]},{width[i]},{lobe[i]},{tx_txt[b]},{clock_txt[e][p]}\n"
+                    )
+                    i += 1
+        yield "".join(lines)
 
 
 def _summary(m: Measurements) -> dict[str, Any]:
@@ -376,6 +390,19 @@ def dataset_files(
     -------
     dict: ``toa.csv``, ``meta.json`` and, for semi-dynamic, ``forklifts.csv``
     """
+    parts = _dataset_parts(scene, cfg, measured, inputs=inputs, fleet=fleet)
+    return {k: v if isinstance(v, str) else "".join(v) for k, v in parts.items()}
+
+
+def _dataset_parts(
+    scene: Scene,
+    cfg: DatasetConfig,
+    measured: Measurements,
+    *,
+    inputs: SceneMetadata | None = None,
+    fleet: Fleet | None = None,
+) -> dict[str, str | Iterable[str]]:
+    """:func:`dataset_files` with ``toa.csv`` as an iterable of text blocks (streamed)."""
     band = cfg.validate()
     inputs = inputs if inputs is not None else SceneMetadata.from_scene(scene, require=True)
     times = cfg.times_s
@@ -391,7 +418,7 @@ def dataset_files(
         raise HallrayError("a semi-dynamic dataset needs its forklift fleet, a static one none")
     meta = _meta(cfg, band, scene, inputs, measured, _scene_name(scene))
     files = {
-        "toa.csv": _toa_csv(inputs, times, measured),
+        "toa.csv": _toa_csv_blocks(inputs, times, measured),
         "meta.json": json.dumps(meta, indent=1, sort_keys=False) + "\n",
     }
     if fleet is not None:
@@ -399,10 +426,14 @@ def dataset_files(
     return files
 
 
-def _write_files(directory: Path, files: Mapping[str, str]) -> None:
+def _write_files(directory: Path, files: Mapping[str, str | Iterable[str]]) -> None:
+    """Write each file's text (or text blocks, streamed) into ``directory``, inside a staged
+    directory (whole or not at all)."""
     directory.mkdir(exist_ok=True)
     for name, text in files.items():
-        (directory / name).write_text(text, encoding="utf-8")
+        with (directory / name).open("w", encoding="utf-8", newline="") as fh:
+            for block in [text] if isinstance(text, str) else text:
+                fh.write(block)
 
 
 def write_dataset(
@@ -445,7 +476,11 @@ def _prepare_output(out: Path, force: bool) -> Path:
     parent = out.resolve().parent
     if not parent.is_dir():
         raise HallrayError(f"parent directory of {out} does not exist")
-    return Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".tmp", dir=parent))
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".tmp", dir=parent))
+    umask = os.umask(0o022)
+    os.umask(umask)
+    os.chmod(tmp, 0o777 & ~umask)  # mkdtemp makes 0700: a dataset is for others to read too
+    return tmp
 
 
 def _commit_output(tmp: Path, out: Path) -> None:
@@ -582,6 +617,9 @@ def _compute_group(
 
         size = max(1, min(25, n // (4 * workers)))
         chunks = _chunks(n, size)
+        from ..solver.parallel import resolve_workers
+
+        workers = resolve_workers(workers, len(chunks))  # never more than the cores, the chunks
         # spawn, not fork: Embree's and the tracer's threads do not survive a fork
         ctx = multiprocessing.get_context("spawn")
         with ProcessPoolExecutor(
@@ -687,6 +725,7 @@ def make_datasets(
     first_lobe: FirstLobeSettings | None = None,
     trace_settings: TraceConfig | None = None,
     subdirectories: bool = True,
+    staging: bool = True,
 ) -> list[dict[str, Any]]:
     """Write several ToA datasets, sharing the traces between them.
 
@@ -712,6 +751,9 @@ def make_datasets(
     trace_settings : TraceConfig, optional, the tracer limits
     subdirectories : bool, each dataset in ``out_dir/<scenario>-<band>`` (True) or, for a
         single dataset, directly in ``out_dir``
+    staging : bool, build in a temporary directory and rename it (True), or write straight into
+        ``out_dir``, an empty directory the caller stages itself (False: the command-line tools,
+        through :mod:`positioning.output`)
 
     Returns
     -------
@@ -735,7 +777,12 @@ def make_datasets(
     if any(c.scenario == "semi-dynamic" for c in configs) and not inputs.routes:
         raise SceneError("the semi-dynamic scenario needs forklift routes in the scene metadata")
     out = Path(out_dir)
-    tmp = _prepare_output(out, force)
+    if staging:
+        tmp = _prepare_output(out, force)
+    elif not out.is_dir() or any(out.iterdir()):
+        raise HallrayError(f"unstaged output {out} must be an empty directory")
+    else:
+        tmp = out
     committed = False
     summaries: list[dict[str, Any]] = []
     # the static scene's paths per carrier, traced once for both scenarios
@@ -755,7 +802,7 @@ def make_datasets(
                 if cfg.toa_method != methods[0]:
                     name += f"-{cfg.toa_method}"
                 d = tmp / name if subdirectories else tmp
-                _write_files(d, dataset_files(sc, cfg, m, inputs=inputs, fleet=fleet))
+                _write_files(d, _dataset_parts(sc, cfg, m, inputs=inputs, fleet=fleet))
                 summaries.append(
                     {
                         "directory": str(out / d.relative_to(tmp)),
@@ -769,10 +816,11 @@ def make_datasets(
                         "stage_seconds": stats,
                     }
                 )
-        _commit_output(tmp, out)
+        if staging:
+            _commit_output(tmp, out)
         committed = True
     finally:
-        if not committed:
+        if not committed and staging:
             shutil.rmtree(tmp, ignore_errors=True)
     for s in summaries:
         s["total_seconds"] = time.perf_counter() - t_start

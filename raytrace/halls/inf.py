@@ -45,6 +45,7 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import HallrayError
+from ..core.scale import check_size
 from ..scene.model import Scene
 from .spec import (
     ITU_MATERIALS,
@@ -149,6 +150,7 @@ def parse_size(text: str | Sequence[float]) -> tuple[float, float, float]:
             raise HallrayError(f"bad size {text!r}: expected [L, W, H] in metres")
     if not all(math.isfinite(v) and v > 0 for v in vals):
         raise HallrayError(f"bad size {text!r}: every dimension must be a positive number of m")
+    check_size(max(vals), f"hall size {text if isinstance(text, str) else list(text)}")
     return (vals[0], vals[1], vals[2])
 
 

@@ -30,6 +30,7 @@ import trimesh
 from ..core.errors import HallrayError, MaterialError, SceneError
 from ..core.fileio import read_yaml, write_atomic
 from ..core.palette import material_colors
+from ..core.scale import check_size
 from ..physics.materials import MaterialLibrary
 from ..scene.model import Scene
 from ..scene.motion import ROUTE_MODES, Route
@@ -876,6 +877,7 @@ def _parse(data: Any) -> HallSpec:
     hall = _mapping(top["hall"], "hall")
     _check_keys(hall, "hall", ("size",), ("material", "wall_thickness"))
     size = _vector(hall["size"], "hall.size", 3, positive=True)
+    check_size(max(size), f"hall.size {list(size)}")
     thickness = _number(hall.get("wall_thickness", 0.3), "hall.wall_thickness", positive=True)
     materials = _parse_materials(top.get("materials"))
     names = tuple(dict.fromkeys(ITU_MATERIALS + tuple(materials)))

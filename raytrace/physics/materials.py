@@ -134,6 +134,20 @@ class Material:
             )
         if not (math.isfinite(self.thickness_m) and self.thickness_m > 0):
             raise MaterialError(f"material '{n}': thickness must be > 0 m, got {self.thickness_m}")
+        self._check_passive()
+
+    def _check_passive(self) -> None:
+        """A passive material's relative permittivity has a real part >= 1 (vacuum's): check
+        eta' = a f^b at the ends of the valid range (a power law is monotonic between them)."""
+        ends = [f for f in (self.f_min_hz, self.f_max_hz) if 0 < f < math.inf] or [1e9]
+        for f_hz in ends if self.b != 0 else [1e9]:
+            eta = self.a * (f_hz / 1e9) ** self.b
+            if eta < 1.0 - 1e-9:
+                at = f" at {_fmt_ghz(f_hz)} GHz" if self.b != 0 else ""
+                raise MaterialError(
+                    f"material '{self.name}': eta_real (relative permittivity, real part) is "
+                    f"{eta:.4g}{at}; a physical material has eta_real >= 1"
+                )
 
     @property
     def range_text(self) -> str:

@@ -8,7 +8,10 @@ import xml.etree.ElementTree as ET
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from ..core.errors import SceneError
+from ..core.scale import check_size
 from ..physics.materials import MaterialLibrary
 from .model import Scene
 
@@ -109,7 +112,10 @@ def load_scene(
             f"{len(unbound)} object(s) without a material: {shown}; name them after a material, "
             "add a 'bind' pattern, or give a default material"
         )
-    return Scene.from_meshes(bound, library, metadata=metadata, source=str(p))
+    scene = Scene.from_meshes(bound, library, metadata=metadata, source=str(p))
+    lo, hi = scene.bounds
+    check_size(float(np.max(hi - lo)), f"scene {p.name}")  # a hall in mm: refused before tracing
+    return scene
 
 
 def _read_trimesh(p: Path) -> tuple[list[tuple[str, Any, list[str]]], dict[str, Any]]:
@@ -117,7 +123,9 @@ def _read_trimesh(p: Path) -> tuple[list[tuple[str, Any, list[str]]], dict[str, 
     import trimesh
 
     try:
-        loaded = trimesh.load(str(p), force="scene")
+        # unprocessed: trimesh's processing silently drops NaN/inf vertices (and the faces using
+        # them), turning a closed wall into an open sheet; each mesh is processed below
+        loaded = trimesh.load(str(p), force="scene", process=False)
     except Exception as exc:  # trimesh raises many types for unreadable files
         raise SceneError(
             f"cannot read scene {p.name}: {type(exc).__name__}: {exc}".splitlines()[0]
@@ -128,7 +136,13 @@ def _read_trimesh(p: Path) -> tuple[list[tuple[str, Any, list[str]]], dict[str, 
         geom = loaded.geometry.get(geom_name)
         if geom is None or not hasattr(geom, "faces") or len(geom.faces) == 0:
             continue
+        if not np.isfinite(np.asarray(geom.vertices, dtype=float)).all():
+            raise SceneError(
+                f"scene {p.name}: object {node!r} has NaN or infinite vertex coordinates"
+            )
         mesh = geom.copy()
+        if hasattr(mesh, "process"):
+            mesh.process()
         mesh.apply_transform(transform)
         hints = [node, geom_name]
         mat = getattr(getattr(geom, "visual", None), "material", None)

@@ -17,6 +17,8 @@ from __future__ import annotations
 import csv
 import io
 import json
+import zipfile
+import zlib
 from dataclasses import dataclass, fields
 from pathlib import Path
 
@@ -301,9 +303,17 @@ class Paths:
         try:
             with np.load(p) as z:
                 kw = {k: z[k] for k in cls._PER_PATH}
-                return cls(tx=z["tx"], rx=z["rx"], frequency_hz=float(z["frequency_hz"]), **kw)
-        except (OSError, ValueError, KeyError) as exc:
-            raise HallrayError(f"cannot read paths file {p.name}: {exc}") from None
+                paths = cls(tx=z["tx"], rx=z["rx"], frequency_hz=float(z["frequency_hz"]), **kw)
+        except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, zlib.error) as exc:
+            # a truncated or foreign file: one line, not a BadZipFile traceback
+            why = " ".join(str(exc).split()) or type(exc).__name__
+            raise HallrayError(
+                f"cannot read paths file {p.name} (truncated or not .npz?): {why}"
+            ) from None
+        bad = int(np.count_nonzero(~np.isfinite(paths.delay_s)))
+        if bad:
+            raise HallrayError(f"paths file {p.name}: {bad} path delay(s) are NaN or infinite")
+        return paths
 
     def _to_json(self) -> dict:
         kinds = self.kind_label

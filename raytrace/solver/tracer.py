@@ -20,6 +20,7 @@ not depend on the number of threads.
 from __future__ import annotations
 
 import os
+import warnings
 from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any
@@ -27,6 +28,7 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import TraceInputError
+from ..core.scale import MAX_SCENE_M, unit_hint
 from ..scene.model import Scene
 from . import diffraction, specular
 from .config import MIN_POWER_DB, TraceConfig
@@ -57,11 +59,17 @@ _STAGE_COST = {
 def check_positions(
     scene: Scene, points: np.ndarray, what: str, *, strict: bool = False
 ) -> np.ndarray:
-    """Validate transmitter or receiver positions: finite, near the scene, not inside a solid.
+    """Validate transmitter or receiver positions: finite, at a sane scale, not inside a solid.
 
-    A point is outside the scene when it is farther from the scene's bounding box than half the
-    box diagonal plus 1 m (a unit mistake, typically), or, with ``strict``, when it is outside
-    the bounding box at all (what an enclosed hall wants). Raises :class:`TraceInputError`.
+    The scene's bounding box is not where radio may go (a transmitter in front of a lone wall or
+    above a floor is outside it): a point far from the box (more than half the box diagonal plus
+    1 m) is only a warning. A point farther than :data:`~raytrace.core.scale.MAX_SCENE_M` from it
+    is the scale rule's unit mistake and an error. ``strict`` is kept for compatibility and
+    changes nothing. Raises :class:`TraceInputError` (:class:`~raytrace.core.scale.ScaleError`).
+
+    Returns
+    -------
+    (n, 3) float array of the positions, metres
     """
     p = np.asarray(points, dtype=float)
     if p.ndim == 1:
@@ -74,13 +82,21 @@ def check_positions(
     if bad.any():
         raise TraceInputError(f"{what} {int(np.argmax(bad))} has a NaN or infinite coordinate")
     lo, hi = scene.bounds
-    slack = 1e-6 if strict else 0.5 * scene.extent + 1.0
-    out = ((p < lo - slack) | (p > hi + slack)).any(axis=1)
-    if out.any():
-        i = int(np.argmax(out))
+    dist = np.linalg.norm(np.maximum(np.maximum(lo - p, p - hi), 0.0), axis=1)
+    i = int(np.argmax(dist))
+    where = f"{what} {i} at {p[i].round(3).tolist()}"
+    box = f"bounds {lo.round(2).tolist()} .. {hi.round(2).tolist()} m"
+    if dist[i] > MAX_SCENE_M:  # the scale rule: a unit mistake, not a position
         raise TraceInputError(
-            f"{what} {i} at {p[i].round(3).tolist()} is outside the scene "
-            f"(bounds {lo.round(2).tolist()} .. {hi.round(2).tolist()} m)"
+            f"{where} is {dist[i]:,.0f} m outside the scene ({box}), beyond the "
+            f"{MAX_SCENE_M / 1000:g} km a hall can span: {unit_hint(float(dist[i]))}"
+        )
+    far = dist > 0.5 * scene.extent + 1.0
+    if far.any():
+        warnings.warn(
+            f"{int(far.sum())} {what}(s) far outside the scene, e.g. {where} is {dist[i]:.1f} m "
+            f"from its {box}: check the coordinates (metres)",
+            stacklevel=2,
         )
     inside = scene.inside_solid(p)
     if (inside >= 0).any():
@@ -90,6 +106,23 @@ def check_positions(
             f"{scene.objects[inside[i]].name!r}"
         )
     return p
+
+
+def check_distinct(tx: np.ndarray, rx: np.ndarray, tol_m: float = 1e-6) -> None:
+    """Refuse a transmitter and a receiver at one position (no direction, no path length).
+
+    tx : (T, 3), rx : (R, 3) float, metres; tol_m : closer than this is "the same", m.
+    Memory: one (T, chunk) block at a time.
+    """
+    for start in range(0, len(rx), 65536):
+        block = rx[start : start + 65536]
+        d = np.linalg.norm(tx[:, None, :] - block[None, :, :], axis=2)
+        if (d < tol_m).any():
+            t, r = np.argwhere(d < tol_m)[0]
+            raise TraceInputError(
+                f"transmitter {int(t)} and receiver {int(start + r)} are at the same position "
+                f"{tx[t].round(3).tolist()}: a link needs two distinct ends"
+            )
 
 
 def trace(
@@ -262,7 +295,10 @@ def _checked(
     f = float(frequency_hz)
     if not np.isfinite(f) or f <= 0:
         raise TraceInputError(f"frequency must be a positive number of Hz, got {frequency_hz}")
-    return cfg, f, check_positions(scene, tx, "transmitter"), check_positions(scene, rx, "receiver")
+    tx = check_positions(scene, tx, "transmitter")
+    rx = check_positions(scene, rx, "receiver")
+    check_distinct(tx, rx)
+    return cfg, f, tx, rx
 
 
 def _trace_links(

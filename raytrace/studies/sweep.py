@@ -873,17 +873,41 @@ def _execute_local(
 
     # spawn, not fork: Embree's threads (alive in this process once it has traced anything) do
     # not survive a fork, and a child's first scene build could wait for them forever
+    workers = min(workers, len(tasks), os.cpu_count() or 1)  # never more than cores or cells
     pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"))
+    futures: dict[Any, dict[str, Any]] = {}
+    seen: set[Any] = set()
     try:
         futures = {pool.submit(run_cell, t): t for t in tasks}
         for fut in as_completed(futures):
+            seen.add(fut)
             t = futures[fut]
             try:
                 yield t, fut.result(), None
             except Exception as exc:  # a worker's error, reported per cell  # noqa: BLE001
                 yield t, None, f"{type(exc).__name__}: {exc}".splitlines()[0]
-    finally:
-        pool.shutdown(wait=True, cancel_futures=True)
+    except KeyboardInterrupt:  # Ctrl-C or SIGTERM: stop the running cells now, keep finished ones
+        done = [f for f in futures if f.done() and f not in seen and not f.cancelled()]
+        _stop_pool(pool)
+        for fut in done:
+            if fut.exception() is None:
+                yield futures[fut], fut.result(), None
+        raise
+    except BaseException:  # the consumer stopped (or failed): do not wait for running cells
+        _stop_pool(pool)
+        raise
+    pool.shutdown(wait=True, cancel_futures=True)
+
+
+def _stop_pool(pool: Any) -> None:
+    """Cancel a process pool's pending cells and terminate its running ones at once (waiting
+    for them is what made Ctrl-C take tens of seconds)."""
+    procs = list((getattr(pool, "_processes", None) or {}).values())
+    pool.shutdown(wait=False, cancel_futures=True)
+    for p in procs:
+        p.terminate()
+    for p in procs:
+        p.join(timeout=5)
 
 
 #: glibc ``mallopt`` settings for Dask workers (see :func:`tune_malloc`): large temporaries from
