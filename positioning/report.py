@@ -20,11 +20,12 @@ from typing import Any
 import numpy as np
 
 from .api import run_method
-from .dataset import ToaDataset
+from .dataset import ToaDataset, dataset_area, link_reports
 from .errors import PositioningError
 from .fixes import Fixes
+from .integrity import ALERT_LIMIT_M
 from .metrics import cdf, error_2d, summarize
-from .tdoa import make_problem
+from .tdoa import Problem, make_problem
 
 #: The paper's Table II (metres): (scenario, band) -> metric -> method -> value.
 PAPER_TABLE2: dict[tuple[str, str], dict[str, dict[str, float]]] = {
@@ -116,15 +117,36 @@ def heights_for(ds: ToaDataset, mode: str | float) -> np.ndarray | None:
     return np.full(ds.n_fixes, float(mode))
 
 
+def dataset_problem(ds: ToaDataset, height: str | float = "true") -> Problem:
+    """The dataset as a :class:`Problem`: schedule removed per measurement, its service area and
+    its receiver reports (``snr_db``, first-lobe shape, band) attached."""
+    return make_problem(
+        ds.toa_unscheduled_s,
+        ds.bs_xyz,
+        None,
+        heights_for(ds, height),
+        area=dataset_area(ds),
+        links=link_reports(ds),
+    )
+
+
 def solve_dataset(
-    ds: ToaDataset, method: str, params: Mapping[str, Any], height: str | float = "true"
+    ds: ToaDataset,
+    method: str,
+    params: Mapping[str, Any],
+    height: str | float = "true",
+    *,
+    outside: str = "constrain",
+    alert_limit_m: float | None = ALERT_LIMIT_M,
+    problem: Problem | None = None,
 ) -> Fixes:
-    """Run one method on every fix of a dataset (schedule removed per measurement)."""
-    prob = make_problem(ds.toa_unscheduled_s, ds.bs_xyz, None, heights_for(ds, height))
+    """Run one method on every fix of a dataset (schedule removed per measurement), bounded to
+    the dataset's service area, with integrity figures at ``alert_limit_m``."""
+    prob = problem if problem is not None else dataset_problem(ds, height)
     p = dict(params)
     if "reference" in p and isinstance(p["reference"], str) and p["reference"] in ds.bs_names:
         p["reference"] = ds.bs_names.index(p["reference"])
-    return run_method(prob, method, **p)
+    return run_method(prob, method, outside=outside, alert_limit_m=alert_limit_m, **p)
 
 
 def evaluate(
@@ -132,12 +154,24 @@ def evaluate(
     methods: Sequence[str],
     params: Mapping[str, Mapping[str, Any]] | None = None,
     height: str | float = "true",
+    *,
+    outside: str = "constrain",
+    alert_limit_m: float | None = ALERT_LIMIT_M,
 ) -> DatasetResult:
     """Run ``methods`` on ``ds``; 2D errors and their summaries per method."""
     params = params or {}
     fixes, errors, summaries = {}, {}, {}
+    prob = dataset_problem(ds, height)
     for m in methods:
-        f = solve_dataset(ds, m, params.get(m, {}), height)
+        f = solve_dataset(
+            ds,
+            m,
+            params.get(m, {}),
+            height,
+            outside=outside,
+            alert_limit_m=alert_limit_m,
+            problem=prob,
+        )
         e = error_2d(f.xyz, ds.true_xyz)
         fixes[m], errors[m], summaries[m] = f, e, summarize(e)
     return DatasetResult(dataset=ds, fixes=fixes, errors=errors, summaries=summaries)
