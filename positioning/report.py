@@ -22,7 +22,7 @@ import numpy as np
 from .api import run_method
 from .dataset import ToaDataset, dataset_area, link_reports
 from .errors import PositioningError
-from .fixes import Fixes
+from .fixes import Fixes, Status
 from .integrity import ALERT_LIMIT_M
 from .metrics import cdf, error_2d, summarize
 from .tdoa import Problem, make_problem
@@ -45,7 +45,11 @@ _SCENARIO_ORDER = {"static": 0, "semi-dynamic": 1}
 _BAND_ORDER = {"c-band": 0, "mmwave": 1}
 _BAND_LABEL = {"c-band": "C-band", "mmwave": "mmWave"}
 _METHOD_LABEL = {"ls": "LS", "irls": "IRLS"}
-METRICS = (("mean", "mean_m", "mean [m]"), ("p90", "p90_m", "90th pct [m]"))
+METRICS = (
+    ("mean", "mean_m", "mean [m]"),
+    ("p90", "p90_m", "90th pct [m]"),
+    ("availability", "availability_pct", "availability [%]"),
+)
 
 
 def method_label(name: str) -> str:
@@ -174,6 +178,7 @@ def evaluate(
         )
         e = error_2d(f.xyz, ds.true_xyz)
         fixes[m], errors[m], summaries[m] = f, e, summarize(e)
+        summaries[m]["availability_pct"] = 100.0 * f.availability
     return DatasetResult(dataset=ds, fixes=fixes, errors=errors, summaries=summaries)
 
 
@@ -204,6 +209,8 @@ def table_rows(results: Sequence[DatasetResult], methods: Sequence[str]) -> list
         for r in sort_results(results):
             ds = r.dataset
             paper = PAPER_TABLE2.get((ds.scenario, ds.band), {}).get(metric, {})
+            if metric == "availability":
+                paper = {"irls": 100.0, "ls": 100.0}  # the paper solves every epoch
             row: dict[str, Any] = {
                 "metric": metric,
                 "scenario": ds.scenario,
@@ -240,9 +247,11 @@ def table_markdown(rows: Sequence[Mapping[str, Any]], methods: Sequence[str]) ->
         out.append("| " + " | ".join(cells) + " |")
     out.append("")
     out.append(
-        "2D positioning error in metres; 90th pct = numpy linear percentile; unsolved fixes "
-        "(too few base stations) are excluded from the statistics. Paper columns: Table II of "
-        "the paper for the same setup and band."
+        "2D positioning error in metres; 90th pct = numpy linear percentile; availability = share "
+        "of epochs with a position. Unsolved fixes (too few base stations, or outside the service "
+        "area with --outside reject) are excluded from the error statistics. Fixes outside the "
+        "service area are solved again inside it (--outside constrain). Paper columns: Table II "
+        "of the paper for the same setup and band."
     )
     return "\n".join(out) + "\n"
 
@@ -252,6 +261,127 @@ def table_csv(rows: Sequence[Mapping[str, Any]], methods: Sequence[str]) -> str:
     buf = io.StringIO()
     cols = ["metric", "scenario", "band", "dataset", "n_fixes", "n_unsolved", *methods]
     cols += ["paper_irls", "paper_ls"]
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(cols)
+    for r in rows:
+        w.writerow(
+            [
+                r[c] if not isinstance(r[c], float) else ("" if np.isnan(r[c]) else f"{r[c]:.6g}")
+                for c in cols
+            ]
+        )
+    return buf.getvalue()
+
+
+# ----------------------------------------------------------------------------------------------
+# integrity table
+
+INTEGRITY_COLUMNS = (
+    "scenario",
+    "band",
+    "dataset",
+    "method",
+    "n_fixes",
+    "availability_pct",
+    "out_of_area",
+    "not_converged",
+    "ill_conditioned",
+    "alert_limit_m",
+    "flagged_pct",
+    "unflagged_mean_m",
+    "unflagged_p90_m",
+    "flagged_mean_m",
+    "flagged_p90_m",
+    "bounded_by_hpl_pct",
+    "hpl_median_m",
+)
+
+
+def integrity_rows(results: Sequence[DatasetResult], methods: Sequence[str]) -> list[dict]:
+    """Per dataset and method: availability, doubtful-fix counts, and the errors of the fixes
+    flagged (HPL above the alert limit) and not flagged, the share of fixes whose error is within
+    their HPL, and the median HPL."""
+    rows = []
+    for r in sort_results(results):
+        ds = r.dataset
+        for m in methods:
+            f, e = r.fixes[m], r.errors[m]
+            solved = f.solved & np.isfinite(e)
+            fl = f.flagged & solved
+            un = ~f.flagged & solved
+            su, sf = summarize(e[un]), summarize(e[fl])
+            with np.errstate(invalid="ignore"):
+                within = np.mean(e[solved] <= f.hpl_m[solved]) if solved.any() else np.nan
+            hpl = f.hpl_m[solved]
+            rows.append(
+                {
+                    "scenario": ds.scenario,
+                    "band": ds.band,
+                    "dataset": ds.name,
+                    "method": m,
+                    "n_fixes": f.n_epochs,
+                    "availability_pct": 100.0 * f.availability,
+                    "out_of_area": f.count(Status.AREA_BOUND),
+                    "not_converged": f.count(Status.NOT_CONVERGED),
+                    "ill_conditioned": f.count(Status.ILL_CONDITIONED),
+                    "alert_limit_m": f.alert_limit_m,
+                    "flagged_pct": 100.0 * fl.sum() / max(solved.sum(), 1),
+                    "unflagged_mean_m": su["mean_m"],
+                    "unflagged_p90_m": su["p90_m"],
+                    "flagged_mean_m": sf["mean_m"],
+                    "flagged_p90_m": sf["p90_m"],
+                    "bounded_by_hpl_pct": 100.0 * within,
+                    "hpl_median_m": float(np.median(hpl)) if hpl.size else np.nan,
+                }
+            )
+    return rows
+
+
+def integrity_markdown(rows: Sequence[Mapping[str, Any]]) -> str:
+    """Markdown of :func:`integrity_rows`."""
+    head = [
+        "setup",
+        "band",
+        "method",
+        "avail. %",
+        "out of area",
+        "not conv.",
+        "ill-cond.",
+        "flagged %",
+        "unflagged mean / p90 [m]",
+        "flagged mean / p90 [m]",
+        "error <= HPL %",
+        "median HPL [m]",
+    ]
+    out = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for r in rows:
+        cells = [
+            r["scenario"],
+            band_label(r["band"]),
+            method_label(r["method"]),
+            f"{r['availability_pct']:.1f}",
+            str(r["out_of_area"]),
+            str(r["not_converged"]),
+            str(r["ill_conditioned"]),
+            f"{r['flagged_pct']:.1f}",
+            f"{_fmt(r['unflagged_mean_m'])} / {_fmt(r['unflagged_p90_m'])}",
+            f"{_fmt(r['flagged_mean_m'])} / {_fmt(r['flagged_p90_m'])}",
+            f"{r['bounded_by_hpl_pct']:.1f}",
+            _fmt(r["hpl_median_m"]),
+        ]
+        out.append("| " + " | ".join(cells) + " |")
+    limit = rows[0]["alert_limit_m"] if rows else float("nan")
+    out.append("")
+    out.append(
+        f"Flagged: horizontal protection level (HPL) above the alert limit ({limit:g} m). "
+        "HPL bounds the error when at most one base station is biased; 'error <= HPL' is the "
+        "share of solved fixes for which it did."
+    )
+    return "\n".join(out) + "\n"
+
+
+def _csv_text(rows: Sequence[Mapping[str, Any]], cols: Sequence[str]) -> str:
+    buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(cols)
     for r in rows:
@@ -456,5 +586,8 @@ def write_report(
     written.append(p)
     atomic_write_text(out / "table.csv", table_csv(rows, methods))
     atomic_write_text(out / "table.md", md)
-    written += [out / "table.csv", out / "table.md"]
+    irows = integrity_rows(results, methods)
+    atomic_write_text(out / "integrity.csv", _csv_text(irows, INTEGRITY_COLUMNS))
+    atomic_write_text(out / "integrity.md", integrity_markdown(irows))
+    written += [out / "table.csv", out / "table.md", out / "integrity.csv", out / "integrity.md"]
     return md, written

@@ -63,7 +63,7 @@ def run_error(main, argv, capsys):
 def test_estimate_positions_writes_fixes(datasets, tmp_path, capsys):
     out = tmp_path / "fixes.csv"
     assert estimate_positions_main([str(datasets[1]), "--method", "ls", "-o", str(out)]) == 0
-    assert "ls: 16 fixes, 0 unsolved" in capsys.readouterr().out
+    assert "ls: 16 fixes, availability 100.0 % (0 unsolved)" in capsys.readouterr().out
     rows = read_csv(out)
     assert tuple(rows[0]) == FIXES_COLUMNS
     assert len(rows) == 16
@@ -197,8 +197,9 @@ def test_accuracy_report(datasets, tmp_path, capsys):
     assert "| mean [m] | static | C-band | static_c |" in md
     assert "| 90th pct [m] | semi-dynamic | mmWave | semi_mm |" in md
     rows = read_csv(out / "table.csv")
-    assert [r["metric"] for r in rows] == ["mean", "mean", "p90", "p90"]
-    assert [r["dataset"] for r in rows] == ["static_c", "semi_mm"] * 2
+    assert [r["metric"] for r in rows] == ["mean", "mean", "p90", "p90"] + ["availability"] * 2
+    assert [r["dataset"] for r in rows] == ["static_c", "semi_mm"] * 3
+    assert all(float(r[m]) == 100.0 for r in rows[4:] for m in METHODS)
     assert float(rows[0]["paper_irls"]) == 0.24 and float(rows[3]["paper_ls"]) == 0.62
     for name in (
         "cdf_by_method",
