@@ -169,8 +169,10 @@ def bounded_refit(
         s = np.where(W > 0, prob.rho[idx] - R, 0.0)
         beta = np.sum(W * s, axis=1) / np.maximum(W.sum(axis=1), 1e-300)
         theta0 = np.column_stack([xyz[:, : prob.dims], beta])
-        theta, cost = projected_lm(prob, idx, theta0, W, tol=tol, max_iter=max_iter)
+        theta, _ = projected_lm(prob, idx, theta0, W, tol=tol, max_iter=max_iter)
+        pos = prob.position(theta, idx)
+        cost = concentrated_cost(prob, pos, idx, W)  # beta at its exact best
         better = cost < best_cost
         best_cost = np.where(better, cost, best_cost)
-        best[better] = prob.position(theta, idx)[better]
+        best[better] = pos[better]
     return best, best_cost
