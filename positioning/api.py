@@ -128,6 +128,8 @@ METHODS: dict[str, Method] = {
             {
                 "estimate": ("mean", ("mean", "map")),
                 "max_drop": (1, _COUNT),
+                "grid_m": (2.0, "non-negative float"),
+                "n_grid_starts": (3, _COUNT),
                 "tol_m": (1e-4, _POS_FLOAT),
                 "max_iter": (30, _POS_INT),
                 "gn_max_iter": (5, _POS_INT),
@@ -176,6 +178,7 @@ def _coerce(method: str, name: str, value: Any, kind: Any, n_bs: int | None) -> 
         _OPT_COUNT: lambda x: x >= 0,
         _COUNT: lambda x: x >= 0,
         _PROB: lambda x: 0 < x < 1,
+        "non-negative float": lambda x: np.isfinite(x) and x >= 0,
         _OPT_INDEX: lambda x: x >= 0 and (n_bs is None or x < n_bs),
     }[kind](v)
     if not ok:

@@ -34,6 +34,8 @@ from .noise import (
 from .robust import REGION_MARGIN, REJECT_WEIGHT, _candidates
 from .tdoa import Problem, levenberg_marquardt, pseudorange_model, ranges_and_units
 
+#: Grid starts are at least this many grid pitches apart (distinct basins).
+SEPARATION_PITCHES = 2.0
 #: Two local optima closer than this (m) are the same one (posterior mean).
 SAME_OPTIMUM_M = 0.05
 
@@ -48,6 +50,68 @@ def _nll(prob: Problem, theta: np.ndarray, sigma: np.ndarray, s_w: float):
     pw, pl = shares(prob.links, R, prob.valid)
     nll, resp = mixture_nll(r, sigma, pw, pl, s_w)
     return np.where(prob.valid, nll, 0.0), resp, r
+
+
+def grid_starts(prob: Problem, rows: np.ndarray, step_m: float, n_starts: int) -> np.ndarray:
+    """(n_starts, E, dims+1) starts at the deepest distinct cells of the mixture NLL on a grid of
+    the service area (NaN where there are fewer minima, or no area, or a 3D solve).
+
+    The leave-one-out starts cannot represent two NLoS base stations among four; the likelihood
+    over the whole area can (the SNR terms and the sign of the excess locate the device along the
+    one remaining hyperbola). The clock term at a grid point is the best of the N values that
+    make one base station's residual zero. Coarse to fine: at the grid's resolution the noise core
+    is widened by half a pitch, so that a basin is not missed between grid points, and EM refines
+    each start at the true scale. The starts are the deepest cells, each at least
+    :data:`SEPARATION_PITCHES` pitches from the ones taken before (one per basin).
+    """
+    E, N = prob.rho.shape
+    k = prob.dims + 1
+    out = np.full((n_starts, E, k), np.nan)
+    if prob.area is None or prob.height is None or n_starts <= 0:
+        return out
+    g = prob.area.grid(step_m)
+    G = g.shape[0]
+    sigma = np.sqrt(link_sigma(prob.links, (E, N)) ** 2 + (0.5 * step_m) ** 2)
+    s_w = WIDE_PULSES * pulse_width_m(prob.links)
+    chunk = max(1, 2_000_000 // max(G * N * N, 1))
+    for a0 in range(0, E, chunk):
+        idx = np.flatnonzero(rows[a0 : a0 + chunk]) + a0
+        if idx.size == 0:
+            continue
+        A = idx.size
+        xyz = np.empty((A, G, 3))
+        xyz[..., :2] = g[None]
+        xyz[..., 2] = prob.height[idx, None]
+        R = np.linalg.norm(xyz[:, :, None, :] - prob.bs[None, None], axis=3)  # (A, G, N)
+        valid = prob.valid[idx][:, None, :]
+        s = np.where(valid, prob.rho[idx][:, None, :] - R, 0.0)
+        r = s[:, :, None, :] - s[:, :, :, None]  # [a, g, beta from j, n]
+        links = prob.links
+        if links is not None:
+            links = links.take(idx)
+            links = replace(
+                links,
+                snr_db=links.snr_db[:, None, None, :],
+                peak_ratio_db=links.peak_ratio_db[:, None, None, :],
+                lobe_width=links.lobe_width[:, None, None, :],
+            )
+        pw, pl = shares(links, R[:, :, None, :], valid[:, :, None, :])
+        nll, _ = mixture_nll(r, sigma[idx][:, None, None, :], pw, pl, s_w)
+        tot = np.sum(np.where(valid[:, :, None, :], nll, 0.0), axis=3)
+        tot = np.where(prob.valid[idx][:, None, :], tot, np.inf)  # beta from received ones only
+        jb = np.argmin(tot, axis=2)  # (A, G)
+        best = np.take_along_axis(tot, jb[..., None], axis=2)[..., 0]
+        # the deepest cells, each at least SEPARATION_PITCHES pitches from the ones taken before
+        score = best.copy()
+        ar = np.arange(A)
+        for m in range(min(n_starts, G)):
+            gi = np.argmin(score, axis=1)
+            ok = np.isfinite(score[ar, gi])
+            th = np.column_stack([g[gi], s[ar, gi, jb[ar, gi]]])
+            out[m, idx[ok]] = th[ok]
+            near = np.linalg.norm(g[None, :, :] - g[gi][:, None, :], axis=2)
+            score = np.where(near < SEPARATION_PITCHES * step_m, np.inf, score)
+    return out
 
 
 def em_fit(
@@ -76,7 +140,7 @@ def em_fit(
             break
         sub = prob.take(act)
         sig = sigma_all[act]
-        _, resp, r = _nll(sub, theta[act], sig, s_w)
+        nll0, resp, r = _nll(sub, theta[act], sig, s_w)
         excess = late_mean_excess(r, sig)
         w = resp[0] / sig**2 + resp[1] / (sig**2 + s_w**2) + resp[2] / sig**2
         shift = resp[2] / sig**2 * excess / w
@@ -85,8 +149,13 @@ def em_fit(
         th, _, _ = levenberg_marquardt(
             pseudorange_model(shifted), theta[act], W, tol=tol_m, max_iter=gn_max_iter
         )
+        if prob.area is not None:  # the M-step stays on the floor
+            th[:, :2] = prob.area.project(th[:, :2])
         step = np.linalg.norm(th - theta[act], axis=1)
-        ok = np.isfinite(step)
+        nll1, _, _ = _nll(sub, np.nan_to_num(th), sig, s_w)
+        # a descent method: a step that does not lower the NLL (the shares move with the
+        # position, so plain EM is not monotone here) ends the iteration where it is
+        ok = np.isfinite(step) & (nll1.sum(axis=1) < nll0.sum(axis=1))
         theta[act[ok]] = th[ok]
         weights[act] = W
         iters[act] += 1
@@ -101,6 +170,8 @@ def nlos_map(
     *,
     estimate: str = "mean",
     max_drop: int = 1,
+    grid_m: float = 2.0,
+    n_grid_starts: int = 3,
     tol_m: float = 1e-4,
     max_iter: int = 30,
     gn_max_iter: int = 5,
@@ -112,6 +183,10 @@ def nlos_map(
     ----------
     estimate : "mean" (posterior mean of the distinct local optima, default) or "map" (the best).
     max_drop : most base stations left out in a start hypothesis (default 1).
+    grid_m : pitch (m) of the likelihood grid over the service area that gives one more start
+        (2D with an area only; 0 = none). Default 2 m: the likelihood's basins are at least a
+        pulse width (0.9-3.7 m) wide.
+    n_grid_starts : the deepest local minima of the grid used as starts (default 3).
     tol_m, max_iter, gn_max_iter : EM step tolerance (m), EM iterations, LM steps per M-step.
     region_margin : leave-one-out starts outside the base stations' box grown by this fraction
         of its diagonal are not used.
@@ -126,15 +201,23 @@ def nlos_map(
     E, N = prob.rho.shape
     rows = prob.solvable
     fits, scores, wts, its, ills = [], [], [], [], []
-    for _, sub, s in _candidates(prob, rows, max_drop, region_margin):
+    starts = [
+        (sub, s.theta, s.ill) for _, sub, s in _candidates(prob, rows, max_drop, region_margin)
+    ]
+    if grid_m > 0 and starts:
+        for th0 in grid_starts(prob, rows, grid_m, n_grid_starts):
+            ok = rows & np.isfinite(th0).all(axis=1)
+            if ok.any():
+                starts.append((ok, th0, np.zeros(E, dtype=bool)))
+    for sub, th0, ill in starts:
         th, total, W, it = em_fit(
-            prob, s.theta, sub, tol_m=tol_m, max_iter=max_iter, gn_max_iter=gn_max_iter
+            prob, th0, sub, tol_m=tol_m, max_iter=max_iter, gn_max_iter=gn_max_iter
         )
         fits.append(th)
         scores.append(total)
         wts.append(W)
         its.append(it)
-        ills.append(s.ill)
+        ills.append(ill)
     H = len(fits)
     if H == 0:  # no epoch has enough base stations
         return {

@@ -47,6 +47,10 @@ LATE_MEAN_M = 5.0
 #: Prior shares of a late (NLoS or overlap) and of a two-sided (overlap) error with no report.
 P_LATE0 = 0.1
 P_WIDE0 = 0.05
+#: Shares far below free space (deficit >> DEFICIT_DB): the link is almost surely blocked, and
+#: the noise core keeps only 1 - 0.75 - 0.2 = 5 %.
+P_LATE_BLOCKED = 0.75
+P_WIDE_BLOCKED = 0.2
 #: SNR deficit (dB) under the free-space SNR at which a link is more likely blocked than not:
 #: floor two-ray interference moves a LoS SNR by up to about +-5 dB (measured p10/p90 -4 / +5 dB),
 #: diffraction costs 6 dB and more at the shadow boundary.
@@ -96,8 +100,9 @@ def shares(
 
     * no report: ``P_WIDE0``, ``P_LATE0``;
     * SNR deficit ``d`` under free space at the candidate range: ``p_late`` rises logistically to
-      0.6 around :data:`DEFICIT_DB`; a blocked link is also more often early (a weak first path
-      overlapped by a stronger one), ``p_wide`` rises to 0.2;
+      :data:`P_LATE_BLOCKED` around :data:`DEFICIT_DB`; a blocked link is also more often early
+      (a weak first path overlapped by a stronger one), ``p_wide`` rises to
+      :data:`P_WIDE_BLOCKED`;
     * lobe wider than :data:`WIDE_LOBE`: ``p_late >= 0.5`` (overlap pulls the top late);
       narrower than :data:`NARROW_LOBE`: ``p_wide >= 0.5`` (destructive interference);
     * lobe under the strongest peak by more than :data:`WEAK_LOBE_DB`: ``p_late >= 0.3``.
@@ -110,8 +115,8 @@ def shares(
     if dist_m is not None and links.snr_offset_db is not None and links.center_frequency_hz:
         deficit = free_space_snr_db(links, dist_m) - links.snr_db
         s = 1.0 / (1.0 + np.exp(-(np.nan_to_num(deficit, nan=0.0) - DEFICIT_DB) / DEFICIT_SLOPE_DB))
-        p_late = P_LATE0 + (0.6 - P_LATE0) * s
-        p_wide = P_WIDE0 + (0.2 - P_WIDE0) * s
+        p_late = P_LATE0 + (P_LATE_BLOCKED - P_LATE0) * s
+        p_wide = P_WIDE0 + (P_WIDE_BLOCKED - P_WIDE0) * s
     w = links.lobe_width
     p_late = np.where(w > WIDE_LOBE, np.maximum(p_late, 0.5), p_late)
     p_wide = np.where(w < NARROW_LOBE, np.maximum(p_wide, 0.5), p_wide)

@@ -94,7 +94,8 @@ def test_no_solved_fix_outside_the_area(method, area, three_d):
             assert not f.solved[bound].any() and np.isnan(f.xyz[bound]).all()
         else:
             assert f.solved.all()
-        assert bound.any()  # the junk did push fixes out
+        if method != "nlos-map":  # nlos-map searches inside the area from the start
+            assert bound.any()  # the junk did push fixes out
 
 
 def test_bounded_fit_matches_brute_force_grid():
