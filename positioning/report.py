@@ -407,10 +407,18 @@ def _new_figure(w: float, h: float) -> Any:
     return fig
 
 
-def _xmax(curves: Sequence[np.ndarray]) -> float:
-    """x-limit that shows 99 % of every curve (heavy NLoS tails would squash the plot)."""
-    vals = [np.percentile(c, 99.0) for c in curves if c.size]
-    return float(max(vals) * 1.15) if vals and max(vals) > 0 else 1.0
+def _xlim(curves: Sequence[np.ndarray]) -> tuple[float, float]:
+    """Log-x limits that show the whole of every curve: from a decade-aligned value below the
+    smallest positive error (at least 1 mm) to 1.3x the largest. On a log axis the bulk (cm to
+    dm) and the NLoS tail (metres to tens of metres) are both readable."""
+    fin = [c[np.isfinite(c) & (c > 0)] for c in curves]
+    fin = [c for c in fin if c.size]
+    if not fin:
+        return 1e-2, 10.0
+    lo = max(min(float(np.percentile(c, 1.0)) for c in fin), 1e-3)
+    hi = max(float(c.max()) for c in fin)
+    lo = 10.0 ** np.floor(np.log10(lo))
+    return lo, max(hi * 1.3, lo * 10.0)
 
 
 def _grid(n: int) -> tuple[int, int]:
@@ -418,47 +426,66 @@ def _grid(n: int) -> tuple[int, int]:
     return (n + ncols - 1) // ncols, ncols
 
 
-def _cdf_axes(ax: Any, title: str, xmax: float) -> None:
+def _cdf_axes(ax: Any, title: str, xlim: tuple[float, float]) -> None:
     ax.set_title(title)
-    ax.set_xlabel("2D positioning error [m]")
-    ax.set_ylabel("CDF")
-    ax.set_xlim(0.0, xmax)
+    ax.set_xscale("log")
+    ax.set_xlabel("2D positioning error [m] (log scale)")
+    ax.set_ylabel("CDF (share of all epochs)")
+    ax.set_xlim(*xlim)
     ax.set_ylim(0.0, 1.0)
     ax.axhline(0.9, color="0.6", lw=0.8, ls=":")
-    ax.grid(True, alpha=0.3)
+    ax.grid(True, which="both", alpha=0.3)
+
+
+def _cdf_curve(errors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """CDF over *all* epochs: unsolved ones count in the denominator, so an estimator cannot
+    look better by leaving hard epochs out (the curve ends at the availability)."""
+    x, y = cdf(errors)
+    n_all = max(int(np.size(errors)), 1)
+    return x, y * (x.size / n_all)
+
+
+def _legend_text(name: str, s: Mapping[str, float], errors: np.ndarray) -> str:
+    fin = errors[np.isfinite(errors)]
+    mx = float(fin.max()) if fin.size else float("nan")
+    return f"{name}: p90 {s['p90_m']:.2f} m, max {mx:.1f} m, avail. {s.get('availability_pct', 100.0):.0f} %"
 
 
 def plot_cdf_by_method(
     results: Sequence[DatasetResult], methods: Sequence[str], path: str | Path
 ) -> None:
-    """One panel per method, one CDF curve per dataset (the paper's Fig. 2 a/b)."""
+    """One panel per method, one CDF curve per dataset (the paper's Fig. 2 a/b), log x axis;
+    the legend gives each curve's p90, max and availability."""
     nrows, ncols = _grid(len(methods))
-    fig = _new_figure(4.2 * ncols, 3.4 * nrows)
+    fig = _new_figure(4.6 * ncols, 3.6 * nrows)
     axes = fig.subplots(nrows, ncols, squeeze=False).ravel()
     res = sort_results(results)
-    xmax = _xmax([r.errors[m][np.isfinite(r.errors[m])] for r in res for m in methods])
+    xlim = _xlim([r.errors[m] for r in res for m in methods])
     for ax, m in zip(axes, methods, strict=False):
         for r in res:
-            x, y = cdf(r.errors[m])
-            ax.step(x, y, where="post", label=r.label)
-        _cdf_axes(ax, method_label(m), xmax)
-        ax.legend(fontsize=7, loc="lower right")
+            x, y = _cdf_curve(r.errors[m])
+            label = _legend_text(
+                f"{r.dataset.scenario} {band_label(r.dataset.band)}", r.summaries[m], r.errors[m]
+            )
+            ax.step(x, y, where="post", label=label)
+        _cdf_axes(ax, method_label(m), xlim)
+        ax.legend(fontsize=6, loc="upper left")
     for ax in axes[len(methods) :]:
         ax.set_visible(False)
     save_figure(fig, path)
 
 
 def plot_cdf_methods(result: DatasetResult, methods: Sequence[str], path: str | Path) -> None:
-    """CDF of every method on one dataset."""
-    fig = _new_figure(5.5, 4.0)
+    """CDF of every method on one dataset, log x axis; legend: p90, max, availability."""
+    fig = _new_figure(6.0, 4.2)
     ax = fig.subplots()
-    xmax = _xmax([result.errors[m][np.isfinite(result.errors[m])] for m in methods])
+    xlim = _xlim([result.errors[m] for m in methods])
     for m in methods:
-        x, y = cdf(result.errors[m])
-        s = result.summaries[m]
-        ax.step(x, y, where="post", label=f"{method_label(m)} (p90 {s['p90_m']:.2f} m)")
-    _cdf_axes(ax, result.label, xmax)
-    ax.legend(fontsize=8, loc="lower right")
+        x, y = _cdf_curve(result.errors[m])
+        label = _legend_text(method_label(m), result.summaries[m], result.errors[m])
+        ax.step(x, y, where="post", label=label)
+    _cdf_axes(ax, result.label, xlim)
+    ax.legend(fontsize=7, loc="upper left")
     save_figure(fig, path)
 
 
@@ -520,6 +547,10 @@ def plot_topview(result: DatasetResult, methods: Sequence[str], path: str | Path
     axes = fig.subplots(nrows, ncols, squeeze=False).ravel()
     polys = _polygon_list(ds.meta)
     hall = _hall_xy(ds.meta)
+    try:
+        area = dataset_area(ds)
+    except PositioningError:  # a malformed area was refused when solving; here it is decoration
+        area = None
     sc = None
     for ax, m in zip(axes, methods, strict=False):
         for _, poly in polys:
@@ -527,6 +558,19 @@ def plot_topview(result: DatasetResult, methods: Sequence[str], path: str | Path
         if hall is not None:
             (x0, y0), (x1, y1) = hall
             ax.add_patch(Rectangle((x0, y0), x1 - x0, y1 - y0, fill=False, ec="k", lw=1.0))
+        if area is not None:
+            ax.add_patch(
+                Polygon(
+                    area.polygon,
+                    closed=True,
+                    fill=False,
+                    ec="tab:blue",
+                    lw=1.4,
+                    ls="--",
+                    label="service area",
+                    zorder=2,
+                )
+            )
         names, xy, err = per[m]
         size = 30.0 + 170.0 * np.clip(np.nan_to_num(err, nan=0.0) / norm.vmax, 0.0, 1.0)
         sc = ax.scatter(
@@ -539,7 +583,12 @@ def plot_topview(result: DatasetResult, methods: Sequence[str], path: str | Path
         for n, b in zip(ds.bs_names, ds.bs_xyz, strict=True):
             ax.annotate(n, b[:2], xytext=(4, 4), textcoords="offset points", fontsize=7)
         s = result.summaries[m]
-        ax.set_title(f"{method_label(m)}: mean {s['mean_m']:.2f} m", fontsize=10)
+        nb = result.fixes[m].count(Status.AREA_BOUND)
+        ax.set_title(
+            f"{method_label(m)}: mean {s['mean_m']:.2f} m, {nb} fixes area-bound", fontsize=9
+        )
+        if area is not None:
+            ax.legend(fontsize=7, loc="lower right")
         ax.set_aspect("equal")
         ax.set_xlabel("x [m]")
         ax.set_ylabel("y [m]")
