@@ -165,6 +165,49 @@ def em_fit(
     return theta, total, weights, iters
 
 
+def _starts(
+    prob: Problem, rows: np.ndarray, max_drop: int, margin: float, grid_m: float, n_grid: int
+) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """(epochs, theta0 (E, k), ill-conditioned (E,)) of every start: the hypothesis fits of
+    :func:`positioning.robust._candidates`, then the grid starts."""
+    E = prob.n_epochs
+    starts = [(sub, s.theta, s.ill) for _, sub, s in _candidates(prob, rows, max_drop, margin)]
+    if grid_m > 0 and starts:
+        for th0 in grid_starts(prob, rows, grid_m, n_grid):
+            ok = rows & np.isfinite(th0).all(axis=1)
+            if ok.any():
+                starts.append((ok, th0, np.zeros(E, dtype=bool)))
+    return starts
+
+
+def posterior_mean(
+    prob: Problem, xyz_h: np.ndarray, score: np.ndarray, best: np.ndarray
+) -> np.ndarray:
+    """(E, 3) mean of the distinct end points ``xyz_h`` (H, E, 3), weighted by ``exp(-NLL)``
+    (``score`` (H, E); ``best`` (E,) the lowest). An end point within :data:`SAME_OPTIMUM_M` of
+    a better one is the same optimum and is counted once."""
+    H, E = score.shape
+    ar = np.arange(E)
+    order = np.argsort(score, axis=0)
+    keep = np.zeros((H, E), dtype=bool)
+    for j in range(H):
+        h = order[j]
+        dup = np.zeros(E, dtype=bool)
+        for i in range(j):
+            g = order[i]
+            near = np.linalg.norm(xyz_h[h, ar, :2] - xyz_h[g, ar, :2], axis=1) < SAME_OPTIMUM_M
+            dup |= keep[g, ar] & near
+        keep[h, ar] = np.isfinite(score[h, ar]) & ~dup
+    top = score[best, ar]
+    lw = np.where(keep, -(score - np.where(np.isfinite(top), top, 0.0)[None]), -np.inf)
+    w = np.exp(lw)
+    w /= np.maximum(w.sum(axis=0), 1e-300)
+    xyz = np.einsum("he,hej->ej", w, np.nan_to_num(xyz_h))
+    if prob.height is not None:
+        xyz[:, 2] = prob.height  # known, not averaged (exactly)
+    return xyz
+
+
 def nlos_map(
     prob: Problem,
     *,
@@ -200,15 +243,8 @@ def nlos_map(
         raise ValueError(f"unknown estimate {estimate!r}")
     E, N = prob.rho.shape
     rows = prob.solvable
+    starts = _starts(prob, rows, max_drop, region_margin, grid_m, n_grid_starts)
     fits, scores, wts, its, ills = [], [], [], [], []
-    starts = [
-        (sub, s.theta, s.ill) for _, sub, s in _candidates(prob, rows, max_drop, region_margin)
-    ]
-    if grid_m > 0 and starts:
-        for th0 in grid_starts(prob, rows, grid_m, n_grid_starts):
-            ok = rows & np.isfinite(th0).all(axis=1)
-            if ok.any():
-                starts.append((ok, th0, np.zeros(E, dtype=bool)))
     for sub, th0, ill in starts:
         th, total, W, it = em_fit(
             prob, th0, sub, tol_m=tol_m, max_iter=max_iter, gn_max_iter=gn_max_iter
@@ -237,25 +273,7 @@ def nlos_map(
     ar = np.arange(E)
     xyz = xyz_h[best, ar].copy()
     if estimate == "mean" and H > 1:
-        # distinct optima only: a hypothesis whose fit repeats a better one's adds nothing
-        order = np.argsort(score, axis=0)
-        keep = np.zeros((H, E), dtype=bool)
-        for j in range(H):
-            h = order[j]
-            fin = np.isfinite(score[h, ar])
-            dup = np.zeros(E, dtype=bool)
-            for i in range(j):
-                g = order[i]
-                near = np.linalg.norm(xyz_h[h, ar, :2] - xyz_h[g, ar, :2], axis=1) < SAME_OPTIMUM_M
-                dup |= keep[g, ar] & near
-            keep[h, ar] = fin & ~dup
-        top = score[best, ar]
-        lw = np.where(keep, -(score - np.where(np.isfinite(top), top, 0.0)[None]), -np.inf)
-        w = np.exp(lw)
-        w /= np.maximum(w.sum(axis=0), 1e-300)
-        xyz = np.einsum("he,hej->ej", w, np.nan_to_num(xyz_h))
-        if prob.height is not None:
-            xyz[:, 2] = prob.height  # known, not averaged (exactly)
+        xyz = posterior_mean(prob, xyz_h, score, best)
     W = np.stack(wts)[best, ar]
     sigma = link_sigma(prob.links, (E, N))
     s_w = WIDE_PULSES * pulse_width_m(prob.links)
