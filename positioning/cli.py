@@ -326,6 +326,10 @@ def _report(args: argparse.Namespace) -> int:
         results.append(r)
     md, written = write_report(results, methods, out)
     print(md, end="")
+    print()
+    for r in results:
+        for m in methods:
+            print(f"{r.dataset.name} {summary_line(m, r.fixes[m], r.errors[m])}")
     print(f"wrote {len(written)} files to {out}")
     return 0
 

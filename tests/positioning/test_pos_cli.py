@@ -194,6 +194,10 @@ def test_accuracy_report(datasets, tmp_path, capsys):
     printed = capsys.readouterr().out
     md = (out / "table.md").read_text()
     assert md in printed
+    # one summary line per dataset and method, with availability and the doubtful-fix counts
+    assert "static_c irls: 16 fixes, availability 100.0 % (0 unsolved)" in printed
+    assert printed.count("; ill-conditioned ") == 2 * len(METHODS)
+    assert "| setup | band | method | avail. % |" in (out / "integrity.md").read_text()
     assert "| mean [m] | static | C-band | static_c |" in md
     assert "| 90th pct [m] | semi-dynamic | mmWave | semi_mm |" in md
     rows = read_csv(out / "table.csv")
