@@ -9,10 +9,16 @@ from typing import Any, Literal, overload
 import numpy as np
 
 from . import irls as _irls
+from . import nlos as _nlos
 from . import robust as _robust
+from .area import ServiceArea
+from .bounded import bounded_refit
 from .errors import PositioningError
-from .fixes import Fixes
-from .tdoa import Problem, make_problem
+from .fixes import Fixes, Status
+from .tdoa import LinkInfo, Problem, make_problem
+
+#: What to do with a fix outside the service area: solve again inside it, or leave it unsolved.
+OUTSIDE_CHOICES = ("constrain", "reject")
 
 #: Sentinel kinds of method parameters (used to validate and to parse CLI ``k=v`` strings).
 _POS_FLOAT = "positive float"
@@ -34,6 +40,8 @@ class Method:
     params : mapping name -> (default, kind) where kind is a validation rule or a tuple of choices
     summary : one-line description (shown by ``estimate-positions --list-methods``)
     paper : True for the paper's own methods (LS, IRLS)
+    measurement_weights : True if the result's ``weights`` weight the measurements (used by the
+        bounded re-solve); False (LS, IRLS): every received measurement counts alike there
     """
 
     name: str
@@ -41,6 +49,7 @@ class Method:
     params: Mapping[str, tuple[Any, Any]]
     summary: str
     paper: bool = False
+    measurement_weights: bool = True
 
 
 METHODS: dict[str, Method] = {
@@ -56,6 +65,7 @@ METHODS: dict[str, Method] = {
             },
             "paper eq. 7: least squares of signed TDoAs against one reference base station",
             paper=True,
+            measurement_weights=False,
         ),
         Method(
             "irls",
@@ -69,6 +79,7 @@ METHODS: dict[str, Method] = {
             },
             "paper Algorithm 1: every base station the reference once, Andrews-sine weights",
             paper=True,
+            measurement_weights=False,
         ),
         Method(
             "m-estimator",
@@ -111,6 +122,21 @@ METHODS: dict[str, Method] = {
             },
             "one-sided loss (NLoS only delays): subset hypotheses scored, then IRLS",
         ),
+        Method(
+            "nlos-map",
+            _nlos.nlos_map,
+            {
+                "estimate": ("mean", ("mean", "map")),
+                "max_drop": (1, _COUNT),
+                "grid_m": (2.0, "non-negative float"),
+                "n_grid_starts": (3, _COUNT),
+                "tol_m": (1e-4, _POS_FLOAT),
+                "max_iter": (30, _POS_INT),
+                "gn_max_iter": (5, _POS_INT),
+                "region_margin": (_robust.REGION_MARGIN, _POS_FLOAT),
+            },
+            "physics mixture (noise, overlap, NLoS only delays; SNR and lobe shape), EM per start",
+        ),
     )
 }
 
@@ -152,6 +178,7 @@ def _coerce(method: str, name: str, value: Any, kind: Any, n_bs: int | None) -> 
         _OPT_COUNT: lambda x: x >= 0,
         _COUNT: lambda x: x >= 0,
         _PROB: lambda x: 0 < x < 1,
+        "non-negative float": lambda x: np.isfinite(x) and x >= 0,
         _OPT_INDEX: lambda x: x >= 0 and (n_bs is None or x < n_bs),
     }[kind](v)
     if not ok:
@@ -180,18 +207,90 @@ def resolve_params(method: str, params: Mapping[str, Any], n_bs: int | None = No
     return out
 
 
-def run_method(prob: Problem, method: str = "irls", **params: Any) -> Fixes:
-    """Solve a prepared :class:`~positioning.tdoa.Problem` with one registered method."""
+def apply_area(
+    prob: Problem, res: Mapping[str, np.ndarray], fit_weights: np.ndarray, outside: str
+) -> tuple[np.ndarray, np.ndarray]:
+    """Keep every solved fix inside ``prob.area`` (see :mod:`positioning.bounded`).
+
+    Parameters
+    ----------
+    res : a method's result (``xyz`` (E, 3), ``status`` (E,))
+    fit_weights : (E, N) measurement weights of the bounded re-solve
+    outside : "constrain" (re-solve inside, flag ``AREA_BOUND``) or "reject" (flag
+        ``UNSOLVED | AREA_BOUND``, NaN position)
+
+    Returns
+    -------
+    xyz (E, 3), status (E,) -- copies.
+    """
+    xyz = np.array(res["xyz"], dtype=float)
+    status = np.asarray(res["status"], dtype=np.int64).copy()
+    if prob.area is None:
+        return xyz, status
+    solved = (status & int(Status.UNSOLVED)) == 0
+    out = solved & ~prob.area.contains(xyz[:, :2])
+    idx = np.flatnonzero(out)
+    if idx.size == 0:
+        return xyz, status
+    if outside == "reject":
+        xyz[idx] = np.nan
+        status[idx] |= int(Status.UNSOLVED | Status.AREA_BOUND)
+        return xyz, status
+    xyz[idx], _ = bounded_refit(prob, idx, xyz[idx], fit_weights[idx])
+    status[idx] |= int(Status.AREA_BOUND)
+    return xyz, status
+
+
+def run_method(
+    prob: Problem,
+    method: str = "irls",
+    *,
+    outside: str = "constrain",
+    alert_limit_m: float | None = None,
+    **params: Any,
+) -> Fixes:
+    """Solve a prepared :class:`~positioning.tdoa.Problem` with one registered method.
+
+    The method solves without bounds; fixes outside ``prob.area`` are then solved again inside it
+    (``outside="constrain"``) or left unsolved (``"reject"``), both flagged ``AREA_BOUND``. With
+    ``alert_limit_m`` the integrity figures (:mod:`positioning.integrity`) are computed and fixes
+    whose protection level exceeds it are flagged ``INTEGRITY``.
+    """
+    if outside not in OUTSIDE_CHOICES:
+        raise PositioningError(
+            f"outside must be one of {', '.join(OUTSIDE_CHOICES)}, got {outside!r}"
+        )
+    if alert_limit_m is not None and not (np.isfinite(alert_limit_m) and alert_limit_m > 0):
+        raise PositioningError(
+            f"alert limit must be a positive number of metres, got {alert_limit_m!r}"
+        )
     p = resolve_params(method, params, prob.n_bs)
-    res = METHODS[method].func(prob, **p)
+    m = METHODS[method]
+    res = m.func(prob, **p)
+    fw = res.get("fit_weights")
+    if fw is None:
+        fw = res["weights"] if m.measurement_weights else prob.valid.astype(float)
+    xyz, status = apply_area(prob, res, np.asarray(fw, dtype=float), outside)
+    hpl = chi2n = None
+    limit = float("nan")
+    if alert_limit_m is not None:
+        from .integrity import integrity
+
+        hpl, chi2n = integrity(prob, xyz, status)
+        limit = float(alert_limit_m)
+        solved = (status & int(Status.UNSOLVED)) == 0
+        status |= np.where(solved & ~(hpl <= limit), int(Status.INTEGRITY), 0)
     return Fixes(
-        xyz=res["xyz"],
-        status=np.asarray(res["status"], dtype=np.int64),
+        xyz=xyz,
+        status=status,
         iterations=np.asarray(res["iterations"], dtype=np.int64),
         weights=res["weights"],
         n_used=prob.n_valid,
         method=method,
         params=p,
+        hpl_m=hpl,
+        chi2n=chi2n,
+        alert_limit_m=limit,
     )
 
 
@@ -203,6 +302,10 @@ def locate(
     *,
     tx_offsets_s: np.ndarray | None = ...,
     height_m: float | np.ndarray | None = ...,
+    area: ServiceArea | np.ndarray | None = ...,
+    outside: str = ...,
+    links: LinkInfo | None = ...,
+    alert_limit_m: float | None = ...,
     return_info: Literal[False] = ...,
     **params: Any,
 ) -> np.ndarray: ...
@@ -216,6 +319,10 @@ def locate(
     *,
     tx_offsets_s: np.ndarray | None = ...,
     height_m: float | np.ndarray | None = ...,
+    area: ServiceArea | np.ndarray | None = ...,
+    outside: str = ...,
+    links: LinkInfo | None = ...,
+    alert_limit_m: float | None = ...,
     return_info: Literal[True],
     **params: Any,
 ) -> Fixes: ...
@@ -228,6 +335,10 @@ def locate(
     *,
     tx_offsets_s: np.ndarray | None = None,
     height_m: float | np.ndarray | None = None,
+    area: ServiceArea | np.ndarray | None = None,
+    outside: str = "constrain",
+    links: LinkInfo | None = None,
+    alert_limit_m: float | None = None,
     return_info: bool = False,
     **params: Any,
 ) -> np.ndarray | Fixes:
@@ -244,13 +355,24 @@ def locate(
         :class:`PositioningError`.
     method : str
         One of :data:`METHODS`: ``ls``, ``irls`` (the paper's), ``m-estimator``, ``subset``,
-        ``nlos-aware``.
+        ``nlos-aware``, ``nlos-map``.
     tx_offsets_s : (N,) float, seconds, optional
         Transmission schedule to remove (base station n transmits ``tx_offsets_s[n]`` after the
         first); default zeros.
     height_m : float or (E,) float, metres, optional
         Known device height: solve for (x, y) with 3-D distances (the "2D" solve of the paper,
         done without ignoring the height difference). None: solve for (x, y, z).
+    area : ServiceArea or (M, 2) polygon vertices, metres, optional
+        Where the device can be. A fix outside it is solved again inside it (the method's
+        weighted fit restricted to the area, ``outside="constrain"``) or left unsolved
+        (``outside="reject"``); either way flagged ``AREA_BOUND``. None: no bound.
+    outside : "constrain" (default) or "reject".
+    links : LinkInfo, optional
+        Receiver reports per measurement (SNR, first-lobe shape, band), used by ``nlos-map``
+        and the integrity figures.
+    alert_limit_m : float, optional
+        Compute the integrity figures (``Fixes.hpl_m``, ``Fixes.chi2n``) and flag ``INTEGRITY``
+        where the horizontal protection level exceeds this limit (metres). None: not computed.
     return_info : bool
         False (default): return only the positions. True: return a :class:`Fixes` with per-epoch
         status, iterations, weights and ``n_unsolved``.
@@ -268,6 +390,6 @@ def locate(
     PositioningError
         Bad shapes or values, duplicate base-station positions, unknown method or parameter.
     """
-    prob = make_problem(toa_s, bs_xyz, tx_offsets_s, height_m)
-    fixes = run_method(prob, method, **params)
+    prob = make_problem(toa_s, bs_xyz, tx_offsets_s, height_m, area=area, links=links)
+    fixes = run_method(prob, method, outside=outside, alert_limit_m=alert_limit_m, **params)
     return fixes if return_info else fixes.xyz

@@ -1,7 +1,10 @@
 """Command-line tools ``estimate-positions`` and ``accuracy-report``.
 
-Bad input gives a one-line ``error: ...`` on stderr and exit status 2, never a traceback and never
-a half-written output file (outputs go to a temporary file first and are renamed at the end).
+Both run through the one harness :func:`positioning.command.run_command`: bad input gives a
+one-line ``error: ...`` on stderr and exit status 2, never a traceback and never a half-written
+output file (outputs go to a temporary file first and are renamed at the end). A run in which no
+fix is trustworthy (every fix unsolved, not converged, ill-conditioned or outside the service
+area) is an error as well.
 """
 
 from __future__ import annotations
@@ -12,14 +15,15 @@ import io
 import sys
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, NoReturn
 
 import numpy as np
 
-from .api import METHODS, resolve_params
+from .api import METHODS, OUTSIDE_CHOICES, resolve_params
+from .command import OneLineParser, run_command
 from .dataset import ToaDataset, load_dataset
 from .errors import PositioningError
-from .fixes import Fixes, status_label
+from .fixes import Fixes, Status, status_label
+from .integrity import ALERT_LIMIT_M
 from .metrics import error_2d, summarize
 
 FIXES_COLUMNS = (
@@ -37,14 +41,10 @@ FIXES_COLUMNS = (
     "status",
     "iterations",
     "n_bs",
+    "hpl_m",
+    "chi2n",
+    "flagged",
 )
-
-
-class _Parser(argparse.ArgumentParser):
-    """argparse with one-line errors (``error: ...``, exit 2) instead of usage + message."""
-
-    def error(self, message: str) -> NoReturn:
-        self.exit(2, f"error: {message}\n")
 
 
 def methods_help() -> str:
@@ -134,19 +134,36 @@ def fixes_csv(ds: ToaDataset, fixes: Fixes) -> str:
                 status_label(fixes.status[i]),
                 int(fixes.iterations[i]),
                 int(fixes.n_used[i]),
+                num(fixes.hpl_m[i], ".4f"),
+                num(fixes.chi2n[i], ".4g"),
+                int(fixes.flagged[i]),
             ]
         )
     return buf.getvalue()
 
 
-def _summary_line(method: str, fixes: Fixes, err: np.ndarray, counts: dict | None = None) -> str:
+def summary_line(method: str, fixes: Fixes, err: np.ndarray) -> str:
+    """One line: fixes, availability, errors, and the counts of doubtful fixes."""
     s = summarize(err)
-    extra = ""
-    if counts:
-        extra = f"{counts['not_converged']} not converged, {counts['ill_conditioned']} ill-conditioned, "
-    return (
-        f"{method}: {fixes.n_epochs} fixes, {fixes.n_unsolved} unsolved, {extra}"
-        f"mean {s['mean_m']:.3f} m, median {s['median_m']:.3f} m, p90 {s['p90_m']:.3f} m"
+    line = (
+        f"{method}: {fixes.n_epochs} fixes, availability {100.0 * fixes.availability:.1f} % "
+        f"({fixes.n_unsolved} unsolved), mean {s['mean_m']:.3f} m, median {s['median_m']:.3f} m, "
+        f"p90 {s['p90_m']:.3f} m; ill-conditioned {fixes.count(Status.ILL_CONDITIONED)}, "
+        f"not converged {fixes.count(Status.NOT_CONVERGED)}, "
+        f"out of area {fixes.count(Status.AREA_BOUND)}"
+    )
+    if np.isfinite(fixes.alert_limit_m):
+        line += f", flagged {int(fixes.flagged.sum())} (HPL > {fixes.alert_limit_m:g} m)"
+    return line
+
+
+def _no_trusted(ds: ToaDataset, fixes: Fixes) -> PositioningError:
+    return PositioningError(
+        f"{ds.path}: no trustworthy fix ({fixes.n_unsolved} unsolved, "
+        f"{fixes.count(Status.NOT_CONVERGED)} not converged, "
+        f"{fixes.count(Status.ILL_CONDITIONED)} ill-conditioned, "
+        f"{fixes.count(Status.AREA_BOUND)} outside the service area of {fixes.n_epochs}); "
+        "check the base-station positions, the heights and the ToA units"
     )
 
 
@@ -169,34 +186,31 @@ def _common_args(p: argparse.ArgumentParser) -> None:
     g.add_argument(
         "--3d", dest="three_d", action="store_true", help="solve for x, y, z (no known height)"
     )
+    p.add_argument(
+        "--outside",
+        choices=OUTSIDE_CHOICES,
+        default="constrain",
+        help="a fix outside the dataset's service area: solve again inside it (constrain, "
+        "default) or leave it unsolved (reject); either way flagged area_bound",
+    )
+    p.add_argument(
+        "--alert-limit",
+        type=float,
+        default=ALERT_LIMIT_M,
+        metavar="M",
+        help=f"flag fixes whose protection level exceeds M metres (default {ALERT_LIMIT_M:g})",
+    )
 
 
-def _run(main: Any, argv: Sequence[str] | None) -> int:
-    from .command import _sigterm_as_interrupt
-
-    try:
-        with _sigterm_as_interrupt():
-            return main(argv)
-    except SystemExit as exc:  # argparse: --help (0) or a usage error (2, already printed)
-        return exc.code if isinstance(exc.code, int) else 2
-    except PositioningError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    except OSError as exc:
-        name = f"{exc.filename}: " if getattr(exc, "filename", None) else ""
-        print(f"error: {name}{exc.strerror or exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:  # Ctrl-C or SIGTERM: the output layer removed its temporary files
-        print("error: interrupted", file=sys.stderr)
-        return 130
+def _alert_limit(args: argparse.Namespace) -> float:
+    a = args.alert_limit
+    if not (np.isfinite(a) and a > 0):
+        raise PositioningError(f"--alert-limit must be a positive number of metres, got {a!r}")
+    return float(a)
 
 
-def _estimate(argv: Sequence[str] | None) -> int:
-    from .output import STDOUT, check_output, write_file
-    from .report import solve_dataset
-    from .sanity import check_height, check_trustworthy, trust_counts
-
-    p = _Parser(
+def _estimate_parser() -> OneLineParser:
+    p = OneLineParser(
         prog="estimate-positions",
         description="Estimate device positions from a ToA dataset (toa.csv + meta.json).",
         epilog=methods_help(),
@@ -214,14 +228,21 @@ def _estimate(argv: Sequence[str] | None) -> int:
     p.add_argument("-o", "--output", metavar="FIXES_CSV", help="output CSV file ('-': stdout)")
     p.add_argument("--list-methods", action="store_true", help="list the methods and exit")
     _common_args(p)
-    args = p.parse_args(argv)
+    return p
+
+
+def _estimate(args: argparse.Namespace) -> int:
+    from .output import STDOUT, check_output, write_file
+    from .report import solve_dataset
+    from .sanity import check_height, check_trustworthy, trust_counts
+
     if args.list_methods:
         print(methods_help())
         return 0
     if args.dataset is None:
-        p.error("the following arguments are required: DATASET_DIR")
+        raise PositioningError("the following arguments are required: DATASET_DIR")
     if args.output is None:
-        p.error("the following arguments are required: -o/--output")
+        raise PositioningError("the following arguments are required: -o/--output")
     if args.method not in METHODS:
         raise PositioningError(
             f"unknown method {args.method!r}; choose one of: {', '.join(METHODS)}"
@@ -231,28 +252,28 @@ def _estimate(argv: Sequence[str] | None) -> int:
     if out != STDOUT:
         check_output(out, inputs=inputs)  # before any work
     height = _height_mode(args)
+    limit = _alert_limit(args)
     params = _parse_params(args.param, [args.method])
     ds = load_dataset(args.dataset)
     check_height(height, ds.bs_xyz)
     _check_params(params, ds)
-    fixes = solve_dataset(ds, args.method, params[args.method], height)
-    if fixes.n_unsolved == fixes.n_epochs:
+    fixes = solve_dataset(
+        ds, args.method, params[args.method], height, outside=args.outside, alert_limit_m=limit
+    )
+    if fixes.n_unsolved == fixes.n_epochs and not fixes.count(Status.AREA_BOUND):
         raise _all_unsolved(ds)
-    counts = trust_counts(ds, fixes, height)
-    check_trustworthy(counts, str(ds.path), height)
+    if not fixes.trusted.any():
+        raise _no_trusted(ds, fixes)
+    check_trustworthy(trust_counts(ds, fixes, height), str(ds.path), height)  # station geometry
     write_file(out, fixes_csv(ds, fixes), inputs=inputs, stdout_ok=True)
     err = error_2d(fixes.xyz, ds.true_xyz)
     summary = sys.stderr if out == STDOUT else sys.stdout  # stdout holds the CSV
-    print(f"{_summary_line(args.method, fixes, err, counts)} -> {out}", file=summary)
+    print(f"{summary_line(args.method, fixes, err)} -> {out}", file=summary)
     return 0
 
 
-def _report(argv: Sequence[str] | None) -> int:
-    from .output import check_output, output_dir
-    from .report import evaluate, is_report_dir, write_report
-    from .sanity import check_height
-
-    p = _Parser(
+def _report_parser() -> OneLineParser:
+    p = OneLineParser(
         prog="accuracy-report",
         description=(
             "Table II of the paper (mean and 90th percentile of the 2D error) for every dataset "
@@ -276,7 +297,14 @@ def _report(argv: Sequence[str] | None) -> int:
         help="method parameter, repeatable; without METHOD: it applies to every method having it",
     )
     _common_args(p)
-    args = p.parse_args(argv)
+    return p
+
+
+def _report(args: argparse.Namespace) -> int:
+    from .output import check_output, output_dir
+    from .report import evaluate, is_report_dir, write_report
+    from .sanity import check_height, check_trustworthy, trust_counts
+
     methods = [m.strip() for m in args.methods.split(",") if m.strip()]
     if not methods:
         raise PositioningError("--methods is empty")
@@ -287,6 +315,7 @@ def _report(argv: Sequence[str] | None) -> int:
     out = Path(args.output)
     check_output(out, inputs=args.datasets, directory=True)  # before any work
     height = _height_mode(args)
+    limit = _alert_limit(args)
     params = _parse_params(args.param, methods)
     datasets = [load_dataset(d) for d in args.datasets]
     results = []
@@ -294,44 +323,35 @@ def _report(argv: Sequence[str] | None) -> int:
         check_height(height, ds.bs_xyz)
         _check_params(params, ds)
     for ds in datasets:
-        r = evaluate(ds, methods, params, height)
-        if all(f.n_unsolved == f.n_epochs for f in r.fixes.values()):
+        r = evaluate(ds, methods, params, height, outside=args.outside, alert_limit_m=limit)
+        fx = list(r.fixes.values())
+        if all(f.n_unsolved == f.n_epochs and not f.count(Status.AREA_BOUND) for f in fx):
             raise _all_unsolved(ds)
-        _trust_lines(ds, r.fixes, height)
+        if not any(f.trusted.any() for f in fx):
+            raise _no_trusted(ds, fx[0])
+        counts = [trust_counts(ds, f, height) for f in fx]  # station geometry
+        check_trustworthy(max(counts, key=lambda c: c["trustworthy"]), str(ds.path), height)
         results.append(r)
     # the report appears whole or not at all; a previous report there is replaced
     with output_dir(out, inputs=args.datasets, replaceable=is_report_dir) as tmp:
         md, written = write_report(results, methods, tmp)
     print(md, end="")
+    print()
+    for r in results:
+        for m in methods:
+            print(f"{r.dataset.name} {summary_line(m, r.fixes[m], r.errors[m])}")
     print(f"wrote {len(written)} files to {out}")
     return 0
 
 
-def _trust_lines(ds: ToaDataset, fixes: dict[str, Fixes], height: str | float) -> None:
-    """accuracy-report: refuse a dataset no method has a trustworthy fix of; count the doubtful
-    fixes on stderr (stdout holds the table)."""
-    from .sanity import check_trustworthy, trust_counts
-
-    counts = {m: trust_counts(ds, f, height) for m, f in fixes.items()}
-    best = max(counts.values(), key=lambda c: c["trustworthy"])
-    check_trustworthy(best, str(ds.path), height)
-    for m, c in counts.items():
-        if c["trustworthy"] < fixes[m].n_epochs:
-            print(
-                f"{ds.name} {m}: {c['unsolved']} unsolved, {c['not_converged']} not converged, "
-                f"{c['ill_conditioned']} ill-conditioned of {fixes[m].n_epochs} fixes",
-                file=sys.stderr,
-            )
-
-
 def estimate_positions_main(argv: Sequence[str] | None = None) -> int:
     """Console script ``estimate-positions``: positions of every fix of a dataset to a CSV."""
-    return _run(_estimate, argv)
+    return run_command(_estimate, _estimate_parser(), argv)
 
 
 def accuracy_report_main(argv: Sequence[str] | None = None) -> int:
     """Console script ``accuracy-report``: Table II, CDF and top-view plots for datasets."""
-    return _run(_report, argv)
+    return run_command(_report, _report_parser(), argv)
 
 
 if __name__ == "__main__":  # pragma: no cover

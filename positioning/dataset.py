@@ -23,7 +23,9 @@ from typing import Any
 
 import numpy as np
 
+from .area import ServiceArea, area_from_meta
 from .errors import PositioningError
+from .tdoa import LinkInfo
 
 REQUIRED_COLUMNS = ("epoch", "point", "bs", "toa_s", "x_true", "y_true", "z_true")
 
@@ -271,3 +273,82 @@ def _check_truth(first: tuple[float, ...], row: list[str], ix: dict[str, int], l
             f"toa.csv line {line}: true position {list(here)} of epoch {key[0]}, point "
             f"{key[1]!r} differs from its first row's {list(first)}"
         )
+
+
+# ----------------------------------------------------------------------------------------------
+# service area and receiver reports (kept apart from load_dataset: optional extras of a dataset)
+
+#: Optional per-measurement receiver reports read by :func:`link_reports`.
+REPORT_COLUMNS = ("snr_db", "peak_ratio_db", "lobe_width")
+
+
+def dataset_area(ds: ToaDataset) -> ServiceArea | None:
+    """The dataset's service area: ``meta.json`` ``service_area``, else ``hall_xy``, else None."""
+    return area_from_meta(ds.meta)
+
+
+def _meta_float(meta: dict[str, Any], *keys: str) -> float | None:
+    v: Any = meta
+    for k in keys:
+        if not isinstance(v, dict) or k not in v:
+            return None
+        v = v[k]
+    try:
+        f = float(v)
+    except (TypeError, ValueError):
+        return None
+    return f if math.isfinite(f) else None
+
+
+def link_budget_offset_db(meta: dict[str, Any]) -> float | None:
+    """``P_tx + G_t + G_r - N`` (dB) from ``link_budget`` and ``band_parameters``, with the
+    thermal noise ``N = -174 dBm/Hz + 10 log10(B) + NF + 10 log10(T / 290 K)``; None if a value
+    is missing."""
+    p = _meta_float(meta, "link_budget", "tx_power_dbm")
+    nf = _meta_float(meta, "link_budget", "noise_figure_db")
+    B = _meta_float(meta, "band_parameters", "bandwidth_hz")
+    if p is None or nf is None or B is None or B <= 0:
+        return None
+    gt = _meta_float(meta, "link_budget", "tx_antenna_gain_dbi") or 0.0
+    gr = _meta_float(meta, "link_budget", "rx_antenna_gain_dbi") or 0.0
+    T = _meta_float(meta, "link_budget", "temperature_k") or 290.0
+    noise = -174.0 + 10.0 * math.log10(B) + nf + 10.0 * math.log10(T / 290.0)
+    return p + gt + gr - noise
+
+
+def link_reports(ds: ToaDataset) -> LinkInfo:
+    """What the receiver reported per measurement (``snr_db``, ``peak_ratio_db``,
+    ``lobe_width``; NaN where a column is absent or empty) and the band, from ``meta.json``
+    (``band_parameters``, ``link_budget``, ``toa_method``)."""
+    idx = {(int(e), str(p)): i for i, (e, p) in enumerate(zip(ds.epoch, ds.point, strict=True))}
+    col = {n: j for j, n in enumerate(ds.bs_names)}
+    out = {c: np.full(ds.toa_s.shape, np.nan) for c in REPORT_COLUMNS}
+    csv_path = ds.path / "toa.csv"
+    try:
+        with csv_path.open(newline="", encoding="utf-8-sig") as fh:
+            reader = csv.DictReader(fh)
+            present = [c for c in REPORT_COLUMNS if c in (reader.fieldnames or [])]
+            for line, row in enumerate(reader, start=2):
+                if not present:
+                    break
+                try:
+                    f = idx[(int(row["epoch"].strip()), row["point"].strip())]
+                    j = col[row["bs"].strip()]
+                except (KeyError, ValueError, AttributeError):
+                    continue
+                for c in present:
+                    out[c][f, j] = _float(row[c] or "", c, line, allow_empty=True)
+    except (OSError, UnicodeDecodeError, csv.Error) as exc:
+        raise PositioningError(f"{csv_path}: cannot read ({exc})") from None
+    meta = ds.meta
+    method = meta.get("toa_method")
+    return LinkInfo(
+        snr_db=out["snr_db"],
+        peak_ratio_db=out["peak_ratio_db"],
+        lobe_width=out["lobe_width"],
+        bandwidth_hz=_meta_float(meta, "band_parameters", "bandwidth_hz"),
+        center_frequency_hz=_meta_float(meta, "band_parameters", "center_frequency_hz"),
+        receiver=str(method) if isinstance(method, str) else "unknown",
+        snr_offset_db=link_budget_offset_db(meta),
+        subcarrier_spacing_hz=_meta_float(meta, "band_parameters", "subcarrier_spacing_hz"),
+    )

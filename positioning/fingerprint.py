@@ -123,11 +123,15 @@ def _check_arrays(arrays: dict[str, np.ndarray], what: str) -> None:
         if arr.dtype.kind not in kind and not (kind == "f" and arr.dtype.kind in "iu"):
             raise PositioningError(f"{what}: {key!r} has dtype {arr.dtype}, expected kind {kind!r}")
         if arr.ndim != len(pattern):
-            raise PositioningError(f"{what}: {key!r} has {arr.ndim} dimensions, expected {len(pattern)}")
+            raise PositioningError(
+                f"{what}: {key!r} has {arr.ndim} dimensions, expected {len(pattern)}"
+            )
         for dim, want in zip(arr.shape, pattern, strict=True):
             if isinstance(want, int):
                 if dim != want:
-                    raise PositioningError(f"{what}: {key!r} has shape {arr.shape}, expected {pattern}")
+                    raise PositioningError(
+                        f"{what}: {key!r} has shape {arr.shape}, expected {pattern}"
+                    )
             elif sizes.setdefault(want, dim) != dim:
                 raise PositioningError(
                     f"{what}: {key!r} has shape {arr.shape}, but {want} = {sizes[want]} elsewhere"

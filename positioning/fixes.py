@@ -35,6 +35,13 @@ class Status(IntFlag):
     ``ILL_CONDITIONED``
         The geometry is (nearly) degenerate at the solution (normal matrix condition number
         above 1e10, e.g. collinear base stations): the position is returned but unreliable.
+    ``AREA_BOUND``
+        The unbounded fix left the service area. With ``outside="constrain"`` (default) the
+        position is the method's best fit inside the area (:mod:`positioning.bounded`); with
+        ``outside="reject"`` the fix is also ``UNSOLVED`` (NaN).
+    ``INTEGRITY``
+        The fix's horizontal protection level exceeds the alert limit (:mod:`positioning.integrity`):
+        the measurements cannot vouch for it to within the limit.
     """
 
     OK = 0
@@ -46,6 +53,14 @@ class Status(IntFlag):
     OUTLIER_REJECTED = 32
     INCONSISTENT = 64
     ILL_CONDITIONED = 128
+    AREA_BOUND = 256
+    INTEGRITY = 512
+
+
+#: Flags that make a solved fix untrustworthy whatever the user's accuracy needs: the solve did not
+#: converge, the geometry is degenerate, or the fit wanted to be outside the service area.
+#: (``INTEGRITY`` is relative to the user's alert limit and is reported separately.)
+UNTRUSTED = Status.UNSOLVED | Status.NOT_CONVERGED | Status.ILL_CONDITIONED | Status.AREA_BOUND
 
 
 def status_label(code: int) -> str:
@@ -80,6 +95,14 @@ class Fixes:
         Method name as registered in :data:`positioning.METHODS`.
     params : dict
         The method parameters actually used (defaults filled in).
+    hpl_m : (E,) float, metres
+        Horizontal protection level (:mod:`positioning.integrity`); NaN where unsolved or not
+        computed.
+    chi2n : (E,) float
+        Normalised chi-square of the fix's pseudo-range residuals, ``SSE / sigma^2 / (n - k)``
+        (about 1 for consistent LoS measurements; NaN without redundancy or unsolved).
+    alert_limit_m : float
+        Alert limit against which ``INTEGRITY`` was set (NaN: integrity not evaluated).
     """
 
     xyz: np.ndarray
@@ -89,6 +112,16 @@ class Fixes:
     n_used: np.ndarray
     method: str
     params: dict[str, Any] = field(default_factory=dict)
+    hpl_m: np.ndarray | None = None
+    chi2n: np.ndarray | None = None
+    alert_limit_m: float = float("nan")
+
+    def __post_init__(self) -> None:
+        nan = np.full(self.xyz.shape[0], np.nan)
+        if self.hpl_m is None:
+            object.__setattr__(self, "hpl_m", nan)
+        if self.chi2n is None:
+            object.__setattr__(self, "chi2n", nan.copy())
 
     @property
     def n_epochs(self) -> int:
@@ -104,6 +137,22 @@ class Fixes:
     def n_unsolved(self) -> int:
         """Number of epochs without a position (NaN rows)."""
         return int(np.count_nonzero(~self.solved))
+
+    @property
+    def availability(self) -> float:
+        """Share of epochs with a position (0..1; NaN for no epoch)."""
+        return float(np.mean(self.solved)) if self.n_epochs else float("nan")
+
+    @property
+    def flagged(self) -> np.ndarray:
+        """(E,) bool: solved fixes whose protection level exceeds the alert limit."""
+        return self.solved & ((self.status & int(Status.INTEGRITY)) != 0)
+
+    @property
+    def trusted(self) -> np.ndarray:
+        """(E,) bool: solved, converged, well-conditioned fixes found inside the service area
+        (none of :data:`UNTRUSTED`)."""
+        return (self.status & int(UNTRUSTED)) == 0
 
     def count(self, flag: Status) -> int:
         """Number of epochs with ``flag`` set."""

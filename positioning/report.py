@@ -19,11 +19,12 @@ from typing import Any
 import numpy as np
 
 from .api import run_method
-from .dataset import ToaDataset
+from .dataset import ToaDataset, dataset_area, link_reports
 from .errors import PositioningError
-from .fixes import Fixes
+from .fixes import Fixes, Status
+from .integrity import ALERT_LIMIT_M
 from .metrics import cdf, error_2d, summarize
-from .tdoa import make_problem
+from .tdoa import Problem, make_problem
 
 #: The paper's Table II (metres): (scenario, band) -> metric -> method -> value.
 PAPER_TABLE2: dict[tuple[str, str], dict[str, dict[str, float]]] = {
@@ -43,7 +44,11 @@ _SCENARIO_ORDER = {"static": 0, "semi-dynamic": 1}
 _BAND_ORDER = {"c-band": 0, "mmwave": 1}
 _BAND_LABEL = {"c-band": "C-band", "mmwave": "mmWave"}
 _METHOD_LABEL = {"ls": "LS", "irls": "IRLS"}
-METRICS = (("mean", "mean_m", "mean [m]"), ("p90", "p90_m", "90th pct [m]"))
+METRICS = (
+    ("mean", "mean_m", "mean [m]"),
+    ("p90", "p90_m", "90th pct [m]"),
+    ("availability", "availability_pct", "availability [%]"),
+)
 
 
 def method_label(name: str) -> str:
@@ -118,15 +123,36 @@ def heights_for(ds: ToaDataset, mode: str | float) -> np.ndarray | None:
     return np.full(ds.n_fixes, float(mode))
 
 
+def dataset_problem(ds: ToaDataset, height: str | float = "true") -> Problem:
+    """The dataset as a :class:`Problem`: schedule removed per measurement, its service area and
+    its receiver reports (``snr_db``, first-lobe shape, band) attached."""
+    return make_problem(
+        ds.toa_unscheduled_s,
+        ds.bs_xyz,
+        None,
+        heights_for(ds, height),
+        area=dataset_area(ds),
+        links=link_reports(ds),
+    )
+
+
 def solve_dataset(
-    ds: ToaDataset, method: str, params: Mapping[str, Any], height: str | float = "true"
+    ds: ToaDataset,
+    method: str,
+    params: Mapping[str, Any],
+    height: str | float = "true",
+    *,
+    outside: str = "constrain",
+    alert_limit_m: float | None = ALERT_LIMIT_M,
+    problem: Problem | None = None,
 ) -> Fixes:
-    """Run one method on every fix of a dataset (schedule removed per measurement)."""
-    prob = make_problem(ds.toa_unscheduled_s, ds.bs_xyz, None, heights_for(ds, height))
+    """Run one method on every fix of a dataset (schedule removed per measurement), bounded to
+    the dataset's service area, with integrity figures at ``alert_limit_m``."""
+    prob = problem if problem is not None else dataset_problem(ds, height)
     p = dict(params)
     if "reference" in p and isinstance(p["reference"], str) and p["reference"] in ds.bs_names:
         p["reference"] = ds.bs_names.index(p["reference"])
-    return run_method(prob, method, **p)
+    return run_method(prob, method, outside=outside, alert_limit_m=alert_limit_m, **p)
 
 
 def evaluate(
@@ -134,14 +160,27 @@ def evaluate(
     methods: Sequence[str],
     params: Mapping[str, Mapping[str, Any]] | None = None,
     height: str | float = "true",
+    *,
+    outside: str = "constrain",
+    alert_limit_m: float | None = ALERT_LIMIT_M,
 ) -> DatasetResult:
     """Run ``methods`` on ``ds``; 2D errors and their summaries per method."""
     params = params or {}
     fixes, errors, summaries = {}, {}, {}
+    prob = dataset_problem(ds, height)
     for m in methods:
-        f = solve_dataset(ds, m, params.get(m, {}), height)
+        f = solve_dataset(
+            ds,
+            m,
+            params.get(m, {}),
+            height,
+            outside=outside,
+            alert_limit_m=alert_limit_m,
+            problem=prob,
+        )
         e = error_2d(f.xyz, ds.true_xyz)
         fixes[m], errors[m], summaries[m] = f, e, summarize(e)
+        summaries[m]["availability_pct"] = 100.0 * f.availability
     return DatasetResult(dataset=ds, fixes=fixes, errors=errors, summaries=summaries)
 
 
@@ -172,6 +211,8 @@ def table_rows(results: Sequence[DatasetResult], methods: Sequence[str]) -> list
         for r in sort_results(results):
             ds = r.dataset
             paper = PAPER_TABLE2.get((ds.scenario, ds.band), {}).get(metric, {})
+            if metric == "availability":
+                paper = {"irls": 100.0, "ls": 100.0}  # the paper solves every epoch
             row: dict[str, Any] = {
                 "metric": metric,
                 "scenario": ds.scenario,
@@ -208,9 +249,11 @@ def table_markdown(rows: Sequence[Mapping[str, Any]], methods: Sequence[str]) ->
         out.append("| " + " | ".join(cells) + " |")
     out.append("")
     out.append(
-        "2D positioning error in metres; 90th pct = numpy linear percentile; unsolved fixes "
-        "(too few base stations) are excluded from the statistics. Paper columns: Table II of "
-        "the paper for the same setup and band."
+        "2D positioning error in metres; 90th pct = numpy linear percentile; availability = share "
+        "of epochs with a position. Unsolved fixes (too few base stations, or outside the service "
+        "area with --outside reject) are excluded from the error statistics. Fixes outside the "
+        "service area are solved again inside it (--outside constrain). Paper columns: Table II "
+        "of the paper for the same setup and band."
     )
     return "\n".join(out) + "\n"
 
@@ -220,6 +263,127 @@ def table_csv(rows: Sequence[Mapping[str, Any]], methods: Sequence[str]) -> str:
     buf = io.StringIO()
     cols = ["metric", "scenario", "band", "dataset", "n_fixes", "n_unsolved", *methods]
     cols += ["paper_irls", "paper_ls"]
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(cols)
+    for r in rows:
+        w.writerow(
+            [
+                r[c] if not isinstance(r[c], float) else ("" if np.isnan(r[c]) else f"{r[c]:.6g}")
+                for c in cols
+            ]
+        )
+    return buf.getvalue()
+
+
+# ----------------------------------------------------------------------------------------------
+# integrity table
+
+INTEGRITY_COLUMNS = (
+    "scenario",
+    "band",
+    "dataset",
+    "method",
+    "n_fixes",
+    "availability_pct",
+    "out_of_area",
+    "not_converged",
+    "ill_conditioned",
+    "alert_limit_m",
+    "flagged_pct",
+    "unflagged_mean_m",
+    "unflagged_p90_m",
+    "flagged_mean_m",
+    "flagged_p90_m",
+    "bounded_by_hpl_pct",
+    "hpl_median_m",
+)
+
+
+def integrity_rows(results: Sequence[DatasetResult], methods: Sequence[str]) -> list[dict]:
+    """Per dataset and method: availability, doubtful-fix counts, and the errors of the fixes
+    flagged (HPL above the alert limit) and not flagged, the share of fixes whose error is within
+    their HPL, and the median HPL."""
+    rows = []
+    for r in sort_results(results):
+        ds = r.dataset
+        for m in methods:
+            f, e = r.fixes[m], r.errors[m]
+            solved = f.solved & np.isfinite(e)
+            fl = f.flagged & solved
+            un = ~f.flagged & solved
+            su, sf = summarize(e[un]), summarize(e[fl])
+            with np.errstate(invalid="ignore"):
+                within = np.mean(e[solved] <= f.hpl_m[solved]) if solved.any() else np.nan
+            hpl = f.hpl_m[solved]
+            rows.append(
+                {
+                    "scenario": ds.scenario,
+                    "band": ds.band,
+                    "dataset": ds.name,
+                    "method": m,
+                    "n_fixes": f.n_epochs,
+                    "availability_pct": 100.0 * f.availability,
+                    "out_of_area": f.count(Status.AREA_BOUND),
+                    "not_converged": f.count(Status.NOT_CONVERGED),
+                    "ill_conditioned": f.count(Status.ILL_CONDITIONED),
+                    "alert_limit_m": f.alert_limit_m,
+                    "flagged_pct": 100.0 * fl.sum() / max(solved.sum(), 1),
+                    "unflagged_mean_m": su["mean_m"],
+                    "unflagged_p90_m": su["p90_m"],
+                    "flagged_mean_m": sf["mean_m"],
+                    "flagged_p90_m": sf["p90_m"],
+                    "bounded_by_hpl_pct": 100.0 * within,
+                    "hpl_median_m": float(np.median(hpl)) if hpl.size else np.nan,
+                }
+            )
+    return rows
+
+
+def integrity_markdown(rows: Sequence[Mapping[str, Any]]) -> str:
+    """Markdown of :func:`integrity_rows`."""
+    head = [
+        "setup",
+        "band",
+        "method",
+        "avail. %",
+        "out of area",
+        "not conv.",
+        "ill-cond.",
+        "flagged %",
+        "unflagged mean / p90 [m]",
+        "flagged mean / p90 [m]",
+        "error <= HPL %",
+        "median HPL [m]",
+    ]
+    out = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for r in rows:
+        cells = [
+            r["scenario"],
+            band_label(r["band"]),
+            method_label(r["method"]),
+            f"{r['availability_pct']:.1f}",
+            str(r["out_of_area"]),
+            str(r["not_converged"]),
+            str(r["ill_conditioned"]),
+            f"{r['flagged_pct']:.1f}",
+            f"{_fmt(r['unflagged_mean_m'])} / {_fmt(r['unflagged_p90_m'])}",
+            f"{_fmt(r['flagged_mean_m'])} / {_fmt(r['flagged_p90_m'])}",
+            f"{r['bounded_by_hpl_pct']:.1f}",
+            _fmt(r["hpl_median_m"]),
+        ]
+        out.append("| " + " | ".join(cells) + " |")
+    limit = rows[0]["alert_limit_m"] if rows else float("nan")
+    out.append("")
+    out.append(
+        f"Flagged: horizontal protection level (HPL) above the alert limit ({limit:g} m). "
+        "HPL bounds the error when at most one base station is biased; 'error <= HPL' is the "
+        "share of solved fixes for which it did."
+    )
+    return "\n".join(out) + "\n"
+
+
+def _csv_text(rows: Sequence[Mapping[str, Any]], cols: Sequence[str]) -> str:
+    buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(cols)
     for r in rows:
@@ -245,10 +409,18 @@ def _new_figure(w: float, h: float) -> Any:
     return fig
 
 
-def _xmax(curves: Sequence[np.ndarray]) -> float:
-    """x-limit that shows 99 % of every curve (heavy NLoS tails would squash the plot)."""
-    vals = [np.percentile(c, 99.0) for c in curves if c.size]
-    return float(max(vals) * 1.15) if vals and max(vals) > 0 else 1.0
+def _xlim(curves: Sequence[np.ndarray]) -> tuple[float, float]:
+    """Log-x limits that show the whole of every curve: from a decade-aligned value below the
+    smallest positive error (at least 1 mm) to 1.3x the largest. On a log axis the bulk (cm to
+    dm) and the NLoS tail (metres to tens of metres) are both readable."""
+    fin = [c[np.isfinite(c) & (c > 0)] for c in curves]
+    fin = [c for c in fin if c.size]
+    if not fin:
+        return 1e-2, 10.0
+    lo = max(min(float(np.percentile(c, 1.0)) for c in fin), 1e-3)
+    hi = max(float(c.max()) for c in fin)
+    lo = 10.0 ** np.floor(np.log10(lo))
+    return lo, max(hi * 1.3, lo * 10.0)
 
 
 def _grid(n: int) -> tuple[int, int]:
@@ -256,47 +428,66 @@ def _grid(n: int) -> tuple[int, int]:
     return (n + ncols - 1) // ncols, ncols
 
 
-def _cdf_axes(ax: Any, title: str, xmax: float) -> None:
+def _cdf_axes(ax: Any, title: str, xlim: tuple[float, float]) -> None:
     ax.set_title(title)
-    ax.set_xlabel("2D positioning error [m]")
-    ax.set_ylabel("CDF")
-    ax.set_xlim(0.0, xmax)
+    ax.set_xscale("log")
+    ax.set_xlabel("2D positioning error [m] (log scale)")
+    ax.set_ylabel("CDF (share of all epochs)")
+    ax.set_xlim(*xlim)
     ax.set_ylim(0.0, 1.0)
     ax.axhline(0.9, color="0.6", lw=0.8, ls=":")
-    ax.grid(True, alpha=0.3)
+    ax.grid(True, which="both", alpha=0.3)
+
+
+def _cdf_curve(errors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """CDF over *all* epochs: unsolved ones count in the denominator, so an estimator cannot
+    look better by leaving hard epochs out (the curve ends at the availability)."""
+    x, y = cdf(errors)
+    n_all = max(int(np.size(errors)), 1)
+    return x, y * (x.size / n_all)
+
+
+def _legend_text(name: str, s: Mapping[str, float], errors: np.ndarray) -> str:
+    fin = errors[np.isfinite(errors)]
+    mx = float(fin.max()) if fin.size else float("nan")
+    return f"{name}: p90 {s['p90_m']:.2f} m, max {mx:.1f} m, avail. {s.get('availability_pct', 100.0):.0f} %"
 
 
 def plot_cdf_by_method(
     results: Sequence[DatasetResult], methods: Sequence[str], path: str | Path
 ) -> None:
-    """One panel per method, one CDF curve per dataset (the paper's Fig. 2 a/b)."""
+    """One panel per method, one CDF curve per dataset (the paper's Fig. 2 a/b), log x axis;
+    the legend gives each curve's p90, max and availability."""
     nrows, ncols = _grid(len(methods))
-    fig = _new_figure(4.2 * ncols, 3.4 * nrows)
+    fig = _new_figure(4.6 * ncols, 3.6 * nrows)
     axes = fig.subplots(nrows, ncols, squeeze=False).ravel()
     res = sort_results(results)
-    xmax = _xmax([r.errors[m][np.isfinite(r.errors[m])] for r in res for m in methods])
+    xlim = _xlim([r.errors[m] for r in res for m in methods])
     for ax, m in zip(axes, methods, strict=False):
         for r in res:
-            x, y = cdf(r.errors[m])
-            ax.step(x, y, where="post", label=r.label)
-        _cdf_axes(ax, method_label(m), xmax)
-        ax.legend(fontsize=7, loc="lower right")
+            x, y = _cdf_curve(r.errors[m])
+            label = _legend_text(
+                f"{r.dataset.scenario} {band_label(r.dataset.band)}", r.summaries[m], r.errors[m]
+            )
+            ax.step(x, y, where="post", label=label)
+        _cdf_axes(ax, method_label(m), xlim)
+        ax.legend(fontsize=6, loc="upper left")
     for ax in axes[len(methods) :]:
         ax.set_visible(False)
     save_figure(fig, path)
 
 
 def plot_cdf_methods(result: DatasetResult, methods: Sequence[str], path: str | Path) -> None:
-    """CDF of every method on one dataset."""
-    fig = _new_figure(5.5, 4.0)
+    """CDF of every method on one dataset, log x axis; legend: p90, max, availability."""
+    fig = _new_figure(6.0, 4.2)
     ax = fig.subplots()
-    xmax = _xmax([result.errors[m][np.isfinite(result.errors[m])] for m in methods])
+    xlim = _xlim([result.errors[m] for m in methods])
     for m in methods:
-        x, y = cdf(result.errors[m])
-        s = result.summaries[m]
-        ax.step(x, y, where="post", label=f"{method_label(m)} (p90 {s['p90_m']:.2f} m)")
-    _cdf_axes(ax, result.label, xmax)
-    ax.legend(fontsize=8, loc="lower right")
+        x, y = _cdf_curve(result.errors[m])
+        label = _legend_text(method_label(m), result.summaries[m], result.errors[m])
+        ax.step(x, y, where="post", label=label)
+    _cdf_axes(ax, result.label, xlim)
+    ax.legend(fontsize=7, loc="upper left")
     save_figure(fig, path)
 
 
@@ -358,6 +549,10 @@ def plot_topview(result: DatasetResult, methods: Sequence[str], path: str | Path
     axes = fig.subplots(nrows, ncols, squeeze=False).ravel()
     polys = _polygon_list(ds.meta)
     hall = _hall_xy(ds.meta)
+    try:
+        area = dataset_area(ds)
+    except PositioningError:  # a malformed area was refused when solving; here it is decoration
+        area = None
     sc = None
     for ax, m in zip(axes, methods, strict=False):
         for _, poly in polys:
@@ -365,6 +560,19 @@ def plot_topview(result: DatasetResult, methods: Sequence[str], path: str | Path
         if hall is not None:
             (x0, y0), (x1, y1) = hall
             ax.add_patch(Rectangle((x0, y0), x1 - x0, y1 - y0, fill=False, ec="k", lw=1.0))
+        if area is not None:
+            ax.add_patch(
+                Polygon(
+                    area.polygon,
+                    closed=True,
+                    fill=False,
+                    ec="tab:blue",
+                    lw=1.4,
+                    ls="--",
+                    label="service area",
+                    zorder=2,
+                )
+            )
         names, xy, err = per[m]
         size = 30.0 + 170.0 * np.clip(np.nan_to_num(err, nan=0.0) / norm.vmax, 0.0, 1.0)
         sc = ax.scatter(
@@ -377,7 +585,12 @@ def plot_topview(result: DatasetResult, methods: Sequence[str], path: str | Path
         for n, b in zip(ds.bs_names, ds.bs_xyz, strict=True):
             ax.annotate(n, b[:2], xytext=(4, 4), textcoords="offset points", fontsize=7)
         s = result.summaries[m]
-        ax.set_title(f"{method_label(m)}: mean {s['mean_m']:.2f} m", fontsize=10)
+        nb = result.fixes[m].count(Status.AREA_BOUND)
+        ax.set_title(
+            f"{method_label(m)}: mean {s['mean_m']:.2f} m, {nb} fixes area-bound", fontsize=9
+        )
+        if area is not None:
+            ax.legend(fontsize=7, loc="lower right")
         ax.set_aspect("equal")
         ax.set_xlabel("x [m]")
         ax.set_ylabel("y [m]")
@@ -424,5 +637,8 @@ def write_report(
     written.append(p)
     atomic_write_text(out / "table.csv", table_csv(rows, methods))
     atomic_write_text(out / "table.md", md)
-    written += [out / "table.csv", out / "table.md"]
+    irows = integrity_rows(results, methods)
+    atomic_write_text(out / "integrity.csv", _csv_text(irows, INTEGRITY_COLUMNS))
+    atomic_write_text(out / "integrity.md", integrity_markdown(irows))
+    written += [out / "table.csv", out / "table.md", out / "integrity.csv", out / "integrity.md"]
     return md, written

@@ -35,10 +35,11 @@ Missing measurements (NaN ToA) enter with weight 0.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
+from .area import ServiceArea
 from .errors import PositioningError
 
 #: Speed of light in vacuum, m/s (exact, SI 2019). Same value as ``raytrace.core.constants.C0``;
@@ -53,6 +54,47 @@ DUPLICATE_TOL_M = 1e-6
 
 # Relative threshold for a singular normal matrix in the closed-form start.
 _SINGULAR_REL = 1e-12
+
+
+@dataclass(frozen=True)
+class LinkInfo:
+    """Per-measurement receiver reports and the band, for physics-aware estimators.
+
+    Attributes
+    ----------
+    snr_db : (E, N) float, dB -- SNR before processing gain of the measured lobe (NaN unknown)
+    peak_ratio_db : (E, N) float, dB -- first lobe's peak over the strongest peak (<= 0; NaN
+        unknown or not a first-lobe receiver)
+    lobe_width : (E, N) float -- first lobe's half-amplitude width over an isolated pulse's
+        (1 lone path, > 1 overlapping paths, < 1 destructive interference; NaN unknown)
+    bandwidth_hz : float or None -- signal bandwidth B
+    center_frequency_hz : float or None -- carrier (for the free-space SNR of a LoS link)
+    receiver : str -- ToA estimator that produced the data (``first-lobe``, ``first-path``,
+        ``peak``, ``leading-edge``, or ``unknown``)
+    snr_offset_db : float or None -- link budget constant ``P_tx + G_t + G_r - N`` (dB) so that
+        a LoS link at d metres has ``SNR = snr_offset_db + 20 log10(lambda / (4 pi d))``; None if
+        unknown
+    subcarrier_spacing_hz : float or None -- delta_f; ``B / delta_f`` is the processing gain
+    """
+
+    snr_db: np.ndarray
+    peak_ratio_db: np.ndarray
+    lobe_width: np.ndarray
+    bandwidth_hz: float | None = None
+    center_frequency_hz: float | None = None
+    receiver: str = "unknown"
+    snr_offset_db: float | None = None
+    subcarrier_spacing_hz: float | None = None
+
+    def take(self, idx: np.ndarray) -> LinkInfo:
+        """The reports of epochs ``idx``."""
+        return replace(
+            self,
+            snr_db=self.snr_db[idx],
+            peak_ratio_db=self.peak_ratio_db[idx],
+            lobe_width=self.lobe_width[idx],
+        )
+
 
 ModelFun = Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
 
@@ -73,12 +115,19 @@ class Problem:
         Base-station positions.
     height : (E,) float, metres, or None
         Known device height for the 2D solve; None for a 3D solve.
+    area : ServiceArea or None
+        Where a device can be (floor polygon); None: fixes are not bounded.
+    links : LinkInfo or None
+        What the receiver reported about each measurement (SNR, first-lobe shape), for the
+        estimators that use it (``nlos-map``, the integrity figures); None: not known.
     """
 
     rho: np.ndarray
     valid: np.ndarray
     bs: np.ndarray
     height: np.ndarray | None
+    area: ServiceArea | None = None
+    links: LinkInfo | None = None
 
     @property
     def dims(self) -> int:
@@ -108,6 +157,16 @@ class Problem:
         """(E,) bool: epochs with at least :attr:`min_bs` received base stations."""
         return self.n_valid >= self.min_bs
 
+    def take(self, idx: np.ndarray) -> Problem:
+        """The sub-problem of epochs ``idx`` (area and link reports kept)."""
+        return replace(
+            self,
+            rho=self.rho[idx],
+            valid=self.valid[idx],
+            height=None if self.height is None else self.height[idx],
+            links=None if self.links is None else self.links.take(idx),
+        )
+
     def position(self, theta: np.ndarray, idx: np.ndarray) -> np.ndarray:
         """(A, 3) positions from unknowns ``theta`` (A, >= dims) of epochs ``idx`` (A,)."""
         if self.height is None:
@@ -120,6 +179,8 @@ def make_problem(
     bs_xyz: np.ndarray,
     tx_offsets_s: np.ndarray | None = None,
     height_m: float | np.ndarray | None = None,
+    area: ServiceArea | None = None,
+    links: LinkInfo | None = None,
 ) -> Problem:
     """Validate input and build the :class:`Problem` (pseudo-ranges with the schedule removed).
 
@@ -133,6 +194,10 @@ def make_problem(
         Transmission schedule ``delta_n`` to remove (default zeros).
     height_m : float or (E,) float, metres, optional
         Known device height (2D solve); None solves in 3D.
+    area : ServiceArea, optional
+        Where a device can be; fixes outside are solved again inside (see ``locate``).
+    links : LinkInfo, optional
+        Receiver reports per measurement, (E, N) arrays.
 
     Raises
     ------
@@ -185,7 +250,22 @@ def make_problem(
         if not np.isfinite(h).all():
             raise PositioningError("height_m contains non-finite values")
         height = h
-    return Problem(rho=pseudoranges(toa, off), valid=np.isfinite(toa), bs=bs, height=height)
+    if area is not None and not isinstance(area, ServiceArea):
+        area = ServiceArea(np.asarray(area, dtype=float), "given")
+    if links is not None:
+        for name in ("snr_db", "peak_ratio_db", "lobe_width"):
+            if np.shape(getattr(links, name)) != toa.shape:
+                raise PositioningError(
+                    f"links.{name} must have shape {toa.shape}, got {np.shape(getattr(links, name))}"
+                )
+    return Problem(
+        rho=pseudoranges(toa, off),
+        valid=np.isfinite(toa),
+        bs=bs,
+        height=height,
+        area=area,
+        links=links,
+    )
 
 
 def pseudoranges(toa_s: np.ndarray, tx_offsets_s: np.ndarray | None = None) -> np.ndarray:

@@ -63,7 +63,7 @@ def run_error(main, argv, capsys):
 def test_estimate_positions_writes_fixes(datasets, tmp_path, capsys):
     out = tmp_path / "fixes.csv"
     assert estimate_positions_main([str(datasets[1]), "--method", "ls", "-o", str(out)]) == 0
-    assert "ls: 16 fixes, 0 unsolved" in capsys.readouterr().out
+    assert "ls: 16 fixes, availability 100.0 % (0 unsolved)" in capsys.readouterr().out
     rows = read_csv(out)
     assert tuple(rows[0]) == FIXES_COLUMNS
     assert len(rows) == 16
@@ -194,11 +194,16 @@ def test_accuracy_report(datasets, tmp_path, capsys):
     printed = capsys.readouterr().out
     md = (out / "table.md").read_text()
     assert md in printed
+    # one summary line per dataset and method, with availability and the doubtful-fix counts
+    assert "static_c irls: 16 fixes, availability 100.0 % (0 unsolved)" in printed
+    assert printed.count("; ill-conditioned ") == 2 * len(METHODS)
+    assert "| setup | band | method | avail. % |" in (out / "integrity.md").read_text()
     assert "| mean [m] | static | C-band | static_c |" in md
     assert "| 90th pct [m] | semi-dynamic | mmWave | semi_mm |" in md
     rows = read_csv(out / "table.csv")
-    assert [r["metric"] for r in rows] == ["mean", "mean", "p90", "p90"]
-    assert [r["dataset"] for r in rows] == ["static_c", "semi_mm"] * 2
+    assert [r["metric"] for r in rows] == ["mean", "mean", "p90", "p90"] + ["availability"] * 2
+    assert [r["dataset"] for r in rows] == ["static_c", "semi_mm"] * 3
+    assert all(float(r[m]) == 100.0 for r in rows[4:] for m in METHODS)
     assert float(rows[0]["paper_irls"]) == 0.24 and float(rows[3]["paper_ls"]) == 0.62
     for name in (
         "cdf_by_method",
