@@ -262,9 +262,10 @@ def _estimate(args: argparse.Namespace) -> int:
     )
     if fixes.n_unsolved == fixes.n_epochs and not fixes.count(Status.AREA_BOUND):
         raise _all_unsolved(ds)
+    # station geometry first: its message names the cause (collinear, one plane)
+    check_trustworthy(trust_counts(ds, fixes, height), str(ds.path), height)
     if not fixes.trusted.any():
         raise _no_trusted(ds, fixes)
-    check_trustworthy(trust_counts(ds, fixes, height), str(ds.path), height)  # station geometry
     write_file(out, fixes_csv(ds, fixes), inputs=inputs, stdout_ok=True)
     err = error_2d(fixes.xyz, ds.true_xyz)
     summary = sys.stderr if out == STDOUT else sys.stdout  # stdout holds the CSV
@@ -327,10 +328,10 @@ def _report(args: argparse.Namespace) -> int:
         fx = list(r.fixes.values())
         if all(f.n_unsolved == f.n_epochs and not f.count(Status.AREA_BOUND) for f in fx):
             raise _all_unsolved(ds)
+        counts = [trust_counts(ds, f, height) for f in fx]  # station geometry: names the cause
+        check_trustworthy(max(counts, key=lambda c: c["trustworthy"]), str(ds.path), height)
         if not any(f.trusted.any() for f in fx):
             raise _no_trusted(ds, fx[0])
-        counts = [trust_counts(ds, f, height) for f in fx]  # station geometry
-        check_trustworthy(max(counts, key=lambda c: c["trustworthy"]), str(ds.path), height)
         results.append(r)
     # the report appears whole or not at all; a previous report there is replaced
     with output_dir(out, inputs=args.datasets, replaceable=is_report_dir) as tmp:

@@ -386,7 +386,7 @@ def test_collinear_stations_and_flat_3d_are_not_trusted(tmp_path, capsys):
     assert "one plane" in _only_line(_err(capsys))
     assert not (tmp_path / "c.csv").exists() and not (tmp_path / "f.csv").exists()
     assert estimate_positions_main([str(d2), "-o", str(tmp_path / "ok.csv")]) == 0
-    assert "0 ill-conditioned" in capsys.readouterr().out
+    assert "ill-conditioned 0," in capsys.readouterr().out
 
 
 # -- resources ------------------------------------------------------------------------------------
