@@ -10,6 +10,7 @@ import numpy as np
 
 from . import irls as _irls
 from . import robust as _robust
+from . import twin as _twin
 from .errors import PositioningError
 from .fixes import Fixes
 from .tdoa import Problem, make_problem
@@ -21,6 +22,9 @@ _OPT_INDEX = "base-station index or none"
 _OPT_COUNT = "non-negative int or none"
 _COUNT = "non-negative int"
 _PROB = "probability in (0, 1)"
+_MAP = "fingerprint map (file path)"
+#: Map-free methods a ``twin`` fix may fall back to.
+_FALLBACKS = ("irls", "ls", "m-estimator", "subset", "nlos-aware")
 
 
 @dataclass(frozen=True)
@@ -34,6 +38,7 @@ class Method:
     params : mapping name -> (default, kind) where kind is a validation rule or a tuple of choices
     summary : one-line description (shown by ``estimate-positions --list-methods``)
     paper : True for the paper's own methods (LS, IRLS)
+    needs_map : True for methods that need a fingerprint map (``twin``; not run by default)
     """
 
     name: str
@@ -41,6 +46,7 @@ class Method:
     params: Mapping[str, tuple[Any, Any]]
     summary: str
     paper: bool = False
+    needs_map: bool = False
 
 
 METHODS: dict[str, Method] = {
@@ -111,18 +117,35 @@ METHODS: dict[str, Method] = {
             },
             "one-sided loss (NLoS only delays): subset hypotheses scored, then IRLS",
         ),
+        Method(
+            "twin",
+            lambda prob, *, fallback, **p: _twin.twin(prob, fallback=_solver(fallback), **p),
+            {
+                "map": (None, _MAP),
+                "fallback": ("irls", _FALLBACKS),
+                "fallback_m": (_twin.FALLBACK_M, _POS_FLOAT),
+                "sigma_m": (_twin.SIGMA_M, _POS_FLOAT),
+                "k": (_twin.NLOS_K, _POS_FLOAT),
+            },
+            "fingerprint-map match + refinement with the map's NLoS bias (--map MAP), 2D",
+            needs_map=True,
+        ),
     )
 }
 
 
-def method_names() -> list[str]:
-    """Registered method names, paper methods first."""
-    return list(METHODS)
+def method_names(include_map: bool = True) -> list[str]:
+    """Registered method names, paper methods first (``include_map=False``: map-free only)."""
+    return [m for m, spec in METHODS.items() if include_map or not spec.needs_map]
 
 
 def _coerce(method: str, name: str, value: Any, kind: Any, n_bs: int | None) -> Any:
     """Validate (and, for strings from the CLI, parse) one parameter value."""
     where = f"method {method!r} parameter {name!r}"
+    if kind == _MAP:
+        if value is None or (isinstance(value, str) and not value.strip()):
+            raise PositioningError(f"method {method!r} needs a fingerprint map (--map MAP)")
+        return value
     if isinstance(kind, tuple):
         if value not in kind:
             raise PositioningError(f"{where} must be one of {', '.join(kind)}, got {value!r}")
@@ -180,6 +203,14 @@ def resolve_params(method: str, params: Mapping[str, Any], n_bs: int | None = No
     return out
 
 
+_FIXES_KEYS = ("xyz", "status", "iterations", "weights")
+
+
+def _solver(method: str) -> Callable[[Problem], dict[str, np.ndarray]]:
+    """The registered ``method`` with its default parameters, as ``f(problem) -> dict``."""
+    return lambda prob: METHODS[method].func(prob, **resolve_params(method, {}, prob.n_bs))
+
+
 def run_method(prob: Problem, method: str = "irls", **params: Any) -> Fixes:
     """Solve a prepared :class:`~positioning.tdoa.Problem` with one registered method."""
     p = resolve_params(method, params, prob.n_bs)
@@ -192,6 +223,7 @@ def run_method(prob: Problem, method: str = "irls", **params: Any) -> Fixes:
         n_used=prob.n_valid,
         method=method,
         params=p,
+        extra={k: v for k, v in res.items() if k not in _FIXES_KEYS},
     )
 
 

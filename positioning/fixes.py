@@ -35,6 +35,14 @@ class Status(IntFlag):
     ``ILL_CONDITIONED``
         The geometry is (nearly) degenerate at the solution (normal matrix condition number
         above 1e10, e.g. collinear base stations): the position is returned but unreliable.
+    ``MAP_MISMATCH``
+        ``twin``: the best map match fits poorly (a stale map, e.g. moved forklifts); the fix is
+        the fallback map-free method's.
+    ``TRACK_GATED``
+        ``METHOD+track``: the epoch's fix failed the innovation gate; the track's prediction is
+        reported.
+    ``TRACK_RESTART``
+        ``METHOD+track``: too many consecutive gated fixes; the track restarted at this fix.
     """
 
     OK = 0
@@ -46,6 +54,9 @@ class Status(IntFlag):
     OUTLIER_REJECTED = 32
     INCONSISTENT = 64
     ILL_CONDITIONED = 128
+    MAP_MISMATCH = 1024
+    TRACK_GATED = 2048
+    TRACK_RESTART = 4096
 
 
 def status_label(code: int) -> str:
@@ -80,6 +91,9 @@ class Fixes:
         Method name as registered in :data:`positioning.METHODS`.
     params : dict
         The method parameters actually used (defaults filled in).
+    extra : dict of str -> array
+        Method-specific per-epoch outputs (e.g. ``twin``: ``nlos`` (E, N) bool, ``match_m`` (E,));
+        empty for most methods.
     """
 
     xyz: np.ndarray
@@ -89,6 +103,7 @@ class Fixes:
     n_used: np.ndarray
     method: str
     params: dict[str, Any] = field(default_factory=dict)
+    extra: dict[str, np.ndarray] = field(default_factory=dict)
 
     @property
     def n_epochs(self) -> int:

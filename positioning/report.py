@@ -25,6 +25,7 @@ from .errors import PositioningError
 from .fixes import Fixes
 from .metrics import cdf, error_2d, summarize
 from .tdoa import make_problem
+from .track import split_method, track_fixes
 
 #: The paper's Table II (metres): (scenario, band) -> metric -> method -> value.
 PAPER_TABLE2: dict[tuple[str, str], dict[str, dict[str, float]]] = {
@@ -117,9 +118,22 @@ def heights_for(ds: ToaDataset, mode: str | float) -> np.ndarray | None:
 
 
 def solve_dataset(
-    ds: ToaDataset, method: str, params: Mapping[str, Any], height: str | float = "true"
+    ds: ToaDataset,
+    method: str,
+    params: Mapping[str, Any],
+    height: str | float = "true",
+    track: Mapping[str, Any] | None = None,
 ) -> Fixes:
-    """Run one method on every fix of a dataset (schedule removed per measurement)."""
+    """Run one method on every fix of a dataset (schedule removed per measurement).
+
+    ``METHOD+track``: the method's fixes tracked per point over time
+    (:func:`positioning.track.track_fixes` with the ``track`` parameters).
+    """
+    base, tracked = split_method(method)
+    if tracked:
+        return track_fixes(
+            solve_dataset(ds, base, params, height), ds.point, ds.time_s, **(track or {})
+        )
     prob = make_problem(ds.toa_unscheduled_s, ds.bs_xyz, None, heights_for(ds, height))
     p = dict(params)
     if "reference" in p and isinstance(p["reference"], str) and p["reference"] in ds.bs_names:
@@ -136,8 +150,14 @@ def evaluate(
     """Run ``methods`` on ``ds``; 2D errors and their summaries per method."""
     params = params or {}
     fixes, errors, summaries = {}, {}, {}
+    single: dict[str, Fixes] = {}  # a tracked method reuses its base method's fixes
     for m in methods:
-        f = solve_dataset(ds, m, params.get(m, {}), height)
+        base, tracked = split_method(m)
+        if base not in single:
+            single[base] = solve_dataset(ds, base, params.get(base, {}), height)
+        f = single[base]
+        if tracked:
+            f = track_fixes(f, ds.point, ds.time_s, **params.get("track", {}))
         e = error_2d(f.xyz, ds.true_xyz)
         fixes[m], errors[m], summaries[m] = f, e, summarize(e)
     return DatasetResult(dataset=ds, fixes=fixes, errors=errors, summaries=summaries)
@@ -404,9 +424,22 @@ def write_report(
     if out.exists() and not out.is_dir():
         raise PositioningError(f"{out}: exists and is not a directory")
     out.mkdir(parents=True, exist_ok=True)
+    tracked = [m for m in methods if split_method(m)[1]]
+    methods = [m for m in methods if not split_method(m)[1]]
     rows = table_rows(results, methods)
     md = table_markdown(rows, methods)
     written: list[Path] = []
+    if tracked:  # tracked rows never mix with single-epoch ones: their own table and CDFs
+        t_rows = table_rows(results, tracked)
+        t_md = table_markdown(t_rows, tracked)
+        atomic_write_text(out / "table_tracked.csv", table_csv(t_rows, tracked))
+        atomic_write_text(out / "table_tracked.md", t_md)
+        plot_cdf_by_method(results, tracked, out / "cdf_tracked_by_method.png")
+        written += [out / "table_tracked.csv", out / "table_tracked.md"]
+        written.append(out / "cdf_tracked_by_method.png")
+        md = md + "\nTracked (METHOD+track, filtered over each point's epochs):\n\n" + t_md
+    if not methods:
+        return md, written
     names: dict[str, int] = {}
     for r in sort_results(results):
         base = safe_name(r.dataset.name)
