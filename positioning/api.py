@@ -24,7 +24,7 @@ _COUNT = "non-negative int"
 _PROB = "probability in (0, 1)"
 _MAP = "fingerprint map (file path)"
 #: Map-free methods a ``twin`` fix may fall back to.
-_FALLBACKS = ("irls", "ls", "m-estimator", "subset", "nlos-aware")
+_FALLBACKS = ("nlos-aware", "irls", "ls", "m-estimator", "subset")
 
 
 @dataclass(frozen=True)
@@ -122,10 +122,11 @@ METHODS: dict[str, Method] = {
             lambda prob, *, fallback, **p: _twin.twin(prob, fallback=_solver(fallback), **p),
             {
                 "map": (None, _MAP),
-                "fallback": ("irls", _FALLBACKS),
+                "fallback": ("nlos-aware", _FALLBACKS),
                 "fallback_m": (_twin.FALLBACK_M, _POS_FLOAT),
-                "sigma_m": (_twin.SIGMA_M, _POS_FLOAT),
-                "k": (_twin.NLOS_K, _POS_FLOAT),
+                "prior_m": (_twin.PRIOR_M, "non-negative float"),
+                "top": (_twin.TOP, _POS_INT),
+                "bias": ("cell", ("cell", "interp")),
             },
             "fingerprint-map match + refinement with the map's NLoS bias (--map MAP), 2D",
             needs_map=True,
@@ -175,6 +176,7 @@ def _coerce(method: str, name: str, value: Any, kind: Any, n_bs: int | None) -> 
         _OPT_COUNT: lambda x: x >= 0,
         _COUNT: lambda x: x >= 0,
         _PROB: lambda x: 0 < x < 1,
+        "non-negative float": lambda x: np.isfinite(x) and x >= 0,
         _OPT_INDEX: lambda x: x >= 0 and (n_bs is None or x < n_bs),
     }[kind](v)
     if not ok:

@@ -51,12 +51,15 @@ BS_TOL_M = 0.01
 COARSE_CELLS = 1200
 #: A map bias above this (m) marks the base station as NLoS at the fix.
 NLOS_BIAS_M = 0.25
-#: Defaults: ranging noise (m), one-sided loss knee (in sigma), fallback threshold on match_m (m).
-SIGMA_M = 0.15
-NLOS_K = 3.0
+#: Default threshold on match_m (m) above which a fix falls back to the map-free method.
 FALLBACK_M = 0.6
-#: Gauss-Newton iterations of the refinement (each re-interpolates the bias).
-REFINE_ITER = 8
+#: Default search radius around the map-free fix (m) and candidate cells refined per fix.
+PRIOR_M = 4.0
+TOP = 3
+#: Gauss-Newton iterations of the refinement.
+REFINE_ITER = 5
+#: The refined fix stays within this many grid steps of its cell centre (per coordinate).
+REFINE_BOX = 1.0
 
 
 @dataclass(frozen=True)
@@ -68,9 +71,11 @@ class _Lattice:
     y0: float
     step: float
     bias: np.ndarray  # (ny, nx, B) m, holes and undetected links filled from the nearest cell
+    smooth: np.ndarray  # (ny, nx, B) m, median of each node's 3 x 3 neighbourhood of ``bias``
     coarse: np.ndarray  # (C,) indices of map cells of the coarse search
     pred: np.ndarray  # (N, B) c * toa_s, m (NaN: not detected)
     polygon: np.ndarray  # (V, 2) service area
+    node_cell: np.ndarray  # (ny, nx) int, the map cell at each lattice node (-1: hole)
 
 
 _CACHE: dict[tuple[str, float], tuple[FingerprintMap, _Lattice]] = {}
@@ -120,9 +125,25 @@ def _lattice(m: FingerprintMap, name: str = "fingerprint map") -> _Lattice:
         elif miss.any():
             _, (jy, jx) = distance_transform_edt(miss, return_indices=True)
             bias[..., b] = bias[jy, jx, b]
+    raw = np.full((ny, nx, m.n_bs), np.nan)
+    raw[iy, ix] = cell_bias
+    pad = np.pad(raw, ((1, 1), (1, 1), (0, 0)), constant_values=np.nan)
+    stack = np.stack([pad[dy : dy + ny, dx : dx + nx] for dy in range(3) for dx in range(3)])
+    with np.errstate(all="ignore"):
+        import warnings
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            smooth = np.nanmedian(stack, axis=0)
+    smooth = np.where(np.isfinite(smooth), smooth, bias)
     stride = max(1, int(np.ceil(np.sqrt(m.n_cells / COARSE_CELLS))))
     coarse = np.flatnonzero((ix % stride == 0) & (iy % stride == 0))
-    return _Lattice(float(xs[0]), float(ys[0]), step, bias, coarse, pred, _service_polygon(m, step))
+    node_cell = np.full((ny, nx), -1, dtype=np.int64)
+    node_cell[iy, ix] = np.arange(m.n_cells)
+    return _Lattice(
+        float(xs[0]), float(ys[0]), step, bias, smooth, coarse, pred,
+        _service_polygon(m, step), node_cell,
+    )  # fmt: skip
 
 
 def _service_polygon(m: FingerprintMap, step: float) -> np.ndarray:
@@ -162,46 +183,198 @@ def check_bs(m: FingerprintMap, bs_xyz: np.ndarray) -> None:
 # stage 1: coarse match over cells
 
 
-def coarse_match(prob: Problem, lat: _Lattice, cells: np.ndarray, chunk: int = 2048) -> np.ndarray:
-    """(E,) index (into the map's cells) of the best cell among ``cells`` for every fix.
+def coarse_match(
+    prob: Problem,
+    lat: _Lattice,
+    cells: np.ndarray,
+    cell_xy: np.ndarray,
+    *,
+    prior_xy: np.ndarray | None = None,
+    prior_m: float = 0.0,
+    top: int = 1,
+    chunk: int = 1024,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The ``top`` best cells (indices into the map's cells) among ``cells`` for every fix.
 
-    Least-squares misfit with a free offset, ``sum w (rho - pred)^2 - (sum w (rho - pred))^2 /
-    sum w``, expanded into matrix products, per pattern of received base stations (a cell whose
-    prediction misses a received base station is not a candidate for that pattern).
+    Least-squares misfit with a free offset, ``sum (rho - pred)^2 - (sum (rho - pred))^2 / n``,
+    expanded into matrix products, per pattern of received base stations (a cell whose
+    prediction misses a received base station is not a candidate for that pattern). With
+    ``prior_m > 0`` only cells within ``prior_m`` of ``prior_xy`` (E, 2) are candidates (fixes
+    without a finite prior search all cells).
+
+    Returns (E, top) cell indices (-1: none) and (E, top) misfits, m^2.
     """
     E = prob.n_epochs
-    best = np.full(E, -1, dtype=np.int64)
+    best = np.full((E, top), -1, dtype=np.int64)
+    best_cost = np.full((E, top), np.inf)
     pred = lat.pred[cells]  # (C, B)
+    cxy = cell_xy[cells]
     patterns, inv = np.unique(prob.valid, axis=0, return_inverse=True)
     inv = inv.ravel()
     for k, pat in enumerate(patterns):
         if pat.sum() < prob.min_bs:
             continue
         ok = np.isfinite(pred[:, pat]).all(axis=1)
-        if not ok.any():
+        if ok.sum() < top:
             continue
         M = pred[np.ix_(ok, pat)]  # (C', n)
         n = int(pat.sum())
-        m2 = np.sum(M * M, axis=1) - M.sum(axis=1) ** 2 / n  # (C',)
         ms = M.sum(axis=1)
+        m2 = np.sum(M * M, axis=1) - ms**2 / n  # (C',)
         rows = np.flatnonzero(inv == k)
         for s in range(0, rows.size, chunk):
             r = rows[s : s + chunk]
             rho = prob.rho[np.ix_(r, pat)]
             rs = rho.sum(axis=1)
-            # cost = |rho|^2 - 2 rho.M + |M|^2 - (rs - ms)^2 / n; the |rho|^2 and rs^2 terms are
-            # the same for every cell and are left out of the argmin
-            cost = m2[None, :] - 2.0 * (rho @ M.T) + (2.0 / n) * rs[:, None] * ms[None, :]
-            best[r] = cells[ok][np.argmin(cost, axis=1)]
-    return best
+            r2 = np.sum(rho * rho, axis=1) - rs**2 / n
+            cost = r2[:, None] + m2[None, :] - 2.0 * (rho @ M.T - rs[:, None] * ms[None, :] / n)
+            if prior_m > 0 and prior_xy is not None:
+                pr = prior_xy[r]
+                d2 = (pr[:, :1] - cxy[ok, 0][None]) ** 2 + (pr[:, 1:2] - cxy[ok, 1][None]) ** 2
+                far = d2 > prior_m**2
+                far &= np.isfinite(pr).all(axis=1)[:, None]
+                cost = np.where(far, np.inf, cost)
+            part = np.argpartition(cost, top - 1, axis=1)[:, :top]
+            pc = np.take_along_axis(cost, part, axis=1)
+            order = np.argsort(pc, axis=1)
+            best[r] = cells[ok][np.take_along_axis(part, order, axis=1)]
+            best_cost[r] = np.take_along_axis(pc, order, axis=1)
+    best[~np.isfinite(best_cost)] = -1
+    return best, best_cost
+
+
+def window_match(
+    prob: Problem,
+    lat: _Lattice,
+    prior_xy: np.ndarray,
+    radius_m: float,
+    top: int = 1,
+    chunk: int = 512,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The ``top`` best cells within ``radius_m`` of ``prior_xy`` (E, 2) for every fix: the
+    misfit of :func:`coarse_match` evaluated on the lattice window around the prior only
+    (about ``pi (radius / step)^2`` nodes per fix instead of the whole map).
+
+    Returns (E, top) cell indices (-1: none) and (E, top) misfits, m^2.
+    """
+    E = prob.n_epochs
+    ny, nx = lat.node_cell.shape
+    w = int(np.ceil(radius_m / lat.step))
+    off = np.arange(-w, w + 1)
+    dy, dx = np.meshgrid(off, off, indexing="ij")
+    keep = (dx**2 + dy**2) * lat.step**2 <= radius_m**2 + 1e-9
+    dx, dy = dx[keep], dy[keep]
+    # node predictions padded by w on every side (NaN outside the map and in holes)
+    node_pred = np.full((ny + 2 * w, nx + 2 * w, prob.n_bs), np.nan)
+    node_pred[w : w + ny, w : w + nx] = np.where(
+        (lat.node_cell >= 0)[..., None], lat.pred[np.maximum(lat.node_cell, 0)], np.nan
+    )
+    node_cell = np.full((ny + 2 * w, nx + 2 * w), -1, dtype=np.int64)
+    node_cell[w : w + ny, w : w + nx] = lat.node_cell
+    flat_pred = node_pred.reshape(-1, prob.n_bs)
+    rel = dy * (nx + 2 * w) + dx  # (W,) flat offsets
+    pr = np.where(np.isfinite(prior_xy), prior_xy, 0.0)
+    ci = np.clip(np.rint((pr[:, 0] - lat.x0) / lat.step).astype(np.int64), 0, nx - 1) + w
+    cj = np.clip(np.rint((pr[:, 1] - lat.y0) / lat.step).astype(np.int64), 0, ny - 1) + w
+    centre = cj * (nx + 2 * w) + ci
+    top = min(top, rel.size)
+    best = np.full((E, top), -1, dtype=np.int64)
+    best_cost = np.full((E, top), np.inf)
+    rho = np.where(prob.valid, prob.rho, 0.0)
+    n = np.maximum(prob.valid.sum(axis=1), 1)
+    for s in range(0, E, chunk):
+        r_ = slice(s, min(s + chunk, E))
+        idx = centre[r_, None] + rel[None, :]  # (c, W)
+        res = rho[r_, None, :] - flat_pred[idx]  # (c, W, B), NaN: no cell / no prediction
+        res = np.where(prob.valid[r_, None, :], res, 0.0)
+        sq = np.einsum("cwb,cwb->cw", res, res)
+        cost = sq - res.sum(axis=2) ** 2 / n[r_, None]
+        cost = np.where(np.isfinite(cost), cost, np.inf)
+        part = np.argpartition(cost, top - 1, axis=1)[:, :top]
+        pc = np.take_along_axis(cost, part, axis=1)
+        order = np.argsort(pc, axis=1)
+        part = np.take_along_axis(part, order, axis=1)
+        best[r_] = node_cell.ravel()[np.take_along_axis(idx, part, axis=1)]
+        best_cost[r_] = np.take_along_axis(pc, order, axis=1)
+    return np.where(np.isfinite(best_cost), best, -1), best_cost
+
+
+def refine_at_cells(
+    prob: Problem,
+    lat: _Lattice,
+    cell_xy: np.ndarray,
+    cand: np.ndarray,
+    *,
+    iters: int = REFINE_ITER,
+    mode: str = "cell",
+) -> tuple[np.ndarray, np.ndarray]:
+    """Refine each candidate cell: Gauss-Newton on (x, y, beta) of the biased model, the
+    position kept within :data:`REFINE_BOX` grid steps of the cell centre.
+
+    Parameters
+    ----------
+    cand : (E, K) cell indices (-1: none)
+    mode : ``"cell"`` -- the cell's own bias held fixed; ``"interp"`` -- the bias interpolated
+        bilinearly at the current position from the median-smoothed lattice (re-evaluated every
+        iteration)
+
+    Returns
+    -------
+    xy (E, K, 2) m; residual RMS about the offset (E, K) m (inf where no candidate).
+    """
+    E, K = cand.shape
+    flat = cand.ravel()
+    ok = flat >= 0
+    c = np.maximum(flat, 0)
+    rep = np.repeat(np.arange(E), K)
+    rho = prob.rho[rep]
+    valid = prob.valid[rep]
+    h = prob.height[rep]
+    centre = cell_xy[c]
+    cbias = lat.pred[c] - np.linalg.norm(
+        np.column_stack([centre, h])[:, None, :] - prob.bs[None], axis=2
+    )
+    obs = np.where(valid, rho - cbias, 0.0)
+    use = (valid & np.isfinite(cbias)).astype(float)
+    xy = centre.copy()
+    half = lat.step * REFINE_BOX
+    for _ in range(iters):
+        if mode == "interp":
+            obs = np.where(valid, rho - interp_bias(lat, xy, smooth=True), 0.0)
+        p = np.column_stack([xy, h])
+        diff = p[:, None, :] - prob.bs[None]
+        R = np.linalg.norm(diff, axis=2)
+        U = diff[..., :2] / np.maximum(R, 1e-12)[..., None]
+        s = obs - R
+        beta = np.sum(use * s, axis=1) / np.maximum(use.sum(axis=1), 1)
+        r = (s - beta[:, None]) * use
+        Uc = (
+            U
+            - (np.sum(use[..., None] * U, axis=1) / np.maximum(use.sum(axis=1), 1)[:, None])[
+                :, None
+            ]
+        )
+        Uc = Uc * use[..., None]
+        A = Uc.transpose(0, 2, 1) @ Uc + 1e-9 * np.eye(2)
+        g = Uc.transpose(0, 2, 1) @ r[..., None]
+        delta = np.linalg.solve(A, g)[..., 0]
+        xy = np.clip(xy + np.where(np.isfinite(delta), delta, 0.0), centre - half, centre + half)
+    if mode == "interp":
+        obs = np.where(valid, rho - interp_bias(lat, xy, smooth=True), 0.0)
+    p = np.column_stack([xy, h])
+    s = obs - np.linalg.norm(p[:, None, :] - prob.bs[None], axis=2)
+    rms = match_quality(np.where(use > 0, s, np.nan), use > 0)
+    rms = np.where(ok & np.isfinite(rms), rms, np.inf)
+    return xy.reshape(E, K, 2), rms.reshape(E, K)
 
 
 # ----------------------------------------------------------------------------------------------
-# stage 2: refinement with the interpolated bias
+# bias interpolation
 
 
-def interp_bias(lat: _Lattice, xy: np.ndarray) -> np.ndarray:
-    """(A, B) bias at ``xy`` (A, 2), bilinear between lattice nodes (clamped at the edges)."""
+def interp_bias(lat: _Lattice, xy: np.ndarray, smooth: bool = False) -> np.ndarray:
+    """(A, B) bias at ``xy`` (A, 2), bilinear between lattice nodes (clamped at the edges), of
+    the raw or the median-smoothed node biases."""
     ny, nx, _ = lat.bias.shape
     u = np.clip((xy[:, 0] - lat.x0) / lat.step, 0.0, nx - 1.000001)
     v = np.clip((xy[:, 1] - lat.y0) / lat.step, 0.0, ny - 1.000001)
@@ -210,60 +383,13 @@ def interp_bias(lat: _Lattice, xy: np.ndarray) -> np.ndarray:
     i, j = u.astype(int), v.astype(int)
     i1, j1 = np.minimum(i + 1, nx - 1), np.minimum(j + 1, ny - 1)
     fu, fv = (u - i)[:, None], (v - j)[:, None]
-    b = lat.bias
+    b = lat.smooth if smooth else lat.bias
     return (
         (1 - fu) * (1 - fv) * b[j, i]
         + fu * (1 - fv) * b[j, i1]
         + (1 - fu) * fv * b[j1, i]
         + fu * fv * b[j1, i1]
     )
-
-
-def _residuals(prob: Problem, lat: _Lattice, xy: np.ndarray, idx: np.ndarray):
-    """Residuals without offset ``rho - |p - b| - bias(p)`` (A, B) and d|p - b|/d(x, y)."""
-    p = np.column_stack([xy, prob.height[idx]])
-    diff = p[:, None, :] - prob.bs[None, :, :]
-    R = np.linalg.norm(diff, axis=2)
-    U = diff[..., :2] / np.maximum(R, 1e-12)[..., None]
-    s = prob.rho[idx] - R - interp_bias(lat, xy)
-    return s, U
-
-
-def refine(
-    prob: Problem, lat: _Lattice, xy0: np.ndarray, *, sigma_m: float, k: float
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Robust Gauss-Newton of the biased model from ``xy0`` (E, 2).
-
-    Returns xy (E, 2), the robust weights (E, B) and the offset-free residuals (E, B).
-    """
-    E, B = prob.rho.shape
-    idx = np.arange(E)
-    xy = xy0.copy()
-    valid = prob.valid
-    w = valid.astype(float)
-    for _ in range(REFINE_ITER):
-        s, U = _residuals(prob, lat, xy, idx)
-        s = np.where(valid, s, 0.0)
-        beta = _wmean(s, w)
-        r = s - beta[:, None]
-        # one-sided weights (nlos-aware's loss on the map residual): late beyond k sigma only
-        z = r / sigma_m
-        w = np.where(valid, np.where(z > k, (k / np.maximum(z, k)) ** 2, 1.0), 0.0)
-        # Gauss-Newton on (x, y, beta): J = d pred / d theta = [U, 1] (bias gradient neglected)
-        J = np.concatenate([U, np.ones((E, B, 1))], axis=2)
-        JW = J * w[..., None]
-        A = JW.transpose(0, 2, 1) @ J + 1e-9 * np.eye(3)
-        g = JW.transpose(0, 2, 1) @ r[..., None]
-        delta = np.linalg.solve(A, g)[..., 0]
-        step = np.clip(delta[:, :2], -2.0, 2.0)  # a bias jump must not throw the fix away
-        xy = xy + np.where(np.isfinite(step), step, 0.0)
-    s, _ = _residuals(prob, lat, xy, idx)
-    s = np.where(valid, s, np.nan)
-    return xy, w, s
-
-
-def _wmean(s: np.ndarray, w: np.ndarray) -> np.ndarray:
-    return np.sum(w * s, axis=1) / np.maximum(np.sum(w, axis=1), 1e-300)
 
 
 def match_quality(s: np.ndarray, valid: np.ndarray) -> np.ndarray:
@@ -320,8 +446,9 @@ def twin(
     map: FingerprintMap | str | Path,  # noqa: A002 - the CLI's name for it
     fallback: Callable[[Problem], dict[str, np.ndarray]] | None = None,
     fallback_m: float = FALLBACK_M,
-    sigma_m: float = SIGMA_M,
-    k: float = NLOS_K,
+    prior_m: float = PRIOR_M,
+    top: int = TOP,
+    bias: str = "cell",
 ) -> dict[str, np.ndarray]:
     """The twin estimator (module docstring). 2D only: the map is at one device height.
 
@@ -329,17 +456,21 @@ def twin(
     ----------
     prob : Problem (2D: ``height`` known)
     map : FingerprintMap or path of a map file
-    fallback : ``fallback(sub_problem) -> dict`` (``xyz``, ``status``), the map-free method for
-        fixes that do not fit the map (:func:`positioning.locate` binds the ``fallback`` method
-        name, default ``irls``); None: :func:`positioning.irls.irls`
-    fallback_m : float, m -- ``match_m`` above which a fix falls back (default 0.6 m)
-    sigma_m : float, m -- ranging noise of the one-sided loss (default 0.15 m)
-    k : float -- knee of the one-sided loss in units of ``sigma_m`` (default 3)
+    fallback : ``fallback(sub_problem) -> dict`` (``xyz``, ``status``), the map-free method
+        that gives the search prior and the fix where the map does not fit
+        (:func:`positioning.locate` binds the ``fallback`` method name, default ``irls``);
+        None: :func:`positioning.irls.irls`
+    fallback_m : float, m -- ``match_m`` above which a fix falls back
+    prior_m : float, m -- only cells within this distance of the fallback fix are candidates
+        (0: the whole map)
+    top : int -- candidate cells refined per fix
+    bias : ``"cell"`` or ``"interp"``, the bias model of the refinement
+        (:func:`refine_at_cells`)
 
     Returns
     -------
-    dict with ``xyz`` (E, 3), ``status`` (E,), ``iterations`` (E,), ``weights`` (E, N) (robust
-    weight per base station), ``nlos`` (E, N) bool, ``stale`` (E, N) bool, ``match_m`` (E,) m,
+    dict with ``xyz`` (E, 3), ``status`` (E,), ``iterations`` (E,), ``weights`` (E, N) (1 used,
+    0 not received), ``nlos`` (E, N) bool, ``stale`` (E, N) bool, ``match_m`` (E,) m,
     ``fallback`` (E,) bool.
     """
     if map is None:
@@ -349,34 +480,55 @@ def twin(
     fmap, lat = load(map)
     check_bs(fmap, prob.bs)
     E, B = prob.rho.shape
-    rows = prob.solvable
-    status = np.where(rows, 0, int(Status.UNSOLVED)).astype(np.int64)
-    cell = coarse_match(prob, lat, lat.coarse)
-    found = rows & (cell >= 0)
-    xy0 = np.where(found[:, None], fmap.cell_xyz[np.maximum(cell, 0), :2], np.nan)
-    sub = _take(prob, np.flatnonzero(found))
-    xy = np.full((E, 2), np.nan)
-    w = np.zeros((E, B))
-    s = np.full((E, B), np.nan)
-    if sub.n_epochs:
-        xy[found], w[found], s[found] = refine(sub, lat, xy0[found], sigma_m=sigma_m, k=k)
-    match = np.where(found, match_quality(s, prob.valid), np.nan)
-    bias = np.where(found[:, None], interp_bias(lat, np.nan_to_num(xy)), np.nan)
-    stale = found[:, None] & prob.valid & (w < 0.5)
-    nlos = found[:, None] & prob.valid & ((bias > NLOS_BIAS_M) | stale)
-    bad = rows & ~(match <= fallback_m)
-    xyz = np.column_stack([xy, np.where(np.isfinite(xy[:, 0]), prob.height, np.nan)])
-    if bad.any():
-        fb = (fallback or irls)(_take(prob, np.flatnonzero(bad)))
-        xyz[bad] = fb["xyz"]
-        status[bad] |= np.asarray(fb["status"], dtype=np.int64) | int(Status.MAP_MISMATCH)
+    rows = np.flatnonzero(prob.solvable)
+    status = np.where(prob.solvable, 0, int(Status.UNSOLVED)).astype(np.int64)
+    xyz = np.full((E, 3), np.nan)
+    match = np.full(E, np.nan)
+    nlos = np.zeros((E, B), dtype=bool)
+    stale = np.zeros((E, B), dtype=bool)
+    bad = np.zeros(E, dtype=bool)
+    if rows.size:
+        sub = _take(prob, rows)
+        fb = (fallback or irls)(sub)
+        cell_xy = fmap.cell_xyz[:, :2]
+        prior = fb["xyz"][:, :2]
+        if prior_m > 0:
+            cand, _ = window_match(sub, lat, prior, prior_m, top)
+            # no prior (fallback unsolved) or nothing near it: the whole map
+            lost = ~np.isfinite(prior).all(axis=1) | (cand[:, 0] < 0)
+            if lost.any():
+                cand[lost], _ = coarse_match(
+                    _take(sub, np.flatnonzero(lost)), lat, lat.coarse, cell_xy, top=top
+                )
+        else:
+            cand, _ = coarse_match(sub, lat, lat.coarse, cell_xy, top=top)
+        xy_k, rms_k = refine_at_cells(
+            sub,
+            lat,
+            cell_xy,
+            cand,
+        )
+        k = np.argmin(rms_k, axis=1)
+        ar = np.arange(rows.size)
+        xy, m, cell = xy_k[ar, k], rms_k[ar, k], cand[ar, k]
+        m = np.where(np.isfinite(m), m, np.nan)
+        cbias = lat.pred[np.maximum(cell, 0)] - np.linalg.norm(
+            fmap.cell_xyz[np.maximum(cell, 0)][:, None, :] - prob.bs[None], axis=2
+        )
+        worse = ~(m <= fallback_m)
+        xyz[rows] = np.column_stack([xy, sub.height])
+        xyz[rows[worse]] = fb["xyz"][worse]
+        status[rows[worse]] |= np.asarray(fb["status"], np.int64)[worse] | int(Status.MAP_MISMATCH)
+        match[rows] = m
+        nlos[rows] = sub.valid & (cell >= 0)[:, None] & (cbias > NLOS_BIAS_M)
+        stale[rows] = sub.valid & worse[:, None] & ~nlos[rows]
+        bad[rows] = worse
     xyz[:, :2], _ = clamp_to_polygon(xyz[:, :2], lat.polygon)
-    xyz[~rows] = np.nan
     return {
         "xyz": xyz,
         "status": status,
-        "iterations": np.where(found, REFINE_ITER, 0),
-        "weights": w,
+        "iterations": np.where(prob.solvable, 1, 0),
+        "weights": prob.valid.astype(float),
         "nlos": nlos,
         "stale": stale,
         "match_m": match,

@@ -12,7 +12,7 @@ sys.path.insert(0, str(Path(__file__).parent))
 
 from pos_synth import PAPER_BS, nlos_bias, synth_map, synth_toa, write_dataset  # noqa: E402
 
-from positioning import Status, error_2d, locate  # noqa: E402
+from positioning import METHODS, Status, error_2d, locate  # noqa: E402
 from positioning.cli import accuracy_report_main, estimate_positions_main  # noqa: E402
 from positioning.errors import PositioningError  # noqa: E402
 from positioning.fingerprint import write_map  # noqa: E402
@@ -54,7 +54,7 @@ def test_twin_removes_the_bias_irls_keeps(fmap):
 
 def test_stale_map_falls_back_and_flags(fmap):
     # a forklift adds 4 m on base station 0 that the map does not know: the fix does not
-    # match and falls back to irls, flagged; untouched fixes keep the twin
+    # match and falls back to the default map-free method, flagged; the others keep the twin
     n = 400
     extra = np.zeros((n, 4))
     extra[: n // 2, 0] = 4.0
@@ -62,8 +62,11 @@ def test_stale_map_falls_back_and_flags(fmap):
     f = locate(toa, PAPER_BS, "twin", height_m=1.0, map=fmap, return_info=True)
     flagged = (f.status & Status.MAP_MISMATCH) != 0
     assert flagged[: n // 2].mean() > 0.9 and flagged[n // 2 :].mean() < 0.05
-    irls = locate(toa[flagged], PAPER_BS, "irls", height_m=1.0)
-    np.testing.assert_allclose(f.xyz[flagged], irls, atol=1e-9)
+    fb = METHODS["twin"].params["fallback"][0]
+    ref = locate(toa, PAPER_BS, fb, height_m=1.0)  # the twin runs it on the same batch
+    ref[:, :2], _ = clamp_to_polygon(ref[:, :2], np.array([[0, 0], [29, 0], [29, 25], [0, 25.0]]))
+    np.testing.assert_allclose(f.xyz[flagged], ref[flagged], atol=1e-9)
+    assert f.extra["stale"][flagged].any(axis=1).all()
 
 
 def test_no_fix_outside_the_service_area(fmap):
