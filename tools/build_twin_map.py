@@ -69,12 +69,29 @@ def grid_cells(
 
 
 def perturb(scene, shift: tuple[float, float] | None, material: str | None):
-    """The scene with its obstacles shifted or one object's material changed (a wrong twin)."""
+    """The scene with its obstacles (every object but the ``shell_`` walls, floor and ceiling)
+    shifted by ``shift`` (dx, dy) metres, or one object rebound to another material
+    (``OBJECT=MATERIAL``): a wrong twin. Rebuilt with ``Scene.from_meshes``."""
     if shift is None and material is None:
         return scene
-    from raytrace.scene.robustness import perturbed_scene  # optional helper, see below
+    import trimesh
 
-    return perturbed_scene(scene, shift, material)
+    from raytrace.scene.model import Scene
+
+    rebind = dict([material.split("=", 1)]) if material else {}
+    unknown = set(rebind) - set(scene.object_names)
+    if unknown:
+        raise SystemExit(f"error: no object {sorted(unknown)[0]!r} in the scene")
+    meshes = []
+    for o in scene.objects:
+        f = scene.faces[o.face_start : o.face_start + o.face_count]
+        used, inv = np.unique(f, return_inverse=True)
+        v = scene.vertices[used].copy()
+        if shift is not None and not o.name.startswith("shell_"):
+            v[:, :2] += shift
+        mesh = trimesh.Trimesh(vertices=v, faces=inv.reshape(f.shape), process=False)
+        meshes.append((o.name, mesh, rebind.get(o.name, o.material)))
+    return Scene.from_meshes(meshes, scene.materials, scene.metadata, scene.source + " (perturbed)")
 
 
 def main(argv: list[str] | None = None) -> int:
