@@ -103,6 +103,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--height", type=float, default=1.0)
     ap.add_argument("--draws", type=int, default=8, help="noise draws for toa_std_s")
     ap.add_argument("--limit", type=int, default=0, help="only the first N cells (timing)")
+    ap.add_argument(
+        "--near-points",
+        type=float,
+        default=0.0,
+        metavar="R",
+        help="only cells within R m of a test point (a cheaper map for robustness runs)",
+    )
     ap.add_argument("--shift", default=None, help="DX,DY: shift every obstacle (wrong map)")
     ap.add_argument("--material", default=None, help="OBJECT=MATERIAL (wrong map)")
     ap.add_argument("-o", "--output", required=True)
@@ -116,6 +123,9 @@ def main(argv: list[str] | None = None) -> int:
     traced_scene = perturb(scene, shift, a.material)
     # a device cannot be inside a cabinet: no cell there (in the map's own scene)
     cells = cells[traced_scene.inside_solid(cells) < 0]
+    if a.near_points > 0:
+        d = np.linalg.norm(cells[:, None, :2] - md.point_xyz[None, :, :2], axis=2).min(axis=1)
+        cells = cells[d <= a.near_points]
     if a.limit:
         cells = cells[: a.limit]
     cfg = DatasetConfig("static", a.band, duration_s=1.0, rate_hz=float(a.draws))

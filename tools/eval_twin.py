@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -23,7 +24,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from positioning.dataset import load_dataset  # noqa: E402
-from positioning.fingerprint import read_map  # noqa: E402
+from positioning.fingerprint import FingerprintMap, read_map, write_map  # noqa: E402
 from positioning.fixes import Status  # noqa: E402
 from positioning.metrics import error_2d  # noqa: E402
 from positioning.report import evaluate  # noqa: E402
@@ -45,6 +46,31 @@ def outside(xy: np.ndarray, meta: dict) -> int:
     return int(moved.sum())
 
 
+def near_points(fmap, radius: float, data: Path, band: str, folder: Path):
+    """The map reduced to the cells within ``radius`` of a test point, written to ``folder``."""
+    ds = load_dataset(data / f"static-{band}")
+    pts = np.unique(ds.true_xyz[:, :2], axis=0)
+    d = np.linalg.norm(fmap.cell_xyz[:, None, :2] - pts[None], axis=2).min(axis=1)
+    keep = d <= radius
+    arrays = {
+        k: (v[:, keep] if k in ("err_p90_m", "err_mean_m", "availability") else v)
+        for k, v in fmap.arrays().items()
+    }
+    for k in (
+        "cell_xyz",
+        "los",
+        "first_kind",
+        "excess_m",
+        "toa_s",
+        "toa_std_s",
+        "detected_fraction",
+        "gdop",
+    ):
+        arrays[k] = arrays[k][keep]
+    sub = FingerprintMap(**arrays, meta=fmap.meta)
+    return sub, write_map(folder / f"near-{band}.npz", sub)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", default="/work/data/first-lobe")
@@ -52,11 +78,22 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--prefix", default="hall", help="map file prefix (hall, shift, wall)")
     ap.add_argument("--bands", default="c-band,mmwave")
     ap.add_argument("--scenarios", default="static,semi-dynamic")
+    ap.add_argument(
+        "--near-points",
+        type=float,
+        default=0.0,
+        metavar="R",
+        help="use only the map's cells within R m of a test point (to compare with maps built "
+        "by build_twin_map.py --near-points R)",
+    )
     a = ap.parse_args(argv)
+    tmp = tempfile.TemporaryDirectory()
     single, tracked, points = [], [], []
     for band in a.bands.split(","):
         mp = Path(a.maps) / f"{a.prefix}-{band}.npz"
         fmap = read_map(mp)
+        if a.near_points > 0:
+            fmap, mp = near_points(fmap, a.near_points, Path(a.data), band, Path(tmp.name))
         for sc in a.scenarios.split(","):
             ds = load_dataset(Path(a.data) / f"{sc}-{band}")
             t0 = time.perf_counter()
