@@ -9,22 +9,28 @@ including its NLoS excess. The twin moves that bias from the unknowns into the m
 
 (``rho_n`` the pseudo-range of :mod:`positioning.tdoa`, ``beta`` the clock offset times c).
 
-1. **Match.** On the map's cells (a coarse sub-lattice of at most :data:`COARSE_CELLS` cells),
-   the least-squares misfit of the measured pseudo-ranges to the predicted ones ``c toa_s`` with
-   the offset ``beta`` free, ``min_beta sum_n (rho_n - c toa_s[c, n] - beta)^2``, for every fix
-   and cell at once (matrix products per pattern of received base stations).
-2. **Refine** from the best cell: Gauss-Newton on ``(x, y, beta)`` of the model above with
-   ``bias_n(p)`` interpolated bilinearly between cells, and the one-sided robust weights of
-   ``nlos-aware`` on the residuals (a base station *later* than the map predicts by more than
-   ``k sigma_m`` is down-weighted as ``(k sigma_m / r)^2``: moving forklifts only add delay).
-3. **Judge.** ``match_m`` = RMS residual of all received base stations at the solution (offset
-   re-fitted); per base station ``nlos`` = the map's bias there exceeds :data:`NLOS_BIAS_M` or
-   the link was down-weighted (weight below 0.5, ``stale``).
-4. **Fall back.** A fix with ``match_m > fallback_m`` does not fit the map (a stale map: forklifts
-   that moved): it is replaced by the map-free ``fallback`` method's fix (default ``irls``) and
-   flagged ``MAP_MISMATCH``.
-5. **Bound.** Every fix is moved into the map's service area (``meta["service_area"]``, else the
+1. **Prior.** The map-free ``fallback`` method (default ``nlos-aware``) gives a fix; only cells
+   within ``prior_m`` of it are candidates (:func:`window_match`). A search of the whole map
+   (:func:`coarse_match`, used where there is no prior) aliases: with three TDoAs and a rough
+   bias field a far cell often matches as well as the right one.
+2. **Match.** For every candidate cell the least-squares misfit of the measured pseudo-ranges to
+   the predicted ones ``c toa_s`` with the offset free, ``min_beta sum_n (rho_n - c toa_s[c, n]
+   - beta)^2``, batched over fixes and cells.
+3. **Refine** the ``top`` best cells (:func:`refine_at_cells`): Gauss-Newton on ``(x, y, beta)``
+   of the model above with the cell's own bias (``bias="cell"``) or the bias interpolated
+   bilinearly from the median-smoothed lattice (``bias="interp"``), the position kept within
+   :data:`REFINE_BOX` grid steps of the cell; the candidate with the smallest residual wins.
+4. **Judge.** ``match_m`` = RMS residual of all received base stations at the refined fix
+   (offset re-fitted); per base station ``nlos`` = the matched cell's bias exceeds
+   :data:`NLOS_BIAS_M`.
+5. **Fall back.** A fix with ``match_m > fallback_m`` does not fit the map (a stale map: forklifts
+   that moved): it is replaced by the fallback method's fix and flagged ``MAP_MISMATCH``; the
+   received base stations the map calls LoS are reported ``stale``.
+6. **Bound.** Every fix is moved into the map's service area (``meta["service_area"]``, else the
    cells' bounding box) if it lies outside.
+
+Measured choices (``docs/positioning.md``): the first-lobe receiver's bias on the bundled hall is
+rough between 0.5 m cells, so ``bias="cell"`` is the default.
 
 The map is checked on load (:func:`positioning.fingerprint.read_map`, one-line errors); a map
 whose base stations are not the dataset's (count or positions off by more than
