@@ -508,12 +508,7 @@ def twin(
                 )
         else:
             cand, _ = coarse_match(sub, lat, lat.coarse, cell_xy, top=top)
-        xy_k, rms_k = refine_at_cells(
-            sub,
-            lat,
-            cell_xy,
-            cand,
-        )
+        xy_k, rms_k = refine_at_cells(sub, lat, cell_xy, cand, mode=bias)
         k = np.argmin(rms_k, axis=1)
         ar = np.arange(rows.size)
         xy, m, cell = xy_k[ar, k], rms_k[ar, k], cand[ar, k]

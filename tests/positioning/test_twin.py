@@ -50,6 +50,10 @@ def test_twin_removes_the_bias_irls_keeps(fmap):
     # it judges the NLoS base station (index 2) NLoS and the others not
     assert f.extra["nlos"][:, 2].all() and not f.extra["nlos"][:, [0, 1, 3]].any()
     assert np.nanmax(f.extra["match_m"]) < 4 * SIGMA_M
+    # the interpolated-bias refinement is exact for this linear bias field too, and differs
+    g = locate(toa, PAPER_BS, "twin", height_m=1.0, map=fmap, bias="interp")
+    assert np.percentile(error_2d(g, p), 90) < TWIN_P90_MAX_M
+    assert not np.allclose(g, f.xyz)
 
 
 def test_stale_map_falls_back_and_flags(fmap):
