@@ -59,9 +59,7 @@ def toas(bs, dev, offsets=None, clock=0.0, bias=None):
 
 
 @SETTINGS
-@given(
-    seed=st.integers(0, 2**31 - 1), n_bs=st.integers(4, 6), method=st.sampled_from(MAP_FREE)
-)
+@given(seed=st.integers(0, 2**31 - 1), n_bs=st.integers(4, 6), method=st.sampled_from(MAP_FREE))
 def test_noiseless_2d_every_method_exact(seed, n_bs, method):
     bs, dev = geometry(seed, n_bs, three_d=False)
     rng = np.random.default_rng(seed + 1)
@@ -76,9 +74,7 @@ def test_noiseless_2d_every_method_exact(seed, n_bs, method):
 
 
 @SETTINGS
-@given(
-    seed=st.integers(0, 2**31 - 1), n_bs=st.integers(5, 6), method=st.sampled_from(MAP_FREE)
-)
+@given(seed=st.integers(0, 2**31 - 1), n_bs=st.integers(5, 6), method=st.sampled_from(MAP_FREE))
 def test_noiseless_3d_every_method_exact(seed, n_bs, method):
     bs, dev = geometry(seed, n_bs, three_d=True)
     xyz = locate(toas(bs, dev, clock=2.5e-4), bs, method)
