@@ -24,6 +24,7 @@ from .metrics import error_2d, summarize
 from .track import PARAMS as TRACK_PARAMS
 from .track import check_params as check_track_params
 from .track import split_method
+from .twin import check_dataset as check_map
 
 FIXES_COLUMNS = (
     "epoch",
@@ -115,6 +116,8 @@ def _check_params(params: dict[str, dict[str, str]], ds: ToaDataset) -> None:
         if m == "track":
             check_track_params(p)
             continue
+        if m == "twin" and p.get("map"):
+            check_map(p["map"], ds.bs_xyz, ds.bs_names, ds.band)
         q = dict(p)
         ref = q.get("reference")
         if isinstance(ref, str) and ref in ds.bs_names:

@@ -185,6 +185,26 @@ def check_bs(m: FingerprintMap, bs_xyz: np.ndarray) -> None:
         )
 
 
+def check_dataset(
+    map_path: FingerprintMap | str | Path,
+    bs_xyz: np.ndarray,
+    bs_names: list[str] | None = None,
+    band: str | None = None,
+) -> None:
+    """Refuse a map that is not the dataset's: base stations (positions, names when given) or
+    band (when both name one) differ. One-line :class:`PositioningError`."""
+    fmap, _ = load(map_path)
+    check_bs(fmap, np.asarray(bs_xyz, dtype=float))
+    if bs_names is not None and [str(n) for n in fmap.bs_names] != list(bs_names):
+        raise PositioningError(
+            f"map base stations {', '.join(map(str, fmap.bs_names))} are not the dataset's "
+            f"{', '.join(bs_names)}: not this site's map"
+        )
+    mb = fmap.meta.get("band")
+    if band not in (None, "unknown") and mb is not None and str(mb) != str(band):
+        raise PositioningError(f"map is for band {mb!r} but the dataset is {band!r}")
+
+
 # ----------------------------------------------------------------------------------------------
 # stage 1: coarse match over cells
 

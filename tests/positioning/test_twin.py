@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -114,9 +115,13 @@ def test_cli_twin_and_tracked_rows(fmap, tmp_path, capsys):
     assert "twin+track" in tracked[0].split(",") and "twin" not in tracked[0].split(",")
 
 
-@pytest.mark.parametrize("damage", ["truncate", "schema", "missing"])
+@pytest.mark.parametrize("damage", ["truncate", "schema", "missing", "band", "names"])
 def test_corrupt_map_is_refused_in_one_line(fmap, tmp_path, capsys, damage):
     ds = write_dataset(tmp_path / "ds", points=np.array([[8.3, 6.1, 1.0]]), n_epochs=2)
+    if damage == "band":  # the dataset is c-band
+        fmap = replace(fmap, meta={**fmap.meta, "band": "mmwave"})
+    elif damage == "names":
+        fmap = replace(fmap, bs_names=np.array(["A", "B", "C", "D"]))
     mp = write_map(tmp_path / "m.npz", fmap)
     if damage == "truncate":
         mp.write_bytes(mp.read_bytes()[:300])
