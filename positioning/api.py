@@ -11,6 +11,7 @@ import numpy as np
 from . import irls as _irls
 from . import nlos as _nlos
 from . import robust as _robust
+from . import twin as _twin
 from .area import ServiceArea
 from .bounded import bounded_refit
 from .errors import PositioningError
@@ -27,6 +28,9 @@ _OPT_INDEX = "base-station index or none"
 _OPT_COUNT = "non-negative int or none"
 _COUNT = "non-negative int"
 _PROB = "probability in (0, 1)"
+_MAP = "fingerprint map (file path)"
+#: Map-free methods a ``twin`` fix may fall back to.
+_FALLBACKS = ("nlos-aware", "irls", "ls", "m-estimator", "subset")
 
 
 @dataclass(frozen=True)
@@ -42,6 +46,7 @@ class Method:
     paper : True for the paper's own methods (LS, IRLS)
     measurement_weights : True if the result's ``weights`` weight the measurements (used by the
         bounded re-solve); False (LS, IRLS): every received measurement counts alike there
+    needs_map : True for methods that need a fingerprint map (``twin``; not run by default)
     """
 
     name: str
@@ -50,6 +55,7 @@ class Method:
     summary: str
     paper: bool = False
     measurement_weights: bool = True
+    needs_map: bool = False
 
 
 METHODS: dict[str, Method] = {
@@ -137,18 +143,36 @@ METHODS: dict[str, Method] = {
             },
             "physics mixture (noise, overlap, NLoS only delays; SNR and lobe shape), EM per start",
         ),
+        Method(
+            "twin",
+            lambda prob, *, fallback, **p: _twin.twin(prob, fallback=_solver(fallback), **p),
+            {
+                "map": (None, _MAP),
+                "fallback": ("nlos-aware", _FALLBACKS),
+                "fallback_m": (_twin.FALLBACK_M, _POS_FLOAT),
+                "prior_m": (_twin.PRIOR_M, "non-negative float"),
+                "top": (_twin.TOP, _POS_INT),
+                "bias": ("cell", ("cell", "interp")),
+            },
+            "fingerprint-map match + refinement with the map's NLoS bias (--map MAP), 2D",
+            needs_map=True,
+        ),
     )
 }
 
 
-def method_names() -> list[str]:
-    """Registered method names, paper methods first."""
-    return list(METHODS)
+def method_names(include_map: bool = True) -> list[str]:
+    """Registered method names, paper methods first (``include_map=False``: map-free only)."""
+    return [m for m, spec in METHODS.items() if include_map or not spec.needs_map]
 
 
 def _coerce(method: str, name: str, value: Any, kind: Any, n_bs: int | None) -> Any:
     """Validate (and, for strings from the CLI, parse) one parameter value."""
     where = f"method {method!r} parameter {name!r}"
+    if kind == _MAP:
+        if value is None or (isinstance(value, str) and not value.strip()):
+            raise PositioningError(f"method {method!r} needs a fingerprint map (--map MAP)")
+        return value
     if isinstance(kind, tuple):
         if value not in kind:
             raise PositioningError(f"{where} must be one of {', '.join(kind)}, got {value!r}")
@@ -205,6 +229,15 @@ def resolve_params(method: str, params: Mapping[str, Any], n_bs: int | None = No
     for name, (default, kind) in spec.items():
         out[name] = _coerce(method, name, params[name], kind, n_bs) if name in params else default
     return out
+
+
+_FIXES_KEYS = ("xyz", "status", "iterations", "weights", "fit_weights")
+
+
+def _solver(method: str) -> Callable[[Problem], dict[str, np.ndarray]]:
+    """The registered ``method`` with its default parameters, as ``f(problem) -> dict``."""
+    return lambda prob: METHODS[method].func(prob, **resolve_params(method, {}, prob.n_bs))
+
 
 
 def apply_area(
@@ -291,6 +324,7 @@ def run_method(
         hpl_m=hpl,
         chi2n=chi2n,
         alert_limit_m=limit,
+        extra={k: v for k, v in res.items() if k not in _FIXES_KEYS},
     )
 
 

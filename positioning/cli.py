@@ -18,13 +18,17 @@ from pathlib import Path
 
 import numpy as np
 
-from .api import METHODS, OUTSIDE_CHOICES, resolve_params
+from .api import METHODS, OUTSIDE_CHOICES, method_names, resolve_params
 from .command import OneLineParser, run_command
 from .dataset import ToaDataset, load_dataset
 from .errors import PositioningError
 from .fixes import Fixes, Status, status_label
 from .integrity import ALERT_LIMIT_M
 from .metrics import error_2d, summarize
+from .track import PARAMS as TRACK_PARAMS
+from .track import check_params as check_track_params
+from .track import split_method
+from .twin import check_dataset as check_map
 
 FIXES_COLUMNS = (
     "epoch",
@@ -45,6 +49,8 @@ FIXES_COLUMNS = (
     "chi2n",
     "flagged",
 )
+#: Extra trailing columns of a ``twin`` method's fixes.csv.
+TWIN_COLUMNS = ("nlos_bs", "match_m")
 
 
 def methods_help() -> str:
@@ -54,12 +60,18 @@ def methods_help() -> str:
         lines.append(f"  {m.name:<12} {m.summary}")
         ps = ", ".join(f"{k}={v[0]}" for k, v in m.params.items())
         lines.append(f"  {'':<12} parameters: {ps}")
+    lines.append("  METHOD+track: any method's fixes filtered over each point's epochs (Kalman)")
+    ps = ", ".join(f"{k}={v[0]}" for k, v in TRACK_PARAMS.items())
+    lines.append(f"  {'':<12} parameters (--param track:NAME=VALUE): {ps}")
     return "\n".join(lines)
 
 
 def _parse_params(items: Sequence[str], methods: Sequence[str]) -> dict[str, dict[str, str]]:
-    """``NAME=VALUE`` (applies to every method that has NAME) or ``METHOD:NAME=VALUE``."""
+    """``NAME=VALUE`` (applies to every method that has NAME) or ``METHOD:NAME=VALUE``
+    (``track:NAME=VALUE`` for the tracker); keys: the base methods and ``"track"``."""
+    methods = list(dict.fromkeys(split_method(m)[0] for m in methods))
     out: dict[str, dict[str, str]] = {m: {} for m in methods}
+    out["track"] = {}
     for item in items:
         if "=" not in item:
             raise PositioningError(f"--param {item!r}: expected NAME=VALUE")
@@ -67,6 +79,9 @@ def _parse_params(items: Sequence[str], methods: Sequence[str]) -> dict[str, dic
         key = key.strip()
         if ":" in key:
             meth, name = key.split(":", 1)
+            if meth == "track":
+                out["track"][name] = value
+                continue
             if meth not in METHODS:
                 raise PositioningError(
                     f"--param {item!r}: unknown method {meth!r}; choose one of: "
@@ -98,6 +113,11 @@ def _height_mode(args: argparse.Namespace) -> str | float:
 def _check_params(params: dict[str, dict[str, str]], ds: ToaDataset) -> None:
     """Validate parameters early (before any solve); a reference may be a base-station name."""
     for m, p in params.items():
+        if m == "track":
+            check_track_params(p)
+            continue
+        if m == "twin" and p.get("map"):
+            check_map(p["map"], ds.bs_xyz, ds.bs_names, ds.band)
         q = dict(p)
         ref = q.get("reference")
         if isinstance(ref, str) and ref in ds.bs_names:
@@ -106,11 +126,13 @@ def _check_params(params: dict[str, dict[str, str]], ds: ToaDataset) -> None:
 
 
 def fixes_csv(ds: ToaDataset, fixes: Fixes) -> str:
-    """CSV text of one method's fixes (columns :data:`FIXES_COLUMNS`)."""
+    """CSV text of one method's fixes (columns :data:`FIXES_COLUMNS`; a ``twin`` fix adds
+    ``nlos_bs``, the base stations it judged NLoS joined by ``|``, and ``match_m``)."""
     err = error_2d(fixes.xyz, ds.true_xyz)
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
-    w.writerow(FIXES_COLUMNS)
+    twin_cols = "nlos" in fixes.extra and "match_m" in fixes.extra
+    w.writerow(FIXES_COLUMNS + (TWIN_COLUMNS if twin_cols else ()))
 
     def num(v: float, fmt: str = ".6f") -> str:
         return "" if not np.isfinite(v) else format(v, fmt)
@@ -118,6 +140,11 @@ def fixes_csv(ds: ToaDataset, fixes: Fixes) -> str:
     for i in range(ds.n_fixes):
         x, y, z = fixes.xyz[i]
         tx, ty, tz = ds.true_xyz[i]
+        extra = []
+        if twin_cols:
+            nlos = fixes.extra["nlos"][i]
+            extra = ["|".join(n for n, f in zip(ds.bs_names, nlos, strict=True) if f)]
+            extra.append(num(fixes.extra["match_m"][i], ".4f"))
         w.writerow(
             [
                 int(ds.epoch[i]),
@@ -137,6 +164,7 @@ def fixes_csv(ds: ToaDataset, fixes: Fixes) -> str:
                 num(fixes.hpl_m[i], ".4f"),
                 num(fixes.chi2n[i], ".4g"),
                 int(fixes.flagged[i]),
+                *extra,
             ]
         )
     return buf.getvalue()
@@ -200,6 +228,23 @@ def _common_args(p: argparse.ArgumentParser) -> None:
         metavar="M",
         help=f"flag fixes whose protection level exceeds M metres (default {ALERT_LIMIT_M:g})",
     )
+    p.add_argument("--map", metavar="MAP", help="fingerprint map (.npz) of the twin method")
+
+
+def _base_method(name: str) -> str:
+    """The registered method of ``name`` (``irls`` of ``irls+track``); unknown -> error."""
+    base, _ = split_method(name)
+    if base not in METHODS:
+        raise PositioningError(
+            f"unknown method {name!r}; choose one of: {', '.join(METHODS)} (or METHOD+track)"
+        )
+    return base
+
+
+def _with_map(params: dict[str, dict[str, str]], map_path: str | None) -> None:
+    """``--map`` becomes the twin's ``map`` parameter."""
+    if map_path is not None and "twin" in params:
+        params["twin"].setdefault("map", map_path)
 
 
 def _alert_limit(args: argparse.Namespace) -> float:
@@ -243,10 +288,7 @@ def _estimate(args: argparse.Namespace) -> int:
         raise PositioningError("the following arguments are required: DATASET_DIR")
     if args.output is None:
         raise PositioningError("the following arguments are required: -o/--output")
-    if args.method not in METHODS:
-        raise PositioningError(
-            f"unknown method {args.method!r}; choose one of: {', '.join(METHODS)}"
-        )
+    base = _base_method(args.method)
     inputs = [Path(args.dataset) / n for n in ("toa.csv", "meta.json")]
     out = args.output
     if out != STDOUT:
@@ -254,12 +296,14 @@ def _estimate(args: argparse.Namespace) -> int:
     height = _height_mode(args)
     limit = _alert_limit(args)
     params = _parse_params(args.param, [args.method])
+    _with_map(params, args.map)
     ds = load_dataset(args.dataset)
     check_height(height, ds.bs_xyz)
     _check_params(params, ds)
     fixes = solve_dataset(
-        ds, args.method, params[args.method], height, outside=args.outside, alert_limit_m=limit
-    )
+        ds, args.method, params[base], height, outside=args.outside, alert_limit_m=limit,
+        track=params["track"],
+    )  # fmt: skip
     if fixes.n_unsolved == fixes.n_epochs and not fixes.count(Status.AREA_BOUND):
         raise _all_unsolved(ds)
     # station geometry first: its message names the cause (collinear, one plane)
@@ -287,8 +331,9 @@ def _report_parser() -> OneLineParser:
     p.add_argument("-o", "--output", required=True, metavar="OUT_DIR", help="output directory")
     p.add_argument(
         "--methods",
-        default=",".join(METHODS),
-        help=f"comma-separated methods (default: {','.join(METHODS)})",
+        default=",".join(method_names(include_map=False)),
+        help=f"comma-separated methods, METHOD+track for tracked rows "
+        f"(default: {','.join(method_names(include_map=False))})",
     )
     p.add_argument(
         "--param",
@@ -310,14 +355,14 @@ def _report(args: argparse.Namespace) -> int:
     if not methods:
         raise PositioningError("--methods is empty")
     for m in methods:
-        if m not in METHODS:
-            raise PositioningError(f"unknown method {m!r}; choose one of: {', '.join(METHODS)}")
+        _base_method(m)
     methods = list(dict.fromkeys(methods))
     out = Path(args.output)
     check_output(out, inputs=args.datasets, directory=True)  # before any work
     height = _height_mode(args)
     limit = _alert_limit(args)
     params = _parse_params(args.param, methods)
+    _with_map(params, args.map)
     datasets = [load_dataset(d) for d in args.datasets]
     results = []
     for ds in datasets:

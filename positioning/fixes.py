@@ -42,6 +42,14 @@ class Status(IntFlag):
     ``INTEGRITY``
         The fix's horizontal protection level exceeds the alert limit (:mod:`positioning.integrity`):
         the measurements cannot vouch for it to within the limit.
+    ``MAP_MISMATCH``
+        ``twin``: the best map match fits poorly (a stale map, e.g. moved forklifts); the fix is
+        the fallback map-free method's.
+    ``TRACK_GATED``
+        ``METHOD+track``: the epoch's fix failed the innovation gate; the track's prediction is
+        reported.
+    ``TRACK_RESTART``
+        ``METHOD+track``: too many consecutive gated fixes; the track restarted at this fix.
     """
 
     OK = 0
@@ -55,6 +63,9 @@ class Status(IntFlag):
     ILL_CONDITIONED = 128
     AREA_BOUND = 256
     INTEGRITY = 512
+    MAP_MISMATCH = 1024
+    TRACK_GATED = 2048
+    TRACK_RESTART = 4096
 
 
 #: Flags that make a solved fix untrustworthy whatever the user's accuracy needs: the solve did not
@@ -103,6 +114,9 @@ class Fixes:
         (about 1 for consistent LoS measurements; NaN without redundancy or unsolved).
     alert_limit_m : float
         Alert limit against which ``INTEGRITY`` was set (NaN: integrity not evaluated).
+    extra : dict of str -> array
+        Method-specific per-epoch outputs (e.g. ``twin``: ``nlos`` (E, N) bool, ``match_m`` (E,));
+        empty for most methods.
     """
 
     xyz: np.ndarray
@@ -115,6 +129,7 @@ class Fixes:
     hpl_m: np.ndarray | None = None
     chi2n: np.ndarray | None = None
     alert_limit_m: float = float("nan")
+    extra: dict[str, np.ndarray] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         nan = np.full(self.xyz.shape[0], np.nan)

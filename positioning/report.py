@@ -25,6 +25,7 @@ from .fixes import Fixes, Status
 from .integrity import ALERT_LIMIT_M
 from .metrics import cdf, error_2d, summarize
 from .tdoa import Problem, make_problem
+from .track import split_method, track_fixes
 
 #: The paper's Table II (metres): (scenario, band) -> metric -> method -> value.
 PAPER_TABLE2: dict[tuple[str, str], dict[str, dict[str, float]]] = {
@@ -145,9 +146,20 @@ def solve_dataset(
     outside: str = "constrain",
     alert_limit_m: float | None = ALERT_LIMIT_M,
     problem: Problem | None = None,
+    track: Mapping[str, Any] | None = None,
 ) -> Fixes:
     """Run one method on every fix of a dataset (schedule removed per measurement), bounded to
-    the dataset's service area, with integrity figures at ``alert_limit_m``."""
+    the dataset's service area, with integrity figures at ``alert_limit_m``.
+
+    ``METHOD+track``: the method's fixes tracked per point over time
+    (:func:`positioning.track.track_fixes` with the ``track`` parameters).
+    """
+    base, tracked = split_method(method)
+    if tracked:
+        single = solve_dataset(
+            ds, base, params, height, outside=outside, alert_limit_m=alert_limit_m, problem=problem
+        )
+        return track_fixes(single, ds.point, ds.time_s, **(track or {}))
     prob = problem if problem is not None else dataset_problem(ds, height)
     p = dict(params)
     if "reference" in p and isinstance(p["reference"], str) and p["reference"] in ds.bs_names:
@@ -168,16 +180,22 @@ def evaluate(
     params = params or {}
     fixes, errors, summaries = {}, {}, {}
     prob = dataset_problem(ds, height)
+    single: dict[str, Fixes] = {}  # a tracked method reuses its base method's fixes
     for m in methods:
-        f = solve_dataset(
-            ds,
-            m,
-            params.get(m, {}),
-            height,
-            outside=outside,
-            alert_limit_m=alert_limit_m,
-            problem=prob,
-        )
+        base, tracked = split_method(m)
+        if base not in single:
+            single[base] = solve_dataset(
+                ds,
+                base,
+                params.get(base, {}),
+                height,
+                outside=outside,
+                alert_limit_m=alert_limit_m,
+                problem=prob,
+            )
+        f = single[base]
+        if tracked:
+            f = track_fixes(f, ds.point, ds.time_s, **params.get("track", {}))
         e = error_2d(f.xyz, ds.true_xyz)
         fixes[m], errors[m], summaries[m] = f, e, summarize(e)
         summaries[m]["availability_pct"] = 100.0 * f.availability
@@ -619,9 +637,22 @@ def write_report(
     if out.exists() and not out.is_dir():
         raise PositioningError(f"{out}: exists and is not a directory")
     out.mkdir(parents=True, exist_ok=True)
+    tracked = [m for m in methods if split_method(m)[1]]
+    methods = [m for m in methods if not split_method(m)[1]]
     rows = table_rows(results, methods)
     md = table_markdown(rows, methods)
     written: list[Path] = []
+    if tracked:  # tracked rows never mix with single-epoch ones: their own table and CDFs
+        t_rows = table_rows(results, tracked)
+        t_md = table_markdown(t_rows, tracked)
+        atomic_write_text(out / "table_tracked.csv", table_csv(t_rows, tracked))
+        atomic_write_text(out / "table_tracked.md", t_md)
+        plot_cdf_by_method(results, tracked, out / "cdf_tracked_by_method.png")
+        written += [out / "table_tracked.csv", out / "table_tracked.md"]
+        written.append(out / "cdf_tracked_by_method.png")
+        md = md + "\nTracked (METHOD+track, filtered over each point's epochs):\n\n" + t_md
+    if not methods:
+        return md, written
     names: dict[str, int] = {}
     for r in sort_results(results):
         base = safe_name(r.dataset.name)

@@ -14,7 +14,7 @@ sys.path.insert(0, str(Path(__file__).parent))
 
 from pos_synth import write_dataset  # noqa: E402
 
-from positioning import METHODS, error_2d, summarize  # noqa: E402
+from positioning import METHODS, error_2d, method_names, summarize  # noqa: E402
 from positioning.cli import (  # noqa: E402
     FIXES_COLUMNS,
     accuracy_report_main,
@@ -196,14 +196,14 @@ def test_accuracy_report(datasets, tmp_path, capsys):
     assert md in printed
     # one summary line per dataset and method, with availability and the doubtful-fix counts
     assert "static_c irls: 16 fixes, availability 100.0 % (0 unsolved)" in printed
-    assert printed.count("; ill-conditioned ") == 2 * len(METHODS)
+    assert printed.count("; ill-conditioned ") == 2 * len(method_names(include_map=False))
     assert "| setup | band | method | avail. % |" in (out / "integrity.md").read_text()
     assert "| mean [m] | static | C-band | static_c |" in md
     assert "| 90th pct [m] | semi-dynamic | mmWave | semi_mm |" in md
     rows = read_csv(out / "table.csv")
     assert [r["metric"] for r in rows] == ["mean", "mean", "p90", "p90"] + ["availability"] * 2
     assert [r["dataset"] for r in rows] == ["static_c", "semi_mm"] * 3
-    assert all(float(r[m]) == 100.0 for r in rows[4:] for m in METHODS)
+    assert all(float(r[m]) == 100.0 for r in rows[4:] for m in method_names(include_map=False))
     assert float(rows[0]["paper_irls"]) == 0.24 and float(rows[3]["paper_ls"]) == 0.62
     for name in (
         "cdf_by_method",
@@ -215,8 +215,8 @@ def test_accuracy_report(datasets, tmp_path, capsys):
         png = (out / f"{name}.png").read_bytes()
         assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 5000
     assert not list(out.glob(".*.tmp"))
-    # the table agrees with estimate-positions for each method on the same data
-    for m in METHODS:
+    # the table agrees with estimate-positions for each (map-free, default) method on the data
+    for m in method_names(include_map=False):
         fx = tmp_path / f"{m}.csv"
         assert estimate_positions_main([str(datasets[0]), "--method", m, "-o", str(fx)]) == 0
         s = summarize(np.array([float(r["error_m"]) for r in read_csv(fx)]))

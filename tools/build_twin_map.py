@@ -1,0 +1,183 @@
+"""Build a fingerprint map (schema hallray-accuracy-map v1) of the bundled hall for the twin
+estimator's evaluation, before the ``accuracy-map`` tool exists on main.
+
+This is an evaluation helper, not the product: it fills the map's ToA fields (``toa_s``,
+``excess_m``, ``los``, ``first_kind``, ``toa_std_s``, ``detected_fraction``) from the same
+measurement model the datasets use (``raytrace.emulation.measurement.ToaModel`` on the tracer's
+paths, noise off for ``toa_s``, a few noise draws for the spread) and leaves the accuracy
+fields (``methods``, ``err_*``, ``availability``) empty (M = 0), which the twin does not read.
+
+The grid: a square lattice of ``--step`` m over the service area whose offset is chosen so that
+every cell centre is at least ``--min-dist`` m from every test point of the scene; cells that
+still come closer are dropped (holes are handled by the twin's interpolation).
+
+Robustness variants (the map is wrong on purpose): ``--shift DX,DY`` moves every obstacle
+(scene objects other than the walls, floor and ceiling) by (DX, DY) metres before tracing;
+``--material OBJECT=MATERIAL`` rebinds one object's material.
+
+Usage::
+
+    python tools/build_twin_map.py --band c-band -o /tmp/maps/hall-c-band.npz
+    python tools/build_twin_map.py --band mmwave --shift 0.5,0 -o /tmp/maps/shift-mmwave.npz
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from positioning.fingerprint import FingerprintMap, write_map  # noqa: E402
+from raytrace.emulation.bands import get_band  # noqa: E402
+from raytrace.emulation.dataset import DatasetConfig, service_area  # noqa: E402
+from raytrace.scene.io import load_scene  # noqa: E402
+from raytrace.scene.metadata import SceneMetadata  # noqa: E402
+from raytrace.solver.tracer import trace  # noqa: E402
+
+C0 = 299_792_458.0
+
+
+def grid_cells(
+    polygon: np.ndarray, points_xy: np.ndarray, step: float, min_dist: float, height: float
+) -> tuple[np.ndarray, float]:
+    """(N, 3) cell centres of a ``step`` lattice inside the polygon's box, offset chosen to keep
+    the test points at least ``min_dist`` away (offending cells dropped); and the worst
+    distance before dropping."""
+    lo, hi = polygon.min(axis=0), polygon.max(axis=0)
+    best, best_off = -1.0, (step / 2, step / 2)
+    for ox in np.arange(0.0, step, 0.01):
+        for oy in np.arange(0.0, step, 0.01):
+            d = np.hypot(
+                (points_xy[:, 0] - ox + step / 2) % step - step / 2,
+                (points_xy[:, 1] - oy + step / 2) % step - step / 2,
+            ).min()
+            if d > best:
+                best, best_off = d, (ox, oy)
+    ox, oy = best_off
+    xs = np.arange(lo[0] + ((ox - lo[0]) % step), hi[0], step)
+    ys = np.arange(lo[1] + ((oy - lo[1]) % step), hi[1], step)
+    X, Y = np.meshgrid(xs, ys)
+    xy = np.column_stack([X.ravel(), Y.ravel()])
+    d = np.hypot(*(xy[:, None, :] - points_xy[None, :, :]).transpose(2, 0, 1)).min(axis=1)
+    xy = xy[d >= min_dist]
+    return np.column_stack([xy, np.full(len(xy), height)]), float(best)
+
+
+def perturb(scene, shift: tuple[float, float] | None, material: str | None):
+    """The scene with its obstacles (every object but the ``shell_`` walls, floor and ceiling)
+    shifted by ``shift`` (dx, dy) metres, or one object rebound to another material
+    (``OBJECT=MATERIAL``): a wrong twin. Rebuilt with ``Scene.from_meshes``."""
+    if shift is None and material is None:
+        return scene
+    import trimesh
+
+    from raytrace.scene.model import Scene
+
+    rebind = dict([material.split("=", 1)]) if material else {}
+    unknown = set(rebind) - set(scene.object_names)
+    if unknown:
+        raise SystemExit(f"error: no object {sorted(unknown)[0]!r} in the scene")
+    meshes = []
+    for o in scene.objects:
+        f = scene.faces[o.face_start : o.face_start + o.face_count]
+        used, inv = np.unique(f, return_inverse=True)
+        v = scene.vertices[used].copy()
+        if shift is not None and not o.name.startswith("shell_"):
+            v[:, :2] += shift
+        mesh = trimesh.Trimesh(vertices=v, faces=inv.reshape(f.shape), process=False)
+        meshes.append((o.name, mesh, rebind.get(o.name, o.material)))
+    return Scene.from_meshes(meshes, scene.materials, scene.metadata, scene.source + " (perturbed)")
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--scene", default="hall")
+    ap.add_argument("--band", default="c-band")
+    ap.add_argument("--step", type=float, default=0.5)
+    ap.add_argument("--min-dist", type=float, default=0.25)
+    ap.add_argument("--height", type=float, default=1.0)
+    ap.add_argument("--draws", type=int, default=8, help="noise draws for toa_std_s")
+    ap.add_argument("--limit", type=int, default=0, help="only the first N cells (timing)")
+    ap.add_argument(
+        "--near-points",
+        type=float,
+        default=0.0,
+        metavar="R",
+        help="only cells within R m of a test point (a cheaper map for robustness runs)",
+    )
+    ap.add_argument("--shift", default=None, help="DX,DY: shift every obstacle (wrong map)")
+    ap.add_argument("--material", default=None, help="OBJECT=MATERIAL (wrong map)")
+    ap.add_argument("-o", "--output", required=True)
+    a = ap.parse_args(argv)
+    scene = load_scene(a.scene)
+    md = SceneMetadata.from_scene(scene, require=True)
+    area = service_area(scene, md.block)
+    poly = np.asarray(area["polygon"], dtype=float)
+    cells, worst = grid_cells(poly, md.point_xyz[:, :2], a.step, a.min_dist, a.height)
+    shift = tuple(float(v) for v in a.shift.split(",")) if a.shift else None
+    traced_scene = perturb(scene, shift, a.material)
+    # a device cannot be inside a cabinet: no cell there (in the map's own scene)
+    cells = cells[traced_scene.inside_solid(cells) < 0]
+    if a.near_points > 0:
+        d = np.linalg.norm(cells[:, None, :2] - md.point_xyz[None, :, :2], axis=2).min(axis=1)
+        cells = cells[d <= a.near_points]
+    if a.limit:
+        cells = cells[: a.limit]
+    cfg = DatasetConfig("static", a.band, duration_s=1.0, rate_hz=float(a.draws))
+    band = get_band(a.band)
+    t0 = time.perf_counter()
+    paths = trace(traced_scene, md.bs_xyz, cells, band.center_frequency_hz, cfg.trace)
+    t_trace = time.perf_counter() - t0
+    model = cfg.model()
+    prep = model.prepare(paths)
+    exact = DatasetConfig("static", a.band, duration_s=1.0, noise=False).model()
+    m0 = exact.measure(paths, [0], prep)
+    mn = model.measure(paths, range(a.draws), prep)
+    toa = m0.delay_s[0]  # (N, B) propagation delay, no clock, no schedule
+    dist = np.linalg.norm(cells[:, None, :] - md.bs_xyz[None, :, :], axis=2)
+    n, b = toa.shape
+    fmap = FingerprintMap(
+        cell_xyz=cells,
+        bs_xyz=md.bs_xyz,
+        bs_names=np.array(md.bs_names),
+        los=m0.los[0],
+        first_kind=m0.first_kind[0].astype(str),
+        excess_m=toa * C0 - dist,
+        toa_s=toa,
+        toa_std_s=np.nanstd(mn.delay_s, axis=0),
+        detected_fraction=mn.detected.mean(axis=0),
+        gdop=np.full(n, np.nan),
+        methods=np.array([], dtype=str),
+        err_p90_m=np.zeros((0, n)),
+        err_mean_m=np.zeros((0, n)),
+        availability=np.zeros((0, n)),
+        meta={
+            "band": a.band,
+            "frequency_hz": band.center_frequency_hz,
+            "bandwidth_hz": band.bandwidth_hz,
+            "receiver": cfg.toa_method,
+            "step_m": a.step,
+            "height_m": a.height,
+            "scene": a.scene,
+            "draws": a.draws,
+            "service_area": poly.tolist(),
+            "min_point_distance_m": a.min_dist,
+            "builder": "tools/build_twin_map.py",
+            "perturbation": {"shift_m": shift, "material": a.material},
+        },
+    )
+    write_map(a.output, fmap)
+    print(
+        f"{a.output}: {n} cells x {b} BS, worst point-lattice distance {worst:.3f} m, "
+        f"trace {t_trace:.1f} s, total {time.perf_counter() - t0:.1f} s"
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
