@@ -228,7 +228,13 @@ def _common_args(p: argparse.ArgumentParser) -> None:
         metavar="M",
         help=f"flag fixes whose protection level exceeds M metres (default {ALERT_LIMIT_M:g})",
     )
-    p.add_argument("--map", metavar="MAP", help="fingerprint map (.npz) of the twin method")
+    p.add_argument(
+        "--map",
+        metavar="MAP",
+        action="append",
+        help="fingerprint map (.npz) of the twin method; repeat it with one map per band, each "
+        "dataset then uses the map of its band",
+    )
 
 
 def _base_method(name: str) -> str:
@@ -241,10 +247,29 @@ def _base_method(name: str) -> str:
     return base
 
 
-def _with_map(params: dict[str, dict[str, str]], map_path: str | None) -> None:
-    """``--map`` becomes the twin's ``map`` parameter."""
-    if map_path is not None and "twin" in params:
-        params["twin"].setdefault("map", map_path)
+def _with_map(
+    params: dict[str, dict[str, str]], maps: Sequence[str] | None, ds: ToaDataset
+) -> dict[str, dict[str, str]]:
+    """The parameters for ``ds``: ``--map`` becomes the twin's ``map`` parameter. With several
+    maps (one per band, e.g. for a report over C-band and mmWave datasets), the one whose band is
+    the dataset's; a one-line error when none is."""
+    if not maps or "twin" not in params or params["twin"].get("map"):
+        return params
+    from .twin import load as load_map
+
+    chosen = maps[0]
+    if len(maps) > 1:
+        bands = {m: str(load_map(m)[0].meta.get("band")) for m in maps}
+        match = [m for m, b in bands.items() if b == str(ds.band)]
+        if not match:
+            raise PositioningError(
+                f"{ds.path}: none of the maps is for band {ds.band!r} "
+                f"({', '.join(f'{m}: {b}' for m, b in bands.items())})"
+            )
+        chosen = match[0]
+    out = {m: dict(p) for m, p in params.items()}
+    out["twin"]["map"] = chosen
+    return out
 
 
 def _alert_limit(args: argparse.Namespace) -> float:
@@ -296,8 +321,8 @@ def _estimate(args: argparse.Namespace) -> int:
     height = _height_mode(args)
     limit = _alert_limit(args)
     params = _parse_params(args.param, [args.method])
-    _with_map(params, args.map)
     ds = load_dataset(args.dataset)
+    params = _with_map(params, args.map, ds)
     check_height(height, ds.bs_xyz)
     _check_params(params, ds)
     fixes = solve_dataset(
@@ -362,14 +387,14 @@ def _report(args: argparse.Namespace) -> int:
     height = _height_mode(args)
     limit = _alert_limit(args)
     params = _parse_params(args.param, methods)
-    _with_map(params, args.map)
     datasets = [load_dataset(d) for d in args.datasets]
+    per_ds = [_with_map(params, args.map, ds) for ds in datasets]
     results = []
-    for ds in datasets:
+    for ds, p in zip(datasets, per_ds, strict=True):
         check_height(height, ds.bs_xyz)
-        _check_params(params, ds)
-    for ds in datasets:
-        r = evaluate(ds, methods, params, height, outside=args.outside, alert_limit_m=limit)
+        _check_params(p, ds)
+    for ds, p in zip(datasets, per_ds, strict=True):
+        r = evaluate(ds, methods, p, height, outside=args.outside, alert_limit_m=limit)
         fx = list(r.fixes.values())
         if all(f.n_unsolved == f.n_epochs and not f.count(Status.AREA_BOUND) for f in fx):
             raise _all_unsolved(ds)

@@ -13,6 +13,7 @@ from raytrace.cli.reproduce_paper import reproduce_paper_main
         (["--scene", "no_such_scene.glb"], "scene file not found"),
         (["--duration", "-1"], "duration"),
         (["--workers", "0"], "workers"),
+        (["--map-step", "-1"], "--map-step"),
     ],
 )
 def test_bad_input(tmp_path, capsys, extra, message):
@@ -43,10 +44,13 @@ def test_unknown_receiver_lists_the_known_ones(tmp_path, capsys):
 @pytest.mark.slow
 def test_reproduce_paper_writes_both_receivers_and_the_comparison(tmp_path, capsys):
     out = tmp_path / "run"
-    assert reproduce_paper_main(["-o", str(out), "-q", "--duration", "0.3", "--workers", "1"]) == 0
+    argv = ["-o", str(out), "-q", "--duration", "0.3", "--workers", "1", "--map-step", "4"]
+    assert reproduce_paper_main(argv) == 0
     assert (out / "report" / "table.csv").is_file()
     assert (out / "report-first-path" / "table.csv").is_file()
     text = (out / "paper.md").read_text()
     for needle in ("IRLS <= LS", "mmWave <= C-band", "static <= semi-dynamic", "first-lobe LS"):
         assert needle in text
     assert "| first-path | static | C-band | LoS |" in text
+    assert "## Tracked rows" in text and "| twin |" in text and "| c-band |" in text
+    assert (out / "maps" / "mmwave" / "map.npz").is_file()

@@ -11,14 +11,25 @@ each receiver; then ``paper.md``: Table II beside the paper's and the findings
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 from ..core.errors import HallrayError
 from .harness import OneLineParser, run_tool
+
+#: Grid step of the twin's fingerprint maps, m (1 m: about 1700 cells in the hall).
+DEFAULT_MAP_STEP_M = 1.0
+#: Fixes timed per method for the cost table.
+COST_FIXES = 2000
+#: Methods of the main report beside the map-free ones: the twin and tracked rows.
+EXTRA_METHODS = ("twin", "irls+track", "nlos-map+track", "twin+track")
+#: Noise draws per map cell (the map's predicted errors; the twin uses its noiseless ToAs).
+MAP_DRAWS = 20
 
 #: The receiver whose report is written beside the main one: the paper's ideal eq. 3 model.
 IDEAL_RECEIVER = "first-path"
@@ -58,6 +69,14 @@ def parser() -> argparse.ArgumentParser:
         default=os.cpu_count() or 1,
         help="processes for the snapshots [all cores]",
     )
+    p.add_argument(
+        "--map-step",
+        type=float,
+        default=DEFAULT_MAP_STEP_M,
+        metavar="M",
+        help="grid step of the fingerprint maps (one per band) of the twin estimator, m; 0: no "
+        f"maps and no twin [{DEFAULT_MAP_STEP_M:g}]",
+    )
     p.add_argument("--force", action="store_true", help="replace an existing output directory")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
     return p
@@ -77,6 +96,12 @@ def _main(args: argparse.Namespace) -> int:
     if receiver not in TOA_METHODS:
         raise HallrayError(f"unknown receiver {receiver!r}; use one of {', '.join(TOA_METHODS)}")
     receivers = list(dict.fromkeys([receiver, IDEAL_RECEIVER]))
+    if not (math.isfinite(args.map_step) and args.map_step >= 0):
+        raise HallrayError(f"--map-step must be a number of metres >= 0, got {args.map_step!r}")
+    if args.map_step > 0:  # a grid step it refuses is refused before any work
+        from ..studies.accuracy_map import MapSettings
+
+        MapSettings(step_m=args.map_step, receiver=receiver).check()
     out = Path(args.output)
     scene = None if args.scene == "hall" else args.scene
     t0 = time.perf_counter()
@@ -101,10 +126,11 @@ def _build(
 ) -> str:
     """Datasets of every receiver into ``tmp/datasets`` (one trace), a report per receiver, and
     ``tmp/paper.md``; returns the text of ``paper.md``."""
+    from positioning import method_names
     from positioning.cli import accuracy_report_main
 
     from ..emulation.dataset import make_datasets
-    from ..studies.paper import write_comparison
+    from ..studies.paper import costs_markdown, method_costs, write_comparison
 
     summaries = make_datasets(
         tmp / "datasets",
@@ -120,13 +146,51 @@ def _build(
     print(f"datasets written to {out / 'datasets'} in {time.perf_counter() - t0:.1f} s:")
     for s in summaries:
         print(f"  {Path(s['directory']).name:<33} {s['epochs']} epochs, receiver {s['toa_method']}")
+    maps = _build_maps(args, receivers[0], tmp / "maps") if args.map_step > 0 else []
     reports, datasets = {}, {}
     for r in receivers:
         datasets[r] = [s["directory"] for s in summaries if s["toa_method"] == r]
         reports[r] = tmp / _report_name(r, receivers)
+        argv = [*datasets[r], "-o", str(reports[r])]
+        methods = method_names(include_map=False) + [
+            m for m in EXTRA_METHODS if maps or "twin" not in m
+        ]
+        if r == receivers[0]:  # the maps are of this receiver
+            argv += ["--methods", ",".join(methods)]
+            argv += [a for m in maps for a in ("--map", str(m["path"]))]
+        else:
+            argv += ["--methods", ",".join(m for m in methods if "twin" not in m)]
         print(f"\n== receiver {r} ==")
         sys.stdout.flush()
-        code = accuracy_report_main([*datasets[r], "-o", str(reports[r])])
+        code = accuracy_report_main(argv)
         if code != 0:
             raise HallrayError(f"the accuracy report failed (exit status {code}); nothing written")
-    return write_comparison(tmp / "paper.md", reports, datasets)
+    main_static = next(d for d in datasets[receivers[0]] if Path(d).name == "static-c-band")
+    params = {"twin": {"map": str(maps[0]["path"])}} if maps else {}
+    timed = [m for m in methods if maps or "twin" not in m]
+    rates, n_timed = method_costs(main_static, timed, params, n_fixes=COST_FIXES)
+    costs = costs_markdown(maps, rates, n_timed)
+    return write_comparison(tmp / "paper.md", reports, datasets, costs=costs)
+
+
+def _build_maps(args: argparse.Namespace, receiver: str, folder: Path) -> list[dict[str, Any]]:
+    """The static scene's fingerprint map per band (``accuracy-map``), timed and sized."""
+    from ..scene.io import load_scene
+    from ..studies.accuracy_map import MapSettings, compute_map, write_outputs
+
+    scene = load_scene(args.scene)
+    out = []
+    for band in ("c-band", "mmwave"):
+        t0 = time.perf_counter()
+        settings = MapSettings(step_m=args.map_step, band=band, receiver=receiver, draws=MAP_DRAWS)
+        settings.check()
+        amap = compute_map(scene, settings, scene_name=str(args.scene), workers=args.workers,
+                           progress=not args.quiet)  # fmt: skip
+        folder.mkdir(parents=True, exist_ok=True)
+        write_outputs(folder / band, scene, amap, pictures=False)
+        path = folder / band / "map.npz"
+        out.append({"band": band, "path": path, "cells": amap.fmap.n_cells,
+                    "step_m": args.map_step, "seconds": time.perf_counter() - t0,
+                    "bytes": path.stat().st_size})  # fmt: skip
+        print(f"fingerprint map {band}: {amap.fmap.n_cells} cells in {out[-1]['seconds']:.1f} s")
+    return out

@@ -271,6 +271,7 @@ def write_comparison(
     out: str | Path,
     reports: Mapping[str, str | Path],
     datasets: Mapping[str, Sequence[str | Path]],
+    costs: str = "",
 ) -> str:
     """Write ``out`` (``paper.md``) from the reports and datasets of each receiver; returns it.
 
@@ -279,10 +280,82 @@ def write_comparison(
     out : path of the markdown file
     reports : receiver -> report directory written by ``accuracy-report`` (holds ``table.csv``)
     datasets : receiver -> its dataset directories
+    costs : markdown appended at the end (:func:`costs_markdown`)
     """
     receivers = list(reports)
     tables = {r: read_table(Path(reports[r]) / "table.csv") for r in receivers}
     links = [link_errors(d) for r in receivers for d in datasets[r]]
     text = comparison_markdown(tables, links, receivers)
+    tracked = Path(reports[receivers[0]]) / "table_tracked.md"
+    if tracked.is_file():
+        text += (
+            f"\n## Tracked rows (receiver `{receivers[0]}`)\n\n"
+            "Each point's epochs filtered by `METHOD+track` (latency: docs/positioning.md); kept "
+            "apart from the single-epoch rows above.\n\n" + tracked.read_text()
+        )
+    if costs:
+        text += "\n" + costs
     write_atomic(out, text.encode())
     return text
+
+
+def method_costs(
+    dataset_dir: str | Path,
+    methods: Sequence[str],
+    params: Mapping[str, Mapping[str, object]] | None = None,
+    n_fixes: int = 2000,
+    seed: int = 0,
+) -> tuple[dict[str, float], int]:
+    """Fixes per second of each single-epoch method on ``n_fixes`` random fixes of one dataset,
+    batched in this process (the service area and receiver reports attached, as in the report).
+
+    Tracked methods (``METHOD+track``) are timed as their filter alone on the method's fixes.
+    Returns the rates by method and the number of fixes timed.
+    """
+    import time
+
+    from positioning.api import run_method
+    from positioning.dataset import load_dataset
+    from positioning.report import dataset_problem
+    from positioning.track import split_method, track_fixes
+
+    ds = load_dataset(dataset_dir)
+    prob = dataset_problem(ds)
+    rng = np.random.default_rng(seed)
+    idx = np.sort(rng.choice(ds.n_fixes, size=min(n_fixes, ds.n_fixes), replace=False))
+    sub = prob.take(idx)
+    params = params or {}
+    out, fixes = {}, {}
+    for m in methods:
+        base, tracked = split_method(m)
+        if base not in fixes:
+            t0 = time.perf_counter()
+            fixes[base] = run_method(sub, base, **dict(params.get(base, {})))
+            out[base] = len(idx) / max(time.perf_counter() - t0, 1e-9)
+        if tracked:
+            t0 = time.perf_counter()
+            track_fixes(fixes[base], ds.point[idx], ds.time_s[idx])
+            out[m] = len(idx) / max(time.perf_counter() - t0, 1e-9)
+    return {m: out[m] for m in methods if m in out}, len(idx)
+
+
+def costs_markdown(
+    maps: Sequence[Mapping[str, object]], rates: Mapping[str, float], n_fixes: int
+) -> str:
+    """The "What it costs" section: map build time and size per band, fixes/s per method."""
+    lines = ["## What it costs\n"]
+    if maps:
+        lines += ["| map | cells | step [m] | build [s] | map.npz [kB] |", "|---|---|---|---|---|"]
+        for m in maps:
+            lines.append(
+                f"| {m['band']} | {m['cells']} | {m['step_m']:g} | {float(m['seconds']):.1f} "  # type: ignore[arg-type]
+                f"| {int(m['bytes']) / 1024:.0f} |"  # type: ignore[call-overload]
+            )
+        lines.append("")
+    lines.append(
+        f"Fixes per second, batched in one process, on {n_fixes} fixes of the static C-band "
+        "dataset (tracked: the filter alone, on top of its method):\n"
+    )
+    lines += ["| method | fixes/s |", "|---|---|"]
+    lines += [f"| {m} | {r:,.0f} |" for m, r in rates.items()]
+    return "\n".join(lines) + "\n"

@@ -137,3 +137,19 @@ def test_corrupt_map_is_refused_in_one_line(fmap, tmp_path, capsys, damage):
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1 and err[0].startswith("error: ")
     assert not out.exists()
+
+
+def test_report_picks_the_map_of_each_dataset_band(fmap, tmp_path, capsys):
+    pts = np.array([[8.3, 6.1, 1.0]])
+    c = write_dataset(tmp_path / "c", points=pts, n_epochs=4, band="c-band")
+    mm = write_dataset(tmp_path / "mm", points=pts, n_epochs=4, band="mmwave")
+    mp_c = write_map(tmp_path / "c.npz", replace(fmap, meta={**fmap.meta, "band": "c-band"}))
+    mp_mm = write_map(tmp_path / "mm.npz", replace(fmap, meta={**fmap.meta, "band": "mmwave"}))
+    argv = [str(c), str(mm), "--methods", "twin", "--map", str(mp_mm), "--map", str(mp_c)]
+    assert accuracy_report_main([*argv, "-o", str(tmp_path / "rep")]) == 0
+    # a band without a map: one line naming the bands the maps are for
+    argv = [str(c), str(mm), "--methods", "twin", "--map", str(mp_c), "--map", str(mp_c)]
+    assert accuracy_report_main([*argv, "-o", str(tmp_path / "rep2")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "none of the maps is for band 'mmwave'" in err[0]
+    assert not (tmp_path / "rep2").exists()
