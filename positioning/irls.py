@@ -248,7 +248,7 @@ def irls(
     for _ in range(max_iter):
         if act.size == 0:
             break
-        sub = _take(prob, act)
+        sub = prob.take(act)
         u = uncertainties(sub, Q[act])
         w = andrews_weight(u, u_max) * has_q[act]
         wsum = w.sum(axis=1)
@@ -282,13 +282,3 @@ def irls(
         "weights": w_norm,
         "estimates": q,
     }
-
-
-def _take(prob: Problem, idx: np.ndarray) -> Problem:
-    """The sub-problem of epochs ``idx``."""
-    return Problem(
-        rho=prob.rho[idx],
-        valid=prob.valid[idx],
-        bs=prob.bs,
-        height=None if prob.height is None else prob.height[idx],
-    )

@@ -278,19 +278,9 @@ def table_markdown(rows: Sequence[Mapping[str, Any]], methods: Sequence[str]) ->
 
 def table_csv(rows: Sequence[Mapping[str, Any]], methods: Sequence[str]) -> str:
     """CSV version of Table II (same rows as the markdown; full precision)."""
-    buf = io.StringIO()
     cols = ["metric", "scenario", "band", "dataset", "n_fixes", "n_unsolved", *methods]
     cols += ["paper_irls", "paper_ls"]
-    w = csv.writer(buf, lineterminator="\n")
-    w.writerow(cols)
-    for r in rows:
-        w.writerow(
-            [
-                r[c] if not isinstance(r[c], float) else ("" if np.isnan(r[c]) else f"{r[c]:.6g}")
-                for c in cols
-            ]
-        )
-    return buf.getvalue()
+    return _csv_text(rows, cols)
 
 
 # ----------------------------------------------------------------------------------------------

@@ -514,7 +514,7 @@ def twin(
     stale = np.zeros((E, B), dtype=bool)
     bad = np.zeros(E, dtype=bool)
     if rows.size:
-        sub = _take(prob, rows)
+        sub = prob.take(rows)
         fb = (fallback or irls)(sub)
         cell_xy = fmap.cell_xyz[:, :2]
         prior = fb["xyz"][:, :2]
@@ -524,7 +524,7 @@ def twin(
             lost = ~np.isfinite(prior).all(axis=1) | (cand[:, 0] < 0)
             if lost.any():
                 cand[lost], _ = coarse_match(
-                    _take(sub, np.flatnonzero(lost)), lat, lat.coarse, cell_xy, top=top
+                    sub.take(np.flatnonzero(lost)), lat, lat.coarse, cell_xy, top=top
                 )
         else:
             cand, _ = coarse_match(sub, lat, lat.coarse, cell_xy, top=top)
@@ -555,12 +555,3 @@ def twin(
         "match_m": match,
         "fallback": bad,
     }
-
-
-def _take(prob: Problem, idx: np.ndarray) -> Problem:
-    return Problem(
-        rho=prob.rho[idx],
-        valid=prob.valid[idx],
-        bs=prob.bs,
-        height=None if prob.height is None else prob.height[idx],
-    )
