@@ -39,8 +39,6 @@ has one, ``service_area`` (a list of ``[x, y]`` vertices).
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -48,6 +46,7 @@ from typing import Any
 import numpy as np
 
 from .errors import PositioningError
+from .output import write_file
 
 SCHEMA = "hallray-accuracy-map"
 SCHEMA_VERSION = 1
@@ -143,7 +142,9 @@ def _check_arrays(arrays: dict[str, np.ndarray], what: str) -> None:
 
 
 def write_map(path: str | Path, fmap: FingerprintMap) -> Path:
-    """Write ``fmap`` to ``path`` (``.npz``) atomically: a temporary file in the folder, then rename.
+    """Write ``fmap`` to ``path`` (``.npz``) through the one safe output layer
+    (:func:`positioning.output.write_file`: temporary file in the folder, then rename; symlinks
+    followed, special files refused, umask respected).
 
     Returns the path written. The file loads with :func:`read_map` and ``numpy.load`` without
     pickles.
@@ -153,17 +154,7 @@ def write_map(path: str | Path, fmap: FingerprintMap) -> Path:
     payload["schema"] = np.array(SCHEMA)
     payload["schema_version"] = np.array(SCHEMA_VERSION)
     payload["meta_json"] = np.array(json.dumps(fmap.meta, sort_keys=True, default=_jsonable))
-    folder = path.parent if str(path.parent) else Path(".")
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=folder)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            np.savez_compressed(fh, **payload)
-        os.chmod(tmp, 0o666 & ~_umask())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    write_file(path, lambda fh: np.savez_compressed(fh, **payload), what="map")
     return path
 
 
@@ -202,12 +193,6 @@ def read_map(path: str | Path) -> FingerprintMap:
         raise PositioningError(f"{path}: meta_json is not a JSON object")
     _check_arrays(data, str(path))
     return FingerprintMap(**{k: data[k] for k in ARRAYS}, meta=meta)
-
-
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
 
 
 def _jsonable(obj: Any) -> Any:
