@@ -1,30 +1,74 @@
-"""Work over many links: chunks of receivers, run in this process or on worker processes.
+"""Work over many links: chunks of receivers, run in this process and on worker processes.
 
 A trace is independent per link, so the receivers are split into chunks that worker processes
-trace on their own copy of the scene (spawned, not forked: Embree and the tracer's threads do not
-survive a fork; a pickled :class:`~raytrace.scene.model.Scene` carries its arrays and rebuilds its
-intersector). Results come back in chunk order, so what is computed does not depend on the number
-of workers or the chunk size. :class:`ScenePool` is that machinery; the tracer
-(:func:`raytrace.solver.tracer.trace`, :func:`raytrace.solver.tracer.trace_chunks`) uses it.
+trace on their own copy of the scene. Results come back in chunk order, so what is computed does
+not depend on the number of workers or the chunk size. :class:`ScenePool` is that machinery; the
+tracer (:func:`raytrace.solver.tracer.trace`, :func:`raytrace.solver.tracer.trace_chunks`) and the
+accuracy map use it.
+
+What a pool costs, and how it is kept small (measured in docs/tracing.md, "Where the time goes"):
+
+* **Workers come from a fork server** with numpy, trimesh, Embree and raytrace imported once
+  (:data:`PRELOAD`); a worker is a fork of it, ready in tens of milliseconds, where a spawned
+  interpreter spends half a second or more importing them. The fork server never builds an Embree
+  scene nor starts a thread, so its forks are safe (a fork of a process whose Embree or tracer
+  threads are alive is not: that is why the workers are never forked from the caller). Where there
+  is no fork server (Windows) workers are spawned.
+* **The pool outlives one call**: it is kept for the next call with the same scene (its pickled
+  bytes, compared by digest) and the same number of workers, so a caller that traces many times
+  (the accuracy map, reproduce-paper) starts it once. A call with another scene or another number
+  of workers closes it and starts a new one; :func:`close_pools` closes it, and so does the end of
+  the interpreter.
+* **The scene is sent once per worker** as its pickled bytes (the arrays; the Embree scene is
+  rebuilt in a few milliseconds, the facets and wedges are not recomputed).
+* **The calling process works too**: with ``workers=n`` there are ``n - 1`` worker processes and
+  this process takes chunks from the end of the queue (those no worker has started), so it traces
+  while the workers start and no core idles while it waits.
+* **Guided chunks** (:func:`receiver_chunks` with ``lanes``): the last chunks are smaller, so the
+  lanes finish together.
+
+A worker process that dies (killed, out of memory) makes the pool raise one
+:class:`WorkerCrashError`; the broken pool is dropped and the next call starts a new one.
 """
 
 from __future__ import annotations
 
+import atexit
+import hashlib
 import os
-from collections.abc import Callable, Iterable, Iterator
-from concurrent.futures import ProcessPoolExecutor
+import pickle
+import threading
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from concurrent.futures import Future, ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 from typing import Any
 
-from ..core.errors import TraceInputError
+from ..core.errors import HallrayError, TraceInputError
 from ..scene.model import Scene
 
 #: Links per chunk of receivers (bounds the candidate arrays of one trace to a few hundred MB).
 CHUNK_LINKS = 256
-#: Below this many links a trace stays in this process: a worker's start-up (imports, scene,
-#: Embree) costs about a second, more than tracing a few hundred links.
+#: Smallest guided chunk, links (a chunk has a fixed cost of some milliseconds).
+MIN_CHUNK_LINKS = 16
+#: With ``workers=None``, a trace of fewer links stays in this process, on threads over its
+#: stages; from this many links on it goes over every core in chunks (docs/tracing.md: the
+#: crossover measured on the hall).
 PROCESS_MIN_LINKS = 1000
+#: Modules the fork server imports once, so that its forks (the workers) start with them.
+PRELOAD = ("numpy", "trimesh", "embreex.rtcore_scene", "embreex.mesh_construction", "raytrace")
 
-_SCENE: dict[str, Scene] = {}
+
+class WorkerCrashError(HallrayError):
+    """A worker process died while tracing (killed, out of memory, a crash in native code)."""
+
+
+_SCENE: dict[str, Any] = {}  # in a worker: its scene, and that it is a worker
+_STATE: dict[str, Any] = {}  # in the caller: whether the fork server was started
+_LOCK = threading.Lock()
+#: The one kept pool: {"key": (scene digest, processes), "executor": ProcessPoolExecutor}.
+_KEPT: dict[str, Any] = {}
+#: Set in a worker and while this process runs a job: traces inside a job stay in-process.
+_IN_JOB = threading.local()
 
 
 def cpu_count() -> int:
@@ -35,11 +79,18 @@ def cpu_count() -> int:
         return max(1, os.cpu_count() or 1)
 
 
+def in_job() -> bool:
+    """Whether this code runs inside a pool's job (in a worker, or a chunk this process took):
+    a trace there must not start processes of its own."""
+    return bool(_SCENE.get("worker")) or getattr(_IN_JOB, "depth", 0) > 0
+
+
 def resolve_workers(workers: int | None, n_chunks: int) -> int:
-    """Worker processes to start: the request (default: every core), at most the cores and the
-    chunks. Raises :class:`TraceInputError` for a request that is not a positive integer."""
+    """Lanes to run (this process and ``lanes - 1`` workers): the request (default: every core),
+    at most the cores and the chunks. Raises :class:`TraceInputError` for a request that is not a
+    positive integer."""
     if workers is None:
-        want = cpu_count()
+        want = 1 if in_job() else cpu_count()
     elif isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise TraceInputError(f"workers must be a positive integer, got {workers!r}")
     else:
@@ -47,63 +98,200 @@ def resolve_workers(workers: int | None, n_chunks: int) -> int:
     return max(1, min(want, cpu_count(), max(n_chunks, 1)))
 
 
-def receiver_chunks(n_tx: int, n_rx: int, chunk_links: int | None = None) -> list[range]:
-    """Consecutive ranges of receiver indices with at most ``chunk_links`` links each."""
+def auto_in_process(n_links: int) -> bool:
+    """The rule of ``workers=None``: whether a trace of ``n_links`` links stays in this process
+    (on threads over its stages) rather than going over worker processes: below
+    :data:`PROCESS_MIN_LINKS` links, on one core, or inside a pool's job."""
+    return n_links < PROCESS_MIN_LINKS or cpu_count() == 1 or in_job()
+
+
+def receiver_chunks(
+    n_tx: int, n_rx: int, chunk_links: int | None = None, lanes: int = 1
+) -> list[range]:
+    """Consecutive ranges of receiver indices with at most ``chunk_links`` links each.
+
+    With ``chunk_links=None`` and several ``lanes``, the chunks are guided: each takes at most
+    ``1 / (2 lanes)`` of the receivers still left (at least :data:`MIN_CHUNK_LINKS` links), so the
+    last chunks are small and the lanes finish together. The chunks never change what is traced.
+    """
     per = max(1, int(chunk_links or CHUNK_LINKS) // max(n_tx, 1))
-    return [range(r0, min(n_rx, r0 + per)) for r0 in range(0, n_rx, per)]
+    if chunk_links is not None or lanes <= 1:
+        return [range(r0, min(n_rx, r0 + per)) for r0 in range(0, n_rx, per)]
+    least = max(1, MIN_CHUNK_LINKS // max(n_tx, 1))
+    out, r0 = [], 0
+    while r0 < n_rx:
+        left = n_rx - r0
+        size = min(per, left, max(least, -(-left // (2 * lanes))))
+        out.append(range(r0, r0 + size))
+        r0 += size
+    return out
 
 
-def _init_worker(scene: Scene) -> None:
-    _SCENE["scene"] = scene
+#: Where this raytrace is (the checkout the fork server and the workers must import).
+_PACKAGE = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def _init_worker(blob: bytes, origin: str) -> None:
+    here = _PACKAGE
+    if here != origin:
+        raise RuntimeError(f"worker imports raytrace from {here}, the caller from {origin}")
+    _SCENE["scene"] = pickle.loads(blob)
+    _SCENE["worker"] = True
 
 
 def _call(fn: Callable[[Scene, Any], Any], item: Any) -> Any:
     return fn(_SCENE["scene"], item)
 
 
+def _context(preload: Sequence[str]) -> Any:
+    """The fork-server context with :data:`PRELOAD` (spawn where there is no fork server)."""
+    import multiprocessing
+
+    if "forkserver" not in multiprocessing.get_all_start_methods():
+        return multiprocessing.get_context("spawn")
+    ctx = multiprocessing.get_context("forkserver")
+    if not _STATE.get("forkserver_started"):
+        from multiprocessing import forkserver
+
+        ctx.set_forkserver_preload(list(dict.fromkeys([*PRELOAD, *preload])))
+        # the fork server imports raytrace from where this process does (not another checkout)
+        root = os.path.dirname(_PACKAGE)
+        old = os.environ.get("PYTHONPATH")
+        os.environ["PYTHONPATH"] = root if not old else root + os.pathsep + old
+        try:
+            forkserver.ensure_running()
+        finally:
+            if old is None:
+                os.environ.pop("PYTHONPATH", None)
+            else:
+                os.environ["PYTHONPATH"] = old
+        _STATE["forkserver_started"] = True
+    return ctx
+
+
+def start_forkserver(preload: Sequence[str] = ()) -> None:
+    """Start the fork server now (it imports :data:`PRELOAD` and ``preload`` in the background),
+    so that a pool started later has its workers at once. Does nothing where there is none."""
+    with _LOCK:
+        _context(preload)
+
+
+def close_pools() -> None:
+    """Stop the kept worker processes (called at the end of the interpreter)."""
+    with _LOCK:
+        ex = _KEPT.pop("executor", None)
+        _KEPT.clear()
+    if ex is not None:
+        ex.shutdown(wait=True, cancel_futures=True)
+
+
+atexit.register(close_pools)
+
+
+def _executor(blob: bytes, processes: int, preload: Sequence[str]) -> ProcessPoolExecutor:
+    """The kept pool for this scene and number of processes, started if it is not there."""
+    key = (hashlib.blake2b(blob, digest_size=16).digest(), processes)
+    with _LOCK:
+        if _KEPT.get("key") == key:
+            return _KEPT["executor"]
+        old = _KEPT.pop("executor", None)
+        if old is not None:
+            old.shutdown(wait=False, cancel_futures=True)
+        ex = ProcessPoolExecutor(
+            max_workers=processes,
+            mp_context=_context(preload),
+            initializer=_init_worker,
+            initargs=(blob, _PACKAGE),
+        )
+        _KEPT.update(key=key, executor=ex)
+        return ex
+
+
+def _drop(ex: ProcessPoolExecutor) -> None:
+    """Forget a broken pool (the next call starts a new one)."""
+    with _LOCK:
+        if _KEPT.get("executor") is ex:
+            _KEPT.clear()
+    ex.shutdown(wait=False, cancel_futures=True)
+
+
 class ScenePool:
-    """``fn(scene, item)`` for many items, in order, in this process or on worker processes that
-    each hold a copy of ``scene``.
+    """``fn(scene, item)`` for many items, in order, on ``workers`` lanes: this process and
+    ``workers - 1`` worker processes that each hold a copy of ``scene``.
 
     Parameters
     ----------
     scene : Scene
-    workers : int, processes (1: run in this process, no pool)
+    workers : int, lanes (1: this process alone, no worker process)
+    preload : sequence of str, optional, more modules for the fork server to import (only
+        before it has started: the first pool of the interpreter)
 
-    ``fn`` must be a module-level function (it is sent to the workers by reference).
+    ``fn`` must be a module-level function (it is sent to the workers by reference). The worker
+    processes are kept after :meth:`close` for the next pool with the same scene and number of
+    workers (see the module's description); :func:`close_pools` stops them.
     """
 
-    def __init__(self, scene: Scene, workers: int) -> None:
+    def __init__(self, scene: Scene, workers: int, preload: Sequence[str] = ()) -> None:
         self.scene, self.workers = scene, int(workers)
         self._pool: ProcessPoolExecutor | None = None
         if self.workers > 1:
-            import multiprocessing
-
-            self._pool = ProcessPoolExecutor(
-                max_workers=self.workers,
-                mp_context=multiprocessing.get_context("spawn"),
-                initializer=_init_worker,
-                initargs=(scene,),
-            )
+            blob = pickle.dumps(scene, protocol=pickle.HIGHEST_PROTOCOL)
+            self._pool = _executor(blob, self.workers - 1, preload)
 
     def map(self, fn: Callable[[Scene, Any], Any], items: Iterable[Any]) -> Iterator[Any]:
-        """The results of ``fn(scene, item)``, in the order of ``items``."""
+        """The results of ``fn(scene, item)``, in the order of ``items``.
+
+        Raises :class:`WorkerCrashError` if a worker process dies; an exception raised by ``fn``
+        is raised as it is.
+        """
+        items = list(items)
         if self._pool is None:
             for item in items:
-                yield fn(self.scene, item)
+                yield self._here(fn, item)
             return
-        futures = [self._pool.submit(_call, fn, item) for item in items]
+        pool = self._pool
         try:
-            for fut in futures:
-                yield fut.result()
+            futures: list[Future] = [pool.submit(_call, fn, item) for item in items]
+        except BrokenProcessPool as exc:
+            _drop(pool)
+            raise WorkerCrashError(f"a worker process died: {exc}") from None
+        done: dict[int, Any] = {}
+        steal = len(items) - 1  # this process takes chunks from the end while it can
+        try:
+            for i, fut in enumerate(futures):
+                while i not in done and not fut.done() and steal >= i:
+                    if not futures[steal].cancel():
+                        steal = i - 1  # every earlier chunk has gone to a worker too
+                        break
+                    done[steal] = self._here(fn, items[steal])
+                    steal -= 1
+                if i in done:
+                    yield done.pop(i)
+                    continue
+                try:
+                    result = fut.result()
+                except BrokenProcessPool as exc:
+                    _drop(pool)
+                    raise WorkerCrashError(
+                        f"a worker process died while tracing (killed, out of memory or a crash "
+                        f"in native code): {exc}"
+                    ) from None
+                yield result
         finally:
             for fut in futures:
                 fut.cancel()
 
+    def _here(self, fn: Callable[[Scene, Any], Any], item: Any) -> Any:
+        """``fn(scene, item)`` in this process, marked as a job (no nested pool)."""
+        _IN_JOB.depth = getattr(_IN_JOB, "depth", 0) + 1
+        try:
+            return fn(self.scene, item)
+        finally:
+            _IN_JOB.depth -= 1
+
     def close(self) -> None:
-        if self._pool is not None:
-            self._pool.shutdown(wait=True, cancel_futures=True)
-            self._pool = None
+        """Release the pool (its worker processes are kept for the next one, see above)."""
+        self._pool = None
 
     def __enter__(self) -> ScenePool:
         return self

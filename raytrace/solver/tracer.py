@@ -34,7 +34,7 @@ from . import diffraction, specular
 from .config import MIN_POWER_DB, TraceConfig
 from .context import TraceContext, opaque_objects
 from .evaluate import candidates, evaluate
-from .parallel import PROCESS_MIN_LINKS, ScenePool, receiver_chunks, resolve_workers
+from .parallel import ScenePool, auto_in_process, receiver_chunks, resolve_workers
 from .paths import DIFFRACTION, Paths
 
 __all__ = [
@@ -174,7 +174,7 @@ def trace(
     Paths, in their canonical order (:meth:`Paths.sorted`).
     """
     cfg, f, tx, rx = _checked(scene, tx, rx, frequency_hz, config)
-    if workers is None and chunk_links is None and len(tx) * len(rx) < PROCESS_MIN_LINKS:
+    if workers is None and chunk_links is None and auto_in_process(len(tx) * len(rx)):
         return _trace_links(scene, tx, rx, f, cfg, progress, stats, involving, threads, opaque)
     chunks = _chunked(scene, tx, rx, f, cfg, None, workers, chunk_links, progress, stats,
                       involving, opaque)  # fmt: skip
@@ -251,8 +251,8 @@ def _chunked(
     opaque: np.ndarray | None,
 ) -> Iterator[tuple[range, Any]]:
     """:func:`trace_chunks` on validated input."""
-    chunks = receiver_chunks(len(tx), len(rx), chunk_links)
-    n_workers = resolve_workers(workers, len(chunks))
+    n_workers = resolve_workers(workers, len(receiver_chunks(len(tx), len(rx), chunk_links)))
+    chunks = receiver_chunks(len(tx), len(rx), chunk_links, n_workers)
     jobs = [(tx, rx, c, f, cfg, involving, opaque, reduce, n_workers > 1) for c in chunks]
     bar = None
     if progress is True:

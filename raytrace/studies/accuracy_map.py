@@ -506,7 +506,7 @@ def _run_chunks(
         bar = tqdm(total=chunks[-1].stop, desc="accuracy map", unit="cell")
     parts = []
     try:
-        with ScenePool(scene, n_workers) as pool:
+        with ScenePool(scene, n_workers, preload=(__name__,)) as pool:
             for chunk, part in zip(chunks, pool.map(_chunk_job, jobs)):
                 parts.append(part)
                 if bar is not None:
