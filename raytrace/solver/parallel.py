@@ -212,7 +212,69 @@ def _drop(ex: ProcessPoolExecutor) -> None:
     with _LOCK:
         if _KEPT.get("executor") is ex:
             _KEPT.clear()
+    # the other workers may still be alive, blocked on a queue left dirty: stop them now
+    for proc in list((getattr(ex, "_processes", None) or {}).values()):
+        proc.terminate()
     ex.shutdown(wait=False, cancel_futures=True)
+
+
+class _Feeder:
+    """Hands the items of one :meth:`ScenePool.map` to the workers from the front, keeping at
+    most one queued per worker (so that the rest stay for this process to take from the back)."""
+
+    def __init__(
+        self, pool: ProcessPoolExecutor, fn: Callable[[Scene, Any], Any], items: list, lanes: int
+    ) -> None:
+        from collections import deque
+
+        self._pool, self._fn, self._items = pool, fn, items
+        self._left = deque(range(len(items)))
+        self._futures: dict[int, Future] = {}
+        self._cond = threading.Condition()
+        self._slots = threading.Semaphore(2 * max(lanes - 1, 1))
+        self._stopped = False
+        self._thread = threading.Thread(target=self._run, name="scenepool-feeder", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        while True:
+            self._slots.acquire()
+            with self._cond:
+                if self._stopped or not self._left:
+                    return
+                i = self._left.popleft()
+            try:
+                fut = self._pool.submit(_call, self._fn, self._items[i])
+            except BrokenProcessPool as exc:
+                fut = Future()
+                fut.set_exception(exc)
+            except RuntimeError as exc:  # the pool was shut down under us
+                fut = Future()
+                fut.set_exception(BrokenProcessPool(str(exc)))
+            fut.add_done_callback(lambda _: self._slots.release())
+            with self._cond:
+                self._futures[i] = fut
+                self._cond.notify_all()
+
+    def future(self, i: int, wait: bool = False) -> Future | None:
+        """Item ``i``'s future once it was handed to a worker (``wait``: until it is)."""
+        with self._cond:
+            if wait:
+                self._cond.wait_for(lambda: i in self._futures)
+            return self._futures.get(i)
+
+    def take_last(self) -> int | None:
+        """The last item no worker has been given (None: there is none left)."""
+        with self._cond:
+            return self._left.pop() if self._left else None
+
+    def stop(self) -> None:
+        """Hand out nothing more (items already with the workers run to their end)."""
+        with self._cond:
+            self._stopped = True
+            self._left.clear()
+        self._slots.release()
+        self._thread.join()
 
 
 class ScenePool:
@@ -241,45 +303,43 @@ class ScenePool:
     def map(self, fn: Callable[[Scene, Any], Any], items: Iterable[Any]) -> Iterator[Any]:
         """The results of ``fn(scene, item)``, in the order of ``items``.
 
-        Raises :class:`WorkerCrashError` if a worker process dies; an exception raised by ``fn``
-        is raised as it is.
+        The workers take items from the front, at most one queued beside each running one (a
+        feeder thread hands them out as they finish); this process takes items from the back
+        whenever the next result in order is not there yet. Raises :class:`WorkerCrashError` if
+        a worker process dies; an exception raised by ``fn`` is raised as it is.
         """
         items = list(items)
         if self._pool is None:
             for item in items:
                 yield self._here(fn, item)
             return
-        pool = self._pool
-        try:
-            futures: list[Future] = [pool.submit(_call, fn, item) for item in items]
-        except BrokenProcessPool as exc:
-            _drop(pool)
-            raise WorkerCrashError(f"a worker process died: {exc}") from None
+        feed = _Feeder(self._pool, fn, items, self.workers)
         done: dict[int, Any] = {}
-        steal = len(items) - 1  # this process takes chunks from the end while it can
         try:
-            for i, fut in enumerate(futures):
-                while i not in done and not fut.done() and steal >= i:
-                    if not futures[steal].cancel():
-                        steal = i - 1  # every earlier chunk has gone to a worker too
+            for i in range(len(items)):
+                while i not in done:
+                    fut = feed.future(i)
+                    if fut is not None and fut.done():
                         break
-                    done[steal] = self._here(fn, items[steal])
-                    steal -= 1
+                    j = feed.take_last()  # the next result is not there: work meanwhile
+                    if j is None:
+                        fut = feed.future(i, wait=True)
+                        break
+                    done[j] = self._here(fn, items[j])
                 if i in done:
                     yield done.pop(i)
                     continue
                 try:
                     result = fut.result()
                 except BrokenProcessPool as exc:
-                    _drop(pool)
+                    _drop(self._pool)
                     raise WorkerCrashError(
                         f"a worker process died while tracing (killed, out of memory or a crash "
                         f"in native code): {exc}"
                     ) from None
                 yield result
         finally:
-            for fut in futures:
-                fut.cancel()
+            feed.stop()
 
     def _here(self, fn: Callable[[Scene, Any], Any], item: Any) -> Any:
         """``fn(scene, item)`` in this process, marked as a job (no nested pool)."""
