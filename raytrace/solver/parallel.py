@@ -81,9 +81,15 @@ def cpu_count() -> int:
 
 
 def in_job() -> bool:
-    """Whether this code runs inside a pool's job (in a worker, or a chunk this process took):
-    a trace there must not start processes of its own."""
-    return bool(_SCENE.get("worker")) or getattr(_IN_JOB, "depth", 0) > 0
+    """Whether this code runs inside a pool's job (in a worker process of any pool, or a chunk
+    this process took): a trace there must not start processes of its own by default."""
+    import multiprocessing
+
+    return (
+        bool(_SCENE.get("worker"))
+        or getattr(_IN_JOB, "depth", 0) > 0
+        or multiprocessing.parent_process() is not None
+    )
 
 
 def resolve_workers(workers: int | None, n_chunks: int) -> int:
@@ -144,8 +150,16 @@ def _call(fn: Callable[[Scene, Any], Any], item: Any) -> Any:
     return fn(_SCENE["scene"], item)
 
 
+def process_context(preload: Sequence[str] = ()) -> Any:
+    """The multiprocessing context for worker processes: the fork server, started now if it is
+    not running, importing :data:`PRELOAD` and ``preload`` in the background (spawn where there
+    is no fork server). ``preload`` counts only for the first call of the interpreter."""
+    with _LOCK:
+        return _context(preload)
+
+
 def _context(preload: Sequence[str]) -> Any:
-    """The fork-server context with :data:`PRELOAD` (spawn where there is no fork server)."""
+    """:func:`process_context` (the caller holds the lock)."""
     import multiprocessing
 
     if "forkserver" not in multiprocessing.get_all_start_methods():
@@ -168,13 +182,6 @@ def _context(preload: Sequence[str]) -> Any:
                 os.environ["PYTHONPATH"] = old
         _STATE["forkserver_started"] = True
     return ctx
-
-
-def start_forkserver(preload: Sequence[str] = ()) -> None:
-    """Start the fork server now (it imports :data:`PRELOAD` and ``preload`` in the background),
-    so that a pool started later has its workers at once. Does nothing where there is none."""
-    with _LOCK:
-        _context(preload)
 
 
 def close_pools() -> None:
