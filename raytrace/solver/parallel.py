@@ -253,12 +253,10 @@ class _Feeder:
                 i = self._left.popleft()
             try:
                 fut = self._pool.submit(_call, self._fn, self._items[i])
-            except BrokenProcessPool as exc:
+            except Exception as exc:  # noqa: BLE001  broken, or shut down under us: its result
                 fut = Future()
-                fut.set_exception(exc)
-            except RuntimeError as exc:  # the pool was shut down under us
-                fut = Future()
-                fut.set_exception(BrokenProcessPool(str(exc)))
+                fut.set_exception(exc if isinstance(exc, BrokenProcessPool)
+                                  else BrokenProcessPool(f"{type(exc).__name__}: {exc}"))  # fmt: skip
             fut.add_done_callback(lambda _: self._slots.release())
             with self._cond:
                 self._futures[i] = fut
