@@ -86,7 +86,8 @@ def test_guided_chunks_cover_the_receivers_in_order_and_shrink():
         sizes = [len(c) for c in chunks]
         least = max(1, MIN_CHUNK_LINKS // n_tx)
         assert all(a >= b for a, b in zip(sizes, sizes[1:]))  # they only shrink
-        assert sizes[0] == min(n_rx, 256 // n_tx)  # full chunks first
+        # the first is a full chunk, or 1/(2 lanes) of the receivers when that is less
+        assert sizes[0] == min(n_rx, 256 // n_tx, max(least, -(-n_rx // (2 * lanes))))
         assert max(sizes) * n_tx <= 256
         assert all(k >= least for k in sizes[:-1])  # none below the floor but the remainder
         assert sizes[-1] <= least or len(sizes) == 1  # the last ones are small
