@@ -163,11 +163,13 @@ def trace(
         crossing analysis (default :func:`opaque_objects` at this frequency and power cut; give
         the objects opaque at every band when tracing geometry once for several bands with
         ``min_power_db=-inf``)
-    workers : int, optional, processes over chunks of receivers (:func:`trace_chunks`). Default:
-        this process alone below :data:`~raytrace.solver.parallel.PROCESS_MIN_LINKS` links,
-        every core above. The paths do not depend on it.
-    chunk_links : int, optional, links per chunk (default
-        :data:`~raytrace.solver.parallel.CHUNK_LINKS` when chunked)
+    workers : int, optional, lanes over chunks of receivers (:func:`trace_chunks`): this process
+        and ``workers - 1`` worker processes. Default
+        (:func:`~raytrace.solver.parallel.auto_in_process`): this process alone, its stages on
+        threads, below :data:`~raytrace.solver.parallel.PROCESS_MIN_LINKS` links or inside a
+        pool's job; every core from there on. The paths do not depend on it.
+    chunk_links : int, optional, links per chunk (default: guided chunks of at most
+        :data:`~raytrace.solver.parallel.CHUNK_LINKS` links, smaller at the end)
 
     Returns
     -------
@@ -220,10 +222,10 @@ def trace_chunks(
     scene, tx, rx, frequency_hz, config, involving, opaque : as in :func:`trace`
     reduce : callable, optional, a module-level function ``reduce(paths) -> result`` (it is sent to
         the workers by reference)
-    workers : int, optional, processes (default every core, at most one per chunk; 1: this
-        process)
-    chunk_links : int, optional, links per chunk (default
-        :data:`~raytrace.solver.parallel.CHUNK_LINKS`)
+    workers : int, optional, lanes: this process and ``workers - 1`` worker processes (default
+        every core, 1 inside a pool's job; at most one per chunk)
+    chunk_links : int, optional, links per chunk (default: guided chunks of at most
+        :data:`~raytrace.solver.parallel.CHUNK_LINKS` links, smaller at the end)
     progress : bool or callable, a progress bar over the chunks, or a callback per chunk
     stats : dict, optional, counters summed over the chunks
 
