@@ -21,8 +21,8 @@ What a pool costs, and how it is kept small (measured in docs/tracing.md, "Where
   the interpreter.
 * **The scene is sent once per worker** as its pickled bytes (the arrays; the Embree scene is
   rebuilt in a few milliseconds, the facets and wedges are not recomputed).
-* **The calling process works too**: with ``workers=n`` there are ``n - 1`` worker processes and
-  this process takes chunks from the end of the queue (those no worker has started), so it traces
+* **The calling process works too**: with ``workers=n`` there are ``n - 1`` worker processes, and
+  this process takes the next chunk of the queue whenever it would otherwise wait, so it traces
   while the workers start and no core idles while it waits.
 * **Guided chunks** (:func:`receiver_chunks` with ``lanes``): the last chunks are smaller, so the
   lanes finish together.
@@ -227,8 +227,8 @@ def _drop(ex: ProcessPoolExecutor) -> None:
 
 
 class _Feeder:
-    """Hands the items of one :meth:`ScenePool.map` to the workers from the front, keeping at
-    most one queued per worker (so that the rest stay for this process to take from the back)."""
+    """Hands the items of one :meth:`ScenePool.map` to the workers in order, one per worker at a
+    time, so that the rest stay in one queue that this process takes from too."""
 
     def __init__(
         self, pool: ProcessPoolExecutor, fn: Callable[[Scene, Any], Any], items: list, lanes: int
@@ -239,7 +239,7 @@ class _Feeder:
         self._left = deque(range(len(items)))
         self._futures: dict[int, Future] = {}
         self._cond = threading.Condition()
-        self._slots = threading.Semaphore(2 * max(lanes - 1, 1))
+        self._slots = threading.Semaphore(max(lanes - 1, 1))
         self._stopped = False
         self._thread = threading.Thread(target=self._run, name="scenepool-feeder", daemon=True)
         self._thread.start()
@@ -269,10 +269,10 @@ class _Feeder:
                 self._cond.wait_for(lambda: i in self._futures)
             return self._futures.get(i)
 
-    def take_last(self) -> int | None:
-        """The last item no worker has been given (None: there is none left)."""
+    def take_next(self) -> int | None:
+        """The next item no worker has been given (None: there is none left)."""
         with self._cond:
-            return self._left.pop() if self._left else None
+            return self._left.popleft() if self._left else None
 
     def stop(self) -> None:
         """Hand out nothing more (items already with the workers run to their end)."""
@@ -309,9 +309,10 @@ class ScenePool:
     def map(self, fn: Callable[[Scene, Any], Any], items: Iterable[Any]) -> Iterator[Any]:
         """The results of ``fn(scene, item)``, in the order of ``items``.
 
-        The workers take items from the front, at most one queued beside each running one (a
-        feeder thread hands them out as they finish); this process takes items from the back
-        whenever the next result in order is not there yet. Raises :class:`WorkerCrashError` if
+        All lanes take the items in order from one queue: a feeder thread hands the next one to
+        a worker as soon as it is free, and this process takes the next one whenever the result
+        it must yield next is not there yet (it traces while the workers start, and the small
+        guided chunks at the end go to whichever lane is free). Raises :class:`WorkerCrashError` if
         a worker process dies; an exception raised by ``fn`` is raised as it is.
         """
         items = list(items)
@@ -327,7 +328,7 @@ class ScenePool:
                     fut = feed.future(i)
                     if fut is not None and fut.done():
                         break
-                    j = feed.take_last()  # the next result is not there: work meanwhile
+                    j = feed.take_next()  # the next result is not there: work meanwhile
                     if j is None:
                         fut = feed.future(i, wait=True)
                         break
