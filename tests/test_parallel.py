@@ -161,6 +161,16 @@ def _inner_workers(scene, item):
     return resolve_workers(None, 10), parallel.auto_in_process(10**6)
 
 
+def test_the_auto_rule_by_links_and_cores(monkeypatch):
+    monkeypatch.setattr(parallel, "cpu_count", lambda: 2)
+    assert parallel.auto_in_process(92) and parallel.auto_in_process(999)
+    assert not parallel.auto_in_process(1000)
+    monkeypatch.setattr(parallel, "cpu_count", lambda: 16)
+    assert parallel.auto_in_process(383) and not parallel.auto_in_process(384)
+    monkeypatch.setattr(parallel, "cpu_count", lambda: 1)
+    assert parallel.auto_in_process(10**6)
+
+
 def test_work_inside_a_job_stays_in_its_process(scene_links):
     sc = scene_links[0]
     assert list(ScenePool(sc, 1).map(_inner_workers, range(2))) == [(1, True)] * 2

@@ -52,9 +52,13 @@ CHUNK_LINKS = 256
 #: links per chunk cost 35 % more than 256, 64 links 5 %).
 MIN_CHUNK_LINKS = 64
 #: With ``workers=None``, a trace of fewer links stays in this process, on threads over its
-#: stages; from this many links on it goes over every core in chunks (docs/tracing.md: the
-#: crossover measured on the hall).
+#: stages, unless it fills :data:`AUTO_MIN_LANES` lanes (docs/tracing.md: on 2 cores, threads at
+#: 1.7x are as fast as 2 lanes up to about 800-1000 links, modelled from measured costs).
 PROCESS_MIN_LINKS = 1000
+#: ... or from this many lanes of :data:`MIN_CHUNK_LINKS` links on as many cores: threads over the
+#: stages cannot go beyond about 2.1x (the costliest stage is 47 % of a trace), and 6 lanes repay
+#: the first pool's start (0.6 s) from 384 links on.
+AUTO_MIN_LANES = 6
 #: Modules the fork server imports once, so that its forks (the workers) start with them.
 PRELOAD = ("numpy", "trimesh", "embreex.rtcore_scene", "embreex.mesh_construction", "raytrace")
 
@@ -107,9 +111,18 @@ def resolve_workers(workers: int | None, n_chunks: int) -> int:
 
 def auto_in_process(n_links: int) -> bool:
     """The rule of ``workers=None``: whether a trace of ``n_links`` links stays in this process
-    (on threads over its stages) rather than going over worker processes: below
-    :data:`PROCESS_MIN_LINKS` links, on one core, or inside a pool's job."""
-    return n_links < PROCESS_MIN_LINKS or cpu_count() == 1 or in_job()
+    (its stages on threads) rather than going over every core in chunks.
+
+    It stays in this process inside a pool's job (:func:`in_job`), on one core, and when it has
+    fewer than :data:`PROCESS_MIN_LINKS` links unless it fills :data:`AUTO_MIN_LANES` lanes of
+    :data:`MIN_CHUNK_LINKS` links (``min(cores, n_links // MIN_CHUNK_LINKS) >= AUTO_MIN_LANES``).
+    On the 2-core development machine this is: processes from 1000 links on; on 6 cores or more,
+    from 384 links on.
+    """
+    if in_job() or cpu_count() == 1:
+        return True
+    lanes = min(cpu_count(), n_links // MIN_CHUNK_LINKS)
+    return n_links < PROCESS_MIN_LINKS and lanes < AUTO_MIN_LANES
 
 
 def receiver_chunks(
