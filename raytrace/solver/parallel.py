@@ -8,7 +8,7 @@ accuracy map use it.
 
 What a pool costs, and how it is kept small (measured in docs/tracing.md, "Where the time goes"):
 
-* **Workers come from a fork server** with numpy, trimesh, Embree and raytrace imported once
+* **Workers come from a fork server** with numpy, Embree and raytrace imported once
   (:data:`PRELOAD`); a worker is a fork of it, ready in tens of milliseconds, where a spawned
   interpreter spends half a second or more importing them. The fork server never builds an Embree
   scene nor starts a thread, so its forks are safe (a fork of a process whose Embree or tracer
@@ -59,8 +59,9 @@ PROCESS_MIN_LINKS = 1000
 #: stages cannot go beyond about 2.1x (the costliest stage is 47 % of a trace), and 6 lanes repay
 #: the first pool's start (0.6 s) from 384 links on.
 AUTO_MIN_LANES = 6
-#: Modules the fork server imports once, so that its forks (the workers) start with them.
-PRELOAD = ("numpy", "trimesh", "embreex.rtcore_scene", "embreex.mesh_construction", "raytrace")
+#: Modules the fork server imports once, so that its forks (the workers) start with them (not
+#: trimesh: a worker that only traces never needs it; pools that build scenes add it).
+PRELOAD = ("numpy", "embreex.rtcore_scene", "embreex.mesh_construction", "raytrace")
 
 
 class WorkerCrashError(HallrayError):
