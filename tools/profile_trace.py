@@ -4,7 +4,8 @@ function.
 
 Run from a checkout: ``python tools/profile_trace.py [--scene hall] [--grid-step M] [--top 25]``.
 ``--grid-step`` traces a grid of receivers over the floor (as ``accuracy-map``) instead of the
-scene's points. Prints each stage's time (the tracer's own ``time_us`` counters), then the
+scene's points, in this process on one thread, chunk by chunk as a worker would (``trace`` would
+send a large grid to worker processes, where cProfile does not see it). Prints each stage's time (the tracer's own ``time_us`` counters), then the
 functions with the most time of their own, grouped by module. Not a test.
 """
 
@@ -22,6 +23,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from raytrace import TraceConfig, load_scene, trace  # noqa: E402
 from raytrace.scene.metadata import SceneMetadata  # noqa: E402
+from raytrace.solver.parallel import receiver_chunks  # noqa: E402
 
 
 def _module(file: str) -> str:
@@ -55,11 +57,14 @@ def main() -> int:
     prof = cProfile.Profile()
     t0, c0 = time.perf_counter(), time.process_time()
     prof.enable()
-    paths = trace(scene, inp.bs_xyz, rx, f, cfg, threads=1, stats=stats)
+    n_paths = 0
+    for c in receiver_chunks(len(inp.bs_xyz), len(rx)):  # as a worker: chunks, one thread
+        part = trace(scene, inp.bs_xyz, rx[c.start : c.stop], f, cfg, threads=1, stats=stats)
+        n_paths += part.n_paths
     prof.disable()
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     n_links = len(inp.bs_xyz) * len(rx)
-    print(f"{n_links} links, {paths.n_paths} paths: {wall:.3f} s wall, {cpu:.3f} s CPU, one "
+    print(f"{n_links} links, {n_paths} paths: {wall:.3f} s wall, {cpu:.3f} s CPU, one "
           "thread, under cProfile")  # fmt: skip
     print("stages (tracer counters, s):")
     stage_s = {k[8:-1]: v / 1e6 for k, v in stats.items() if k.startswith("time_us[")}

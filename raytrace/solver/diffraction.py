@@ -22,7 +22,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from ..physics.utd import diffracted_field, keller_points, wedge_geometry
+from ..physics.utd import _oriented_wedge, diffracted_field, keller_points, wedge_geometry
 from ..scene import accel
 from . import reflection as refl
 from .context import TraceContext
@@ -34,6 +34,14 @@ CHUNK = 300_000
 #: Padding (m) of the visible part of an edge used to prune diffraction points before the exact
 #: point-in-facet test: far above rounding, so the pruning never drops a valid path.
 SPAN_PAD_M = 1e-6
+#: A point is surely inside a wedge (its diffraction invalid whatever the diffraction point) when
+#: its azimuth is inside the wedge's interior by more than this (rad) and it is farther than
+#: :data:`INSIDE_MIN_RHO_M` from the edge line: far above the rounding of the azimuth computed
+#: from another point of the edge (about 1e-14 m / rho) and the 1e-9 rad snap of
+#: :func:`~raytrace.physics.utd.wedge_geometry`, so the pruning never drops a valid path.
+INSIDE_MARGIN_RAD = 1e-6
+#: See :data:`INSIDE_MARGIN_RAD`, metres.
+INSIDE_MIN_RHO_M = 1e-3
 
 
 def stages(ctx: TraceContext) -> list[tuple[str, Callable[[], list[Paths]]]]:
@@ -86,6 +94,36 @@ def field_model(ctx: TraceContext) -> DiffractionModel:
         return fld.field, scale
 
     return apply
+
+
+def _wedge_frame(ctx: TraceContext) -> tuple[np.ndarray, ...]:
+    """Each wedge's edge-fixed frame as :func:`~raytrace.physics.utd.wedge_geometry` builds it:
+    start (W, 3) m, ``t0`` and ``n0`` (W, 3), and ``n pi`` (W,) rad (cached on the wedges)."""
+    w = ctx.scene.wedges
+    cached = w.cache.get("utd_frame")
+    if cached is None:
+        _, t0, n0, _, n = _oriented_wedge(w.direction, w.normal0, w.normal1, w.face0_dir, len(w))
+        cached = (w.start, t0, n0, n * np.pi)
+        for x in cached[1:]:
+            x.setflags(write=False)
+        w.cache["utd_frame"] = cached
+    return cached
+
+
+def _surely_inside(frame: tuple[np.ndarray, ...], wi: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """Whether points ``p`` (..., 3) are inside wedges ``wi`` (...) by a margin
+    (:data:`INSIDE_MARGIN_RAD`): a diffraction with a source or receiver there is never valid.
+    Broadcasts."""
+    start, t0, n0, npi = frame
+    v = p - start[wi]
+    x = np.einsum("...j,...j->...", v, t0[wi])
+    y = np.einsum("...j,...j->...", v, n0[wi])
+    phi = np.mod(np.arctan2(y, x), 2.0 * np.pi)
+    return (
+        (phi > npi[wi] + INSIDE_MARGIN_RAD)
+        & (phi < 2.0 * np.pi - INSIDE_MARGIN_RAD)
+        & (x * x + y * y > INSIDE_MIN_RHO_M**2)
+    )
 
 
 def _valid_geometry(ctx: TraceContext, wedge, src, dst, point) -> np.ndarray:
@@ -258,6 +296,7 @@ def _facet_wedge_pairs(
     fc = ctx.scene.facets
     side = refl.reflecting_side(fc, ends)  # (E, K)
     geo = _PairGeometry(ctx, ctx.facet_mask is not None and not mixed_rdr)
+    frame = _wedge_frame(ctx)
     outs = []
     for e in range(len(ends)):
         f_ok = np.flatnonzero(side[e] != 0)
@@ -274,6 +313,9 @@ def _facet_wedge_pairs(
         if len(wi) == 0:
             continue
         img = img_f[fj]
+        # a diffraction from (or towards) an image inside the wedge is never valid
+        keep = ~_surely_inside(frame, wi, img)
+        wi, fj, f_idx, da, db, img = (x[keep] for x in (wi, fj, f_idx, da, db, img))
         ok, t_lo, t_hi = geo.visible_span(wi, f_idx, img, h_f[fj], da, db)
         outs.append((np.full(int(ok.sum()), e), f_idx[ok], wi[ok], img[ok], t_lo, t_hi))
     if not outs:
@@ -311,6 +353,8 @@ def _one_reflection(ctx: TraceContext, before: bool) -> list[Paths]:
     td_w, rho_w = _along_and_off(
         others[None, :, :], w.start[:, None, :], w.direction[:, None, :]
     )  # (W, O)
+    # the other end inside the wedge: never a valid diffraction
+    open_w = ~_surely_inside(_wedge_frame(ctx), np.arange(len(w))[:, None], others[None, :])
     out = []
     n_o = len(others)
     step = max(1, CHUNK // max(n_o, 1))
@@ -319,7 +363,7 @@ def _one_reflection(ctx: TraceContext, before: bool) -> list[Paths]:
         td, rd = td_w[w_idx[sl]], rho_w[w_idx[sl]]
         with np.errstate(divide="ignore", invalid="ignore"):
             t = ts[sl, None] + (td - ts[sl, None]) * rho_s[sl, None] / (rho_s[sl, None] + rd)
-        q, o_idx = np.nonzero((t >= t_lo[sl, None]) & (t <= t_hi[sl, None]))
+        q, o_idx = np.nonzero((t >= t_lo[sl, None]) & (t <= t_hi[sl, None]) & open_w[w_idx[sl]])
         q += c0
         ctx.count("candidates_rd" if before else "candidates_dr", len(q))
         ee, ff, ww, im = e_idx[q], f_idx[q], w_idx[q], img[q]
