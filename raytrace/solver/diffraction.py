@@ -96,33 +96,52 @@ def field_model(ctx: TraceContext) -> DiffractionModel:
     return apply
 
 
-def _wedge_frame(ctx: TraceContext) -> tuple[np.ndarray, ...]:
-    """Each wedge's edge-fixed frame as :func:`~raytrace.physics.utd.wedge_geometry` builds it:
-    start (W, 3) m, ``t0`` and ``n0`` (W, 3), and ``n pi`` (W,) rad (cached on the wedges)."""
+class _WedgeFrame:
+    """Per wedge, what :func:`_surely_inside` needs, as contiguous component arrays: the
+    edge-fixed axes ``t0`` and ``n0`` of :func:`~raytrace.physics.utd.wedge_geometry` (3, W),
+    the start's coordinates along them (W,) m, ``cos``/``sin`` of the exterior angle ``n pi`` and
+    whether the interior is a sector narrower than pi (``1 <= n < 2``, the wedges pruned)."""
+
+    def __init__(self, w) -> None:
+        _, t0, n0, _, n = _oriented_wedge(w.direction, w.normal0, w.normal1, w.face0_dir, len(w))
+        self.t0, self.n0 = np.ascontiguousarray(t0.T), np.ascontiguousarray(n0.T)
+        self.t_start = np.einsum("ij,ij->i", w.start, t0)
+        self.n_start = np.einsum("ij,ij->i", w.start, n0)
+        self.cos_n, self.sin_n = np.cos(n * np.pi), np.sin(n * np.pi)
+        self.prunable = (n >= 1.0) & (n < 2.0 - 1e-6)
+
+
+def _wedge_frame(ctx: TraceContext) -> _WedgeFrame:
+    """The scene's :class:`_WedgeFrame` (cached on the wedges)."""
     w = ctx.scene.wedges
     cached = w.cache.get("utd_frame")
     if cached is None:
-        _, t0, n0, _, n = _oriented_wedge(w.direction, w.normal0, w.normal1, w.face0_dir, len(w))
-        cached = (w.start, t0, n0, n * np.pi)
-        for x in cached[1:]:
-            x.setflags(write=False)
-        w.cache["utd_frame"] = cached
+        cached = w.cache["utd_frame"] = _WedgeFrame(w)
     return cached
 
 
-def _surely_inside(frame: tuple[np.ndarray, ...], wi: np.ndarray, p: np.ndarray) -> np.ndarray:
-    """Whether points ``p`` (..., 3) are inside wedges ``wi`` (...) by a margin
-    (:data:`INSIDE_MARGIN_RAD`): a diffraction with a source or receiver there is never valid.
-    Broadcasts."""
-    start, t0, n0, npi = frame
-    v = p - start[wi]
-    x = np.einsum("...j,...j->...", v, t0[wi])
-    y = np.einsum("...j,...j->...", v, n0[wi])
-    phi = np.mod(np.arctan2(y, x), 2.0 * np.pi)
+def _surely_inside(fr: _WedgeFrame, wi: np.ndarray, px, py, pz) -> np.ndarray:
+    """Whether points (components ``px, py, pz``) are inside wedges ``wi`` by a margin: a
+    diffraction with a source or receiver there is never valid. Broadcasts.
+
+    With ``x, y`` the point's coordinates along ``t0, n0`` from the edge (azimuth ``phi``
+    measured from face 0), the interior ``n pi < phi < 2 pi`` of a wedge with ``1 <= n < 2`` is
+    where ``y < 0`` and ``r sin(phi - n pi) = cos(n pi) y - sin(n pi) x > 0``; both must hold by
+    ``sin`` :data:`INSIDE_MARGIN_RAD` times ``r``, at ``r`` above :data:`INSIDE_MIN_RHO_M`.
+    """
+    t0, n0 = fr.t0, fr.n0
+    x = px * t0[0][wi] + py * t0[1][wi] + pz * t0[2][wi] - fr.t_start[wi]
+    y = px * n0[0][wi] + py * n0[1][wi] + pz * n0[2][wi] - fr.n_start[wi]
+    r2 = x * x + y * y
+    m2 = np.sin(INSIDE_MARGIN_RAD) ** 2 * r2
+    side_n = fr.cos_n[wi] * y - fr.sin_n[wi] * x
     return (
-        (phi > npi[wi] + INSIDE_MARGIN_RAD)
-        & (phi < 2.0 * np.pi - INSIDE_MARGIN_RAD)
-        & (x * x + y * y > INSIDE_MIN_RHO_M**2)
+        fr.prunable[wi]
+        & (r2 > INSIDE_MIN_RHO_M**2)
+        & (y < 0)
+        & (y * y > m2)
+        & (side_n > 0)
+        & (side_n * side_n > m2)
     )
 
 
@@ -185,6 +204,10 @@ class _PairGeometry:
         self.lo, self.hi = accel.facet_boxes(fc, ctx.scene.margin)
         self.restricted = restricted
         self.edge_ends = (w.start, w.end)
+        self.mid_c = np.ascontiguousarray(self.w_mid.T)
+        self.start_c, self.end_c = np.ascontiguousarray(w.start.T), np.ascontiguousarray(w.end.T)
+        self.length = np.einsum("ij,ij->i", w.end - w.start, w.direction)
+        self.lo_c, self.hi_c = np.ascontiguousarray(self.lo.T), np.ascontiguousarray(self.hi.T)
         if restricted:
             g_in = ctx.wedge_mask[self.g_order[self.g_start]]  # a group is one object's wedges
             self.g_chosen, self.g_other = np.flatnonzero(g_in), np.flatnonzero(~g_in)
@@ -234,42 +257,74 @@ class _PairGeometry:
         fj = np.repeat(fj, cnt)
         f_idx = f_ok[fj]
         eps = accel.PLANE_TOL_M
-        da = self.plane_dist(0, wi, f_idx) * sgn[fj]
-        db = self.plane_dist(1, wi, f_idx) * sgn[fj]
-        keep = (da > eps) | (db > eps)
+        s_j = sgn[fj]
+        da = self.plane_dist(0, wi, f_idx) * s_j
+        db = self.plane_dist(1, wi, f_idx) * s_j
+        keep = np.flatnonzero((da > eps) | (db > eps))
         wi, fj, f_idx, da, db = wi[keep], fj[keep], f_idx[keep], da[keep], db[keep]
-        keep = refl.beam_reaches(f_beam.take(fj), self.w_mid[wi], self.w_half[wi])
+        keep = _beam_reaches_c(f_beam, fj, self.mid_c, wi, self.w_half[wi])
         return wi[keep], fj[keep], f_idx[keep], da[keep], db[keep]
 
-    def visible_span(self, wi, f_idx, img, h, da, db) -> tuple[np.ndarray, ...]:
+    def visible_span(self, wi, f_idx, img_c, fj, h, da, db) -> tuple[np.ndarray, ...]:
         """The part of each edge seen from the image through the facet's box: ``ok`` (M,) bool
-        and, for the ok ones, ``t_lo, t_hi`` metres from the wedge's start, padded."""
-        w, eps = self.w, accel.PLANE_TOL_M
-        # clip the edge to the end's side
-        a, b = w.start[wi], w.end[wi]
+        and, for the ok ones, ``t_lo, t_hi`` metres from the wedge's start, padded.
+
+        ``img_c`` are the images' components (3, F), indexed by ``fj``; one component at a time
+        (no (M, 3) temporaries)."""
+        eps = accel.PLANE_TOL_M
+        # clip the edge to the end's side: the cut point at parameter u from the start
         cut_a, cut_b = da <= eps, db <= eps
         u = np.where(cut_a | cut_b, (eps - da) / np.where(db != da, db - da, 1.0), 0.0)
-        pa = a + u[:, None] * (b - a)
-        a = np.where(cut_a[:, None], pa, a)
-        b = np.where(cut_b[:, None], pa, b)
         # project from the image onto the facet plane: the image is at distance h on the other
         # side, a point at distance s on this side projects at u = h / (h + s) from the image
         d_a = h + np.maximum(da, eps)  # clipped ends sit at eps
         d_b = h + np.maximum(db, eps)
-        qa = img + (h / d_a)[:, None] * (a - img)
-        qb = img + (h / d_b)[:, None] * (b - img)
-        s_in, s_out = _segment_box_span(qa, qb, self.lo[f_idx], self.hi[f_idx])
+        k_a, k_b = h / d_a, h / d_b
+        # slab test of the projected segment qa -> qb against the facet's box
+        s_in, s_out = np.zeros(len(wi)), np.ones(len(wi))
+        for c in range(3):
+            a, b, ic = self.start_c[c][wi], self.end_c[c][wi], img_c[c][fj]
+            p = a + u * (b - a)
+            a, b = np.where(cut_a, p, a), np.where(cut_b, p, b)
+            qa = ic + k_a * (a - ic)
+            d = ic + k_b * (b - ic) - qa
+            # a component parallel to a slab: dividing by a tiny step gives +-huge (in or out of
+            # the slab) or 0 (on its boundary, which counts as inside)
+            inv = 1.0 / np.where(d == 0.0, 1e-300, d)
+            t1 = (self.lo_c[c][f_idx] - qa) * inv
+            t2 = (self.hi_c[c][f_idx] - qa) * inv
+            np.maximum(s_in, np.minimum(t1, t2), out=s_in)
+            np.minimum(s_out, np.maximum(t1, t2), out=s_out)
         ok = s_in <= s_out
         # the part of the edge that projects into the box: the projection is a perspective map,
         # so the edge parameter of projected parameter s is s D_a / (s D_a + (1 - s) D_b)
         d_a, d_b = d_a[ok], d_b[ok]
         lam = [x * d_a / (x * d_a + (1 - x) * d_b) for x in (s_in[ok], s_out[ok])]
-        w_ok = wi[ok]
-        t_a = np.einsum("ij,ij->i", a[ok] - w.start[w_ok], w.direction[w_ok])
-        t_b = np.einsum("ij,ij->i", b[ok] - w.start[w_ok], w.direction[w_ok])
+        # the clipped ends, metres from the start (a cut end sits at u of the edge's length)
+        length, u_ok = self.length[wi[ok]], u[ok]
+        t_a = np.where(cut_a[ok], u_ok * length, 0.0)
+        t_b = np.where(cut_b[ok], u_ok * length, length)
         t_lo = t_a + lam[0] * (t_b - t_a) - SPAN_PAD_M
         t_hi = t_a + lam[1] * (t_b - t_a) + SPAN_PAD_M
         return ok, t_lo, t_hi
+
+
+def _beam_reaches_c(f_beam, fj, centre_c, wi, radius) -> np.ndarray:
+    """:func:`~raytrace.solver.reflection.beam_reaches` of beams ``fj`` and spheres (centres
+    ``centre_c`` (3, W) at ``wi``, radii ``radius``), one component at a time and without
+    divisions: ``axis . v >= cos_a sqrt(|v|^2 - r^2) - sin_a min(r, |v|) - 1e-7 |v|`` is the
+    same necessary condition multiplied by ``|v|``. ``f_beam`` holds the beams' components:
+    ``(apex (3, F), axis (3, F), cos_a, sin_a, apex_inside)``."""
+    apex, axis, cos_a, sin_a, inside = f_beam
+    vx = centre_c[0][wi] - apex[0][fj]
+    vy = centre_c[1][wi] - apex[1][fj]
+    vz = centre_c[2][wi] - apex[2][fj]
+    dt2 = vx * vx + vy * vy + vz * vz
+    dot = axis[0][fj] * vx + axis[1][fj] * vy + axis[2][fj] * vz
+    dt = np.sqrt(dt2)
+    r2 = radius * radius
+    thr = cos_a[fj] * np.sqrt(np.maximum(dt2 - r2, 0.0)) - sin_a[fj] * np.minimum(radius, dt)
+    return (dot >= thr - 1e-7 * dt) | inside[fj] | (dt2 <= r2)
 
 
 def _facet_wedge_pairs(
@@ -309,15 +364,18 @@ def _facet_wedge_pairs(
         gi, fj = geo.object_pairs(ctx, f_ok, sgn, nrm, off, f_beam)
         if len(gi) == 0:
             continue
-        wi, fj, f_idx, da, db = geo.edge_pairs(gi, fj, f_ok, sgn, f_beam)
+        img_c = np.ascontiguousarray(img_f.T)
+        beam_c = (img_c, np.ascontiguousarray(f_beam.axis.T), f_beam.cos_a, f_beam.sin_a,
+                  f_beam.apex_inside)  # fmt: skip
+        wi, fj, f_idx, da, db = geo.edge_pairs(gi, fj, f_ok, sgn, beam_c)
         if len(wi) == 0:
             continue
-        img = img_f[fj]
         # a diffraction from (or towards) an image inside the wedge is never valid
-        keep = ~_surely_inside(frame, wi, img)
-        wi, fj, f_idx, da, db, img = (x[keep] for x in (wi, fj, f_idx, da, db, img))
-        ok, t_lo, t_hi = geo.visible_span(wi, f_idx, img, h_f[fj], da, db)
-        outs.append((np.full(int(ok.sum()), e), f_idx[ok], wi[ok], img[ok], t_lo, t_hi))
+        keep = np.flatnonzero(~_surely_inside(frame, wi, img_c[0][fj], img_c[1][fj], img_c[2][fj]))
+        wi, fj, f_idx, da, db = wi[keep], fj[keep], f_idx[keep], da[keep], db[keep]
+        ok, t_lo, t_hi = geo.visible_span(wi, f_idx, img_c, fj, h_f[fj], da, db)
+        fj = fj[ok]
+        outs.append((np.full(len(fj), e), f_idx[ok], wi[ok], img_f[fj], t_lo, t_hi))
     if not outs:
         z = np.zeros(0, np.int64)
         return z, z, z, np.zeros((0, 3)), np.zeros(0), np.zeros(0)
@@ -354,7 +412,8 @@ def _one_reflection(ctx: TraceContext, before: bool) -> list[Paths]:
         others[None, :, :], w.start[:, None, :], w.direction[:, None, :]
     )  # (W, O)
     # the other end inside the wedge: never a valid diffraction
-    open_w = ~_surely_inside(_wedge_frame(ctx), np.arange(len(w))[:, None], others[None, :])
+    o_xyz = others.T[:, None, :]  # (3, 1, O)
+    open_w = ~_surely_inside(_wedge_frame(ctx), np.arange(len(w))[:, None], *o_xyz)
     out = []
     n_o = len(others)
     step = max(1, CHUNK // max(n_o, 1))
