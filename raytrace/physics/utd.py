@@ -52,6 +52,8 @@ from scipy.special import wofz
 
 from ..core.constants import C0
 from ..core.errors import TraceInputError
+from ..core.vec import cross as _cross
+from ..core.vec import norm as _norm
 
 __all__ = [
     "KellerPoints",
@@ -99,7 +101,7 @@ def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def _unit(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    norm = np.linalg.norm(v, axis=1)
+    norm = _norm(v)
     with np.errstate(divide="ignore", invalid="ignore"):
         return v / norm[:, None], norm
 
@@ -160,8 +162,8 @@ def keller_points(
     e, length = _unit(b - a)
     ts = _dot(src - a, e)
     td = _dot(dst - a, e)
-    rho_s = np.linalg.norm(src - a - ts[:, None] * e, axis=1)
-    rho_d = np.linalg.norm(dst - a - td[:, None] * e, axis=1)
+    rho_s = _norm(src - a - ts[:, None] * e)
+    rho_d = _norm(dst - a - td[:, None] * e)
     degenerate = (length <= tol_m) | (rho_s <= tol_m) | (rho_d <= tol_m)
     with np.errstate(divide="ignore", invalid="ignore"):
         t = ts + (td - ts) * rho_s / (rho_s + rho_d)
@@ -348,7 +350,7 @@ def _oriented_wedge(
     nn, _ = _unit(nn - _dot(nn, e)[:, None] * e)
     if not (np.all(np.isfinite(e)) and np.all(np.isfinite(n0)) and np.all(np.isfinite(nn))):
         raise TraceInputError("edge_dir and face normals must be non-zero and not parallel")
-    t0 = np.cross(n0, e)
+    t0 = _cross(n0, e)
     if face0_dir is None:
         # convex wedge: face 0 lies behind the outward normal of face n
         score = -_dot(t0, nn)
@@ -363,8 +365,8 @@ def _oriented_wedge(
     flip = score < 0
     e = np.where(flip[:, None], -e, e)
     t0 = np.where(flip[:, None], -t0, t0)
-    tn = np.cross(e, nn)
-    ext = np.mod(np.arctan2(_dot(np.cross(t0, tn), e), _dot(t0, tn)), _TWO_PI)
+    tn = _cross(e, nn)
+    ext = np.mod(np.arctan2(_dot(_cross(t0, tn), e), _dot(t0, tn)), _TWO_PI)
     ext = np.where((ext < _HALF_PLANE_RAD) | (ext > _TWO_PI - _HALF_PLANE_RAD), _TWO_PI, ext)
     return e, t0, n0, nn, ext / np.pi
 
@@ -375,11 +377,11 @@ def _ray_fixed(
     """KP ray-fixed unit vectors of a ray ``s_hat`` at the edge ``e``: ``sin beta0``, ``phi_hat``
     (``-(e x s')/|e x s'|`` for the incident ray, ``(e x s)/|e x s|`` for the diffracted one),
     ``beta0_hat = s x phi_hat``, and whether the ray is not along the edge."""
-    cross = np.cross(e, s_hat)
-    sin_beta0 = np.linalg.norm(cross, axis=1)
+    cross = _cross(e, s_hat)
+    sin_beta0 = _norm(cross)
     with np.errstate(divide="ignore", invalid="ignore"):
         phi_hat = (-cross if incident else cross) / sin_beta0[:, None]
-    return sin_beta0, phi_hat, np.cross(s_hat, phi_hat), sin_beta0 > _MIN_SIN_BETA0
+    return sin_beta0, phi_hat, _cross(s_hat, phi_hat), sin_beta0 > _MIN_SIN_BETA0
 
 
 def _face_angles(

@@ -22,6 +22,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from ..core.vec import norm
 from ..physics.utd import _oriented_wedge, diffracted_field, keller_points, wedge_geometry
 from ..scene import accel
 from . import reflection as refl
@@ -69,9 +70,9 @@ def field_model(ctx: TraceContext) -> DiffractionModel:
         s_in = seg_len[:, :j].sum(axis=1)
         s_out = seg_len[:, j:].sum(axis=1)
         d_in = point - chain[:, j - 1]
-        d_in /= np.linalg.norm(d_in, axis=1, keepdims=True)
+        d_in /= norm(d_in)[:, None]
         d_out = chain[:, j + 1] - point
-        d_out /= np.linalg.norm(d_out, axis=1, keepdims=True)
+        d_out /= norm(d_out)[:, None]
         src = point - s_in[:, None] * d_in
         dst = point + s_out[:, None] * d_out
         geo = wedge_geometry(
@@ -481,7 +482,7 @@ def _along_and_off(
     from the lines (m); broadcasts over leading axes of (..., 3) arrays."""
     rel = p - start
     t = np.einsum("...j,...j->...", rel, direction)
-    return t, np.linalg.norm(rel - t[..., None] * direction, axis=-1)
+    return t, norm(rel - t[..., None] * direction)
 
 
 def _two_reflections(ctx: TraceContext) -> list[Paths]:

@@ -26,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..core.constants import C0
+from ..core.vec import cross, norm
 from ..physics.materials import slab, slab_group_delay
 from .context import TraceContext
 from .paths import DIFFRACTION, PENETRATION, REFLECTION, Paths
@@ -144,7 +145,7 @@ def blocked_by_opaque(ctx: TraceContext, cand: Candidates) -> np.ndarray:
         return np.zeros(m, dtype=bool)
     a = cand.chain[:, :-1].reshape(-1, 3)
     v = cand.chain[:, 1:].reshape(-1, 3) - a
-    length = np.linalg.norm(v, axis=1)
+    length = norm(v)
     d = np.divide(v, length[:, None], out=np.zeros_like(v), where=length[:, None] > 0)
     margin = ctx.scene.margin
     hit = ctx.scene.first_hit_among(ctx.opaque, a + margin * d, d, length - 2 * margin)
@@ -188,7 +189,7 @@ def path_fields(
     """
     m, k = len(cand), cand.depth
     seg = cand.chain[:, 1:] - cand.chain[:, :-1]  # (m, k+1, 3)
-    seg_len = np.linalg.norm(seg, axis=2)
+    seg_len = norm(seg)
     dirs = seg / np.maximum(seg_len, 1e-300)[:, :, None]
     total = seg_len.sum(axis=1)
     e = vertical_pol(dirs[:, 0]).astype(complex)
@@ -295,12 +296,12 @@ def vertical_pol(direction: np.ndarray) -> np.ndarray:
     z made perpendicular to the ray (x for a vertical ray)."""
     z = np.array([0.0, 0.0, 1.0])
     v = z[None, :] - direction[:, 2:3] * direction
-    n = np.linalg.norm(v, axis=1)
+    n = norm(v)
     vertical = n < 1e-9
     if vertical.any():
         x = np.array([1.0, 0.0, 0.0])
         v[vertical] = x - direction[vertical, 0:1] * direction[vertical]
-        n[vertical] = np.linalg.norm(v[vertical], axis=1)
+        n[vertical] = norm(v[vertical])
     return v / n[:, None]
 
 
@@ -325,17 +326,17 @@ def apply_te_tm(
     normal : (n, 3) float, unit surface normal
     c_te, c_tm : (n,) complex
     """
-    s = np.cross(k_in, normal)
-    ns = np.linalg.norm(s, axis=1)
+    s = cross(k_in, normal)
+    ns = norm(s)
     normal_inc = ns < 1e-9
     if normal_inc.any():
         # any direction perpendicular to k_in
         helper = np.where(np.abs(k_in[normal_inc, 0:1]) < 0.9, [[1.0, 0, 0]], [[0, 1.0, 0]])
-        s[normal_inc] = np.cross(k_in[normal_inc], helper)
-        ns[normal_inc] = np.linalg.norm(s[normal_inc], axis=1)
+        s[normal_inc] = cross(k_in[normal_inc], helper)
+        ns[normal_inc] = norm(s[normal_inc])
     s = s / ns[:, None]
-    p_in = np.cross(s, k_in)
-    p_out = np.cross(s, k_out)
+    p_in = cross(s, k_in)
+    p_out = cross(s, k_out)
     es = np.einsum("ij,ij->i", e, s)
     ep = np.einsum("ij,ij->i", e, p_in)
     return (c_te * es)[:, None] * s + (c_tm * ep)[:, None] * p_out
