@@ -189,6 +189,18 @@ def _pure(ctx: TraceContext) -> Paths:
     return Paths.concatenate(parts) if parts else Paths.empty(ctx.tx, ctx.rx, ctx.f, 1)
 
 
+def _edge_plane_distances(fc, w) -> tuple[np.ndarray, np.ndarray]:
+    """Signed distances (m) of the edges' start and end points from every facet plane: (W, K)
+    each (cached on the facets, for these wedges)."""
+    cached = fc.cache.get("edge_plane_distances")
+    if cached is None or cached[0] is not w:
+        dist = tuple(x @ fc.normal.T - fc.offset for x in (w.start, w.end))
+        for x in dist:
+            x.setflags(write=False)
+        cached = fc.cache["edge_plane_distances"] = (w, dist)
+    return cached[1]
+
+
 class _PairGeometry:
     """What :func:`_facet_wedge_pairs` reuses for every end point: facet spheres and boxes, wedge
     groups by object, and the edges' end points' distances from the facet planes."""
@@ -200,6 +212,7 @@ class _PairGeometry:
         self.g_order, self.g_start, self.g_count, self.g_centre, self.g_radius = accel.wedge_groups(
             w
         )
+        self.g_centre_c = np.ascontiguousarray(self.g_centre.T)
         self.w_mid = 0.5 * (w.start + w.end)
         self.w_half = 0.5 * w.length * (1 + 1e-9) + 1e-9
         self.lo, self.hi = accel.facet_boxes(fc, ctx.scene.margin)
@@ -214,8 +227,7 @@ class _PairGeometry:
             self.g_chosen, self.g_other = np.flatnonzero(g_in), np.flatnonzero(~g_in)
             self.dist = None  # few candidates: distances per candidate
         else:
-            # signed distances of the edges' end points from every facet plane: (W, K) each
-            self.dist = [x @ fc.normal.T - fc.offset for x in self.edge_ends]
+            self.dist = _edge_plane_distances(fc, w)
 
     def plane_dist(self, k: int, wi: np.ndarray, f_idx: np.ndarray) -> np.ndarray:
         """Signed distance of end ``k`` (0: start, 1: end) of wedges ``wi`` from facets
@@ -241,9 +253,7 @@ class _PairGeometry:
                 continue
             c, r = self.g_centre[gs], self.g_radius[gs]
             near = (c @ nrm[fs].T - off[fs]) * sgn[fs] + r[:, None] > accel.PLANE_TOL_M
-            near &= refl.beam_reaches(
-                refl.Beam(*(x[fs][None] for x in f_beam)), c[:, None], r[:, None]
-            )
+            near &= _beam_reaches_c(f_beam, fs[None, :], self.g_centre_c, gs[:, None], r[:, None])
             gb, fb = np.nonzero(near)
             gi_parts.append(gs[gb])
             fj_parts.append(fs[fb])
@@ -362,12 +372,12 @@ def _facet_wedge_pairs(
         img_f = ends[e] - 2.0 * (sgn * h_f)[:, None] * nrm
         # the beam from the image through each facet's bounding sphere
         f_beam = refl.beam(img_f, geo.f_centre[f_ok], geo.f_radius[f_ok])
-        gi, fj = geo.object_pairs(ctx, f_ok, sgn, nrm, off, f_beam)
-        if len(gi) == 0:
-            continue
         img_c = np.ascontiguousarray(img_f.T)
         beam_c = (img_c, np.ascontiguousarray(f_beam.axis.T), f_beam.cos_a, f_beam.sin_a,
                   f_beam.apex_inside)  # fmt: skip
+        gi, fj = geo.object_pairs(ctx, f_ok, sgn, nrm, off, beam_c)
+        if len(gi) == 0:
+            continue
         wi, fj, f_idx, da, db = geo.edge_pairs(gi, fj, f_ok, sgn, beam_c)
         if len(wi) == 0:
             continue
