@@ -61,6 +61,10 @@ __all__ = [
     "DiffractedField",
     "keller_points",
     "wedge_geometry",
+    "WedgeFrame",
+    "wedge_frames",
+    "framed_wedge_geometry",
+    "diffraction_valid",
     "transition_function",
     "utd_coefficients",
     "face_reflection_matrix",
@@ -294,9 +298,54 @@ def wedge_geometry(
     """
     src = _points("src", src)
     p = src.shape[0]
+    frame = WedgeFrame(*_oriented_wedge(edge_dir, normal_0, normal_n, face0_dir, p))
+    return framed_wedge_geometry(frame, src, dst, point)
+
+
+class WedgeFrame(NamedTuple):
+    """Edge-fixed frames of P wedges, as :func:`wedge_geometry` builds them (see there).
+
+    Attributes
+    ----------
+    edge_dir, face0_tangent, normal_0, normal_n : (P, 3) float; ``e`` (oriented), ``t0``, and
+        the face normals made perpendicular to the edge
+    n : (P,) float; exterior wedge angle / pi
+    """
+
+    edge_dir: np.ndarray
+    face0_tangent: np.ndarray
+    normal_0: np.ndarray
+    normal_n: np.ndarray
+    n: np.ndarray
+
+    def take(self, idx: np.ndarray) -> WedgeFrame:
+        """The frames at ``idx``: computing them once per wedge and taking them per diffraction
+        gives bitwise what :func:`wedge_geometry` computes per diffraction (row-wise
+        arithmetic)."""
+        return WedgeFrame(*(x[idx] for x in self))
+
+
+def wedge_frames(
+    edge_dir: np.ndarray,
+    normal_0: np.ndarray,
+    normal_n: np.ndarray,
+    face0_dir: np.ndarray | None = None,
+) -> WedgeFrame:
+    """The edge-fixed frames of wedges (arguments as :func:`wedge_geometry`'s, (P, 3) each)."""
+    e = _points("edge_dir", edge_dir)
+    return WedgeFrame(*_oriented_wedge(e, normal_0, normal_n, face0_dir, e.shape[0]))
+
+
+def framed_wedge_geometry(
+    frame: WedgeFrame, src: np.ndarray, dst: np.ndarray, point: np.ndarray
+) -> WedgeGeometry:
+    """:func:`wedge_geometry` with the wedges' frames given (:func:`wedge_frames`, taken per
+    diffraction with :meth:`WedgeFrame.take`); src, dst, point : (P, 3) float, metres."""
+    src = _points("src", src)
+    p = src.shape[0]
     dst = _points("dst", dst, p)
     point = _points("point", point, p)
-    e, t0, n0, nn, n = _oriented_wedge(edge_dir, normal_0, normal_n, face0_dir, p)
+    e, t0, n0, nn, n = frame
     s_hat_in, s_in = _unit(point - src)
     s_hat_out, s_out = _unit(dst - point)
     phi_in, in_wedge_s = _azimuth(src - point, t0, n0, n)
@@ -330,6 +379,22 @@ def wedge_geometry(
         cos_theta_n=sin_beta0 * np.abs(np.sin(psi_n)),
         valid=valid,
     )
+
+
+def diffraction_valid(
+    frame: WedgeFrame, src: np.ndarray, dst: np.ndarray, point: np.ndarray
+) -> np.ndarray:
+    """``framed_wedge_geometry(frame, src, dst, point).valid`` without the rest (the same
+    arithmetic): (P,) bool, source and receiver in the exterior of the wedge, neither on the
+    edge line, non-zero distances. src, dst, point : (P, 3) float, metres (not checked)."""
+    e, t0, n0, _, n = frame
+    s_hat_in, s_in = _unit(point - src)
+    s_hat_out, s_out = _unit(dst - point)
+    _, in_wedge_s = _azimuth(src - point, t0, n0, n)
+    _, in_wedge_d = _azimuth(dst - point, t0, n0, n)
+    ok_in = _norm(_cross(e, s_hat_in)) > _MIN_SIN_BETA0
+    ok_out = _norm(_cross(e, s_hat_out)) > _MIN_SIN_BETA0
+    return (s_in > 0) & (s_out > 0) & ok_in & ok_out & ~in_wedge_s & ~in_wedge_d
 
 
 def _oriented_wedge(

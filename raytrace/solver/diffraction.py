@@ -23,7 +23,13 @@ from collections.abc import Callable
 import numpy as np
 
 from ..core.vec import norm
-from ..physics.utd import _oriented_wedge, diffracted_field, keller_points, wedge_geometry
+from ..physics.utd import (
+    diffracted_field,
+    diffraction_valid,
+    framed_wedge_geometry,
+    keller_points,
+    wedge_frames,
+)
 from ..scene import accel
 from . import reflection as refl
 from .context import TraceContext
@@ -64,6 +70,7 @@ def field_model(ctx: TraceContext) -> DiffractionModel:
     unfolded path is straight on either side of the edge.
     """
     w = ctx.scene.wedges
+    frame = _wedge_frame(ctx).utd
 
     def apply(wedge, chain, j, e, seg_len):
         point = chain[:, j]
@@ -75,15 +82,7 @@ def field_model(ctx: TraceContext) -> DiffractionModel:
         d_out /= norm(d_out)[:, None]
         src = point - s_in[:, None] * d_in
         dst = point + s_out[:, None] * d_out
-        geo = wedge_geometry(
-            src,
-            dst,
-            point,
-            w.direction[wedge],
-            w.normal0[wedge],
-            w.normal1[wedge],
-            w.face0_dir[wedge],
-        )
+        geo = framed_wedge_geometry(frame.take(wedge), src, dst, point)
         mat = w.material[wedge]
         two = ~ctx.obj_closed[w.object[wedge]]
         r0 = ctx.reflection_coefficients(mat, geo.cos_theta_0, two)
@@ -104,7 +103,8 @@ class _WedgeFrame:
     whether the interior is a sector narrower than pi (``1 <= n < 2``, the wedges pruned)."""
 
     def __init__(self, w) -> None:
-        _, t0, n0, _, n = _oriented_wedge(w.direction, w.normal0, w.normal1, w.face0_dir, len(w))
+        self.utd = wedge_frames(w.direction, w.normal0, w.normal1, w.face0_dir)
+        _, t0, n0, _, n = self.utd
         self.t0, self.n0 = np.ascontiguousarray(t0.T), np.ascontiguousarray(n0.T)
         self.t_start = np.einsum("ij,ij->i", w.start, t0)
         self.n_start = np.einsum("ij,ij->i", w.start, n0)
@@ -147,11 +147,9 @@ def _surely_inside(fr: _WedgeFrame, wi: np.ndarray, px, py, pz) -> np.ndarray:
 
 
 def _valid_geometry(ctx: TraceContext, wedge, src, dst, point) -> np.ndarray:
-    w = ctx.scene.wedges
-    geo = wedge_geometry(
-        src, dst, point, w.direction[wedge], w.normal0[wedge], w.normal1[wedge], w.face0_dir[wedge]
-    )
-    return geo.valid
+    """:func:`~raytrace.physics.utd.wedge_geometry`'s ``valid`` of diffractions at wedges
+    ``wedge`` (frames cached per wedge)."""
+    return diffraction_valid(_wedge_frame(ctx).utd.take(wedge), src, dst, point)
 
 
 def _pure(ctx: TraceContext) -> Paths:
