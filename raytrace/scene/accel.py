@@ -58,22 +58,41 @@ def _in_triangles(points: np.ndarray, facet: np.ndarray, facets: Facets) -> np.n
     rep = np.repeat(np.arange(n), counts)
     # index of each expanded triangle: tri_start[f] + 0..count-1
     within = np.arange(len(rep)) - np.repeat(np.cumsum(counts) - counts, counts)
-    tri = facets.triangles[np.repeat(facets.tri_start[facet], counts) + within]
-    p = points[rep]
-    v0 = tri[:, 1] - tri[:, 0]
-    v1 = tri[:, 2] - tri[:, 0]
-    v2 = p - tri[:, 0]
-    d00 = np.einsum("ij,ij->i", v0, v0)
-    d01 = np.einsum("ij,ij->i", v0, v1)
-    d11 = np.einsum("ij,ij->i", v1, v1)
-    d20 = np.einsum("ij,ij->i", v2, v0)
-    d21 = np.einsum("ij,ij->i", v2, v1)
-    den = d00 * d11 - d01 * d01
+    t = np.repeat(facets.tri_start[facet], counts) + within
+    corner, v0, v1, d00, d01, d11, den = _triangle_terms(facets)
+    v2 = points[rep] - corner[t]
+    d20 = np.einsum("ij,ij->i", v2, v0[t])
+    d21 = np.einsum("ij,ij->i", v2, v1[t])
+    d00, d01, d11, den = d00[t], d01[t], d11[t], den[t]
     v = (d11 * d20 - d01 * d21) / den
     w = (d00 * d21 - d01 * d20) / den
     inside_tri = (v >= -BARY_TOL) & (w >= -BARY_TOL) & (v + w <= 1 + BARY_TOL)
+    # any triangle of each point's facet (runs of a facet without triangles: False)
     out = np.zeros(n, dtype=bool)
-    np.logical_or.at(out, rep, inside_tri)
+    has = counts > 0
+    if has.any():
+        out[has] = np.logical_or.reduceat(inside_tri, (np.cumsum(counts) - counts)[has])
+    return out
+
+
+def _triangle_terms(facets: Facets) -> tuple[np.ndarray, ...]:
+    """The point-independent terms of the barycentric test, per triangle (cached): first corner
+    (T, 3), edge vectors ``v0``, ``v1`` (T, 3) and ``d00, d01, d11, den`` (T,). Row-wise
+    arithmetic, so taking them per test is bitwise computing them per test."""
+    cached = facets.cache.get("triangle_terms")
+    if cached is not None:
+        return cached
+    tri = facets.triangles
+    v0 = tri[:, 1] - tri[:, 0]
+    v1 = tri[:, 2] - tri[:, 0]
+    d00 = np.einsum("ij,ij->i", v0, v0)
+    d01 = np.einsum("ij,ij->i", v0, v1)
+    d11 = np.einsum("ij,ij->i", v1, v1)
+    den = d00 * d11 - d01 * d01
+    out = (np.ascontiguousarray(tri[:, 0]), v0, v1, d00, d01, d11, den)
+    for x in out:
+        x.setflags(write=False)
+    facets.cache["triangle_terms"] = out
     return out
 
 
