@@ -416,10 +416,9 @@ def _one_reflection(ctx: TraceContext, before: bool) -> list[Paths]:
     # Keller's point in scalar form (see keller_points): t = ts + (td - ts) rho_s / (rho_s + rho_d)
     # with the end's image (ts, rho_s) per triple and the other end (td, rho_d) per wedge, so
     # that the expansion over the other ends is a cheap (triples, others) matrix
-    ts, rho_s = _along_and_off(img, w.start[w_idx], w.direction[w_idx])
-    td_w, rho_w = _along_and_off(
-        others[None, :, :], w.start[:, None, :], w.direction[:, None, :]
-    )  # (W, O)
+    start_c, dir_c = w.start.T, w.direction.T
+    ts, rho_s = _along_and_off(img.T, start_c[:, w_idx], dir_c[:, w_idx])
+    td_w, rho_w = _along_and_off(others.T[:, None, :], start_c[..., None], dir_c[..., None])  # (W, O)
     # the other end inside the wedge: never a valid diffraction
     o_xyz = others.T[:, None, :]  # (3, 1, O)
     open_w = ~_surely_inside(_wedge_frame(ctx), np.arange(len(w))[:, None], *o_xyz)
@@ -487,10 +486,12 @@ def _along_and_off(
     p: np.ndarray, start: np.ndarray, direction: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
     """Position along edge lines (m from ``start``) of the foot of points, and their distance
-    from the lines (m); broadcasts over leading axes of (..., 3) arrays."""
-    rel = p - start
-    t = np.einsum("...j,...j->...", rel, direction)
-    return t, norm(rel - t[..., None] * direction)
+    from the lines (m); components first: (3, ...) arrays, broadcasting over the rest (one
+    component at a time: these only prune, within :data:`SPAN_PAD_M`)."""
+    rx, ry, rz = p[0] - start[0], p[1] - start[1], p[2] - start[2]
+    t = rx * direction[0] + ry * direction[1] + rz * direction[2]
+    ox, oy, oz = rx - t * direction[0], ry - t * direction[1], rz - t * direction[2]
+    return t, np.sqrt(ox * ox + oy * oy + oz * oz)
 
 
 def _two_reflections(ctx: TraceContext) -> list[Paths]:
