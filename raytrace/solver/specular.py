@@ -104,16 +104,11 @@ def second_order(ctx: TraceContext) -> list[Paths]:
         # receivers on the same side of the second facet as the first image, inside the
         # beam from the second image through the second facet
         step = max(1, CHUNK // max(len(ctx.rx), 1))
+        rx_c = ctx.rx.T[:, None, :]  # (3, 1, R)
         for c0 in range(0, len(f1a), step):
             sl = slice(c0, c0 + step)
             ok_qr = side_rx.T[f2[sl]] == s_img[sl, None]
-            ok_qr &= refl.cone_reaches(
-                img2[sl, None, :],
-                centre[f2[sl], None, :],
-                radius[f2[sl], None],
-                ctx.rx[None],
-                0.0,
-            )
+            ok_qr &= _cone_reaches_points(img2[sl], centre[f2[sl]], radius[f2[sl]], rx_c)
             q, r_idx = np.nonzero(ok_qr)
             ctx.count("candidates_r2", len(q))
             q = q + c0
@@ -138,3 +133,20 @@ def second_order(ctx: TraceContext) -> list[Paths]:
                     evaluate(ctx, candidates(ctx, np.full(int(ok.sum()), t), r_idx[ok], verts, fac))
                 )
     return out
+
+
+def _cone_reaches_points(
+    apex: np.ndarray, centre: np.ndarray, radius: np.ndarray, points_c: np.ndarray
+) -> np.ndarray:
+    """(Q, R) bool: :func:`~raytrace.solver.reflection.cone_reaches` of the cones from ``apex``
+    (Q, 3) through spheres (``centre`` (Q, 3), ``radius`` (Q,)) and points (components
+    ``points_c`` (3, 1, R)), as a dense matrix one component at a time. With a target of radius
+    0 the condition ``cos(angle) >= cos_a - 1e-7`` is tested multiplied by the distance (no
+    division); the same necessary condition, its rounding far inside the 1e-7 slack."""
+    b = refl.beam(apex, centre, radius)
+    vx = points_c[0] - apex[:, 0:1]
+    vy = points_c[1] - apex[:, 1:2]
+    vz = points_c[2] - apex[:, 2:3]
+    dt = np.sqrt(vx * vx + vy * vy + vz * vz)
+    dot = b.axis[:, 0:1] * vx + b.axis[:, 1:2] * vy + b.axis[:, 2:3] * vz
+    return (dot >= (b.cos_a - 1e-7)[:, None] * dt) | b.apex_inside[:, None] | (dt <= 0.0)
