@@ -4,7 +4,8 @@
 Run from a checkout: ``python tools/trace_identity.py save REF.pkl`` (with the code to compare
 against), then ``python tools/trace_identity.py check REF.pkl`` after a change. Traces the hall's
 links at both bands (one thread) and a 4 m grid (one process, one thread), default
-``TraceConfig``. ``check`` reports, per case, whether the paths are bitwise identical and else
+``TraceConfig``, plus the hall's links restricted to every 7th object (``involving``) and with
+three interactions (RDR paths). ``check`` reports, per case, whether the paths are bitwise identical and else
 the largest relative difference of delays, gains and points. Not a test (it takes a minute).
 """
 
@@ -48,6 +49,15 @@ def cases() -> dict[str, dict[str, np.ndarray]]:
         paths = join_chunks(parts, len(inp.bs_xyz))
         print(f"{name}: {paths.n_paths} paths, {time.process_time() - t0:.2f} s CPU")
         out[name] = {k: np.asarray(getattr(paths, k)) for k in FIELDS}
+    # the restricted traces (involving some objects) and the RDR stage (3 interactions)
+    some = np.arange(0, len(scene.objects), 7)
+    for name, kw in (("hall_involving_every_7th_object", dict(involving=some)),
+                     ("hall_rdr_3_interactions", dict(config=TraceConfig(max_interactions=3)))):  # fmt: skip
+        t0 = time.process_time()
+        kw = {"config": TraceConfig(), **kw}
+        paths = trace(scene, inp.bs_xyz, inp.point_xyz, 3.775e9, threads=1, **kw)
+        print(f"{name}: {paths.n_paths} paths, {time.process_time() - t0:.2f} s CPU")
+        out[name] = {k: np.asarray(getattr(paths, k)) for k in FIELDS}
     return out
 
 
@@ -75,6 +85,9 @@ def main() -> int:
         ref = pickle.load(fh)
     bad = 0
     for name, r in ref.items():
+        if name not in got:
+            print(f"{name}: not in this run")
+            continue
         g = got[name]
         if len(r["link"]) != len(g["link"]):
             print(f"{name}: DIFFERENT number of paths {len(r['link'])} -> {len(g['link'])}")

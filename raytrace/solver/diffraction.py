@@ -227,13 +227,15 @@ class _PairGeometry:
         else:
             self.dist = _edge_plane_distances(fc, w)
 
-    def plane_dist(self, k: int, wi: np.ndarray, f_idx: np.ndarray) -> np.ndarray:
-        """Signed distance of end ``k`` (0: start, 1: end) of wedges ``wi`` from facets
-        ``f_idx``' planes, metres."""
+    def plane_dist(self, wi: np.ndarray, f_idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Signed distances of the start and the end of wedges ``wi`` from facets ``f_idx``'
+        planes, metres."""
         if self.dist is not None:
-            return self.dist[k][wi, f_idx]
+            flat = wi * self.dist[0].shape[1] + f_idx
+            return self.dist[0].ravel().take(flat), self.dist[1].ravel().take(flat)
         fc = self.fc
-        return np.einsum("ij,ij->i", self.edge_ends[k][wi], fc.normal[f_idx]) - fc.offset[f_idx]
+        nrm, off = fc.normal[f_idx], fc.offset[f_idx]
+        return tuple(np.einsum("ij,ij->i", x[wi], nrm) - off for x in self.edge_ends)
 
     def object_pairs(self, ctx, f_ok, sgn, nrm, off, f_beam) -> tuple[np.ndarray, np.ndarray]:
         """(group, facet) pairs whose group sphere reaches the end's side of the facet plane and
@@ -267,8 +269,8 @@ class _PairGeometry:
         f_idx = f_ok[fj]
         eps = accel.PLANE_TOL_M
         s_j = sgn[fj]
-        da = self.plane_dist(0, wi, f_idx) * s_j
-        db = self.plane_dist(1, wi, f_idx) * s_j
+        da, db = self.plane_dist(wi, f_idx)
+        da, db = da * s_j, db * s_j
         keep = np.flatnonzero((da > eps) | (db > eps))
         wi, fj, f_idx, da, db = wi[keep], fj[keep], f_idx[keep], da[keep], db[keep]
         keep = _beam_reaches_c(f_beam, fj, self.mid_c, wi, self.w_half[wi])
