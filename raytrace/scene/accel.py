@@ -20,6 +20,9 @@ from .elements import Facets, Wedges
 BARY_TOL = 1e-9
 #: Points closer than this to a facet's plane (m) are on it: no reflection from there.
 PLANE_TOL_M = 1e-9
+#: A point farther than this (m) inside an axis-aligned rectangular facet is inside it without
+#: the barycentric test (far above its rounding, so the answer is the test's).
+RECT_INSIDE_M = 1e-6
 
 
 def points_in_facets(points: np.ndarray, facet: np.ndarray, facets: Facets) -> np.ndarray:
@@ -47,7 +50,59 @@ def points_in_facets(points: np.ndarray, facet: np.ndarray, facets: Facets) -> n
     out = np.zeros(n, dtype=bool)
     if near.any():
         idx = np.flatnonzero(near)
+        # most facets of a hall are axis-aligned rectangles: a point well inside one is inside
+        rect, r_lo, r_hi = _rectangles(facets)
+        f = facet[idx]
+        sure = rect[f] & np.all(
+            (points[idx] >= r_lo[f] + RECT_INSIDE_M) & (points[idx] <= r_hi[f] - RECT_INSIDE_M),
+            axis=1,
+        )
+        out[idx[sure]] = True
+        idx = idx[~sure]
         out[idx] = _in_triangles(points[idx], facet[idx], facets)
+    return out
+
+
+def _rectangles(facets: Facets) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Facets that are axis-aligned rectangles, exactly: two triangles whose vertices are corners
+    of the facet's (flat) bounding box and which split it along a diagonal (cached).
+
+    Returns
+    -------
+    rect : (K,) bool
+    lo, hi : (K, 3) float, metres: for a rectangle, the in-plane bounds, and -inf / +inf along
+        its normal axis (the plane itself is checked by the caller's box test); 0 elsewhere
+    """
+    cached = facets.cache.get("rectangles")
+    if cached is not None:
+        return cached
+    box_lo, box_hi = facet_boxes(facets, 0.0)
+    k = len(facets)
+    rect = facets.tri_count == 2
+    flat = (box_lo == box_hi) & rect[:, None]
+    rect &= flat.sum(axis=1) == 1
+    lo, hi = np.zeros((k, 3)), np.zeros((k, 3))
+    for f in np.flatnonzero(rect):
+        tri = facets.triangles[facets.tri_start[f] : facets.tri_start[f] + 2]  # (2, 3, 3)
+        axis = int(np.flatnonzero(flat[f])[0])
+        plane = [a for a in range(3) if a != axis]
+        at_lo = tri[:, :, plane] == box_lo[f, plane]
+        at_hi = tri[:, :, plane] == box_hi[f, plane]
+        if not np.all(at_lo | at_hi):
+            rect[f] = False
+            continue
+        # each triangle: three distinct corners (bits u, v); the two missing corners opposite
+        bits = at_hi[:, :, 0].astype(int) + 2 * at_hi[:, :, 1].astype(int)  # (2, 3)
+        missing = [set(range(4)) - set(b.tolist()) for b in bits]
+        if any(len(m) != 1 for m in missing) or missing[0].pop() ^ missing[1].pop() != 3:
+            rect[f] = False
+            continue
+        lo[f], hi[f] = box_lo[f], box_hi[f]
+        lo[f, axis], hi[f, axis] = -np.inf, np.inf
+    out = (rect, lo, hi)
+    for x in out:
+        x.setflags(write=False)
+    facets.cache["rectangles"] = out
     return out
 
 
