@@ -46,17 +46,20 @@ def points_in_facets(points: np.ndarray, facet: np.ndarray, facets: Facets) -> n
         return np.zeros(0, dtype=bool)
     # cheap rejection by the facet's bounding box first: most candidates fail here
     lo, hi = facet_boxes(facets)
-    near = np.all((points >= lo[facet]) & (points <= hi[facet]), axis=1)
+    near = np.ones(n, dtype=bool)
+    for c in range(3):  # one coordinate at a time: no (n, 3) temporaries
+        x = points[:, c]
+        near &= (x >= lo[facet, c]) & (x <= hi[facet, c])
     out = np.zeros(n, dtype=bool)
     if near.any():
         idx = np.flatnonzero(near)
         # most facets of a hall are axis-aligned rectangles: a point well inside one is inside
         rect, r_lo, r_hi = _rectangles(facets)
-        f = facet[idx]
-        sure = rect[f] & np.all(
-            (points[idx] >= r_lo[f] + RECT_INSIDE_M) & (points[idx] <= r_hi[f] - RECT_INSIDE_M),
-            axis=1,
-        )
+        f, p = facet[idx], points[idx]
+        sure = rect[f]
+        for c in range(3):
+            x = p[:, c]
+            sure &= (x >= r_lo[f, c] + RECT_INSIDE_M) & (x <= r_hi[f, c] - RECT_INSIDE_M)
         out[idx[sure]] = True
         idx = idx[~sure]
         out[idx] = _in_triangles(points[idx], facet[idx], facets)

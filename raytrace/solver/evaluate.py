@@ -143,23 +143,21 @@ def blocked_by_opaque(ctx: TraceContext, cand: Candidates) -> np.ndarray:
     m = len(cand)
     if not ctx.opaque.any() or m == 0:
         return np.zeros(m, dtype=bool)
-    a = cand.chain[:, :-1]  # (m, k + 1, 3)
-    v = cand.chain[:, 1:] - a
-    length = norm(v)
-    d = np.divide(v, length[..., None], out=np.zeros_like(v), where=length[..., None] > 0)
-    margin = ctx.scene.margin
+    chain, margin = cand.chain, ctx.scene.margin
     ends = cand.ends.reshape(m, -1, 2)
     blocked = np.zeros(m, dtype=bool)
     # one segment at a time, the longest on the whole first (the likeliest to be blocked): the
     # other segments of a blocked candidate need no query (each ray's answer is its own)
+    total = norm(chain[:, 1:] - chain[:, :-1]).sum(axis=0)
     live = np.arange(m)
-    for j in np.argsort(-length.sum(axis=0), kind="stable"):
+    for j in np.argsort(-total, kind="stable"):
         if len(live) == 0:
             break
-        dj = d[live, j]
-        hit = ctx.scene.first_hit_among(
-            ctx.opaque, a[live, j] + margin * dj, dj, length[live, j] - 2 * margin
-        )
+        a = chain[live, j]
+        v = chain[live, j + 1] - a
+        length = norm(v)
+        d = np.divide(v, length[:, None], out=np.zeros_like(v), where=length[:, None] > 0)
+        hit = ctx.scene.first_hit_among(ctx.opaque, a + margin * d, d, length - 2 * margin)
         b = (hit >= 0) & (hit != ends[live, j, 0]) & (hit != ends[live, j, 1])
         blocked[live[b]] = True
         live = live[~b]
