@@ -420,7 +420,9 @@ def _one_reflection(ctx: TraceContext, before: bool) -> list[Paths]:
     # that the expansion over the other ends is a cheap (triples, others) matrix
     start_c, dir_c = w.start.T, w.direction.T
     ts, rho_s = _along_and_off(img.T, start_c[:, w_idx], dir_c[:, w_idx])
-    td_w, rho_w = _along_and_off(others.T[:, None, :], start_c[..., None], dir_c[..., None])  # (W, O)
+    td_w, rho_w = _along_and_off(
+        others.T[:, None, :], start_c[..., None], dir_c[..., None]
+    )  # (W, O)
     # the other end inside the wedge: never a valid diffraction
     o_xyz = others.T[:, None, :]  # (3, 1, O)
     open_w = ~_surely_inside(_wedge_frame(ctx), np.arange(len(w))[:, None], *o_xyz)
@@ -435,34 +437,28 @@ def _one_reflection(ctx: TraceContext, before: bool) -> list[Paths]:
         q, o_idx = np.nonzero((t >= t_lo[sl, None]) & (t <= t_hi[sl, None]) & open_w[w_idx[sl]])
         q += c0
         ctx.count("candidates_rd" if before else "candidates_dr", len(q))
-        ee, ff, ww, im = e_idx[q], f_idx[q], w_idx[q], img[q]
-        kp = keller_points(im, others[o_idx], w.start[ww], w.end[ww])
+        ee, ff, ww, im, oth = e_idx[q], f_idx[q], w_idx[q], img[q], others[o_idx]
+        kp = keller_points(im, oth, w.start[ww], w.end[ww])
         ok = kp.on_edge
         # the edge point must lie on the reflecting side (where the end is)
-        s_d = refl.signed_distance(kp.point, fc.normal[ff], fc.offset[ff])
+        dpt = kp.point
+        s_d = refl.signed_distance(dpt, fc.normal[ff], fc.offset[ff])
         ok &= np.sign(np.where(ok, s_d, 0.0)) == side_e[ee, ff]
-        q, ee, ff, ww, im, o_idx, dpt = (
-            q[ok],
-            ee[ok],
-            ff[ok],
-            ww[ok],
-            im[ok],
-            o_idx[ok],
-            kp.point[ok],
-        )
+        # nearly every candidate passes the tests below: compact once, at the end
         u, p = refl.segment_plane_point(im, dpt, fc.normal[ff], fc.offset[ff])
-        ok = (u > 0) & (u < 1)
+        ok &= (u > 0) & (u < 1)
         ok[ok] = accel.points_in_facets(p[ok], ff[ok], fc)
-        q, ee, ff, ww, im, o_idx, dpt, p = (x[ok] for x in (q, ee, ff, ww, im, o_idx, dpt, p))
+        sel = np.flatnonzero(ok)
+        ee, ff, ww, im, oth, o_idx, dpt, p = (x[sel] for x in (ee, ff, ww, im, oth, o_idx, dpt, p))
         if before:
             t_idx, r_idx = ee, o_idx
-            ok = _valid_geometry(ctx, ww, im, ctx.rx[r_idx], dpt)
+            ok = _valid_geometry(ctx, ww, im, oth, dpt)
             verts = np.stack([p, dpt], axis=1)
             fac = np.stack([ff, ww], axis=1)
             kinds = np.array([[REFLECTION, DIFFRACTION]], np.int8)
         else:
             t_idx, r_idx = o_idx, ee
-            ok = _valid_geometry(ctx, ww, ctx.tx[t_idx], im, dpt)
+            ok = _valid_geometry(ctx, ww, oth, im, dpt)
             verts = np.stack([dpt, p], axis=1)
             fac = np.stack([ww, ff], axis=1)
             kinds = np.array([[DIFFRACTION, REFLECTION]], np.int8)
