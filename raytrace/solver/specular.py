@@ -79,6 +79,8 @@ def second_order(ctx: TraceContext) -> list[Paths]:
         pairs = pairs & (ctx.facet_mask[:, None] | ctx.facet_mask[None, :])
     side_rx = refl.reflecting_side(fc, ctx.rx)  # (R, K)
     centre, radius = accel.facet_spheres(fc)
+    rx_centre = 0.5 * (ctx.rx.min(axis=0) + ctx.rx.max(axis=0))
+    rx_radius = float(np.sqrt(((ctx.rx - rx_centre) ** 2).sum(axis=1)).max()) * (1 + 1e-9) + 1e-9
     out: list[Paths] = []
     for t in range(len(ctx.tx)):
         side_t = refl.reflecting_side(fc, ctx.tx[t : t + 1])[0]  # (K,)
@@ -101,6 +103,9 @@ def second_order(ctx: TraceContext) -> list[Paths]:
             continue
         img2 = refl.mirror(img1[i1], fc.normal[f2], fc.offset[f2])
         s_img = side_img[i1, jc]
+        # only second images whose beam reaches the receivers' bounding sphere
+        near = refl.cone_reaches(img2, centre[f2], radius[f2], rx_centre, rx_radius)
+        i1, f1a, f2, img2, s_img = i1[near], f1a[near], f2[near], img2[near], s_img[near]
         # receivers on the same side of the second facet as the first image, inside the
         # beam from the second image through the second facet
         step = max(1, CHUNK // max(len(ctx.rx), 1))
