@@ -114,6 +114,14 @@ def second_order(ctx: TraceContext) -> list[Paths]:
             sl = slice(c0, c0 + step)
             ok_qr = side_rx.T[f2[sl]] == s_img[sl, None]
             ok_qr &= _cone_reaches_points(img2[sl], centre[f2[sl]], radius[f2[sl]], rx_c)
+            # unfolded at the second reflection, the path is straight from the first image to
+            # the receiver's mirror image in the second facet, through the first facet
+            n2, off2 = fc.normal[f2[sl]], fc.offset[f2[sl]]
+            dist = rx_c[0] * n2[:, 0:1] + rx_c[1] * n2[:, 1:2] + rx_c[2] * n2[:, 2:3]
+            dist -= off2[:, None]
+            mirrored = [rx_c[c] - 2.0 * dist * n2[:, c : c + 1] for c in range(3)]
+            f1s = f1a[sl]
+            ok_qr &= _cone_reaches_points(img1[i1[sl]], centre[f1s], radius[f1s], mirrored)
             q, r_idx = np.nonzero(ok_qr)
             ctx.count("candidates_r2", len(q))
             q = q + c0
@@ -145,7 +153,7 @@ def _cone_reaches_points(
 ) -> np.ndarray:
     """(Q, R) bool: :func:`~raytrace.solver.reflection.cone_reaches` of the cones from ``apex``
     (Q, 3) through spheres (``centre`` (Q, 3), ``radius`` (Q,)) and points (components
-    ``points_c`` (3, 1, R)), as a dense matrix one component at a time. With a target of radius
+    ``points_c``, each (1, R) or (Q, R)), as a dense matrix one component at a time. With a target of radius
     0 the condition ``cos(angle) >= cos_a - 1e-7`` is tested multiplied by the distance (no
     division); the same necessary condition, its rounding far inside the 1e-7 slack."""
     b = refl.beam(apex, centre, radius)
