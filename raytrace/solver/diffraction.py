@@ -158,13 +158,18 @@ def _pure(ctx: TraceContext) -> Paths:
     parts = []
     total = n_t * n_w * n_r
     ctx.count("candidates_d", total)
+    frame, w_all = _wedge_frame(ctx), np.arange(n_w)[:, None]
+    open_t = ~_surely_inside(frame, w_all, *ctx.tx.T[:, None, :])  # (W, T)
+    open_r = ~_surely_inside(frame, w_all, *ctx.rx.T[:, None, :])  # (W, R)
     for c0 in range(0, total, CHUNK):
         flat = np.arange(c0, min(total, c0 + CHUNK))
         t_idx, rest = np.divmod(flat, n_w * n_r)
         w_idx, r_idx = np.divmod(rest, n_r)
+        # a transmitter or receiver surely inside the wedge: never a valid diffraction
+        keep = open_t[w_idx, t_idx] & open_r[w_idx, r_idx]
         if ctx.wedge_mask is not None:
-            keep = ctx.wedge_mask[w_idx]
-            t_idx, w_idx, r_idx = t_idx[keep], w_idx[keep], r_idx[keep]
+            keep &= ctx.wedge_mask[w_idx]
+        t_idx, w_idx, r_idx = t_idx[keep], w_idx[keep], r_idx[keep]
         kp = keller_points(ctx.tx[t_idx], ctx.rx[r_idx], w.start[w_idx], w.end[w_idx])
         ok = kp.on_edge
         t_idx, w_idx, r_idx, pt = t_idx[ok], w_idx[ok], r_idx[ok], kp.point[ok]
