@@ -22,6 +22,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from ..core.vec import cross as _cross
 from ..core.vec import norm
 from ..physics.utd import (
     diffracted_field,
@@ -109,7 +110,10 @@ class _WedgeFrame:
         self.t_start = np.einsum("ij,ij->i", w.start, t0)
         self.n_start = np.einsum("ij,ij->i", w.start, n0)
         self.cos_n, self.sin_n = np.cos(n * np.pi), np.sin(n * np.pi)
-        self.prunable = (n >= 1.0) & (n < 2.0 - 1e-6)
+        # the azimuth about the edge does not depend on the diffraction point as long as the
+        # edge's direction is that of end - start: prune only wedges where it is, to 1e-10 m
+        drift = norm(_cross(w.direction, w.end - w.start))
+        self.prunable = (n >= 1.0) & (n < 2.0 - 1e-6) & (drift < 1e-10)
 
 
 def _wedge_frame(ctx: TraceContext) -> _WedgeFrame:
