@@ -9,7 +9,7 @@ from raytrace.solver.paths import Paths
 
 def _random_paths(rng: np.random.Generator, n: int, depth: int, tied: bool) -> Paths:
     # tied: few distinct delays (and signed zeros), so many paths of a link share one
-    delay = rng.choice([1e-8, 2e-8, -0.0, 0.0, 3e-8], n) if tied else rng.random(n)
+    delay = rng.choice([1e-8, 2e-8, -0.0, 0.0, 3e-8, np.nan], n) if tied else rng.random(n)
     return Paths(
         tx=np.zeros((1, 3)),
         rx=np.ones((4, 3)),

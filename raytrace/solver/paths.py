@@ -162,7 +162,8 @@ class Paths:
         # runs by every key (a stable sort of their rows in original order, as one lexsort of
         # everything would)
         link, delay = self.link[order], self.delay_s[order]
-        tie = (link[1:] == link[:-1]) & (delay[1:] == delay[:-1])
+        same = (delay[1:] == delay[:-1]) | (np.isnan(delay[1:]) & np.isnan(delay[:-1]))
+        tie = (link[1:] == link[:-1]) & same
         if tie.any():
             pos = np.flatnonzero(np.concatenate([tie, [False]]) | np.concatenate([[False], tie]))
             rows = np.sort(order[pos])
