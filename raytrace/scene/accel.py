@@ -81,27 +81,31 @@ def _rectangles(facets: Facets) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         return cached
     box_lo, box_hi = facet_boxes(facets, 0.0)
     k = len(facets)
-    rect = facets.tri_count == 2
-    flat = (box_lo == box_hi) & rect[:, None]
-    rect &= flat.sum(axis=1) == 1
+    flat = box_lo == box_hi
+    rect = (facets.tri_count == 2) & (flat.sum(axis=1) == 1)
+    cand = np.flatnonzero(rect)
     lo, hi = np.zeros((k, 3)), np.zeros((k, 3))
-    for f in np.flatnonzero(rect):
-        tri = facets.triangles[facets.tri_start[f] : facets.tri_start[f] + 2]  # (2, 3, 3)
-        axis = int(np.flatnonzero(flat[f])[0])
-        plane = [a for a in range(3) if a != axis]
-        at_lo = tri[:, :, plane] == box_lo[f, plane]
-        at_hi = tri[:, :, plane] == box_hi[f, plane]
-        if not np.all(at_lo | at_hi):
-            rect[f] = False
-            continue
-        # each triangle: three distinct corners (bits u, v); the two missing corners opposite
-        bits = at_hi[:, :, 0].astype(int) + 2 * at_hi[:, :, 1].astype(int)  # (2, 3)
-        missing = [set(range(4)) - set(b.tolist()) for b in bits]
-        if any(len(m) != 1 for m in missing) or missing[0].pop() ^ missing[1].pop() != 3:
-            rect[f] = False
-            continue
-        lo[f], hi[f] = box_lo[f], box_hi[f]
-        lo[f, axis], hi[f, axis] = -np.inf, np.inf
+    if len(cand):
+        t0 = facets.tri_start[cand]
+        tri = facets.triangles[np.stack([t0, t0 + 1], axis=1)]  # (C, 2 triangles, 3 corners, 3)
+        axis = np.argmax(flat[cand], axis=1)
+        bits = np.zeros(tri.shape[:3], dtype=np.int64)
+        on_box = np.ones(tri.shape[:3], dtype=bool)
+        for i, a in enumerate(((axis + 1) % 3, (axis + 2) % 3)):  # the two in-plane axes
+            x = np.take_along_axis(tri, a[:, None, None, None], axis=3)[..., 0]
+            at_lo = x == box_lo[cand, a][:, None, None]
+            at_hi = x == box_hi[cand, a][:, None, None]
+            on_box &= at_lo | at_hi
+            bits += at_hi.astype(np.int64) << i  # corner index 0..3 (bit i: high on axis i)
+        # each triangle on three distinct corners; the corners they miss opposite (a diagonal)
+        mask = np.bitwise_or.reduce(1 << bits, axis=2)  # (C, 2)
+        three = np.isin(mask, (7, 11, 13, 14))
+        missing = np.log2(np.where(three, 15 ^ mask, 1)).astype(np.int64)
+        ok = on_box.all(axis=(1, 2)) & three.all(axis=1) & (missing[:, 0] ^ missing[:, 1] == 3)
+        rect[cand[~ok]] = False
+        good = cand[ok]
+        lo[good], hi[good] = box_lo[good], box_hi[good]
+        lo[good, axis[ok]], hi[good, axis[ok]] = -np.inf, np.inf
     out = (rect, lo, hi)
     for x in out:
         x.setflags(write=False)
