@@ -8,7 +8,12 @@ incidence angle) is applied by the tracer; metal transmits nothing, so it blocks
 Entering or leaving a closed solid is read from the outward normal of the hit face, so that
 touching solids (a face shared by two boxes) each get their chord although the second's entry is
 stepped over with the first's exit; a solid left without a seen entry began at the previous
-boundary or at the segment's start.
+boundary or at the segment's start. Which of two coincident faces Embree reports first (the
+first solid's exit or the second's entry, at the same distance) depends on its BVH, so the
+result must not: a solid entered through the previous boundary takes that boundary's plane as
+its entry face (the coincident face it was entered through, turned against the ray), exactly as
+when its own entry face is the one reported. A solid left without a seen entry at the segment's
+start has no entry face; its exit face stands in.
 
 The equivalent slab thickness of a chord through a solid is the chord length times the cosine of
 the incidence angle on the entry face: exact for a slab with parallel faces, an approximation for
@@ -70,21 +75,23 @@ class _Walk:
         self.thick = np.zeros((n, kk))
         self.inside = np.full(n, -1, dtype=np.int64)  # closed solid the segment is inside of
         self.t_in = np.zeros(n)
-        self.face_in = np.zeros(n, dtype=np.int64)
+        self.normal_in = np.zeros((n, 3))  # unit normal of the entry face of ``inside``
         self.t_last = np.zeros(n)  # distance of the last boundary crossed (0: the start)
+        self.normal_last = np.zeros((n, 3))  # unit normal of that boundary's face (0: the start)
 
     def record(
-        self, rows: np.ndarray, t_entry: np.ndarray, o: np.ndarray, face: np.ndarray, th: np.ndarray
+        self, rows: np.ndarray, t_entry: np.ndarray, o: np.ndarray, fn: np.ndarray, th: np.ndarray
     ) -> None:
-        """One penetration of object ``o`` entered at ``t_entry`` through ``face``, chord ``th``
-        (a sheet: its thickness); a solid's equivalent slab is the chord times cos(incidence)."""
+        """One penetration of object ``o`` entered at ``t_entry`` through a face of unit normal
+        ``fn`` (n, 3), chord ``th`` (a sheet: its thickness); a solid's equivalent slab is the
+        chord times cos(incidence)."""
         slot = self.count[rows]
         over = slot >= self.k
         self.exceeded[rows[over]] = True
         r, s = rows[~over], slot[~over]
         self.dist[r, s] = t_entry[~over]
         self.obj[r, s] = o[~over]
-        fn = self.scene.face_normal[face[~over]]
+        fn = fn[~over]
         self.normal[r, s] = fn
         cos_i = np.abs(np.einsum("ij,ij->i", fn, self.d[r]))
         self.thick[r, s] = np.maximum(th[~over], 0.0) * np.where(self.closed[o[~over]], cos_i, 1.0)
@@ -97,45 +104,53 @@ class _Walk:
         # closed solids face outward: the hit face's orientation says whether the segment enters
         # or leaves (the bookkeeping alone would miss an entry through a face coincident with
         # the previous exit, two solids stacked, since each hit is stepped over by the margin)
-        dn = np.einsum("ij,ij->i", self.scene.face_normal[face], self.d[rows])
+        fn = self.scene.face_normal[face]
+        dn = np.einsum("ij,ij->i", fn, self.d[rows])
         leave = is_closed & ((dn > 0) | ((dn == 0.0) & (cur == o)))
         enter = is_closed & ~leave
         # open sheet: one penetration through the material's thickness
         m = ~is_closed
         if m.any():
-            self.record(rows[m], t_hit[m], o[m], face[m], self.sheet_thickness[o[m]])
+            self.record(rows[m], t_hit[m], o[m], fn[m], self.sheet_thickness[o[m]])
         # leaving the solid we are inside of: one penetration through the chord
         m = leave & (cur == o)
         if m.any():
             r = rows[m]
-            self.record(r, self.t_in[r], o[m], self.face_in[r], t_hit[m] - self.t_in[r])
+            self.record(r, self.t_in[r], o[m], self.normal_in[r], t_hit[m] - self.t_in[r])
             self.inside[r] = -1
         # leaving a solid we did not see entering, outside any other: it began at the previous
-        # boundary (a face coincident with it) or at the segment's start. (Leaving a solid while
+        # boundary (a face coincident with it, whose plane is its entry face) or at the
+        # segment's start (no entry face: the exit face stands in). (Leaving a solid while
         # inside another is the end of an overlap, whose chord was closed on entering the other.)
         m = leave & (cur < 0)
         if m.any():
             r = rows[m]
-            self.record(r, self.t_last[r], o[m], face[m], t_hit[m] - self.t_last[r])
+            prev = self.normal_last[r]
+            start = ~prev.any(axis=1)
+            # the previous boundary's plane, turned against the ray like an entry face
+            side = np.where(np.einsum("ij,ij->i", prev, self.d[r]) > 0, -1.0, 1.0)
+            n_entry = np.where(start[:, None], fn[m], side[:, None] * prev)
+            self.record(r, self.t_last[r], o[m], n_entry, t_hit[m] - self.t_last[r])
         # entering a solid (closing an overlapping one first)
         if enter.any():
             r = rows[enter]
             ov = self.inside[r] >= 0
             if ov.any():
                 rr = r[ov]
-                self.record(rr, self.t_in[rr], self.inside[rr], self.face_in[rr],
+                self.record(rr, self.t_in[rr], self.inside[rr], self.normal_in[rr],
                             t_hit[enter][ov] - self.t_in[rr])  # fmt: skip
             self.inside[r] = o[enter]
             self.t_in[r] = t_hit[enter]
-            self.face_in[r] = face[enter]
+            self.normal_in[r] = fn[enter]
         self.t_last[rows] = t_hit
+        self.normal_last[rows] = fn
 
     def result(self, a: np.ndarray, tmax: np.ndarray) -> Crossings:
         """The crossings, after closing the chord of segments that end inside a solid."""
         m = (self.inside >= 0) & ~self.exceeded
         if m.any():
             r = np.flatnonzero(m)
-            self.record(r, self.t_in[r], self.inside[r], self.face_in[r], tmax[r] - self.t_in[r])
+            self.record(r, self.t_in[r], self.inside[r], self.normal_in[r], tmax[r] - self.t_in[r])
         dist, k = self.dist, self.k
         point = (
             a[:, None, :]
