@@ -53,6 +53,11 @@ class Crossings:
     thickness: np.ndarray
 
 
+#: A hit closer than this many scene margins to an edge of its triangle may as well be on the
+#: neighbouring face across that edge (Embree's float32 answer for a ray through an edge depends
+#: on its BVH): the face is then chosen canonically (:func:`canonical_faces`).
+EDGE_TOL_MARGINS = 1.0
+
 #: Hits on the object a segment starts or ends on (a reflection or diffraction vertex) closer
 #: than this many scene margins to that end are float32 noise of the vertex itself, not crossings.
 END_GUARD_MARGINS = 10.0
@@ -164,6 +169,95 @@ class _Walk:
                          thick)  # fmt: skip
 
 
+def canonical_faces(
+    scene: Scene, face: np.ndarray, o: np.ndarray, a: np.ndarray, d: np.ndarray, t: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The face a hit is booked on, independent of which one Embree reported at an edge, and
+    whether the hit is only a touch.
+
+    A ray through an edge (or a vertex) of a solid meets two (or more) of its faces at the same
+    point; which one Embree reports depends on its BVH, and the face's normal sets the incidence
+    plane (TE/TM basis) and angle of the penetration. Of the faces of the hit object that contain
+    the hit point (within ``EDGE_TOL_MARGINS`` scene margins) and face the ray the same way as
+    the reported one (entering or leaving), the one with the lowest face index is taken. A scene
+    with more objects appended (a snapshot with forklifts) keeps the static faces' indices, so
+    the choice is the same in both.
+
+    A ray that only touches a convex closed solid at an edge or a vertex (its line's chord
+    through the solid, clipped by the facet planes in float64, is shorter than the tolerance)
+    does not penetrate it: the hit is a *touch*, stepped over without a crossing. Otherwise the
+    reported entry (or exit) would be paired with an exit (entry) that is never seen, and the
+    chord would run to the segment's end (start).
+
+    Parameters
+    ----------
+    scene : Scene
+    face : (n,) int, reported faces
+    o : (n,) int, their objects
+    a : (n, 3) float, ray origins (any point on the ray's line), metres
+    d : (n, 3) float, unit ray directions
+    t : (n,) float, hit distances from ``a``, metres
+
+    Returns
+    -------
+    face : (n,) int, the canonical faces
+    touch : (n,) bool, hits that only touch a convex solid
+    """
+    out = face.copy()
+    touch = np.zeros(len(face), dtype=bool)
+    if len(face) == 0:
+        return out, touch
+    tol = EDGE_TOL_MARGINS * scene.margin
+    point = a + t[:, None] * d
+    near = _edge_distance(scene, face, point) >= -tol
+    if not near.any():
+        return out, touch
+    side = np.sign(np.einsum("ij,ij->i", scene.face_normal[face], d))
+    convex = scene.convex_objects()
+    fc = scene.facets
+    for obj in np.unique(o[near]):  # few rows: hits within a margin of an edge
+        rows = np.flatnonzero(near & (o == obj))
+        ob = scene.objects[obj]
+        cand = np.arange(ob.face_start, ob.face_start + ob.face_count)
+        nrm = scene.face_normal[cand]  # (c, 3)
+        v0 = scene.vertices[scene.faces[cand, 0]]
+        # (r, c): on the face's plane, inside its triangle, facing the ray the same way
+        rel = point[rows, None, :] - v0[None]
+        plane = np.abs((rel * nrm[None]).sum(axis=2)) <= tol
+        inside = _edge_distance(scene, cand[None, :], point[rows, None, :]) <= tol
+        same = np.sign(d[rows] @ nrm.T) == side[rows, None]
+        ok = plane & inside & same
+        ok[np.arange(len(rows)), face[rows] - ob.face_start] = True  # the reported one counts
+        out[rows] = cand[np.argmax(ok, axis=1)]
+        if convex[obj]:
+            k = fc.object == obj
+            dn = d[rows] @ fc.normal[k].T  # (r, K)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                tp = (fc.offset[k][None] - a[rows] @ fc.normal[k].T) / dn
+            t_in = np.where(dn < 0, tp, -np.inf).max(axis=1)
+            t_out = np.where(dn > 0, tp, np.inf).min(axis=1)
+            # a plane parallel to the ray with the line outside it: no chord at all
+            off = ((dn == 0) & (a[rows] @ fc.normal[k].T - fc.offset[k][None] > tol)).any(axis=1)
+            touch[rows] = off | (t_out - t_in <= tol)
+    return out, touch
+
+
+def _edge_distance(scene: Scene, face: np.ndarray, point: np.ndarray) -> np.ndarray:
+    """Signed in-plane distance of points from their triangle's boundary, metres: the largest
+    of the distances outside its three edge lines, so <= 0 inside the triangle (minus the
+    distance to the nearest edge) and > 0 outside. Broadcasts ``face`` (...) against ``point``
+    (..., 3)."""
+    tri = scene.vertices[scene.faces[face]]  # (..., 3, 3)
+    nrm = scene.face_normal[face]
+    worst = np.full(np.broadcast_shapes(np.shape(face), point.shape[:-1]), -np.inf)
+    for i in range(3):
+        v, w = tri[..., i, :], tri[..., (i + 1) % 3, :]
+        m = np.cross(w - v, nrm)  # in-plane normal of the edge, outward (counter-clockwise)
+        m = m / np.maximum(np.linalg.norm(m, axis=-1, keepdims=True), 1e-300)
+        worst = np.maximum(worst, ((point - v) * m).sum(axis=-1))
+    return worst
+
+
 def segment_crossings(
     scene: Scene,
     a: np.ndarray,
@@ -226,6 +320,12 @@ def segment_crossings(
             t[rows[noise]] = t_hit[noise] + margin
             active[rows[noise]] &= t[rows[noise]] < tmax[rows[noise]]
             keep = ~noise
+            rows, face, o, t_hit = rows[keep], face[keep], o[keep], t_hit[keep]
+        face, touch = canonical_faces(scene, face, o, a[rows], d[rows], t_hit)
+        if touch.any():
+            t[rows[touch]] = t_hit[touch] + margin
+            keep = ~touch
+            active[rows[touch]] &= t[rows[touch]] < tmax[rows[touch]]
             rows, face, o, t_hit = rows[keep], face[keep], o[keep], t_hit[keep]
         walk.boundary(rows, face, o, t_hit)
         t[rows] = t_hit + margin
