@@ -135,3 +135,51 @@ def test_stacked_solids_chords_do_not_depend_on_the_bvh():
         reported |= set(sc.intersect(probe, d, np.full(n, 2e-3))[2].tolist())
     # the test has its power only if both coincident faces were reported first somewhere
     assert reported == {0, 1}
+
+
+def _unit_box(n_spare: int, seed: int = 0):
+    """A unit cube of wood, then ``n_spare`` crates (seeded, above z = 3) that only change
+    Embree's BVH."""
+    corner = np.random.default_rng(seed).uniform(-3, 3, (n_spare, 3)) + [0, 0, 6]
+    spare = [(f"s{i}", box(p, p + 0.5), "wood") for i, p in enumerate(corner)]
+    return make_scene([("cube", box((0, 0, 0), (1, 1, 1)), "wood"), *spare])
+
+
+def test_a_segment_touching_a_solid_at_an_edge_does_not_cross_it():
+    """Segments over the cube's top edge x = 1, z = 1 at 45 degrees touch it along no length:
+    no crossing (it used to open a chord that ran to the segment's end: a 1 m slab)."""
+    ys = np.linspace(0.05, 0.95, 7)
+    a = np.column_stack([np.full(7, 2.0), ys, np.zeros(7)])
+    b = np.column_stack([np.zeros(7), ys, np.full(7, 2.0)])
+    for n_spare in (0, 24):
+        cr = segment_crossings(_unit_box(n_spare), a, b, 2)
+        np.testing.assert_array_equal(cr.count, 0)
+    # the same segments lowered by 1 mm cut the corner: a chord of sqrt(2) mm, entered through
+    # x = 1 at 45 degrees, equivalent slab 1 mm
+    cr = segment_crossings(_unit_box(0), a - [0, 0, 1e-3], b - [0, 0, 1e-3], 2)
+    np.testing.assert_array_equal(cr.count, 1)
+    np.testing.assert_allclose(cr.thickness[:, 0], 1e-3, atol=CHORD_TOL_M)
+
+
+def test_a_segment_through_two_edges_gets_the_same_faces_whatever_the_bvh():
+    """Diagonals of the cube's horizontal sections enter and leave through vertical edges.
+    Embree reports the entry on face x = 0 in one scene and on y = 1 in another (same cube,
+    other crates far away); the face booked (the lowest-index one of those containing the hit
+    and facing the ray the same way) and so the normal must be the same. Closed form: chord
+    sqrt(2), cos 45 degrees on either entry face: slab 1 m."""
+    n = 9
+    zs = np.linspace(0.1, 0.9, n)
+    a = np.column_stack([np.full(n, -1.0), np.full(n, 2.0), zs])
+    b = np.column_stack([np.full(n, 2.0), np.full(n, -1.0), zs])
+    d = (b - a) / np.linalg.norm(b - a, axis=1)[:, None]
+    normals, reported = [], []
+    for n_spare, seed in ((0, 0), (6, 0)):
+        sc = _unit_box(n_spare, seed)
+        cr = segment_crossings(sc, a, b, 2)
+        np.testing.assert_array_equal(cr.count, 1)
+        np.testing.assert_allclose(cr.thickness[:, 0], 1.0, atol=CHORD_TOL_M)
+        normals.append(cr.normal[:, 0])
+        reported.append(sc.face_normal[sc.intersect(a + sc.margin * d, d, np.full(n, 5.0))[1]])
+    np.testing.assert_array_equal(normals[1], normals[0])
+    # the test has its power only if Embree reported different entry faces in the two scenes
+    assert np.all(np.abs(reported[0] - reported[1]).max(axis=1) > 0.5)
