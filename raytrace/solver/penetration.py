@@ -53,10 +53,15 @@ class Crossings:
     thickness: np.ndarray
 
 
-#: A hit closer than this many scene margins to an edge of its triangle may as well be on the
-#: neighbouring face across that edge (Embree's float32 answer for a ray through an edge depends
-#: on its BVH): the face is then chosen canonically (:func:`canonical_faces`).
-EDGE_TOL_MARGINS = 1.0
+#: Contact tolerance, in scene margins. A hit closer than this to an edge of its triangle may as
+#: well be on the neighbouring face across that edge (Embree's float32 answer for a ray through
+#: an edge depends on its BVH): the face is then chosen canonically. A ray whose line never gets
+#: deeper than this into a convex solid only touches it (:func:`canonical_faces`).
+CONTACT_TOL_MARGINS = 1.0
+
+#: Below this cosine between a ray and a face, the float64 plane distance is not used in place of
+#: Embree's (:func:`_plane_distance`).
+GRAZING_COS = 1e-6
 
 #: Hits on the object a segment starts or ends on (a reflection or diffraction vertex) closer
 #: than this many scene margins to that end are float32 noise of the vertex itself, not crossings.
@@ -178,16 +183,17 @@ def canonical_faces(
     A ray through an edge (or a vertex) of a solid meets two (or more) of its faces at the same
     point; which one Embree reports depends on its BVH, and the face's normal sets the incidence
     plane (TE/TM basis) and angle of the penetration. Of the faces of the hit object that contain
-    the hit point (within ``EDGE_TOL_MARGINS`` scene margins) and face the ray the same way as
+    the hit point (within ``CONTACT_TOL_MARGINS`` scene margins) and face the ray the same way as
     the reported one (entering or leaving), the one with the lowest face index is taken. A scene
     with more objects appended (a snapshot with forklifts) keeps the static faces' indices, so
     the choice is the same in both.
 
-    A ray that only touches a convex closed solid at an edge or a vertex (its line's chord
-    through the solid, clipped by the facet planes in float64, is shorter than the tolerance)
-    does not penetrate it: the hit is a *touch*, stepped over without a crossing. Otherwise the
-    reported entry (or exit) would be paired with an exit (entry) that is never seen, and the
-    chord would run to the segment's end (start).
+    A ray whose line never gets deeper than the tolerance into a convex closed solid (the chord
+    of its line through the solid shrunk by the tolerance, from the facet planes in float64, is
+    empty) only touches it: at an edge or a vertex, or grazing along a face. Such a hit is a
+    *touch*, stepped over without a crossing; whether Embree reports it at all depends on its
+    BVH, and a reported entry (exit) would be paired with an exit (entry) that is never seen, so
+    that the chord would run to the segment's end (start).
 
     Parameters
     ----------
@@ -204,17 +210,15 @@ def canonical_faces(
     touch : (n,) bool, hits that only touch a convex solid
     """
     out = face.copy()
-    touch = np.zeros(len(face), dtype=bool)
     if len(face) == 0:
-        return out, touch
-    tol = EDGE_TOL_MARGINS * scene.margin
+        return out, np.zeros(0, dtype=bool)
+    tol = CONTACT_TOL_MARGINS * scene.margin
+    touch = _touches(scene, o, a, d, tol)
     point = a + t[:, None] * d
     near = _edge_distance(scene, face, point) >= -tol
     if not near.any():
         return out, touch
     side = np.sign(np.einsum("ij,ij->i", scene.face_normal[face], d))
-    convex = scene.convex_objects()
-    fc = scene.facets
     for obj in np.unique(o[near]):  # few rows: hits within a margin of an edge
         rows = np.flatnonzero(near & (o == obj))
         ob = scene.objects[obj]
@@ -229,17 +233,73 @@ def canonical_faces(
         ok = plane & inside & same
         ok[np.arange(len(rows)), face[rows] - ob.face_start] = True  # the reported one counts
         out[rows] = cand[np.argmax(ok, axis=1)]
-        if convex[obj]:
-            k = fc.object == obj
-            dn = d[rows] @ fc.normal[k].T  # (r, K)
-            with np.errstate(divide="ignore", invalid="ignore"):
-                tp = (fc.offset[k][None] - a[rows] @ fc.normal[k].T) / dn
-            t_in = np.where(dn < 0, tp, -np.inf).max(axis=1)
-            t_out = np.where(dn > 0, tp, np.inf).min(axis=1)
-            # a plane parallel to the ray with the line outside it: no chord at all
-            off = ((dn == 0) & (a[rows] @ fc.normal[k].T - fc.offset[k][None] > tol)).any(axis=1)
-            touch[rows] = off | (t_out - t_in <= tol)
     return out, touch
+
+
+def _plane_distance(
+    scene: Scene, face: np.ndarray, a: np.ndarray, d: np.ndarray, t: np.ndarray
+) -> np.ndarray:
+    """Hit distances recomputed in float64 on the plane of the (canonical) hit face, metres.
+
+    Embree's float32 distance to the same plane differs by ~1e-7 relative between the
+    triangles of a face and between coincident faces of two objects, so chords (and the slab
+    delays and losses made of them) depended on which triangle the BVH reported. Where the ray
+    is nearly parallel to the face (``|cos| <= GRAZING_COS``) or the plane's answer is further
+    than a contact tolerance from Embree's, Embree's distance is kept.
+    """
+    n = scene.face_normal[face]
+    v0 = scene.vertices[scene.faces[face, 0]]
+    dn = np.einsum("ij,ij->i", n, d)
+    ok = np.abs(dn) > GRAZING_COS
+    tp = np.einsum("ij,ij->i", n, v0 - a) / np.where(ok, dn, 1.0)
+    ok &= np.abs(tp - t) <= CONTACT_TOL_MARGINS * scene.margin
+    return np.where(ok, tp, t)
+
+
+def _convex_planes(scene: Scene) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Facet planes of every convex closed object, padded: normals (O, K, 3), offsets (O, K)
+    (plane ``n . x = offset``, m) and valid (O, K) bool (none for other objects). Cached."""
+    cache = scene.__dict__.get("_convex_planes")
+    if cache is not None:
+        return cache
+    fc = scene.facets
+    n_obj = len(scene.objects)
+    use = scene.convex_objects()[fc.object]
+    obj = fc.object[use]
+    order = np.argsort(obj, kind="stable")
+    obj = obj[order]
+    per = np.bincount(obj, minlength=n_obj)
+    slot = np.arange(len(obj)) - np.concatenate([[0], np.cumsum(per)[:-1]])[obj]
+    k = max(int(per.max(initial=0)), 1)
+    normal = np.zeros((n_obj, k, 3))
+    offset = np.zeros((n_obj, k))
+    valid = np.zeros((n_obj, k), dtype=bool)
+    normal[obj, slot] = fc.normal[use][order]
+    offset[obj, slot] = fc.offset[use][order]
+    valid[obj, slot] = True
+    scene.__dict__["_convex_planes"] = (normal, offset, valid)
+    return normal, offset, valid
+
+
+def _touches(scene: Scene, o: np.ndarray, a: np.ndarray, d: np.ndarray, tol: float) -> np.ndarray:
+    """(n,) bool: the line ``a + t d`` never gets deeper than ``tol`` into object ``o``, a convex
+    closed solid (False for other objects)."""
+    normal, offset, valid = _convex_planes(scene)
+    out = np.zeros(len(o), dtype=bool)
+    rows = np.flatnonzero(valid[o].any(axis=1))
+    if not len(rows):
+        return out
+    n, v = normal[o[rows]], valid[o[rows]]  # (m, K, 3), (m, K)
+    dn = np.einsum("mkj,mj->mk", n, d[rows])
+    # signed distance of the line's points from each plane, at least tol inside: s + t dn <= -tol
+    s = np.einsum("mkj,mj->mk", n, a[rows]) - offset[o[rows]] + tol
+    with np.errstate(divide="ignore", invalid="ignore"):
+        tp = -s / dn
+    t_in = np.where(v & (dn < 0), tp, -np.inf).max(axis=1)
+    t_out = np.where(v & (dn > 0), tp, np.inf).min(axis=1)
+    parallel_out = (v & (dn == 0) & (s > 0)).any(axis=1)
+    out[rows] = parallel_out | (t_out <= t_in)
+    return out
 
 
 def _edge_distance(scene: Scene, face: np.ndarray, point: np.ndarray) -> np.ndarray:
@@ -327,6 +387,7 @@ def segment_crossings(
             keep = ~touch
             active[rows[touch]] &= t[rows[touch]] < tmax[rows[touch]]
             rows, face, o, t_hit = rows[keep], face[keep], o[keep], t_hit[keep]
+        t_hit = _plane_distance(scene, face, a[rows], d[rows], t_hit)
         walk.boundary(rows, face, o, t_hit)
         t[rows] = t_hit + margin
         active[rows] &= (t[rows] < tmax[rows]) & ~walk.exceeded[rows]
