@@ -13,7 +13,11 @@ first solid's exit or the second's entry, at the same distance) depends on its B
 result must not: a solid entered through the previous boundary takes that boundary's plane as
 its entry face (the coincident face it was entered through, turned against the ray), exactly as
 when its own entry face is the one reported. A solid left without a seen entry at the segment's
-start has no entry face; its exit face stands in.
+start has no entry face; its exit face stands in. Likewise a hit at an edge or a vertex is
+booked on a canonical face, a ray that only touches a convex solid (at an edge, a vertex or
+along a face) does not cross it, and hit distances are taken on the booked face's plane in
+float64 (:func:`canonical_faces`, :func:`_plane_distance`): the crossings do not depend on the
+BVH, which differs between a static scene and a snapshot with forklifts.
 
 The equivalent slab thickness of a chord through a solid is the chord length times the cosine of
 the incidence angle on the entry face: exact for a slab with parallel faces, an approximation for
