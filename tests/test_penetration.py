@@ -90,7 +90,7 @@ def test_overlapping_solids_split_the_chord():
     np.testing.assert_allclose(cr.thickness[0, :2], [1.5, 1.5], atol=CHORD_TOL_M)
 
 
-def _pallet_with_boxes(n_spare: int):
+def _pallet_with_boxes(n_spare: int, more=()):
     """A pallet (z 0..0.15) with boxes standing on it (coincident faces at z = 0.15), then
     ``n_spare`` far-away crates that only change Embree's BVH."""
     spare = [
@@ -101,6 +101,7 @@ def _pallet_with_boxes(n_spare: int):
             ("pallet", box((0.0, 0.0, 0.0), (1.2, 0.8, 0.15)), "wood"),
             ("boxes", box((0.1, 0.1, 0.15), (1.1, 0.7, 1.35)), "plasterboard"),
             *spare,
+            *more,
         ]
     )
 
@@ -210,3 +211,37 @@ def test_a_segment_along_a_face_does_not_cross_its_solid():
     cr = segment_crossings(_unit_box(0), starts[1][0] - low, b - low, 2)
     np.testing.assert_array_equal(cr.count, 1)
     np.testing.assert_allclose(cr.thickness[:, 0], 1.0, atol=CHORD_TOL_M)
+
+
+def test_a_segment_ending_under_stacked_solids_crosses_both_whatever_the_bvh():
+    """Segments entering boxes through their side, going down into the pallet under them
+    (coincident faces at z = 0.15) and ending on the floor slab under the pallet (a reflection
+    point). Whichever coincident face Embree reports first, both solids are crossed: the boxes
+    down to z = 0.15, the pallet from there to the segment's end (its exit, the floor's plane,
+    is the segment's end: the chord stops a margin before it)."""
+    rng = np.random.default_rng(3)
+    n = 48
+    end = np.column_stack([rng.uniform(0.4, 0.8, n), rng.uniform(0.3, 0.5, n), np.zeros(n)])
+    p_side = np.column_stack(
+        [end[:, 0] + rng.uniform(-0.05, 0.05, n), np.full(n, 0.7), rng.uniform(0.3, 0.6, n)]
+    )  # on the boxes' y = 0.7 face
+    d = (end - p_side) / np.linalg.norm(end - p_side, axis=1)[:, None]
+    a = p_side - 0.5 * d
+    floor = ("floor", box((-2.0, -2.0, -0.2), (3.0, 3.0, 0.0)), "concrete")
+    reported = set()
+    for n_spare in (0, 5, 10, 15):
+        sc = _pallet_with_boxes(n_spare, [floor])
+        cr = segment_crossings(sc, a, end, 4, end_objects=np.array([[-1, 2]] * n))
+        assert np.all(cr.count == 2)
+        np.testing.assert_array_equal(cr.object[:, :2], np.broadcast_to([1, 0], (n, 2)))
+        # boxes: entered through y = 0.7; pallet: entered through z = 0.15, to a margin before
+        # the end
+        want_boxes = (p_side[:, 2] - 0.15) / -d[:, 2] * -d[:, 1]
+        want_pallet = 0.15 - sc.margin * -d[:, 2]
+        np.testing.assert_allclose(cr.thickness[:, 0], want_boxes, atol=CHORD_TOL_M)
+        np.testing.assert_allclose(cr.thickness[:, 1], want_pallet, atol=CHORD_TOL_M)
+        t_plane = 0.5 + (p_side[:, 2] - 0.15) / -d[:, 2]
+        probe = a + (t_plane - 1e-3)[:, None] * d
+        reported |= set(sc.intersect(probe, d, np.full(n, 2e-3))[2].tolist())
+    # the test has its power only if both coincident faces were reported first somewhere
+    assert reported == {0, 1}

@@ -138,13 +138,7 @@ class _Walk:
         # inside another is the end of an overlap, whose chord was closed on entering the other.)
         m = leave & (cur < 0)
         if m.any():
-            r = rows[m]
-            prev = self.normal_last[r]
-            start = ~prev.any(axis=1)
-            # the previous boundary's plane, turned against the ray like an entry face
-            side = np.where(np.einsum("ij,ij->i", prev, self.d[r]) > 0, -1.0, 1.0)
-            n_entry = np.where(start[:, None], fn[m], side[:, None] * prev)
-            self.record(r, self.t_last[r], o[m], n_entry, t_hit[m] - self.t_last[r])
+            self.unseen(rows[m], o[m], fn[m], t_hit[m])
         # entering a solid (closing an overlapping one first)
         if enter.any():
             r = rows[enter]
@@ -158,6 +152,17 @@ class _Walk:
             self.normal_in[r] = fn[enter]
         self.t_last[rows] = t_hit
         self.normal_last[rows] = fn
+
+    def unseen(self, r: np.ndarray, o: np.ndarray, fn_exit: np.ndarray, t_exit: np.ndarray):
+        """The segments ``r``, outside any solid, leave solid ``o`` at ``t_exit`` through a face
+        of normal ``fn_exit`` without a seen entry: it was entered at the previous boundary
+        (through a coincident face: that boundary's plane, turned against the ray, is the entry
+        face) or the segment starts in it (no entry face: the exit face stands in)."""
+        prev = self.normal_last[r]
+        start = ~prev.any(axis=1)
+        side = np.where(np.einsum("ij,ij->i", prev, self.d[r]) > 0, -1.0, 1.0)
+        n_entry = np.where(start[:, None], fn_exit, side[:, None] * prev)
+        self.record(r, self.t_last[r], o, n_entry, t_exit - self.t_last[r])
 
     def result(self, a: np.ndarray, tmax: np.ndarray) -> Crossings:
         """The crossings, after closing the chord of segments that end inside a solid."""
@@ -398,4 +403,47 @@ def segment_crossings(
     else:
         # still hitting after the last round: more crossings than allowed
         walk.exceeded |= active
+    _left_at_the_end(scene, walk, a, tmax)
     return walk.result(a, tmax)
+
+
+#: Direction of the probe ray that finds the solid a segment ends in (:func:`_left_at_the_end`):
+#: horizontal and off the axes, so it leaves a pallet or a box through a side face rather than
+#: through the planes it shares with the floor or the load (unit vector).
+PROBE_DIRECTION = np.array([0.6, 0.8, 0.0])
+
+
+def _left_at_the_end(scene: Scene, walk: _Walk, a: np.ndarray, tmax: np.ndarray) -> None:
+    """Close the chord of a solid entered through a face coincident with the last boundary
+    (stepped over with it) and not left before the segment's end: a segment from boxes into the
+    pallet under them, ending on the floor under the pallet. Whether the pallet was counted
+    depended on which coincident face Embree reported first. For every segment that left a
+    solid last and ends outside any, a probe ray from the middle of its last stretch (in
+    ``PROBE_DIRECTION``) finds the solid that point is in: its first hit leaves a closed solid
+    (for a convex one, the point is also more than a contact tolerance inside its planes)."""
+    rows = np.flatnonzero(
+        ~walk.exceeded
+        & (walk.inside < 0)
+        & (walk.t_last > 0)
+        & (np.einsum("ij,ij->i", walk.normal_last, walk.d) > 0)
+        & (walk.t_last < tmax)
+    )
+    if not len(rows):
+        return
+    q = a[rows] + (0.5 * (walk.t_last[rows] + tmax[rows]))[:, None] * walk.d[rows]
+    probe = np.broadcast_to(PROBE_DIRECTION, q.shape)
+    _, face, o = scene.intersect(q, probe, np.inf)
+    ok = o >= 0
+    ok[ok] = walk.closed[o[ok]]
+    fn = scene.face_normal[np.maximum(face, 0)]
+    ok &= np.einsum("ij,ij->i", fn, probe) > 0
+    if ok.any():
+        tol = CONTACT_TOL_MARGINS * scene.margin
+        normal, offset, valid = _convex_planes(scene)
+        k = np.flatnonzero(ok)
+        depth = np.einsum("mkj,mj->mk", normal[o[k]], q[k]) - offset[o[k]]
+        convex = valid[o[k]].any(axis=1)
+        ok[k] = ~convex | np.all(~valid[o[k]] | (depth < -tol), axis=1)
+    if ok.any():
+        r = rows[ok]
+        walk.unseen(r, o[ok], fn[ok], tmax[r])
