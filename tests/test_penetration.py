@@ -245,3 +245,20 @@ def test_a_segment_ending_under_stacked_solids_crosses_both_whatever_the_bvh():
         reported |= set(sc.intersect(probe, d, np.full(n, 2e-3))[2].tolist())
     # the test has its power only if both coincident faces were reported first somewhere
     assert reported == {0, 1}
+
+
+def test_a_segment_through_an_edge_enters_through_the_more_head_on_face():
+    """Segments through the cube's vertical edge x = 0, y = 1 meet faces x = 0 and y = 1 at one
+    point; the more head-on one is the entry face in every BVH, whatever the faces' order. At
+    30 degrees to the x axis that is x = 0 (cosine 0.866 against 0.5), at 60 degrees y = 1.
+    Closed form: chord 1 / 0.866, slab = chord x 0.866 = 1 m (not 0.577 m)."""
+    n = 9
+    edge = np.column_stack([np.zeros(n), np.ones(n), np.linspace(0.1, 0.9, n)])
+    for angle, normal in ((np.pi / 6, [-1.0, 0, 0]), (np.pi / 3, [0, 1.0, 0])):
+        d = np.array([np.cos(angle), -np.sin(angle), 0.0])
+        a, b = edge - 1.0 * d, edge + 2.5 * d
+        for n_spare, seed in ((0, 0), (6, 0), (6, 2), (12, 1)):
+            cr = segment_crossings(_unit_box(n_spare, seed), a, b, 2)
+            np.testing.assert_array_equal(cr.count, 1)
+            np.testing.assert_allclose(cr.thickness[:, 0], 1.0, atol=CHORD_TOL_M)
+            np.testing.assert_allclose(cr.normal[:, 0], np.broadcast_to(normal, (n, 3)), atol=0)

@@ -191,11 +191,14 @@ def canonical_faces(
 
     A ray through an edge (or a vertex) of a solid meets two (or more) of its faces at the same
     point; which one Embree reports depends on its BVH, and the face's normal sets the incidence
-    plane (TE/TM basis) and angle of the penetration. Of the faces of the hit object that contain
-    the hit point (within ``CONTACT_TOL_MARGINS`` scene margins) and face the ray the same way as
-    the reported one (entering or leaving), the one with the lowest face index is taken. A scene
-    with more objects appended (a snapshot with forklifts) keeps the static faces' indices, so
-    the choice is the same in both.
+    plane (TE/TM basis) and angle of the penetration, so the equivalent slab (chord times the
+    cosine on the entry face) of a ray through a box's corner can be anything between the chord
+    times one face's cosine and the other's. Of the faces of the hit object that contain the hit
+    point (within ``CONTACT_TOL_MARGINS`` scene margins) and face the ray the same way as the
+    reported one (entering or leaving), the one the ray meets most head-on (largest cosine; the
+    lowest face index among equals) is taken: a choice made from the geometry alone, the same in
+    a scene with more objects appended (a snapshot with forklifts keeps the static faces'
+    indices).
 
     A ray whose line never gets deeper than the tolerance into a convex closed solid (the chord
     of its line through the solid shrunk by the tolerance, from the facet planes in float64, is
@@ -241,7 +244,9 @@ def canonical_faces(
         same = np.sign(d[rows] @ nrm.T) == side[rows, None]
         ok = plane & inside & same
         ok[np.arange(len(rows)), face[rows] - ob.face_start] = True  # the reported one counts
-        out[rows] = cand[np.argmax(ok, axis=1)]
+        # the most head-on of them (first index among equals)
+        score = np.where(ok, np.abs(d[rows] @ nrm.T), -1.0)
+        out[rows] = cand[np.argmax(score, axis=1)]
     return out, touch
 
 
