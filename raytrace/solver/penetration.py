@@ -225,12 +225,20 @@ def canonical_faces(
     if len(face) == 0:
         return out, np.zeros(0, dtype=bool)
     tol = CONTACT_TOL_MARGINS * scene.margin
-    touch = _touches(scene, o, a, d, tol)
     point = a + t[:, None] * d
-    near = _edge_distance(scene, face, point) >= -tol
+    edge = _edge_distance(scene, face, point)
+    side = np.sign(np.einsum("ij,ij->i", scene.face_normal[face], d))
+    # A ray that crosses a face further inside it than it needs to go deep into the solid (2 tol
+    # along the normal, at most as far sideways, and tol more) does not merely touch it: only
+    # the other hits are tested (a shortcut; thinner solids than 3 tol are not handled).
+    cos = np.abs(np.einsum("ij,ij->i", scene.face_normal[face], d))
+    maybe = edge >= -(tol + 2.0 * tol / np.maximum(cos, 1e-300))
+    touch = np.zeros(len(face), dtype=bool)
+    if maybe.any():
+        touch[maybe] = _touches(scene, o[maybe], a[maybe], d[maybe], tol)
+    near = edge >= -tol
     if not near.any():
         return out, touch
-    side = np.sign(np.einsum("ij,ij->i", scene.face_normal[face], d))
     for obj in np.unique(o[near]):  # few rows: hits within a margin of an edge
         rows = np.flatnonzero(near & (o == obj))
         ob = scene.objects[obj]
