@@ -4,8 +4,10 @@ function.
 
 Run from a checkout: ``python tools/profile_trace.py [--scene hall] [--grid-step M] [--top 25]``.
 ``--grid-step`` traces a grid of receivers over the floor (as ``accuracy-map``) instead of the
-scene's points. Prints each stage's time (the tracer's own ``time_us`` counters), then the
-functions with the most time of their own, grouped by module. Not a test.
+scene's points, in this process on one thread, chunk by chunk as a worker would (``trace`` would
+send a large grid to worker processes, where cProfile does not see it). Prints each stage's time (the tracer's own ``time_us`` counters), then the
+functions with the most time of their own, grouped by module (CPU time of this process, so that
+other jobs on a shared machine do not inflate it; the stage counters are wall time). Not a test.
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from raytrace import TraceConfig, load_scene, trace  # noqa: E402
 from raytrace.scene.metadata import SceneMetadata  # noqa: E402
+from raytrace.solver.parallel import receiver_chunks  # noqa: E402
 
 
 def _module(file: str) -> str:
@@ -52,16 +55,20 @@ def main() -> int:
     f, cfg = 3.775e9, TraceConfig()
     trace(scene, inp.bs_xyz, rx[:2], f, cfg, threads=1)  # warm caches (facets, wedges, Embree)
     stats: dict[str, int] = {}
-    prof = cProfile.Profile()
+    # CPU time, not wall time: on a shared machine the wall clock also counts other jobs' turns
+    prof = cProfile.Profile(time.process_time)
     t0, c0 = time.perf_counter(), time.process_time()
     prof.enable()
-    paths = trace(scene, inp.bs_xyz, rx, f, cfg, threads=1, stats=stats)
+    n_paths = 0
+    for c in receiver_chunks(len(inp.bs_xyz), len(rx)):  # as a worker: chunks, one thread
+        part = trace(scene, inp.bs_xyz, rx[c.start : c.stop], f, cfg, threads=1, stats=stats)
+        n_paths += part.n_paths
     prof.disable()
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     n_links = len(inp.bs_xyz) * len(rx)
-    print(f"{n_links} links, {paths.n_paths} paths: {wall:.3f} s wall, {cpu:.3f} s CPU, one "
+    print(f"{n_links} links, {n_paths} paths: {wall:.3f} s wall, {cpu:.3f} s CPU, one "
           "thread, under cProfile")  # fmt: skip
-    print("stages (tracer counters, s):")
+    print("stages (tracer counters, wall s):")
     stage_s = {k[8:-1]: v / 1e6 for k, v in stats.items() if k.startswith("time_us[")}
     for k, v in sorted(stage_s.items(), key=lambda kv: -kv[1]):
         print(f"  {k:<36} {v:7.3f}  {100 * v / wall:5.1f} %")
@@ -73,10 +80,10 @@ def main() -> int:
         mod = _module(file)
         by_module[mod] += tottime
         rows.append((tottime, f"{Path(file).name}:{line}({func})"))
-    print("own time by module (s):")
+    print("own CPU time by module (s):")
     for mod, v in sorted(by_module.items(), key=lambda kv: -kv[1])[:12]:
-        print(f"  {mod:<44} {v:7.3f}  {100 * v / wall:5.1f} %")
-    print(f"top {args.top} functions by own time (s):")
+        print(f"  {mod:<44} {v:7.3f}  {100 * v / cpu:5.1f} %")
+    print(f"top {args.top} functions by own CPU time (s):")
     for v, name in sorted(rows, reverse=True)[: args.top]:
         print(f"  {v:7.3f}  {name}")
     return 0

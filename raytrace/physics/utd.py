@@ -52,6 +52,8 @@ from scipy.special import wofz
 
 from ..core.constants import C0
 from ..core.errors import TraceInputError
+from ..core.vec import cross as _cross
+from ..core.vec import norm as _norm
 
 __all__ = [
     "KellerPoints",
@@ -59,6 +61,10 @@ __all__ = [
     "DiffractedField",
     "keller_points",
     "wedge_geometry",
+    "WedgeFrame",
+    "wedge_frames",
+    "framed_wedge_geometry",
+    "diffraction_valid",
     "transition_function",
     "utd_coefficients",
     "face_reflection_matrix",
@@ -99,7 +105,7 @@ def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def _unit(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    norm = np.linalg.norm(v, axis=1)
+    norm = _norm(v)
     with np.errstate(divide="ignore", invalid="ignore"):
         return v / norm[:, None], norm
 
@@ -160,8 +166,8 @@ def keller_points(
     e, length = _unit(b - a)
     ts = _dot(src - a, e)
     td = _dot(dst - a, e)
-    rho_s = np.linalg.norm(src - a - ts[:, None] * e, axis=1)
-    rho_d = np.linalg.norm(dst - a - td[:, None] * e, axis=1)
+    rho_s = _norm(src - a - ts[:, None] * e)
+    rho_d = _norm(dst - a - td[:, None] * e)
     degenerate = (length <= tol_m) | (rho_s <= tol_m) | (rho_d <= tol_m)
     with np.errstate(divide="ignore", invalid="ignore"):
         t = ts + (td - ts) * rho_s / (rho_s + rho_d)
@@ -292,9 +298,54 @@ def wedge_geometry(
     """
     src = _points("src", src)
     p = src.shape[0]
+    frame = WedgeFrame(*_oriented_wedge(edge_dir, normal_0, normal_n, face0_dir, p))
+    return framed_wedge_geometry(frame, src, dst, point)
+
+
+class WedgeFrame(NamedTuple):
+    """Edge-fixed frames of P wedges, as :func:`wedge_geometry` builds them (see there).
+
+    Attributes
+    ----------
+    edge_dir, face0_tangent, normal_0, normal_n : (P, 3) float; ``e`` (oriented), ``t0``, and
+        the face normals made perpendicular to the edge
+    n : (P,) float; exterior wedge angle / pi
+    """
+
+    edge_dir: np.ndarray
+    face0_tangent: np.ndarray
+    normal_0: np.ndarray
+    normal_n: np.ndarray
+    n: np.ndarray
+
+    def take(self, idx: np.ndarray) -> WedgeFrame:
+        """The frames at ``idx``: computing them once per wedge and taking them per diffraction
+        gives bitwise what :func:`wedge_geometry` computes per diffraction (row-wise
+        arithmetic)."""
+        return WedgeFrame(*(x[idx] for x in self))
+
+
+def wedge_frames(
+    edge_dir: np.ndarray,
+    normal_0: np.ndarray,
+    normal_n: np.ndarray,
+    face0_dir: np.ndarray | None = None,
+) -> WedgeFrame:
+    """The edge-fixed frames of wedges (arguments as :func:`wedge_geometry`'s, (P, 3) each)."""
+    e = _points("edge_dir", edge_dir)
+    return WedgeFrame(*_oriented_wedge(e, normal_0, normal_n, face0_dir, e.shape[0]))
+
+
+def framed_wedge_geometry(
+    frame: WedgeFrame, src: np.ndarray, dst: np.ndarray, point: np.ndarray
+) -> WedgeGeometry:
+    """:func:`wedge_geometry` with the wedges' frames given (:func:`wedge_frames`, taken per
+    diffraction with :meth:`WedgeFrame.take`); src, dst, point : (P, 3) float, metres."""
+    src = _points("src", src)
+    p = src.shape[0]
     dst = _points("dst", dst, p)
     point = _points("point", point, p)
-    e, t0, n0, nn, n = _oriented_wedge(edge_dir, normal_0, normal_n, face0_dir, p)
+    e, t0, n0, nn, n = frame
     s_hat_in, s_in = _unit(point - src)
     s_hat_out, s_out = _unit(dst - point)
     phi_in, in_wedge_s = _azimuth(src - point, t0, n0, n)
@@ -330,6 +381,22 @@ def wedge_geometry(
     )
 
 
+def diffraction_valid(
+    frame: WedgeFrame, src: np.ndarray, dst: np.ndarray, point: np.ndarray
+) -> np.ndarray:
+    """``framed_wedge_geometry(frame, src, dst, point).valid`` without the rest (the same
+    arithmetic): (P,) bool, source and receiver in the exterior of the wedge, neither on the
+    edge line, non-zero distances. src, dst, point : (P, 3) float, metres (not checked)."""
+    e, t0, n0, _, n = frame
+    s_hat_in, s_in = _unit(point - src)
+    s_hat_out, s_out = _unit(dst - point)
+    _, in_wedge_s = _azimuth(src - point, t0, n0, n)
+    _, in_wedge_d = _azimuth(dst - point, t0, n0, n)
+    ok_in = _norm(_cross(e, s_hat_in)) > _MIN_SIN_BETA0
+    ok_out = _norm(_cross(e, s_hat_out)) > _MIN_SIN_BETA0
+    return (s_in > 0) & (s_out > 0) & ok_in & ok_out & ~in_wedge_s & ~in_wedge_d
+
+
 def _oriented_wedge(
     edge_dir: np.ndarray,
     normal_0: np.ndarray,
@@ -348,7 +415,7 @@ def _oriented_wedge(
     nn, _ = _unit(nn - _dot(nn, e)[:, None] * e)
     if not (np.all(np.isfinite(e)) and np.all(np.isfinite(n0)) and np.all(np.isfinite(nn))):
         raise TraceInputError("edge_dir and face normals must be non-zero and not parallel")
-    t0 = np.cross(n0, e)
+    t0 = _cross(n0, e)
     if face0_dir is None:
         # convex wedge: face 0 lies behind the outward normal of face n
         score = -_dot(t0, nn)
@@ -363,8 +430,8 @@ def _oriented_wedge(
     flip = score < 0
     e = np.where(flip[:, None], -e, e)
     t0 = np.where(flip[:, None], -t0, t0)
-    tn = np.cross(e, nn)
-    ext = np.mod(np.arctan2(_dot(np.cross(t0, tn), e), _dot(t0, tn)), _TWO_PI)
+    tn = _cross(e, nn)
+    ext = np.mod(np.arctan2(_dot(_cross(t0, tn), e), _dot(t0, tn)), _TWO_PI)
     ext = np.where((ext < _HALF_PLANE_RAD) | (ext > _TWO_PI - _HALF_PLANE_RAD), _TWO_PI, ext)
     return e, t0, n0, nn, ext / np.pi
 
@@ -375,11 +442,11 @@ def _ray_fixed(
     """KP ray-fixed unit vectors of a ray ``s_hat`` at the edge ``e``: ``sin beta0``, ``phi_hat``
     (``-(e x s')/|e x s'|`` for the incident ray, ``(e x s)/|e x s|`` for the diffracted one),
     ``beta0_hat = s x phi_hat``, and whether the ray is not along the edge."""
-    cross = np.cross(e, s_hat)
-    sin_beta0 = np.linalg.norm(cross, axis=1)
+    cross = _cross(e, s_hat)
+    sin_beta0 = _norm(cross)
     with np.errstate(divide="ignore", invalid="ignore"):
         phi_hat = (-cross if incident else cross) / sin_beta0[:, None]
-    return sin_beta0, phi_hat, np.cross(s_hat, phi_hat), sin_beta0 > _MIN_SIN_BETA0
+    return sin_beta0, phi_hat, _cross(s_hat, phi_hat), sin_beta0 > _MIN_SIN_BETA0
 
 
 def _face_angles(

@@ -20,6 +20,9 @@ from .elements import Facets, Wedges
 BARY_TOL = 1e-9
 #: Points closer than this to a facet's plane (m) are on it: no reflection from there.
 PLANE_TOL_M = 1e-9
+#: A point farther than this (m) inside an axis-aligned rectangular facet is inside it without
+#: the barycentric test (far above its rounding, so the answer is the test's).
+RECT_INSIDE_M = 1e-6
 
 
 def points_in_facets(points: np.ndarray, facet: np.ndarray, facets: Facets) -> np.ndarray:
@@ -43,11 +46,70 @@ def points_in_facets(points: np.ndarray, facet: np.ndarray, facets: Facets) -> n
         return np.zeros(0, dtype=bool)
     # cheap rejection by the facet's bounding box first: most candidates fail here
     lo, hi = facet_boxes(facets)
-    near = np.all((points >= lo[facet]) & (points <= hi[facet]), axis=1)
+    near = np.ones(n, dtype=bool)
+    for c in range(3):  # one coordinate at a time: no (n, 3) temporaries
+        x = points[:, c]
+        near &= (x >= lo[facet, c]) & (x <= hi[facet, c])
     out = np.zeros(n, dtype=bool)
     if near.any():
         idx = np.flatnonzero(near)
+        # most facets of a hall are axis-aligned rectangles: a point well inside one is inside
+        rect, r_lo, r_hi = _rectangles(facets)
+        f, p = facet[idx], points[idx]
+        sure = rect[f]
+        for c in range(3):
+            x = p[:, c]
+            sure &= (x >= r_lo[f, c] + RECT_INSIDE_M) & (x <= r_hi[f, c] - RECT_INSIDE_M)
+        out[idx[sure]] = True
+        idx = idx[~sure]
         out[idx] = _in_triangles(points[idx], facet[idx], facets)
+    return out
+
+
+def _rectangles(facets: Facets) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Facets that are axis-aligned rectangles, exactly: two triangles whose vertices are corners
+    of the facet's (flat) bounding box and which split it along a diagonal (cached).
+
+    Returns
+    -------
+    rect : (K,) bool
+    lo, hi : (K, 3) float, metres: for a rectangle, the in-plane bounds, and -inf / +inf along
+        its normal axis (the plane itself is checked by the caller's box test); 0 elsewhere
+    """
+    cached = facets.cache.get("rectangles")
+    if cached is not None:
+        return cached
+    box_lo, box_hi = facet_boxes(facets, 0.0)
+    k = len(facets)
+    flat = box_lo == box_hi
+    rect = (facets.tri_count == 2) & (flat.sum(axis=1) == 1)
+    cand = np.flatnonzero(rect)
+    lo, hi = np.zeros((k, 3)), np.zeros((k, 3))
+    if len(cand):
+        t0 = facets.tri_start[cand]
+        tri = facets.triangles[np.stack([t0, t0 + 1], axis=1)]  # (C, 2 triangles, 3 corners, 3)
+        axis = np.argmax(flat[cand], axis=1)
+        bits = np.zeros(tri.shape[:3], dtype=np.int64)
+        on_box = np.ones(tri.shape[:3], dtype=bool)
+        for i, a in enumerate(((axis + 1) % 3, (axis + 2) % 3)):  # the two in-plane axes
+            x = np.take_along_axis(tri, a[:, None, None, None], axis=3)[..., 0]
+            at_lo = x == box_lo[cand, a][:, None, None]
+            at_hi = x == box_hi[cand, a][:, None, None]
+            on_box &= at_lo | at_hi
+            bits += at_hi.astype(np.int64) << i  # corner index 0..3 (bit i: high on axis i)
+        # each triangle on three distinct corners; the corners they miss opposite (a diagonal)
+        mask = np.bitwise_or.reduce(1 << bits, axis=2)  # (C, 2)
+        three = np.isin(mask, (7, 11, 13, 14))
+        missing = np.log2(np.where(three, 15 ^ mask, 1)).astype(np.int64)
+        ok = on_box.all(axis=(1, 2)) & three.all(axis=1) & (missing[:, 0] ^ missing[:, 1] == 3)
+        rect[cand[~ok]] = False
+        good = cand[ok]
+        lo[good], hi[good] = box_lo[good], box_hi[good]
+        lo[good, axis[ok]], hi[good, axis[ok]] = -np.inf, np.inf
+    out = (rect, lo, hi)
+    for x in out:
+        x.setflags(write=False)
+    facets.cache["rectangles"] = out
     return out
 
 
@@ -58,22 +120,41 @@ def _in_triangles(points: np.ndarray, facet: np.ndarray, facets: Facets) -> np.n
     rep = np.repeat(np.arange(n), counts)
     # index of each expanded triangle: tri_start[f] + 0..count-1
     within = np.arange(len(rep)) - np.repeat(np.cumsum(counts) - counts, counts)
-    tri = facets.triangles[np.repeat(facets.tri_start[facet], counts) + within]
-    p = points[rep]
-    v0 = tri[:, 1] - tri[:, 0]
-    v1 = tri[:, 2] - tri[:, 0]
-    v2 = p - tri[:, 0]
-    d00 = np.einsum("ij,ij->i", v0, v0)
-    d01 = np.einsum("ij,ij->i", v0, v1)
-    d11 = np.einsum("ij,ij->i", v1, v1)
-    d20 = np.einsum("ij,ij->i", v2, v0)
-    d21 = np.einsum("ij,ij->i", v2, v1)
-    den = d00 * d11 - d01 * d01
+    t = np.repeat(facets.tri_start[facet], counts) + within
+    corner, v0, v1, d00, d01, d11, den = _triangle_terms(facets)
+    v2 = points[rep] - corner[t]
+    d20 = np.einsum("ij,ij->i", v2, v0[t])
+    d21 = np.einsum("ij,ij->i", v2, v1[t])
+    d00, d01, d11, den = d00[t], d01[t], d11[t], den[t]
     v = (d11 * d20 - d01 * d21) / den
     w = (d00 * d21 - d01 * d20) / den
     inside_tri = (v >= -BARY_TOL) & (w >= -BARY_TOL) & (v + w <= 1 + BARY_TOL)
+    # any triangle of each point's facet (runs of a facet without triangles: False)
     out = np.zeros(n, dtype=bool)
-    np.logical_or.at(out, rep, inside_tri)
+    has = counts > 0
+    if has.any():
+        out[has] = np.logical_or.reduceat(inside_tri, (np.cumsum(counts) - counts)[has])
+    return out
+
+
+def _triangle_terms(facets: Facets) -> tuple[np.ndarray, ...]:
+    """The point-independent terms of the barycentric test, per triangle (cached): first corner
+    (T, 3), edge vectors ``v0``, ``v1`` (T, 3) and ``d00, d01, d11, den`` (T,). Row-wise
+    arithmetic, so taking them per test is bitwise computing them per test."""
+    cached = facets.cache.get("triangle_terms")
+    if cached is not None:
+        return cached
+    tri = facets.triangles
+    v0 = tri[:, 1] - tri[:, 0]
+    v1 = tri[:, 2] - tri[:, 0]
+    d00 = np.einsum("ij,ij->i", v0, v0)
+    d01 = np.einsum("ij,ij->i", v0, v1)
+    d11 = np.einsum("ij,ij->i", v1, v1)
+    den = d00 * d11 - d01 * d01
+    out = (np.ascontiguousarray(tri[:, 0]), v0, v1, d00, d01, d11, den)
+    for x in out:
+        x.setflags(write=False)
+    facets.cache["triangle_terms"] = out
     return out
 
 

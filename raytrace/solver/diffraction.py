@@ -22,7 +22,15 @@ from collections.abc import Callable
 
 import numpy as np
 
-from ..physics.utd import diffracted_field, keller_points, wedge_geometry
+from ..core.vec import cross as _cross
+from ..core.vec import norm
+from ..physics.utd import (
+    diffracted_field,
+    diffraction_valid,
+    framed_wedge_geometry,
+    keller_points,
+    wedge_frames,
+)
 from ..scene import accel
 from . import reflection as refl
 from .context import TraceContext
@@ -34,6 +42,14 @@ CHUNK = 300_000
 #: Padding (m) of the visible part of an edge used to prune diffraction points before the exact
 #: point-in-facet test: far above rounding, so the pruning never drops a valid path.
 SPAN_PAD_M = 1e-6
+#: A point is surely inside a wedge (its diffraction invalid whatever the diffraction point) when
+#: its azimuth is inside the wedge's interior by more than this (rad) and it is farther than
+#: :data:`INSIDE_MIN_RHO_M` from the edge line: far above the rounding of the azimuth computed
+#: from another point of the edge (about 1e-14 m / rho) and the 1e-9 rad snap of
+#: :func:`~raytrace.physics.utd.wedge_geometry`, so the pruning never drops a valid path.
+INSIDE_MARGIN_RAD = 1e-6
+#: See :data:`INSIDE_MARGIN_RAD`, metres.
+INSIDE_MIN_RHO_M = 1e-3
 
 
 def stages(ctx: TraceContext) -> list[tuple[str, Callable[[], list[Paths]]]]:
@@ -55,26 +71,19 @@ def field_model(ctx: TraceContext) -> DiffractionModel:
     unfolded path is straight on either side of the edge.
     """
     w = ctx.scene.wedges
+    frame = _wedge_frame(ctx).utd
 
     def apply(wedge, chain, j, e, seg_len):
         point = chain[:, j]
         s_in = seg_len[:, :j].sum(axis=1)
         s_out = seg_len[:, j:].sum(axis=1)
         d_in = point - chain[:, j - 1]
-        d_in /= np.linalg.norm(d_in, axis=1, keepdims=True)
+        d_in /= norm(d_in)[:, None]
         d_out = chain[:, j + 1] - point
-        d_out /= np.linalg.norm(d_out, axis=1, keepdims=True)
+        d_out /= norm(d_out)[:, None]
         src = point - s_in[:, None] * d_in
         dst = point + s_out[:, None] * d_out
-        geo = wedge_geometry(
-            src,
-            dst,
-            point,
-            w.direction[wedge],
-            w.normal0[wedge],
-            w.normal1[wedge],
-            w.face0_dir[wedge],
-        )
+        geo = framed_wedge_geometry(frame.take(wedge), src, dst, point)
         mat = w.material[wedge]
         two = ~ctx.obj_closed[w.object[wedge]]
         r0 = ctx.reflection_coefficients(mat, geo.cos_theta_0, two)
@@ -88,12 +97,63 @@ def field_model(ctx: TraceContext) -> DiffractionModel:
     return apply
 
 
-def _valid_geometry(ctx: TraceContext, wedge, src, dst, point) -> np.ndarray:
+class _WedgeFrame:
+    """Per wedge, what :func:`_surely_inside` needs, as contiguous component arrays: the
+    edge-fixed axes ``t0`` and ``n0`` of :func:`~raytrace.physics.utd.wedge_geometry` (3, W),
+    the start's coordinates along them (W,) m, ``cos``/``sin`` of the exterior angle ``n pi`` and
+    whether the interior is a sector narrower than pi (``1 <= n < 2``, the wedges pruned)."""
+
+    def __init__(self, w) -> None:
+        self.utd = wedge_frames(w.direction, w.normal0, w.normal1, w.face0_dir)
+        _, t0, n0, _, n = self.utd
+        self.t0, self.n0 = np.ascontiguousarray(t0.T), np.ascontiguousarray(n0.T)
+        self.t_start = np.einsum("ij,ij->i", w.start, t0)
+        self.n_start = np.einsum("ij,ij->i", w.start, n0)
+        self.cos_n, self.sin_n = np.cos(n * np.pi), np.sin(n * np.pi)
+        # the azimuth about the edge does not depend on the diffraction point as long as the
+        # edge's direction is that of end - start: prune only wedges where it is, to 1e-10 m
+        drift = norm(_cross(w.direction, w.end - w.start))
+        self.prunable = (n >= 1.0) & (n < 2.0 - 1e-6) & (drift < 1e-10)
+
+
+def _wedge_frame(ctx: TraceContext) -> _WedgeFrame:
+    """The scene's :class:`_WedgeFrame` (cached on the wedges)."""
     w = ctx.scene.wedges
-    geo = wedge_geometry(
-        src, dst, point, w.direction[wedge], w.normal0[wedge], w.normal1[wedge], w.face0_dir[wedge]
+    cached = w.cache.get("utd_frame")
+    if cached is None:
+        cached = w.cache["utd_frame"] = _WedgeFrame(w)
+    return cached
+
+
+def _surely_inside(fr: _WedgeFrame, wi: np.ndarray, px, py, pz) -> np.ndarray:
+    """Whether points (components ``px, py, pz``) are inside wedges ``wi`` by a margin: a
+    diffraction with a source or receiver there is never valid. Broadcasts.
+
+    With ``x, y`` the point's coordinates along ``t0, n0`` from the edge (azimuth ``phi``
+    measured from face 0), the interior ``n pi < phi < 2 pi`` of a wedge with ``1 <= n < 2`` is
+    where ``y < 0`` and ``r sin(phi - n pi) = cos(n pi) y - sin(n pi) x > 0``; both must hold by
+    ``sin`` :data:`INSIDE_MARGIN_RAD` times ``r``, at ``r`` above :data:`INSIDE_MIN_RHO_M`.
+    """
+    t0, n0 = fr.t0, fr.n0
+    x = px * t0[0][wi] + py * t0[1][wi] + pz * t0[2][wi] - fr.t_start[wi]
+    y = px * n0[0][wi] + py * n0[1][wi] + pz * n0[2][wi] - fr.n_start[wi]
+    r2 = x * x + y * y
+    m2 = np.sin(INSIDE_MARGIN_RAD) ** 2 * r2
+    side_n = fr.cos_n[wi] * y - fr.sin_n[wi] * x
+    return (
+        fr.prunable[wi]
+        & (r2 > INSIDE_MIN_RHO_M**2)
+        & (y < 0)
+        & (y * y > m2)
+        & (side_n > 0)
+        & (side_n * side_n > m2)
     )
-    return geo.valid
+
+
+def _valid_geometry(ctx: TraceContext, wedge, src, dst, point) -> np.ndarray:
+    """:func:`~raytrace.physics.utd.wedge_geometry`'s ``valid`` of diffractions at wedges
+    ``wedge`` (frames cached per wedge)."""
+    return diffraction_valid(_wedge_frame(ctx).utd.take(wedge), src, dst, point)
 
 
 def _pure(ctx: TraceContext) -> Paths:
@@ -102,13 +162,18 @@ def _pure(ctx: TraceContext) -> Paths:
     parts = []
     total = n_t * n_w * n_r
     ctx.count("candidates_d", total)
+    frame, w_all = _wedge_frame(ctx), np.arange(n_w)[:, None]
+    open_t = ~_surely_inside(frame, w_all, *ctx.tx.T[:, None, :])  # (W, T)
+    open_r = ~_surely_inside(frame, w_all, *ctx.rx.T[:, None, :])  # (W, R)
     for c0 in range(0, total, CHUNK):
         flat = np.arange(c0, min(total, c0 + CHUNK))
         t_idx, rest = np.divmod(flat, n_w * n_r)
         w_idx, r_idx = np.divmod(rest, n_r)
+        # a transmitter or receiver surely inside the wedge: never a valid diffraction
+        keep = open_t[w_idx, t_idx] & open_r[w_idx, r_idx]
         if ctx.wedge_mask is not None:
-            keep = ctx.wedge_mask[w_idx]
-            t_idx, w_idx, r_idx = t_idx[keep], w_idx[keep], r_idx[keep]
+            keep &= ctx.wedge_mask[w_idx]
+        t_idx, w_idx, r_idx = t_idx[keep], w_idx[keep], r_idx[keep]
         kp = keller_points(ctx.tx[t_idx], ctx.rx[r_idx], w.start[w_idx], w.end[w_idx])
         ok = kp.on_edge
         t_idx, w_idx, r_idx, pt = t_idx[ok], w_idx[ok], r_idx[ok], kp.point[ok]
@@ -131,6 +196,18 @@ def _pure(ctx: TraceContext) -> Paths:
     return Paths.concatenate(parts) if parts else Paths.empty(ctx.tx, ctx.rx, ctx.f, 1)
 
 
+def _edge_plane_distances(fc, w) -> tuple[np.ndarray, np.ndarray]:
+    """Signed distances (m) of the edges' start and end points from every facet plane: (W, K)
+    each (cached on the facets, for these wedges)."""
+    cached = fc.cache.get("edge_plane_distances")
+    if cached is None or cached[0] is not w:
+        dist = tuple(x @ fc.normal.T - fc.offset for x in (w.start, w.end))
+        for x in dist:
+            x.setflags(write=False)
+        cached = fc.cache["edge_plane_distances"] = (w, dist)
+    return cached[1]
+
+
 class _PairGeometry:
     """What :func:`_facet_wedge_pairs` reuses for every end point: facet spheres and boxes, wedge
     groups by object, and the edges' end points' distances from the facet planes."""
@@ -142,26 +219,32 @@ class _PairGeometry:
         self.g_order, self.g_start, self.g_count, self.g_centre, self.g_radius = accel.wedge_groups(
             w
         )
+        self.g_centre_c = np.ascontiguousarray(self.g_centre.T)
         self.w_mid = 0.5 * (w.start + w.end)
         self.w_half = 0.5 * w.length * (1 + 1e-9) + 1e-9
         self.lo, self.hi = accel.facet_boxes(fc, ctx.scene.margin)
         self.restricted = restricted
         self.edge_ends = (w.start, w.end)
+        self.mid_c = np.ascontiguousarray(self.w_mid.T)
+        self.start_c, self.end_c = np.ascontiguousarray(w.start.T), np.ascontiguousarray(w.end.T)
+        self.length = np.einsum("ij,ij->i", w.end - w.start, w.direction)
+        self.lo_c, self.hi_c = np.ascontiguousarray(self.lo.T), np.ascontiguousarray(self.hi.T)
         if restricted:
             g_in = ctx.wedge_mask[self.g_order[self.g_start]]  # a group is one object's wedges
             self.g_chosen, self.g_other = np.flatnonzero(g_in), np.flatnonzero(~g_in)
             self.dist = None  # few candidates: distances per candidate
         else:
-            # signed distances of the edges' end points from every facet plane: (W, K) each
-            self.dist = [x @ fc.normal.T - fc.offset for x in self.edge_ends]
+            self.dist = _edge_plane_distances(fc, w)
 
-    def plane_dist(self, k: int, wi: np.ndarray, f_idx: np.ndarray) -> np.ndarray:
-        """Signed distance of end ``k`` (0: start, 1: end) of wedges ``wi`` from facets
-        ``f_idx``' planes, metres."""
+    def plane_dist(self, wi: np.ndarray, f_idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Signed distances of the start and the end of wedges ``wi`` from facets ``f_idx``'
+        planes, metres."""
         if self.dist is not None:
-            return self.dist[k][wi, f_idx]
+            flat = wi * self.dist[0].shape[1] + f_idx
+            return self.dist[0].ravel().take(flat), self.dist[1].ravel().take(flat)
         fc = self.fc
-        return np.einsum("ij,ij->i", self.edge_ends[k][wi], fc.normal[f_idx]) - fc.offset[f_idx]
+        nrm, off = fc.normal[f_idx], fc.offset[f_idx]
+        return tuple(np.einsum("ij,ij->i", x[wi], nrm) - off for x in self.edge_ends)
 
     def object_pairs(self, ctx, f_ok, sgn, nrm, off, f_beam) -> tuple[np.ndarray, np.ndarray]:
         """(group, facet) pairs whose group sphere reaches the end's side of the facet plane and
@@ -179,9 +262,7 @@ class _PairGeometry:
                 continue
             c, r = self.g_centre[gs], self.g_radius[gs]
             near = (c @ nrm[fs].T - off[fs]) * sgn[fs] + r[:, None] > accel.PLANE_TOL_M
-            near &= refl.beam_reaches(
-                refl.Beam(*(x[fs][None] for x in f_beam)), c[:, None], r[:, None]
-            )
+            near &= _beam_reaches_c(f_beam, fs[None, :], self.g_centre_c, gs[:, None], r[:, None])
             gb, fb = np.nonzero(near)
             gi_parts.append(gs[gb])
             fj_parts.append(fs[fb])
@@ -196,42 +277,74 @@ class _PairGeometry:
         fj = np.repeat(fj, cnt)
         f_idx = f_ok[fj]
         eps = accel.PLANE_TOL_M
-        da = self.plane_dist(0, wi, f_idx) * sgn[fj]
-        db = self.plane_dist(1, wi, f_idx) * sgn[fj]
-        keep = (da > eps) | (db > eps)
+        s_j = sgn[fj]
+        da, db = self.plane_dist(wi, f_idx)
+        da, db = da * s_j, db * s_j
+        keep = np.flatnonzero((da > eps) | (db > eps))
         wi, fj, f_idx, da, db = wi[keep], fj[keep], f_idx[keep], da[keep], db[keep]
-        keep = refl.beam_reaches(f_beam.take(fj), self.w_mid[wi], self.w_half[wi])
+        keep = _beam_reaches_c(f_beam, fj, self.mid_c, wi, self.w_half[wi])
         return wi[keep], fj[keep], f_idx[keep], da[keep], db[keep]
 
-    def visible_span(self, wi, f_idx, img, h, da, db) -> tuple[np.ndarray, ...]:
+    def visible_span(self, wi, f_idx, img_c, fj, h, da, db) -> tuple[np.ndarray, ...]:
         """The part of each edge seen from the image through the facet's box: ``ok`` (M,) bool
-        and, for the ok ones, ``t_lo, t_hi`` metres from the wedge's start, padded."""
-        w, eps = self.w, accel.PLANE_TOL_M
-        # clip the edge to the end's side
-        a, b = w.start[wi], w.end[wi]
+        and, for the ok ones, ``t_lo, t_hi`` metres from the wedge's start, padded.
+
+        ``img_c`` are the images' components (3, F), indexed by ``fj``; one component at a time
+        (no (M, 3) temporaries)."""
+        eps = accel.PLANE_TOL_M
+        # clip the edge to the end's side: the cut point at parameter u from the start
         cut_a, cut_b = da <= eps, db <= eps
         u = np.where(cut_a | cut_b, (eps - da) / np.where(db != da, db - da, 1.0), 0.0)
-        pa = a + u[:, None] * (b - a)
-        a = np.where(cut_a[:, None], pa, a)
-        b = np.where(cut_b[:, None], pa, b)
         # project from the image onto the facet plane: the image is at distance h on the other
         # side, a point at distance s on this side projects at u = h / (h + s) from the image
         d_a = h + np.maximum(da, eps)  # clipped ends sit at eps
         d_b = h + np.maximum(db, eps)
-        qa = img + (h / d_a)[:, None] * (a - img)
-        qb = img + (h / d_b)[:, None] * (b - img)
-        s_in, s_out = _segment_box_span(qa, qb, self.lo[f_idx], self.hi[f_idx])
+        k_a, k_b = h / d_a, h / d_b
+        # slab test of the projected segment qa -> qb against the facet's box
+        s_in, s_out = np.zeros(len(wi)), np.ones(len(wi))
+        for c in range(3):
+            a, b, ic = self.start_c[c][wi], self.end_c[c][wi], img_c[c][fj]
+            p = a + u * (b - a)
+            a, b = np.where(cut_a, p, a), np.where(cut_b, p, b)
+            qa = ic + k_a * (a - ic)
+            d = ic + k_b * (b - ic) - qa
+            # a component parallel to a slab: dividing by a tiny step gives +-huge (in or out of
+            # the slab) or 0 (on its boundary, which counts as inside)
+            inv = 1.0 / np.where(d == 0.0, 1e-300, d)
+            t1 = (self.lo_c[c][f_idx] - qa) * inv
+            t2 = (self.hi_c[c][f_idx] - qa) * inv
+            np.maximum(s_in, np.minimum(t1, t2), out=s_in)
+            np.minimum(s_out, np.maximum(t1, t2), out=s_out)
         ok = s_in <= s_out
         # the part of the edge that projects into the box: the projection is a perspective map,
         # so the edge parameter of projected parameter s is s D_a / (s D_a + (1 - s) D_b)
         d_a, d_b = d_a[ok], d_b[ok]
         lam = [x * d_a / (x * d_a + (1 - x) * d_b) for x in (s_in[ok], s_out[ok])]
-        w_ok = wi[ok]
-        t_a = np.einsum("ij,ij->i", a[ok] - w.start[w_ok], w.direction[w_ok])
-        t_b = np.einsum("ij,ij->i", b[ok] - w.start[w_ok], w.direction[w_ok])
+        # the clipped ends, metres from the start (a cut end sits at u of the edge's length)
+        length, u_ok = self.length[wi[ok]], u[ok]
+        t_a = np.where(cut_a[ok], u_ok * length, 0.0)
+        t_b = np.where(cut_b[ok], u_ok * length, length)
         t_lo = t_a + lam[0] * (t_b - t_a) - SPAN_PAD_M
         t_hi = t_a + lam[1] * (t_b - t_a) + SPAN_PAD_M
         return ok, t_lo, t_hi
+
+
+def _beam_reaches_c(f_beam, fj, centre_c, wi, radius) -> np.ndarray:
+    """:func:`~raytrace.solver.reflection.beam_reaches` of beams ``fj`` and spheres (centres
+    ``centre_c`` (3, W) at ``wi``, radii ``radius``), one component at a time and without
+    divisions: ``axis . v >= cos_a sqrt(|v|^2 - r^2) - sin_a min(r, |v|) - 1e-7 |v|`` is the
+    same necessary condition multiplied by ``|v|``. ``f_beam`` holds the beams' components:
+    ``(apex (3, F), axis (3, F), cos_a, sin_a, apex_inside)``."""
+    apex, axis, cos_a, sin_a, inside = f_beam
+    vx = centre_c[0][wi] - apex[0][fj]
+    vy = centre_c[1][wi] - apex[1][fj]
+    vz = centre_c[2][wi] - apex[2][fj]
+    dt2 = vx * vx + vy * vy + vz * vz
+    dot = axis[0][fj] * vx + axis[1][fj] * vy + axis[2][fj] * vz
+    dt = np.sqrt(dt2)
+    r2 = radius * radius
+    thr = cos_a[fj] * np.sqrt(np.maximum(dt2 - r2, 0.0)) - sin_a[fj] * np.minimum(radius, dt)
+    return (dot >= thr - 1e-7 * dt) | inside[fj] | (dt2 <= r2)
 
 
 def _facet_wedge_pairs(
@@ -258,6 +371,7 @@ def _facet_wedge_pairs(
     fc = ctx.scene.facets
     side = refl.reflecting_side(fc, ends)  # (E, K)
     geo = _PairGeometry(ctx, ctx.facet_mask is not None and not mixed_rdr)
+    frame = _wedge_frame(ctx)
     outs = []
     for e in range(len(ends)):
         f_ok = np.flatnonzero(side[e] != 0)
@@ -267,15 +381,21 @@ def _facet_wedge_pairs(
         img_f = ends[e] - 2.0 * (sgn * h_f)[:, None] * nrm
         # the beam from the image through each facet's bounding sphere
         f_beam = refl.beam(img_f, geo.f_centre[f_ok], geo.f_radius[f_ok])
-        gi, fj = geo.object_pairs(ctx, f_ok, sgn, nrm, off, f_beam)
+        img_c = np.ascontiguousarray(img_f.T)
+        beam_c = (img_c, np.ascontiguousarray(f_beam.axis.T), f_beam.cos_a, f_beam.sin_a,
+                  f_beam.apex_inside)  # fmt: skip
+        gi, fj = geo.object_pairs(ctx, f_ok, sgn, nrm, off, beam_c)
         if len(gi) == 0:
             continue
-        wi, fj, f_idx, da, db = geo.edge_pairs(gi, fj, f_ok, sgn, f_beam)
+        wi, fj, f_idx, da, db = geo.edge_pairs(gi, fj, f_ok, sgn, beam_c)
         if len(wi) == 0:
             continue
-        img = img_f[fj]
-        ok, t_lo, t_hi = geo.visible_span(wi, f_idx, img, h_f[fj], da, db)
-        outs.append((np.full(int(ok.sum()), e), f_idx[ok], wi[ok], img[ok], t_lo, t_hi))
+        # a diffraction from (or towards) an image inside the wedge is never valid
+        keep = np.flatnonzero(~_surely_inside(frame, wi, img_c[0][fj], img_c[1][fj], img_c[2][fj]))
+        wi, fj, f_idx, da, db = wi[keep], fj[keep], f_idx[keep], da[keep], db[keep]
+        ok, t_lo, t_hi = geo.visible_span(wi, f_idx, img_c, fj, h_f[fj], da, db)
+        fj = fj[ok]
+        outs.append((np.full(len(fj), e), f_idx[ok], wi[ok], img_f[fj], t_lo, t_hi))
     if not outs:
         z = np.zeros(0, np.int64)
         return z, z, z, np.zeros((0, 3)), np.zeros(0), np.zeros(0)
@@ -307,10 +427,14 @@ def _one_reflection(ctx: TraceContext, before: bool) -> list[Paths]:
     # Keller's point in scalar form (see keller_points): t = ts + (td - ts) rho_s / (rho_s + rho_d)
     # with the end's image (ts, rho_s) per triple and the other end (td, rho_d) per wedge, so
     # that the expansion over the other ends is a cheap (triples, others) matrix
-    ts, rho_s = _along_and_off(img, w.start[w_idx], w.direction[w_idx])
+    start_c, dir_c = w.start.T, w.direction.T
+    ts, rho_s = _along_and_off(img.T, start_c[:, w_idx], dir_c[:, w_idx])
     td_w, rho_w = _along_and_off(
-        others[None, :, :], w.start[:, None, :], w.direction[:, None, :]
+        others.T[:, None, :], start_c[..., None], dir_c[..., None]
     )  # (W, O)
+    # the other end inside the wedge: never a valid diffraction
+    o_xyz = others.T[:, None, :]  # (3, 1, O)
+    open_w = ~_surely_inside(_wedge_frame(ctx), np.arange(len(w))[:, None], *o_xyz)
     out = []
     n_o = len(others)
     step = max(1, CHUNK // max(n_o, 1))
@@ -319,37 +443,31 @@ def _one_reflection(ctx: TraceContext, before: bool) -> list[Paths]:
         td, rd = td_w[w_idx[sl]], rho_w[w_idx[sl]]
         with np.errstate(divide="ignore", invalid="ignore"):
             t = ts[sl, None] + (td - ts[sl, None]) * rho_s[sl, None] / (rho_s[sl, None] + rd)
-        q, o_idx = np.nonzero((t >= t_lo[sl, None]) & (t <= t_hi[sl, None]))
+        q, o_idx = np.nonzero((t >= t_lo[sl, None]) & (t <= t_hi[sl, None]) & open_w[w_idx[sl]])
         q += c0
         ctx.count("candidates_rd" if before else "candidates_dr", len(q))
-        ee, ff, ww, im = e_idx[q], f_idx[q], w_idx[q], img[q]
-        kp = keller_points(im, others[o_idx], w.start[ww], w.end[ww])
+        ee, ff, ww, im, oth = e_idx[q], f_idx[q], w_idx[q], img[q], others[o_idx]
+        kp = keller_points(im, oth, w.start[ww], w.end[ww])
         ok = kp.on_edge
         # the edge point must lie on the reflecting side (where the end is)
-        s_d = refl.signed_distance(kp.point, fc.normal[ff], fc.offset[ff])
+        dpt = kp.point
+        s_d = refl.signed_distance(dpt, fc.normal[ff], fc.offset[ff])
         ok &= np.sign(np.where(ok, s_d, 0.0)) == side_e[ee, ff]
-        q, ee, ff, ww, im, o_idx, dpt = (
-            q[ok],
-            ee[ok],
-            ff[ok],
-            ww[ok],
-            im[ok],
-            o_idx[ok],
-            kp.point[ok],
-        )
+        # nearly every candidate passes the tests below: compact once, at the end
         u, p = refl.segment_plane_point(im, dpt, fc.normal[ff], fc.offset[ff])
-        ok = (u > 0) & (u < 1)
+        ok &= (u > 0) & (u < 1)
         ok[ok] = accel.points_in_facets(p[ok], ff[ok], fc)
-        q, ee, ff, ww, im, o_idx, dpt, p = (x[ok] for x in (q, ee, ff, ww, im, o_idx, dpt, p))
+        sel = np.flatnonzero(ok)
+        ee, ff, ww, im, oth, o_idx, dpt, p = (x[sel] for x in (ee, ff, ww, im, oth, o_idx, dpt, p))
         if before:
             t_idx, r_idx = ee, o_idx
-            ok = _valid_geometry(ctx, ww, im, ctx.rx[r_idx], dpt)
+            ok = _valid_geometry(ctx, ww, im, oth, dpt)
             verts = np.stack([p, dpt], axis=1)
             fac = np.stack([ff, ww], axis=1)
             kinds = np.array([[REFLECTION, DIFFRACTION]], np.int8)
         else:
             t_idx, r_idx = o_idx, ee
-            ok = _valid_geometry(ctx, ww, ctx.tx[t_idx], im, dpt)
+            ok = _valid_geometry(ctx, ww, oth, im, dpt)
             verts = np.stack([dpt, p], axis=1)
             fac = np.stack([ww, ff], axis=1)
             kinds = np.array([[DIFFRACTION, REFLECTION]], np.int8)
@@ -375,10 +493,12 @@ def _along_and_off(
     p: np.ndarray, start: np.ndarray, direction: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
     """Position along edge lines (m from ``start``) of the foot of points, and their distance
-    from the lines (m); broadcasts over leading axes of (..., 3) arrays."""
-    rel = p - start
-    t = np.einsum("...j,...j->...", rel, direction)
-    return t, np.linalg.norm(rel - t[..., None] * direction, axis=-1)
+    from the lines (m); components first: (3, ...) arrays, broadcasting over the rest (one
+    component at a time: these only prune, within :data:`SPAN_PAD_M`)."""
+    rx, ry, rz = p[0] - start[0], p[1] - start[1], p[2] - start[2]
+    t = rx * direction[0] + ry * direction[1] + rz * direction[2]
+    ox, oy, oz = rx - t * direction[0], ry - t * direction[1], rz - t * direction[2]
+    return t, np.sqrt(ox * ox + oy * oy + oz * oz)
 
 
 def _two_reflections(ctx: TraceContext) -> list[Paths]:

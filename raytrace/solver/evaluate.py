@@ -26,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..core.constants import C0
+from ..core.vec import cross, norm
 from ..physics.materials import slab, slab_group_delay
 from .context import TraceContext
 from .paths import DIFFRACTION, PENETRATION, REFLECTION, Paths
@@ -142,14 +143,25 @@ def blocked_by_opaque(ctx: TraceContext, cand: Candidates) -> np.ndarray:
     m = len(cand)
     if not ctx.opaque.any() or m == 0:
         return np.zeros(m, dtype=bool)
-    a = cand.chain[:, :-1].reshape(-1, 3)
-    v = cand.chain[:, 1:].reshape(-1, 3) - a
-    length = np.linalg.norm(v, axis=1)
-    d = np.divide(v, length[:, None], out=np.zeros_like(v), where=length[:, None] > 0)
-    margin = ctx.scene.margin
-    hit = ctx.scene.first_hit_among(ctx.opaque, a + margin * d, d, length - 2 * margin)
-    ends = cand.ends
-    return ((hit >= 0) & (hit != ends[:, 0]) & (hit != ends[:, 1])).reshape(m, -1).any(axis=1)
+    chain, margin = cand.chain, ctx.scene.margin
+    ends = cand.ends.reshape(m, -1, 2)
+    blocked = np.zeros(m, dtype=bool)
+    # one segment at a time, the longest on the whole first (the likeliest to be blocked): the
+    # other segments of a blocked candidate need no query (each ray's answer is its own)
+    total = norm(chain[:, 1:] - chain[:, :-1]).sum(axis=0)
+    live = np.arange(m)
+    for j in np.argsort(-total, kind="stable"):
+        if len(live) == 0:
+            break
+        a = chain[live, j]
+        v = chain[live, j + 1] - a
+        length = norm(v)
+        d = np.divide(v, length[:, None], out=np.zeros_like(v), where=length[:, None] > 0)
+        hit = ctx.scene.first_hit_among(ctx.opaque, a + margin * d, d, length - 2 * margin)
+        b = (hit >= 0) & (hit != ends[live, j, 0]) & (hit != ends[live, j, 1])
+        blocked[live[b]] = True
+        live = live[~b]
+    return blocked
 
 
 def within_penetration_limit(ctx: TraceContext, cand: Candidates) -> tuple[Candidates, Crossings]:
@@ -188,7 +200,7 @@ def path_fields(
     """
     m, k = len(cand), cand.depth
     seg = cand.chain[:, 1:] - cand.chain[:, :-1]  # (m, k+1, 3)
-    seg_len = np.linalg.norm(seg, axis=2)
+    seg_len = norm(seg)
     dirs = seg / np.maximum(seg_len, 1e-300)[:, :, None]
     total = seg_len.sum(axis=1)
     e = vertical_pol(dirs[:, 0]).astype(complex)
@@ -295,12 +307,12 @@ def vertical_pol(direction: np.ndarray) -> np.ndarray:
     z made perpendicular to the ray (x for a vertical ray)."""
     z = np.array([0.0, 0.0, 1.0])
     v = z[None, :] - direction[:, 2:3] * direction
-    n = np.linalg.norm(v, axis=1)
+    n = norm(v)
     vertical = n < 1e-9
     if vertical.any():
         x = np.array([1.0, 0.0, 0.0])
         v[vertical] = x - direction[vertical, 0:1] * direction[vertical]
-        n[vertical] = np.linalg.norm(v[vertical], axis=1)
+        n[vertical] = norm(v[vertical])
     return v / n[:, None]
 
 
@@ -325,17 +337,17 @@ def apply_te_tm(
     normal : (n, 3) float, unit surface normal
     c_te, c_tm : (n,) complex
     """
-    s = np.cross(k_in, normal)
-    ns = np.linalg.norm(s, axis=1)
+    s = cross(k_in, normal)
+    ns = norm(s)
     normal_inc = ns < 1e-9
     if normal_inc.any():
         # any direction perpendicular to k_in
         helper = np.where(np.abs(k_in[normal_inc, 0:1]) < 0.9, [[1.0, 0, 0]], [[0, 1.0, 0]])
-        s[normal_inc] = np.cross(k_in[normal_inc], helper)
-        ns[normal_inc] = np.linalg.norm(s[normal_inc], axis=1)
+        s[normal_inc] = cross(k_in[normal_inc], helper)
+        ns[normal_inc] = norm(s[normal_inc])
     s = s / ns[:, None]
-    p_in = np.cross(s, k_in)
-    p_out = np.cross(s, k_out)
+    p_in = cross(s, k_in)
+    p_out = cross(s, k_out)
     es = np.einsum("ij,ij->i", e, s)
     ep = np.einsum("ij,ij->i", e, p_in)
     return (c_te * es)[:, None] * s + (c_tm * ep)[:, None] * p_out

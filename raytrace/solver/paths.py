@@ -157,11 +157,21 @@ class Paths:
         """Paths ordered by link, then delay, then kind, then the objects and elements they
         interact with: a total, canonical order (two distinct paths differ in one of them), so
         that the order does not depend on how the paths were found (stages, link chunks)."""
-        codes = self.interaction.astype(np.int64)
-        cols = range(codes.shape[1] - 1, -1, -1)
-        ties = [self.elements[:, i] for i in cols] + [self.objects[:, i] for i in cols]
-        keys = [codes[:, i] for i in cols]
-        order = np.lexsort((*ties, *keys, self.delay_s, self.link))
+        order = np.lexsort((self.delay_s, self.link))
+        # the other keys only order paths of one link with equal delays (rare): sort those
+        # runs by every key (a stable sort of their rows in original order, as one lexsort of
+        # everything would)
+        link, delay = self.link[order], self.delay_s[order]
+        same = (delay[1:] == delay[:-1]) | (np.isnan(delay[1:]) & np.isnan(delay[:-1]))
+        tie = (link[1:] == link[:-1]) & same
+        if tie.any():
+            pos = np.flatnonzero(np.concatenate([tie, [False]]) | np.concatenate([[False], tie]))
+            rows = np.sort(order[pos])
+            codes = self.interaction[rows].astype(np.int64)
+            cols = range(codes.shape[1] - 1, -1, -1)
+            ties = [self.elements[rows, i] for i in cols] + [self.objects[rows, i] for i in cols]
+            keys = [codes[:, i] for i in cols]
+            order[pos] = rows[np.lexsort((*ties, *keys, self.delay_s[rows], self.link[rows]))]
         return self.select(order)
 
     # -- derived ------------------------------------------------------------------------------

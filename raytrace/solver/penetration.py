@@ -8,7 +8,16 @@ incidence angle) is applied by the tracer; metal transmits nothing, so it blocks
 Entering or leaving a closed solid is read from the outward normal of the hit face, so that
 touching solids (a face shared by two boxes) each get their chord although the second's entry is
 stepped over with the first's exit; a solid left without a seen entry began at the previous
-boundary or at the segment's start.
+boundary or at the segment's start. Which of two coincident faces Embree reports first (the
+first solid's exit or the second's entry, at the same distance) depends on its BVH, so the
+result must not: a solid entered through the previous boundary takes that boundary's plane as
+its entry face (the coincident face it was entered through, turned against the ray), exactly as
+when its own entry face is the one reported. A solid left without a seen entry at the segment's
+start has no entry face; its exit face stands in. Likewise a hit at an edge or a vertex is
+booked on a canonical face, a ray that only touches a convex solid (at an edge, a vertex or
+along a face) does not cross it, and hit distances are taken on the booked face's plane in
+float64 (:func:`canonical_faces`, :func:`_plane_distance`): the crossings do not depend on the
+BVH, which differs between a static scene and a snapshot with forklifts.
 
 The equivalent slab thickness of a chord through a solid is the chord length times the cosine of
 the incidence angle on the entry face: exact for a slab with parallel faces, an approximation for
@@ -48,6 +57,16 @@ class Crossings:
     thickness: np.ndarray
 
 
+#: Contact tolerance, in scene margins. A hit closer than this to an edge of its triangle may as
+#: well be on the neighbouring face across that edge (Embree's float32 answer for a ray through
+#: an edge depends on its BVH): the face is then chosen canonically. A ray whose line never gets
+#: deeper than this into a convex solid only touches it (:func:`canonical_faces`).
+CONTACT_TOL_MARGINS = 1.0
+
+#: Below this cosine between a ray and a face, the float64 plane distance is not used in place of
+#: Embree's (:func:`_plane_distance`).
+GRAZING_COS = 1e-6
+
 #: Hits on the object a segment starts or ends on (a reflection or diffraction vertex) closer
 #: than this many scene margins to that end are float32 noise of the vertex itself, not crossings.
 END_GUARD_MARGINS = 10.0
@@ -70,21 +89,23 @@ class _Walk:
         self.thick = np.zeros((n, kk))
         self.inside = np.full(n, -1, dtype=np.int64)  # closed solid the segment is inside of
         self.t_in = np.zeros(n)
-        self.face_in = np.zeros(n, dtype=np.int64)
+        self.normal_in = np.zeros((n, 3))  # unit normal of the entry face of ``inside``
         self.t_last = np.zeros(n)  # distance of the last boundary crossed (0: the start)
+        self.normal_last = np.zeros((n, 3))  # unit normal of that boundary's face (0: the start)
 
     def record(
-        self, rows: np.ndarray, t_entry: np.ndarray, o: np.ndarray, face: np.ndarray, th: np.ndarray
+        self, rows: np.ndarray, t_entry: np.ndarray, o: np.ndarray, fn: np.ndarray, th: np.ndarray
     ) -> None:
-        """One penetration of object ``o`` entered at ``t_entry`` through ``face``, chord ``th``
-        (a sheet: its thickness); a solid's equivalent slab is the chord times cos(incidence)."""
+        """One penetration of object ``o`` entered at ``t_entry`` through a face of unit normal
+        ``fn`` (n, 3), chord ``th`` (a sheet: its thickness); a solid's equivalent slab is the
+        chord times cos(incidence)."""
         slot = self.count[rows]
         over = slot >= self.k
         self.exceeded[rows[over]] = True
         r, s = rows[~over], slot[~over]
         self.dist[r, s] = t_entry[~over]
         self.obj[r, s] = o[~over]
-        fn = self.scene.face_normal[face[~over]]
+        fn = fn[~over]
         self.normal[r, s] = fn
         cos_i = np.abs(np.einsum("ij,ij->i", fn, self.d[r]))
         self.thick[r, s] = np.maximum(th[~over], 0.0) * np.where(self.closed[o[~over]], cos_i, 1.0)
@@ -97,45 +118,58 @@ class _Walk:
         # closed solids face outward: the hit face's orientation says whether the segment enters
         # or leaves (the bookkeeping alone would miss an entry through a face coincident with
         # the previous exit, two solids stacked, since each hit is stepped over by the margin)
-        dn = np.einsum("ij,ij->i", self.scene.face_normal[face], self.d[rows])
+        fn = self.scene.face_normal[face]
+        dn = np.einsum("ij,ij->i", fn, self.d[rows])
         leave = is_closed & ((dn > 0) | ((dn == 0.0) & (cur == o)))
         enter = is_closed & ~leave
         # open sheet: one penetration through the material's thickness
         m = ~is_closed
         if m.any():
-            self.record(rows[m], t_hit[m], o[m], face[m], self.sheet_thickness[o[m]])
+            self.record(rows[m], t_hit[m], o[m], fn[m], self.sheet_thickness[o[m]])
         # leaving the solid we are inside of: one penetration through the chord
         m = leave & (cur == o)
         if m.any():
             r = rows[m]
-            self.record(r, self.t_in[r], o[m], self.face_in[r], t_hit[m] - self.t_in[r])
+            self.record(r, self.t_in[r], o[m], self.normal_in[r], t_hit[m] - self.t_in[r])
             self.inside[r] = -1
         # leaving a solid we did not see entering, outside any other: it began at the previous
-        # boundary (a face coincident with it) or at the segment's start. (Leaving a solid while
+        # boundary (a face coincident with it, whose plane is its entry face) or at the
+        # segment's start (no entry face: the exit face stands in). (Leaving a solid while
         # inside another is the end of an overlap, whose chord was closed on entering the other.)
         m = leave & (cur < 0)
         if m.any():
-            r = rows[m]
-            self.record(r, self.t_last[r], o[m], face[m], t_hit[m] - self.t_last[r])
+            self.unseen(rows[m], o[m], fn[m], t_hit[m])
         # entering a solid (closing an overlapping one first)
         if enter.any():
             r = rows[enter]
             ov = self.inside[r] >= 0
             if ov.any():
                 rr = r[ov]
-                self.record(rr, self.t_in[rr], self.inside[rr], self.face_in[rr],
+                self.record(rr, self.t_in[rr], self.inside[rr], self.normal_in[rr],
                             t_hit[enter][ov] - self.t_in[rr])  # fmt: skip
             self.inside[r] = o[enter]
             self.t_in[r] = t_hit[enter]
-            self.face_in[r] = face[enter]
+            self.normal_in[r] = fn[enter]
         self.t_last[rows] = t_hit
+        self.normal_last[rows] = fn
+
+    def unseen(self, r: np.ndarray, o: np.ndarray, fn_exit: np.ndarray, t_exit: np.ndarray):
+        """The segments ``r``, outside any solid, leave solid ``o`` at ``t_exit`` through a face
+        of normal ``fn_exit`` without a seen entry: it was entered at the previous boundary
+        (through a coincident face: that boundary's plane, turned against the ray, is the entry
+        face) or the segment starts in it (no entry face: the exit face stands in)."""
+        prev = self.normal_last[r]
+        start = ~prev.any(axis=1)
+        side = np.where(np.einsum("ij,ij->i", prev, self.d[r]) > 0, -1.0, 1.0)
+        n_entry = np.where(start[:, None], fn_exit, side[:, None] * prev)
+        self.record(r, self.t_last[r], o, n_entry, t_exit - self.t_last[r])
 
     def result(self, a: np.ndarray, tmax: np.ndarray) -> Crossings:
         """The crossings, after closing the chord of segments that end inside a solid."""
         m = (self.inside >= 0) & ~self.exceeded
         if m.any():
             r = np.flatnonzero(m)
-            self.record(r, self.t_in[r], self.inside[r], self.face_in[r], tmax[r] - self.t_in[r])
+            self.record(r, self.t_in[r], self.inside[r], self.normal_in[r], tmax[r] - self.t_in[r])
         dist, k = self.dist, self.k
         point = (
             a[:, None, :]
@@ -147,6 +181,163 @@ class _Walk:
         dist, point, obj, normal, thick = arrays
         return Crossings(self.count, self.exceeded | (self.count > k), dist, point, obj, normal,
                          thick)  # fmt: skip
+
+
+def canonical_faces(
+    scene: Scene, face: np.ndarray, o: np.ndarray, a: np.ndarray, d: np.ndarray, t: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The face a hit is booked on, independent of which one Embree reported at an edge, and
+    whether the hit is only a touch.
+
+    A ray through an edge (or a vertex) of a solid meets two (or more) of its faces at the same
+    point; which one Embree reports depends on its BVH, and the face's normal sets the incidence
+    plane (TE/TM basis) and angle of the penetration, so the equivalent slab (chord times the
+    cosine on the entry face) of a ray through a box's corner can be anything between the chord
+    times one face's cosine and the other's. Of the faces of the hit object that contain the hit
+    point (within ``CONTACT_TOL_MARGINS`` scene margins) and face the ray the same way as the
+    reported one (entering or leaving), the one the ray meets most head-on (largest cosine; the
+    lowest face index among equals) is taken: a choice made from the geometry alone, the same in
+    a scene with more objects appended (a snapshot with forklifts keeps the static faces'
+    indices).
+
+    A ray whose line never gets deeper than the tolerance into a convex closed solid (the chord
+    of its line through the solid shrunk by the tolerance, from the facet planes in float64, is
+    empty) only touches it: at an edge or a vertex, or grazing along a face. Such a hit is a
+    *touch*, stepped over without a crossing; whether Embree reports it at all depends on its
+    BVH, and a reported entry (exit) would be paired with an exit (entry) that is never seen, so
+    that the chord would run to the segment's end (start).
+
+    Parameters
+    ----------
+    scene : Scene
+    face : (n,) int, reported faces
+    o : (n,) int, their objects
+    a : (n, 3) float, ray origins (any point on the ray's line), metres
+    d : (n, 3) float, unit ray directions
+    t : (n,) float, hit distances from ``a``, metres
+
+    Returns
+    -------
+    face : (n,) int, the canonical faces
+    touch : (n,) bool, hits that only touch a convex solid
+    """
+    out = face.copy()
+    if len(face) == 0:
+        return out, np.zeros(0, dtype=bool)
+    tol = CONTACT_TOL_MARGINS * scene.margin
+    point = a + t[:, None] * d
+    edge = _edge_distance(scene, face, point)
+    side = np.sign(np.einsum("ij,ij->i", scene.face_normal[face], d))
+    # A ray that crosses a face further inside it than it needs to go deep into the solid (2 tol
+    # along the normal, at most as far sideways, and tol more) does not merely touch it: only
+    # the other hits are tested (a shortcut; thinner solids than 3 tol are not handled).
+    cos = np.abs(np.einsum("ij,ij->i", scene.face_normal[face], d))
+    maybe = edge >= -(tol + 2.0 * tol / np.maximum(cos, 1e-300))
+    touch = np.zeros(len(face), dtype=bool)
+    if maybe.any():
+        touch[maybe] = _touches(scene, o[maybe], a[maybe], d[maybe], tol)
+    near = edge >= -tol
+    if not near.any():
+        return out, touch
+    for obj in np.unique(o[near]):  # few rows: hits within a margin of an edge
+        rows = np.flatnonzero(near & (o == obj))
+        ob = scene.objects[obj]
+        cand = np.arange(ob.face_start, ob.face_start + ob.face_count)
+        nrm = scene.face_normal[cand]  # (c, 3)
+        v0 = scene.vertices[scene.faces[cand, 0]]
+        # (r, c): on the face's plane, inside its triangle, facing the ray the same way
+        rel = point[rows, None, :] - v0[None]
+        plane = np.abs((rel * nrm[None]).sum(axis=2)) <= tol
+        inside = _edge_distance(scene, cand[None, :], point[rows, None, :]) <= tol
+        same = np.sign(d[rows] @ nrm.T) == side[rows, None]
+        ok = plane & inside & same
+        ok[np.arange(len(rows)), face[rows] - ob.face_start] = True  # the reported one counts
+        # the most head-on of them (first index among equals)
+        score = np.where(ok, np.abs(d[rows] @ nrm.T), -1.0)
+        out[rows] = cand[np.argmax(score, axis=1)]
+    return out, touch
+
+
+def _plane_distance(
+    scene: Scene, face: np.ndarray, a: np.ndarray, d: np.ndarray, t: np.ndarray
+) -> np.ndarray:
+    """Hit distances recomputed in float64 on the plane of the (canonical) hit face, metres.
+
+    Embree's float32 distance to the same plane differs by ~1e-7 relative between the
+    triangles of a face and between coincident faces of two objects, so chords (and the slab
+    delays and losses made of them) depended on which triangle the BVH reported. Where the ray
+    is nearly parallel to the face (``|cos| <= GRAZING_COS``) or the plane's answer is further
+    than a contact tolerance from Embree's, Embree's distance is kept.
+    """
+    n = scene.face_normal[face]
+    v0 = scene.vertices[scene.faces[face, 0]]
+    dn = np.einsum("ij,ij->i", n, d)
+    ok = np.abs(dn) > GRAZING_COS
+    tp = np.einsum("ij,ij->i", n, v0 - a) / np.where(ok, dn, 1.0)
+    ok &= np.abs(tp - t) <= CONTACT_TOL_MARGINS * scene.margin
+    return np.where(ok, tp, t)
+
+
+def _convex_planes(scene: Scene) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Facet planes of every convex closed object, padded: normals (O, K, 3), offsets (O, K)
+    (plane ``n . x = offset``, m) and valid (O, K) bool (none for other objects). Cached."""
+    cache = scene.__dict__.get("_convex_planes")
+    if cache is not None:
+        return cache
+    fc = scene.facets
+    n_obj = len(scene.objects)
+    use = scene.convex_objects()[fc.object]
+    obj = fc.object[use]
+    order = np.argsort(obj, kind="stable")
+    obj = obj[order]
+    per = np.bincount(obj, minlength=n_obj)
+    slot = np.arange(len(obj)) - np.concatenate([[0], np.cumsum(per)[:-1]])[obj]
+    k = max(int(per.max(initial=0)), 1)
+    normal = np.zeros((n_obj, k, 3))
+    offset = np.zeros((n_obj, k))
+    valid = np.zeros((n_obj, k), dtype=bool)
+    normal[obj, slot] = fc.normal[use][order]
+    offset[obj, slot] = fc.offset[use][order]
+    valid[obj, slot] = True
+    scene.__dict__["_convex_planes"] = (normal, offset, valid)
+    return normal, offset, valid
+
+
+def _touches(scene: Scene, o: np.ndarray, a: np.ndarray, d: np.ndarray, tol: float) -> np.ndarray:
+    """(n,) bool: the line ``a + t d`` never gets deeper than ``tol`` into object ``o``, a convex
+    closed solid (False for other objects)."""
+    normal, offset, valid = _convex_planes(scene)
+    out = np.zeros(len(o), dtype=bool)
+    rows = np.flatnonzero(valid[o].any(axis=1))
+    if not len(rows):
+        return out
+    n, v = normal[o[rows]], valid[o[rows]]  # (m, K, 3), (m, K)
+    dn = np.einsum("mkj,mj->mk", n, d[rows])
+    # signed distance of the line's points from each plane, at least tol inside: s + t dn <= -tol
+    s = np.einsum("mkj,mj->mk", n, a[rows]) - offset[o[rows]] + tol
+    with np.errstate(divide="ignore", invalid="ignore"):
+        tp = -s / dn
+    t_in = np.where(v & (dn < 0), tp, -np.inf).max(axis=1)
+    t_out = np.where(v & (dn > 0), tp, np.inf).min(axis=1)
+    parallel_out = (v & (dn == 0) & (s > 0)).any(axis=1)
+    out[rows] = parallel_out | (t_out <= t_in)
+    return out
+
+
+def _edge_distance(scene: Scene, face: np.ndarray, point: np.ndarray) -> np.ndarray:
+    """Signed in-plane distance of points from their triangle's boundary, metres: the largest
+    of the distances outside its three edge lines, so <= 0 inside the triangle (minus the
+    distance to the nearest edge) and > 0 outside. Broadcasts ``face`` (...) against ``point``
+    (..., 3)."""
+    tri = scene.vertices[scene.faces[face]]  # (..., 3, 3)
+    nrm = scene.face_normal[face]
+    worst = np.full(np.broadcast_shapes(np.shape(face), point.shape[:-1]), -np.inf)
+    for i in range(3):
+        v, w = tri[..., i, :], tri[..., (i + 1) % 3, :]
+        m = np.cross(w - v, nrm)  # in-plane normal of the edge, outward (counter-clockwise)
+        m = m / np.maximum(np.linalg.norm(m, axis=-1, keepdims=True), 1e-300)
+        worst = np.maximum(worst, ((point - v) * m).sum(axis=-1))
+    return worst
 
 
 def segment_crossings(
@@ -212,10 +403,60 @@ def segment_crossings(
             active[rows[noise]] &= t[rows[noise]] < tmax[rows[noise]]
             keep = ~noise
             rows, face, o, t_hit = rows[keep], face[keep], o[keep], t_hit[keep]
+        face, touch = canonical_faces(scene, face, o, a[rows], d[rows], t_hit)
+        if touch.any():
+            t[rows[touch]] = t_hit[touch] + margin
+            keep = ~touch
+            active[rows[touch]] &= t[rows[touch]] < tmax[rows[touch]]
+            rows, face, o, t_hit = rows[keep], face[keep], o[keep], t_hit[keep]
+        t_hit = _plane_distance(scene, face, a[rows], d[rows], t_hit)
         walk.boundary(rows, face, o, t_hit)
         t[rows] = t_hit + margin
         active[rows] &= (t[rows] < tmax[rows]) & ~walk.exceeded[rows]
     else:
         # still hitting after the last round: more crossings than allowed
         walk.exceeded |= active
+    _left_at_the_end(scene, walk, a, tmax)
     return walk.result(a, tmax)
+
+
+#: Direction of the probe ray that finds the solid a segment ends in (:func:`_left_at_the_end`):
+#: horizontal and off the axes, so it leaves a pallet or a box through a side face rather than
+#: through the planes it shares with the floor or the load (unit vector).
+PROBE_DIRECTION = np.array([0.6, 0.8, 0.0])
+
+
+def _left_at_the_end(scene: Scene, walk: _Walk, a: np.ndarray, tmax: np.ndarray) -> None:
+    """Close the chord of a solid entered through a face coincident with the last boundary
+    (stepped over with it) and not left before the segment's end: a segment from boxes into the
+    pallet under them, ending on the floor under the pallet. Whether the pallet was counted
+    depended on which coincident face Embree reported first. For every segment that left a
+    solid last and ends outside any, a probe ray from the middle of its last stretch (in
+    ``PROBE_DIRECTION``) finds the solid that point is in: its first hit leaves a closed solid
+    (for a convex one, the point is also more than a contact tolerance inside its planes)."""
+    rows = np.flatnonzero(
+        ~walk.exceeded
+        & (walk.inside < 0)
+        & (walk.t_last > 0)
+        & (np.einsum("ij,ij->i", walk.normal_last, walk.d) > 0)
+        & (walk.t_last < tmax)
+    )
+    if not len(rows):
+        return
+    q = a[rows] + (0.5 * (walk.t_last[rows] + tmax[rows]))[:, None] * walk.d[rows]
+    probe = np.broadcast_to(PROBE_DIRECTION, q.shape)
+    _, face, o = scene.intersect(q, probe, np.inf)
+    ok = o >= 0
+    ok[ok] = walk.closed[o[ok]]
+    fn = scene.face_normal[np.maximum(face, 0)]
+    ok &= np.einsum("ij,ij->i", fn, probe) > 0
+    if ok.any():
+        tol = CONTACT_TOL_MARGINS * scene.margin
+        normal, offset, valid = _convex_planes(scene)
+        k = np.flatnonzero(ok)
+        depth = np.einsum("mkj,mj->mk", normal[o[k]], q[k]) - offset[o[k]]
+        convex = valid[o[k]].any(axis=1)
+        ok[k] = ~convex | np.all(~valid[o[k]] | (depth < -tol), axis=1)
+    if ok.any():
+        r = rows[ok]
+        walk.unseen(r, o[ok], fn[ok], tmax[r])

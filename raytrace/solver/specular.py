@@ -79,6 +79,8 @@ def second_order(ctx: TraceContext) -> list[Paths]:
         pairs = pairs & (ctx.facet_mask[:, None] | ctx.facet_mask[None, :])
     side_rx = refl.reflecting_side(fc, ctx.rx)  # (R, K)
     centre, radius = accel.facet_spheres(fc)
+    rx_centre = 0.5 * (ctx.rx.min(axis=0) + ctx.rx.max(axis=0))
+    rx_radius = float(np.sqrt(((ctx.rx - rx_centre) ** 2).sum(axis=1)).max()) * (1 + 1e-9) + 1e-9
     out: list[Paths] = []
     for t in range(len(ctx.tx)):
         side_t = refl.reflecting_side(fc, ctx.tx[t : t + 1])[0]  # (K,)
@@ -101,19 +103,25 @@ def second_order(ctx: TraceContext) -> list[Paths]:
             continue
         img2 = refl.mirror(img1[i1], fc.normal[f2], fc.offset[f2])
         s_img = side_img[i1, jc]
+        # only second images whose beam reaches the receivers' bounding sphere
+        near = refl.cone_reaches(img2, centre[f2], radius[f2], rx_centre, rx_radius)
+        i1, f1a, f2, img2, s_img = i1[near], f1a[near], f2[near], img2[near], s_img[near]
         # receivers on the same side of the second facet as the first image, inside the
         # beam from the second image through the second facet
         step = max(1, CHUNK // max(len(ctx.rx), 1))
+        rx_c = ctx.rx.T[:, None, :]  # (3, 1, R)
         for c0 in range(0, len(f1a), step):
             sl = slice(c0, c0 + step)
             ok_qr = side_rx.T[f2[sl]] == s_img[sl, None]
-            ok_qr &= refl.cone_reaches(
-                img2[sl, None, :],
-                centre[f2[sl], None, :],
-                radius[f2[sl], None],
-                ctx.rx[None],
-                0.0,
-            )
+            ok_qr &= _cone_reaches_points(img2[sl], centre[f2[sl]], radius[f2[sl]], rx_c)
+            # unfolded at the second reflection, the path is straight from the first image to
+            # the receiver's mirror image in the second facet, through the first facet
+            n2, off2 = fc.normal[f2[sl]], fc.offset[f2[sl]]
+            dist = rx_c[0] * n2[:, 0:1] + rx_c[1] * n2[:, 1:2] + rx_c[2] * n2[:, 2:3]
+            dist -= off2[:, None]
+            mirrored = [rx_c[c] - 2.0 * dist * n2[:, c : c + 1] for c in range(3)]
+            f1s = f1a[sl]
+            ok_qr &= _cone_reaches_points(img1[i1[sl]], centre[f1s], radius[f1s], mirrored)
             q, r_idx = np.nonzero(ok_qr)
             ctx.count("candidates_r2", len(q))
             q = q + c0
@@ -138,3 +146,20 @@ def second_order(ctx: TraceContext) -> list[Paths]:
                     evaluate(ctx, candidates(ctx, np.full(int(ok.sum()), t), r_idx[ok], verts, fac))
                 )
     return out
+
+
+def _cone_reaches_points(
+    apex: np.ndarray, centre: np.ndarray, radius: np.ndarray, points_c: np.ndarray
+) -> np.ndarray:
+    """(Q, R) bool: :func:`~raytrace.solver.reflection.cone_reaches` of the cones from ``apex``
+    (Q, 3) through spheres (``centre`` (Q, 3), ``radius`` (Q,)) and points (components
+    ``points_c``, each (1, R) or (Q, R)), as a dense matrix one component at a time. With a target of radius
+    0 the condition ``cos(angle) >= cos_a - 1e-7`` is tested multiplied by the distance (no
+    division); the same necessary condition, its rounding far inside the 1e-7 slack."""
+    b = refl.beam(apex, centre, radius)
+    vx = points_c[0] - apex[:, 0:1]
+    vy = points_c[1] - apex[:, 1:2]
+    vz = points_c[2] - apex[:, 2:3]
+    dt = np.sqrt(vx * vx + vy * vy + vz * vz)
+    dot = b.axis[:, 0:1] * vx + b.axis[:, 1:2] * vy + b.axis[:, 2:3] * vz
+    return (dot >= (b.cos_a - 1e-7)[:, None] * dt) | b.apex_inside[:, None] | (dt <= 0.0)
