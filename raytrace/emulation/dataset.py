@@ -620,7 +620,7 @@ def _compute_group(
         workers = resolve_workers(workers, len(chunks))  # never more than the cores, the chunks
         # forks of the preloaded fork server, never of this process: Embree's and the tracer's
         # threads do not survive a fork (raytrace.solver.parallel)
-        ctx = process_context(("trimesh", __name__))
+        ctx = process_context((__name__,))
         with ProcessPoolExecutor(
             max_workers=workers,
             mp_context=ctx,

@@ -8,12 +8,12 @@ accuracy map use it.
 
 What a pool costs, and how it is kept small (measured in docs/tracing.md, "Where the time goes"):
 
-* **Workers come from a fork server** with numpy, Embree and raytrace imported once
-  (:data:`PRELOAD`); a worker is a fork of it, ready in tens of milliseconds, where a spawned
-  interpreter spends half a second or more importing them. The fork server never builds an Embree
-  scene nor starts a thread, so its forks are safe (a fork of a process whose Embree or tracer
-  threads are alive is not: that is why the workers are never forked from the caller). Where there
-  is no fork server (Windows) workers are spawned.
+* **Workers come from a fork server** with numpy and raytrace imported once (:data:`PRELOAD`); a
+  worker is a fork of it, ready in tens of milliseconds, where a spawned interpreter spends half a
+  second or more importing them. The fork server never imports Embree nor builds a scene, so its
+  forks are safe (a fork of a process whose Embree or tracer threads are alive is not: that is
+  why the workers are never forked from the caller; and Embree merely imported before a fork
+  makes the fork trace 2x slower). Where there is no fork server (Windows) workers are spawned.
 * **The pool outlives one call**: it is kept for the next call with the same scene (its pickled
   bytes, compared by digest) and the same number of workers, so a caller that traces many times
   (the accuracy map, reproduce-paper) starts it once. A call with another scene or another number
@@ -59,9 +59,11 @@ PROCESS_MIN_LINKS = 1000
 #: stages cannot go beyond about 2.1x (the costliest stage is 47 % of a trace), and 6 lanes repay
 #: the first pool's start (0.6 s) from 384 links on.
 AUTO_MIN_LANES = 6
-#: Modules the fork server imports once, so that its forks (the workers) start with them (not
-#: trimesh: a worker that only traces never needs it; pools that build scenes add it).
-PRELOAD = ("numpy", "embreex.rtcore_scene", "embreex.mesh_construction", "raytrace")
+#: Modules the fork server imports once, so that its forks (the workers) start with them. Never
+#: embreex (nor trimesh, which imports it): Embree imported before the fork makes every fork
+#: trace about 2x slower (2 workers on the 2 m grid: 10.9 s against 5.5 s); each worker imports
+#: it itself (tests/test_parallel.py checks that these modules do not).
+PRELOAD = ("numpy", "raytrace")
 
 
 class WorkerCrashError(HallrayError):

@@ -876,7 +876,7 @@ def _execute_local(
     # it has traced anything) do not survive a fork, and a child's first scene build could wait
     # for them forever (raytrace.solver.parallel)
     workers = min(workers, len(tasks), os.cpu_count() or 1)  # never more than cores or cells
-    pool = ProcessPoolExecutor(max_workers=workers, mp_context=process_context(("trimesh", __name__)))
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=process_context((__name__,)))
     futures: dict[Any, dict[str, Any]] = {}
     seen: set[Any] = set()
     try:
