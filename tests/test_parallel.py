@@ -163,8 +163,8 @@ def _inner_workers(scene, item):
 
 def test_the_auto_rule_by_links_and_cores(monkeypatch):
     monkeypatch.setattr(parallel, "cpu_count", lambda: 2)
-    assert parallel.auto_in_process(92) and parallel.auto_in_process(999)
-    assert not parallel.auto_in_process(1000)
+    assert parallel.auto_in_process(92) and parallel.auto_in_process(499)
+    assert not parallel.auto_in_process(500)
     monkeypatch.setattr(parallel, "cpu_count", lambda: 16)
     assert parallel.auto_in_process(383) and not parallel.auto_in_process(384)
     monkeypatch.setattr(parallel, "cpu_count", lambda: 1)

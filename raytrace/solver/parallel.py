@@ -52,12 +52,12 @@ CHUNK_LINKS = 256
 #: links per chunk cost 35 % more than 256, 64 links 5 %).
 MIN_CHUNK_LINKS = 64
 #: With ``workers=None``, a trace of fewer links stays in this process, on threads over its
-#: stages, unless it fills :data:`AUTO_MIN_LANES` lanes (docs/tracing.md: on 2 cores, threads at
-#: 1.7x are as fast as 2 lanes up to about 800-1000 links, modelled from measured costs).
-PROCESS_MIN_LINKS = 1000
+#: stages, unless it fills :data:`AUTO_MIN_LANES` lanes. Measured on 2 cores (hall, a kept pool,
+#: docs/tracing.md): threads and 2 lanes tie at 92 and 256 links, 2 lanes win from 412 links on
+#: (1.42 s against 1.71 s), and the first pool of an interpreter (0.28 s) is repaid by about 500.
+PROCESS_MIN_LINKS = 500
 #: ... or from this many lanes of :data:`MIN_CHUNK_LINKS` links on as many cores: threads over the
-#: stages cannot go beyond about 2.1x (the costliest stage is 47 % of a trace), and 6 lanes repay
-#: the first pool's start (0.6 s) from 384 links on.
+#: stages cannot go beyond about 2.1x (the costliest stage is 47 % of a trace), 6 lanes can.
 AUTO_MIN_LANES = 6
 #: Modules the fork server imports once, so that its forks (the workers) start with them. Never
 #: embreex (nor trimesh, which imports it): Embree imported before the fork makes every fork
@@ -119,7 +119,7 @@ def auto_in_process(n_links: int) -> bool:
     It stays in this process inside a pool's job (:func:`in_job`), on one core, and when it has
     fewer than :data:`PROCESS_MIN_LINKS` links unless it fills :data:`AUTO_MIN_LANES` lanes of
     :data:`MIN_CHUNK_LINKS` links (``min(cores, n_links // MIN_CHUNK_LINKS) >= AUTO_MIN_LANES``).
-    On the 2-core development machine this is: processes from 1000 links on; on 6 cores or more,
+    On the 2-core development machine this is: processes from 500 links on; on 6 cores or more,
     from 384 links on.
     """
     if in_job() or cpu_count() == 1:
