@@ -343,6 +343,30 @@ def _excess_m(paths: Paths, first: np.ndarray) -> np.ndarray:
     return out
 
 
+def receiver_model_meta(receiver: Receiver) -> dict[str, Any]:
+    """The settings the twin's copy of the noiseless first-lobe receiver
+    (:class:`positioning.lobe.LobeReceiver`) needs, as the map's ``meta["receiver_model"]``."""
+    from ..emulation import receivers as rx_mod
+    from ..emulation.receivers import cfar_factor
+
+    band, budget, pulse, fl = receiver.band, receiver.budget, receiver.pulse, receiver.first_lobe
+    return {
+        "frequency_hz": float(band.center_frequency_hz),
+        "period_s": float(pulse.period_s(band)),
+        "roll_off": float(pulse.roll_off),
+        "oversampling": int(pulse.oversampling),
+        "span": int(pulse.span),
+        "noise_std": float(budget.correlator_noise_std(band, pulse)),
+        "alpha": float(cfar_factor(budget.false_alarm_probability, fl.cfar_cells)),
+        "rho": float(fl.rho),
+        "negligible_db": float(rx_mod.NEGLIGIBLE_DB),
+        "min_crossing": float(rx_mod.MIN_CROSSING),
+        "sure_crossing": float(rx_mod.SURE_CROSSING),
+        "post_t": int(rx_mod.POST_T),
+        "top_paths": int(rx_mod.TOP_PATHS),
+    }
+
+
 def chunk_seed(seed: int, first_cell: int) -> int:
     """Seed of the noise streams of the chunk starting at ``first_cell`` (module docstring)."""
     return int(np.random.SeedSequence([int(seed), int(first_cell)]).generate_state(1)[0])
