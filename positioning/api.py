@@ -152,9 +152,11 @@ METHODS: dict[str, Method] = {
                 "fallback_m": (_twin.FALLBACK_M, _POS_FLOAT),
                 "prior_m": (_twin.PRIOR_M, "non-negative float"),
                 "top": (_twin.TOP, _POS_INT),
-                "bias": ("cell", ("cell", "interp")),
+                "bias": ("auto", ("auto", "cell", "interp", "resynth")),
+                "paths": (None, _OPT_COUNT),
             },
-            "fingerprint-map match + refinement with the map's NLoS bias (--map MAP), 2D",
+            "fingerprint-map match + refinement with the map's NLoS bias or, with a v2 map, "
+            "its paths re-synthesised (--map MAP), 2D",
             needs_map=True,
         ),
     )

@@ -49,6 +49,7 @@ from .errors import PositioningError
 from .fingerprint import FingerprintMap, read_map
 from .fixes import Status
 from .irls import irls
+from .resynth import PathMap, refine_resynth
 from .tdoa import C0, Problem
 
 #: Largest distance between a map's and the dataset's base station, metres.
@@ -398,6 +399,20 @@ def refine_at_cells(
 # bias interpolation
 
 
+def nearest_cell(lat: _Lattice, xy: np.ndarray) -> np.ndarray:
+    """(A,) int: the map cell at the lattice node nearest to each ``xy`` (A, 2); -1 where that
+    node is a hole or off the lattice."""
+    ny, nx = lat.node_cell.shape
+    fin = np.isfinite(xy).all(axis=1)
+    p = np.where(fin[:, None], xy, 0.0)
+    i = np.rint((p[:, 0] - lat.x0) / lat.step).astype(np.int64)
+    j = np.rint((p[:, 1] - lat.y0) / lat.step).astype(np.int64)
+    on = fin & (i >= 0) & (i < nx) & (j >= 0) & (j < ny)
+    out = np.full(len(xy), -1, dtype=np.int64)
+    out[on] = lat.node_cell[j[on], i[on]]
+    return out
+
+
 def interp_bias(lat: _Lattice, xy: np.ndarray, smooth: bool = False) -> np.ndarray:
     """(A, B) bias at ``xy`` (A, 2), bilinear between lattice nodes (clamped at the edges), of
     the raw or the median-smoothed node biases."""
@@ -474,7 +489,8 @@ def twin(
     fallback_m: float = FALLBACK_M,
     prior_m: float = PRIOR_M,
     top: int = TOP,
-    bias: str = "cell",
+    bias: str = "auto",
+    paths: int | None = None,
 ) -> dict[str, np.ndarray]:
     """The twin estimator (module docstring). 2D only: the map is at one device height.
 
@@ -491,7 +507,12 @@ def twin(
         (0: the whole map)
     top : int -- candidate cells refined per fix
     bias : ``"cell"`` or ``"interp"``, the bias model of the refinement
-        (:func:`refine_at_cells`)
+        (:func:`refine_at_cells`); ``"resynth"`` (a map of schema version 2 only): then
+        Gauss-Newton with the nearest cell's paths moved to the iterate and the receiver re-run
+        on them (:func:`positioning.resynth.refine_resynth`); ``"auto"`` (default):
+        ``"resynth"`` for a map with paths, else ``"cell"``
+    paths : int or None, the strongest paths per cell and base station the re-synthesis uses
+        (None: all the map stores)
 
     Returns
     -------
@@ -505,6 +526,12 @@ def twin(
         raise PositioningError("twin solves in 2D only (the map is at one height): drop --3d")
     fmap, lat = load(map)
     check_bs(fmap, prob.bs)
+    if bias == "auto":
+        bias = "resynth" if fmap.has_paths else "cell"
+    if bias not in ("cell", "interp", "resynth"):
+        raise PositioningError(f"twin: unknown bias model {bias!r} (cell, interp, resynth, auto)")
+    if bias == "resynth" and not fmap.has_paths:
+        raise PositioningError("twin: bias=resynth needs a map with paths (schema version 2)")
     E, B = prob.rho.shape
     rows = np.flatnonzero(prob.solvable)
     status = np.where(prob.solvable, 0, int(Status.UNSOLVED)).astype(np.int64)
@@ -528,7 +555,17 @@ def twin(
                 )
         else:
             cand, _ = coarse_match(sub, lat, lat.coarse, cell_xy, top=top)
-        xy_k, rms_k = refine_at_cells(sub, lat, cell_xy, cand, mode=bias)
+        xy_k, rms_k = refine_at_cells(sub, lat, cell_xy, cand,
+                                      mode="cell" if bias == "resynth" else bias)  # fmt: skip
+        if bias == "resynth":
+            K = cand.shape[1]
+            rep = np.repeat(np.arange(rows.size), K)
+            xy_f, rms_f = refine_resynth(
+                sub.rho[rep], sub.valid[rep], sub.height[rep], sub.bs,
+                PathMap.from_map(fmap, paths), lambda xy: nearest_cell(lat, xy),
+                xy_k.reshape(-1, 2), cand.ravel(), lat.step * (REFINE_BOX + 0.5),
+            )  # fmt: skip
+            xy_k, rms_k = xy_f.reshape(-1, K, 2), rms_f.reshape(-1, K)
         k = np.argmin(rms_k, axis=1)
         ar = np.arange(rows.size)
         xy, m, cell = xy_k[ar, k], rms_k[ar, k], cand[ar, k]
