@@ -154,6 +154,8 @@ METHODS: dict[str, Method] = {
                 "top": (_twin.TOP, _POS_INT),
                 "bias": ("auto", ("auto", "cell", "interp", "resynth")),
                 "paths": (None, _OPT_COUNT),
+                "fd_jacobian": (False, "bool"),
+                "resynth_m": (_twin.RESYNTH_M, _POS_FLOAT),
             },
             "fingerprint-map match + refinement with the map's NLoS bias or, with a v2 map, "
             "its paths re-synthesised (--map MAP), 2D",
@@ -175,6 +177,11 @@ def _coerce(method: str, name: str, value: Any, kind: Any, n_bs: int | None) -> 
         if value is None or (isinstance(value, str) and not value.strip()):
             raise PositioningError(f"method {method!r} needs a fingerprint map (--map MAP)")
         return value
+    if kind == "bool":
+        text = str(value).strip().lower()
+        if isinstance(value, (bool, np.bool_)) or text in ("true", "false", "1", "0"):
+            return text in ("true", "1")
+        raise PositioningError(f"{where} must be true or false, got {value!r}")
     if isinstance(kind, tuple):
         if value not in kind:
             raise PositioningError(f"{where} must be one of {', '.join(kind)}, got {value!r}")

@@ -10,9 +10,10 @@ nearest cell's paths to ``p`` and re-runs the receiver (:class:`positioning.lobe
     rho_n = c toa_n(p) + beta + e_n,    toa_n(p) = receiver(paths of cell(p), moved to p)
 
 :func:`refine_resynth` solves it by Gauss-Newton on ``(x, y, beta)`` from a start position per
-candidate: the Jacobian of ``c toa_n`` is the geometric one, ``(p - b_n) / |p - b_n|``, plus the
-bias gradient by finite differences (:data:`FD_STEP_M`) clipped to :data:`MAX_BIAS_SLOPE`,
-because the receiver's ToA jumps where a path crosses a threshold. Steps are limited to
+candidate: the Jacobian of ``c toa_n`` is the geometric one, ``(p - b_n) / |p - b_n|`` (default:
+one receiver run per iteration), or that plus the bias gradient by finite differences
+(:data:`FD_STEP_M`, clipped to :data:`MAX_BIAS_SLOPE` because the receiver's ToA jumps where a
+path crosses a threshold; three runs per iteration). Steps are limited to
 :data:`MAX_STEP_M` and the position to ``box`` metres around the start cell. The cell is the
 map cell nearest to the current iterate (switching cells as it moves); where the nearest node is
 a hole of the lattice the candidate's own cell is used.
@@ -95,6 +96,7 @@ def refine_resynth(
     start_cell: np.ndarray,
     box_m: float,
     iters: int = ITERATIONS,
+    fd_jacobian: bool = False,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Gauss-Newton on ``(x, y, beta)`` with re-synthesised ToAs (module docstring).
 
@@ -107,6 +109,9 @@ def refine_resynth(
         (-1: none)
     start_xy : (A, 2) m; start_cell : (A,) int, the candidate's cell (-1: no candidate)
     box_m : float, m, the solution stays within this of the start cell's centre (per axis)
+    iters : int, Gauss-Newton iterations
+    fd_jacobian : bool, add the bias gradient by finite differences to the geometric Jacobian
+        (three receiver runs per iteration instead of one)
 
     Returns
     -------
@@ -126,15 +131,20 @@ def refine_resynth(
     for _ in range(iters):
         cell = cells_at(xy)
         p = np.column_stack([xy, h])
-        ev = np.concatenate([p, p + [FD_STEP_M, 0, 0], p + [0, FD_STEP_M, 0]])
-        pred = pmap.predict(np.tile(cell, 3), ev).reshape(3, A, -1)
         diff = p[:, None, :] - bs[None]
         R = np.linalg.norm(diff, axis=2)
         U = diff[..., :2] / np.maximum(R, 1e-12)[..., None]  # (A, B, 2)
-        slope = np.stack([(pred[1] - pred[0]) / FD_STEP_M, (pred[2] - pred[0]) / FD_STEP_M], -1)
-        slope = slope - U
-        slope = np.where(np.isfinite(slope), np.clip(slope, -MAX_BIAS_SLOPE, MAX_BIAS_SLOPE), 0.0)
-        J = U + slope
+        if fd_jacobian:
+            ev = np.concatenate([p, p + [FD_STEP_M, 0, 0], p + [0, FD_STEP_M, 0]])
+            pred = pmap.predict(np.tile(cell, 3), ev).reshape(3, A, -1)
+            slope = np.stack([(pred[1] - pred[0]) / FD_STEP_M,
+                              (pred[2] - pred[0]) / FD_STEP_M], -1) - U  # fmt: skip
+            slope = np.where(np.isfinite(slope), np.clip(slope, -MAX_BIAS_SLOPE, MAX_BIAS_SLOPE),
+                             0.0)  # fmt: skip
+            J = U + slope
+        else:
+            pred = pmap.predict(cell, p)[None]
+            J = U
         use = (valid & np.isfinite(pred[0])).astype(float)
         s = np.where(use > 0, rho - pred[0], 0.0)
         n = np.maximum(use.sum(axis=1), 1)

@@ -67,6 +67,8 @@ TOP = 3
 REFINE_ITER = 5
 #: The refined fix stays within this many grid steps of its cell centre (per coordinate).
 REFINE_BOX = 1.0
+#: ``bias="resynth"``: largest RMS residual (m) of the re-synthesised solution that is used.
+RESYNTH_M = 0.3
 
 
 @dataclass(frozen=True)
@@ -491,6 +493,8 @@ def twin(
     top: int = TOP,
     bias: str = "auto",
     paths: int | None = None,
+    fd_jacobian: bool = False,
+    resynth_m: float = RESYNTH_M,
 ) -> dict[str, np.ndarray]:
     """The twin estimator (module docstring). 2D only: the map is at one device height.
 
@@ -512,7 +516,11 @@ def twin(
         on them (:func:`positioning.resynth.refine_resynth`); ``"auto"`` (default):
         ``"resynth"`` for a map with paths, else ``"cell"``
     paths : int or None, the strongest paths per cell and base station the re-synthesis uses
-        (None: all the map stores)
+        (None or 0: all the map stores)
+    fd_jacobian : bool, ``resynth`` only: Jacobian with the bias gradient by finite
+        differences (:func:`positioning.resynth.refine_resynth`)
+    resynth_m : float, m, ``resynth`` only: the re-synthesised solution is used when its RMS
+        residual is at most this, else the cell-held one
 
     Returns
     -------
@@ -564,8 +572,15 @@ def twin(
                 sub.rho[rep], sub.valid[rep], sub.height[rep], sub.bs,
                 PathMap.from_map(fmap, paths), lambda xy: nearest_cell(lat, xy),
                 xy_k.reshape(-1, 2), cand.ravel(), lat.step * (REFINE_BOX + 0.5),
+                fd_jacobian=fd_jacobian,
             )  # fmt: skip
-            xy_k, rms_k = xy_f.reshape(-1, K, 2), rms_f.reshape(-1, K)
+            # the re-synthesised solution wins where it fits within resynth_m; where the
+            # nearest cell's paths do not explain the measurements (a path appears or vanishes
+            # between cell and device) the cell-held solution is kept
+            rms_f = rms_f.reshape(-1, K)
+            fits = np.min(rms_f, axis=1) <= resynth_m
+            xy_k = np.where(fits[:, None, None], xy_f.reshape(-1, K, 2), xy_k)
+            rms_k = np.where(fits[:, None], rms_f, rms_k)
         k = np.argmin(rms_k, axis=1)
         ar = np.arange(rows.size)
         xy, m, cell = xy_k[ar, k], rms_k[ar, k], cand[ar, k]
