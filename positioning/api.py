@@ -156,6 +156,7 @@ METHODS: dict[str, Method] = {
                 "paths": (None, _OPT_COUNT),
                 "fd_jacobian": (False, "bool"),
                 "resynth_m": (_twin.RESYNTH_M, _POS_FLOAT),
+                "cells": ("nearest", ("nearest", "own")),
             },
             "fingerprint-map match + refinement with the map's NLoS bias or, with a v2 map, "
             "its paths re-synthesised (--map MAP), 2D",

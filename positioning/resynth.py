@@ -125,6 +125,8 @@ def refine_resynth(
     h = np.asarray(height, dtype=float)
 
     def cells_at(p: np.ndarray) -> np.ndarray:
+        if nearest_cell is None:
+            return sc
         c = nearest_cell(p)
         return np.where(c >= 0, c, sc)
 

@@ -495,6 +495,7 @@ def twin(
     paths: int | None = None,
     fd_jacobian: bool = False,
     resynth_m: float = RESYNTH_M,
+    cells: str = "nearest",
 ) -> dict[str, np.ndarray]:
     """The twin estimator (module docstring). 2D only: the map is at one device height.
 
@@ -521,6 +522,8 @@ def twin(
         differences (:func:`positioning.resynth.refine_resynth`)
     resynth_m : float, m, ``resynth`` only: the re-synthesised solution is used when its RMS
         residual is at most this, else the cell-held one
+    cells : ``"own"`` -- each candidate's paths are moved from its own cell;
+        ``"nearest"`` (default) -- from the cell nearest to the iterate (switching as it moves)
 
     Returns
     -------
@@ -570,7 +573,8 @@ def twin(
             rep = np.repeat(np.arange(rows.size), K)
             xy_f, rms_f = refine_resynth(
                 sub.rho[rep], sub.valid[rep], sub.height[rep], sub.bs,
-                PathMap.from_map(fmap, paths), lambda xy: nearest_cell(lat, xy),
+                PathMap.from_map(fmap, paths),
+                (lambda xy: nearest_cell(lat, xy)) if cells == "nearest" else None,
                 xy_k.reshape(-1, 2), cand.ravel(), lat.step * (REFINE_BOX + 0.5),
                 fd_jacobian=fd_jacobian,
             )  # fmt: skip
