@@ -266,8 +266,20 @@ class LobeReceiver:
         res[live & ok] = t[live & ok]
         return res
 
-    def _scan(self, t0, n, d, g, pmax, t_peak, gamma, live):
-        """ToA (A,) and ok (A,) of the first lobe in the windows ``t0 + k dt``, ``k < n``."""
+    def _scan(self, t0, n, d, g, pmax, t_peak, gamma, live, block: int = 128):
+        """ToA (A,) and ok (A,) of the first lobe in the windows ``t0 + k dt``, ``k < n``; rows
+        in blocks of similar window length (padding every row to the longest is slow)."""
+        t = np.full(t0.size, np.nan)
+        ok = np.zeros(t0.size, dtype=bool)
+        order = np.argsort(n, kind="stable")
+        for s in range(0, order.size, block):
+            r = order[s : s + block]
+            t[r], ok[r] = self._scan_block(t0[r], n[r], d[r], g[r], pmax[r], t_peak[r], gamma,
+                                           live[r])  # fmt: skip
+        return t, ok
+
+    def _scan_block(self, t0, n, d, g, pmax, t_peak, gamma, live):
+        """:meth:`_scan` of one block of rows."""
         A = t0.size
         W = int(n.max()) if A else 0
         T, dt = self.period_s, self.dt_s
