@@ -157,6 +157,7 @@ METHODS: dict[str, Method] = {
                 "fd_jacobian": (False, "bool"),
                 "resynth_m": (_twin.RESYNTH_M, _POS_FLOAT),
                 "cells": ("nearest", ("nearest", "own")),
+                "resynth_top": (_twin.RESYNTH_TOP, _POS_INT),
             },
             "fingerprint-map match + refinement with the map's NLoS bias or, with a v2 map, "
             "its paths re-synthesised (--map MAP), 2D",

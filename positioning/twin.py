@@ -69,6 +69,8 @@ REFINE_ITER = 5
 REFINE_BOX = 1.0
 #: ``bias="resynth"``: largest RMS residual (m) of the re-synthesised solution that is used.
 RESYNTH_M = 0.3
+#: ``bias="resynth"``: best cell-held solutions refined again with re-synthesised paths.
+RESYNTH_TOP = 3
 
 
 @dataclass(frozen=True)
@@ -496,6 +498,7 @@ def twin(
     fd_jacobian: bool = False,
     resynth_m: float = RESYNTH_M,
     cells: str = "nearest",
+    resynth_top: int = RESYNTH_TOP,
 ) -> dict[str, np.ndarray]:
     """The twin estimator (module docstring). 2D only: the map is at one device height.
 
@@ -524,6 +527,8 @@ def twin(
         residual is at most this, else the cell-held one
     cells : ``"own"`` -- each candidate's paths are moved from its own cell;
         ``"nearest"`` (default) -- from the cell nearest to the iterate (switching as it moves)
+    resynth_top : int, ``resynth`` only: how many of the best cell-held solutions are refined
+        again with re-synthesised paths
 
     Returns
     -------
@@ -569,22 +574,29 @@ def twin(
         xy_k, rms_k = refine_at_cells(sub, lat, cell_xy, cand,
                                       mode="cell" if bias == "resynth" else bias)  # fmt: skip
         if bias == "resynth":
-            K = cand.shape[1]
-            rep = np.repeat(np.arange(rows.size), K)
+            # the resynth_top best cell-held solutions are refined again with re-synthesised
+            # paths
+            n_r = min(int(resynth_top), cand.shape[1])
+            best = np.argsort(rms_k, axis=1, kind="stable")[:, :n_r]
+            c_r = np.where(np.isfinite(np.take_along_axis(rms_k, best, axis=1)),
+                           np.take_along_axis(cand, best, axis=1), -1)  # fmt: skip
+            s_r = np.take_along_axis(xy_k, best[..., None], axis=1)
+            rep = np.repeat(np.arange(rows.size), n_r)
             xy_f, rms_f = refine_resynth(
                 sub.rho[rep], sub.valid[rep], sub.height[rep], sub.bs,
                 PathMap.from_map(fmap, paths),
                 (lambda xy: nearest_cell(lat, xy)) if cells == "nearest" else None,
-                xy_k.reshape(-1, 2), cand.ravel(), lat.step * (REFINE_BOX + 0.5),
+                s_r.reshape(-1, 2), c_r.ravel(), lat.step * (REFINE_BOX + 0.5),
                 fd_jacobian=fd_jacobian,
             )  # fmt: skip
             # the re-synthesised solution wins where it fits within resynth_m; where the
             # nearest cell's paths do not explain the measurements (a path appears or vanishes
             # between cell and device) the cell-held solution is kept
-            rms_f = rms_f.reshape(-1, K)
+            rms_f = rms_f.reshape(-1, n_r)
             fits = np.min(rms_f, axis=1) <= resynth_m
-            xy_k = np.where(fits[:, None, None], xy_f.reshape(-1, K, 2), xy_k)
-            rms_k = np.where(fits[:, None], rms_f, rms_k)
+            xy_k = np.where(fits[:, None, None], xy_f.reshape(-1, n_r, 2), s_r)
+            rms_k = np.where(fits[:, None], rms_f, np.take_along_axis(rms_k, best, axis=1))
+            cand = np.take_along_axis(cand, best, axis=1)
         k = np.argmin(rms_k, axis=1)
         ar = np.arange(rows.size)
         xy, m, cell = xy_k[ar, k], rms_k[ar, k], cand[ar, k]
