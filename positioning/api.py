@@ -154,10 +154,11 @@ METHODS: dict[str, Method] = {
                 "top": (_twin.TOP, _POS_INT),
                 "bias": ("auto", ("auto", "cell", "interp", "resynth")),
                 "paths": (None, _OPT_COUNT),
-                "fd_jacobian": (False, "bool"),
+                "fd_jacobian": (True, "bool"),
                 "resynth_m": (_twin.RESYNTH_M, _POS_FLOAT),
                 "cells": ("nearest", ("nearest", "own")),
                 "resynth_top": (_twin.RESYNTH_TOP, _POS_INT),
+                "search_m": (_twin.SEARCH_M, "non-negative float"),
             },
             "fingerprint-map match + refinement with the map's NLoS bias or, with a v2 map, "
             "its paths re-synthesised (--map MAP), 2D",

@@ -97,6 +97,8 @@ def refine_resynth(
     box_m: float,
     iters: int = ITERATIONS,
     fd_jacobian: bool = False,
+    search_m: float = 0.0,
+    search_n: int = 5,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Gauss-Newton on ``(x, y, beta)`` with re-synthesised ToAs (module docstring).
 
@@ -112,6 +114,9 @@ def refine_resynth(
     iters : int, Gauss-Newton iterations
     fd_jacobian : bool, add the bias gradient by finite differences to the geometric Jacobian
         (three receiver runs per iteration instead of one)
+    search_m, search_n : float m, int; with ``search_m > 0`` the start is first replaced by the
+        best of a ``search_n`` x ``search_n`` grid spanning +-``search_m`` around it (the
+        re-synthesised misfit has local minima where the receiver's bias changes fast)
 
     Returns
     -------
@@ -130,13 +135,34 @@ def refine_resynth(
         c = nearest_cell(p)
         return np.where(c >= 0, c, sc)
 
-    for _ in range(iters):
+    if search_m > 0 and search_n > 1:
+        off = np.linspace(-search_m, search_m, int(search_n))
+        gx, gy = np.meshgrid(off, off, indexing="ij")
+        grid = np.column_stack([gx.ravel(), gy.ravel()])  # (G, 2)
+        G = len(grid)
+        cand_xy = np.clip((xy[:, None, :] + grid[None]).reshape(-1, 2),
+                          np.repeat(centre - box_m, G, 0), np.repeat(centre + box_m, G, 0))  # fmt: skip
+        rep = np.repeat(np.arange(A), G)
+        cell = cells_at_rep = nearest_cell(cand_xy) if nearest_cell is not None else sc[rep]
+        cell = np.where(cells_at_rep >= 0, cells_at_rep, sc[rep])
+        pred = pmap.predict(cell, np.column_stack([cand_xy, h[rep]]))
+        use = valid[rep] & np.isfinite(pred)
+        res = np.where(use, rho[rep] - pred, 0.0)
+        n = np.maximum(use.sum(axis=1), 1)
+        cost = np.sum(res * res, axis=1) - res.sum(axis=1) ** 2 / n
+        cost = cost + 1e6 * (use.sum(axis=1) < valid[rep].sum(axis=1))
+        best = np.argmin(cost.reshape(A, G), axis=1)
+        xy = cand_xy.reshape(A, G, 2)[np.arange(A), best]
+    best_xy = xy.copy()
+    best_rms = np.full(A, np.inf)
+    for it in range(iters + 1):
         cell = cells_at(xy)
         p = np.column_stack([xy, h])
         diff = p[:, None, :] - bs[None]
         R = np.linalg.norm(diff, axis=2)
         U = diff[..., :2] / np.maximum(R, 1e-12)[..., None]  # (A, B, 2)
-        if fd_jacobian:
+        last = it == iters
+        if fd_jacobian and not last:
             ev = np.concatenate([p, p + [FD_STEP_M, 0, 0], p + [0, FD_STEP_M, 0]])
             pred = pmap.predict(np.tile(cell, 3), ev).reshape(3, A, -1)
             slope = np.stack([(pred[1] - pred[0]) / FD_STEP_M,
@@ -147,6 +173,13 @@ def refine_resynth(
         else:
             pred = pmap.predict(cell, p)[None]
             J = U
+        # the iterate's misfit; the best iterate is kept (the receiver's bias is not smooth, so
+        # a Gauss-Newton step may go uphill)
+        rms = _rms(rho, valid, pred[0])
+        better = rms < best_rms
+        best_xy[better], best_rms[better] = xy[better], rms[better]
+        if last:
+            break
         use = (valid & np.isfinite(pred[0])).astype(float)
         s = np.where(use > 0, rho - pred[0], 0.0)
         n = np.maximum(use.sum(axis=1), 1)
@@ -160,8 +193,12 @@ def refine_resynth(
         norm = np.linalg.norm(step, axis=1, keepdims=True)
         step *= np.minimum(1.0, MAX_STEP_M / np.maximum(norm, 1e-12))
         xy = np.clip(xy + step, centre - box_m, centre + box_m)
-    cell = cells_at(xy)
-    pred = pmap.predict(cell, np.column_stack([xy, h]))
+    return best_xy, np.where(ok_row, best_rms, np.inf)
+
+
+def _rms(rho: np.ndarray, valid: np.ndarray, pred: np.ndarray) -> np.ndarray:
+    """(A,) RMS residual about the offset, m, of the received base stations; plus
+    :data:`MISSING_PENALTY_M` where the prediction misses one; inf with fewer than 3."""
     use = valid & np.isfinite(pred)
     s = np.where(use, rho - pred, np.nan)
     n = use.sum(axis=1)
@@ -170,5 +207,4 @@ def refine_resynth(
     with np.errstate(invalid="ignore", divide="ignore"):
         rms = np.sqrt(np.sum(d * d, axis=1) / np.maximum(n - 1, 1))
     rms = rms + MISSING_PENALTY_M * (n < valid.sum(axis=1))
-    rms = np.where(ok_row & (n >= 3) & np.isfinite(rms), rms, np.inf)
-    return xy, rms
+    return np.where((n >= 3) & np.isfinite(rms), rms, np.inf)

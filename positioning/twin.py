@@ -71,6 +71,8 @@ REFINE_BOX = 1.0
 RESYNTH_M = 0.3
 #: ``bias="resynth"``: best cell-held solutions refined again with re-synthesised paths.
 RESYNTH_TOP = 3
+#: ``bias="resynth"``: half-width (m) of the 5 x 5 grid the Gauss-Newton start is chosen from.
+SEARCH_M = 0.3
 
 
 @dataclass(frozen=True)
@@ -495,10 +497,11 @@ def twin(
     top: int = TOP,
     bias: str = "auto",
     paths: int | None = None,
-    fd_jacobian: bool = False,
+    fd_jacobian: bool = True,
     resynth_m: float = RESYNTH_M,
     cells: str = "nearest",
     resynth_top: int = RESYNTH_TOP,
+    search_m: float = SEARCH_M,
 ) -> dict[str, np.ndarray]:
     """The twin estimator (module docstring). 2D only: the map is at one device height.
 
@@ -522,13 +525,17 @@ def twin(
     paths : int or None, the strongest paths per cell and base station the re-synthesis uses
         (None or 0: all the map stores)
     fd_jacobian : bool, ``resynth`` only: Jacobian with the bias gradient by finite
-        differences (:func:`positioning.resynth.refine_resynth`)
+        differences (default; False: the geometric Jacobian,
+        :func:`positioning.resynth.refine_resynth`)
     resynth_m : float, m, ``resynth`` only: the re-synthesised solution is used when its RMS
         residual is at most this, else the cell-held one
     cells : ``"own"`` -- each candidate's paths are moved from its own cell;
         ``"nearest"`` (default) -- from the cell nearest to the iterate (switching as it moves)
     resynth_top : int, ``resynth`` only: how many of the best cell-held solutions are refined
         again with re-synthesised paths
+    search_m : float, m, ``resynth`` only: > 0 starts Gauss-Newton from the best point of a
+        5 x 5 grid spanning +-search_m around the cell-held solution (default 0.3 m; 0: from the
+        cell-held solution itself)
 
     Returns
     -------
@@ -587,7 +594,7 @@ def twin(
                 PathMap.from_map(fmap, paths),
                 (lambda xy: nearest_cell(lat, xy)) if cells == "nearest" else None,
                 s_r.reshape(-1, 2), c_r.ravel(), lat.step * (REFINE_BOX + 0.5),
-                fd_jacobian=fd_jacobian,
+                fd_jacobian=fd_jacobian, search_m=search_m,
             )  # fmt: skip
             # the re-synthesised solution wins where it fits within resynth_m; where the
             # nearest cell's paths do not explain the measurements (a path appears or vanishes
