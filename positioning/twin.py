@@ -20,6 +20,10 @@ including its NLoS excess. The twin moves that bias from the unknowns into the m
    of the model above with the cell's own bias (``bias="cell"``) or the bias interpolated
    bilinearly from the median-smoothed lattice (``bias="interp"``), the position kept within
    :data:`REFINE_BOX` grid steps of the cell; the candidate with the smallest residual wins.
+   With a map of schema version 2 (paths stored) the default ``bias="auto"`` refines the best
+   of those again with the nearest cell's paths moved to the iterate and the receiver re-run on
+   them (``bias="resynth"``, :mod:`positioning.resynth`), used where it fits within
+   :data:`RESYNTH_M`.
 4. **Judge.** ``match_m`` = RMS residual of all received base stations at the refined fix
    (offset re-fitted); per base station ``nlos`` = the matched cell's bias exceeds
    :data:`NLOS_BIAS_M`.
@@ -30,7 +34,7 @@ including its NLoS excess. The twin moves that bias from the unknowns into the m
    cells' bounding box) if it lies outside.
 
 Measured choices (``docs/positioning.md``): the first-lobe receiver's bias on the bundled hall is
-rough between 0.5 m cells, so ``bias="cell"`` is the default.
+rough between 0.5 m cells, so ``bias="cell"`` is used with a v1 map (not ``interp``).
 
 The map is checked on load (:func:`positioning.fingerprint.read_map`, one-line errors); a map
 whose base stations are not the dataset's (count or positions off by more than
