@@ -9,6 +9,7 @@ and per test point the distance to the nearest map cell.
 Usage::
 
     python tools/eval_twin.py --data /work/data/first-lobe --maps /tmp/maps --prefix hall
+    python tools/eval_twin.py ... --twin-param bias=cell      # the v1 refinement on a v2 map
 """
 
 from __future__ import annotations

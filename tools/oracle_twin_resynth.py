@@ -1,7 +1,7 @@
 """Oracle: how well can a fingerprint map that stores paths (not ToAs) predict the receiver?
 
-Feasibility check for issue 15's 0.2 m target (docs/positioning.md, "Why not 0.2 m: the
-path re-synthesis oracle"). The first-lobe receiver's noiseless ToA at a test point is
+Feasibility check for issue 15's 0.2 m target (docs/positioning.md, "Re-synthesised paths (map
+schema v2): measured", which has the numbers). The first-lobe receiver's noiseless ToA at a test point is
 predicted from the map cell nearest to it:
 
 ``cell``
@@ -37,7 +37,8 @@ traces are cached in ``--cache``.
 
 Usage::
 
-    python tools/oracle_twin_resynth.py --bands c-band,mmwave --k 0,16 --order 2 --fd-gradient
+    python tools/oracle_twin_resynth.py --bands c-band,mmwave --k 0,16 --order 1   # or --order 2
+    python tools/oracle_twin_resynth.py --bands c-band --k 0 --order 2 --fd-gradient --no-search
 """
 
 from __future__ import annotations
