@@ -94,3 +94,20 @@ def test_twin_with_paths_removes_the_overlap_bias_the_cell_model_keeps():
         err[b] = np.percentile(error_2d(xyz, p), 90)
     assert err["resynth"] < 0.05
     assert err["cell"] > 2 * err["resynth"]
+
+
+def test_resynth_needs_a_map_with_paths():
+    """bias=resynth on a version-1 map is refused in one line; bias=auto falls back to cell."""
+    import pytest
+    from pos_synth import PAPER_BS, synth_map, synth_toa
+
+    from positioning import PositioningError, locate
+
+    fmap = synth_map()
+    toa, _ = synth_toa(20)
+    with pytest.raises(PositioningError, match="needs a map with paths") as info:
+        locate(toa, PAPER_BS, "twin", height_m=1.0, map=fmap, bias="resynth")
+    assert "\n" not in str(info.value)
+    auto = locate(toa, PAPER_BS, "twin", height_m=1.0, map=fmap)
+    cell = locate(toa, PAPER_BS, "twin", height_m=1.0, map=fmap, bias="cell")
+    np.testing.assert_array_equal(auto, cell)
