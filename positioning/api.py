@@ -150,7 +150,7 @@ METHODS: dict[str, Method] = {
                 "map": (None, _MAP),
                 "fallback": ("nlos-aware", _FALLBACKS),
                 "fallback_m": (_twin.FALLBACK_M, _POS_FLOAT),
-                "prior_m": (_twin.PRIOR_M, "non-negative float"),
+                "prior_m": (None, "non-negative float or none"),
                 "top": (_twin.TOP, _POS_INT),
                 "bias": ("auto", ("auto", "cell", "interp", "resynth")),
                 "paths": (None, _OPT_COUNT),
@@ -192,7 +192,7 @@ def _coerce(method: str, name: str, value: Any, kind: Any, n_bs: int | None) -> 
     if isinstance(value, str) and value.strip().lower() in ("none", "null", ""):
         value = None
     if value is None:
-        if kind in (_OPT_INDEX, _OPT_COUNT, "positive float or none"):
+        if kind in (_OPT_INDEX, _OPT_COUNT, "positive float or none", "non-negative float or none"):
             return None
         raise PositioningError(f"{where} must be a {kind}, got None")
     try:
@@ -215,6 +215,7 @@ def _coerce(method: str, name: str, value: Any, kind: Any, n_bs: int | None) -> 
         _COUNT: lambda x: x >= 0,
         _PROB: lambda x: 0 < x < 1,
         "non-negative float": lambda x: np.isfinite(x) and x >= 0,
+        "non-negative float or none": lambda x: np.isfinite(x) and x >= 0,
         _OPT_INDEX: lambda x: x >= 0 and (n_bs is None or x < n_bs),
     }[kind](v)
     if not ok:

@@ -66,6 +66,10 @@ NLOS_BIAS_M = 0.25
 FALLBACK_M = 0.6
 #: Default search radius around the map-free fix (m) and candidate cells refined per fix.
 PRIOR_M = 4.0
+#: Default search radius with ``bias="resynth"`` (m): the re-synthesised fit rejects the far
+#: cells that alias with the cell-held one, so the window can hold the right cell even where the
+#: map-free prior is 10 m off (mmWave P21, P23; docs/positioning.md).
+RESYNTH_PRIOR_M = 15.0
 TOP = 3
 #: Gauss-Newton iterations of the refinement.
 REFINE_ITER = 5
@@ -497,7 +501,7 @@ def twin(
     map: FingerprintMap | str | Path,  # noqa: A002 - the CLI's name for it
     fallback: Callable[[Problem], dict[str, np.ndarray]] | None = None,
     fallback_m: float = FALLBACK_M,
-    prior_m: float = PRIOR_M,
+    prior_m: float | None = None,
     top: int = TOP,
     bias: str = "auto",
     paths: int | None = None,
@@ -518,8 +522,9 @@ def twin(
         (:func:`positioning.locate` binds the ``fallback`` method name, default ``irls``);
         None: :func:`positioning.irls.irls`
     fallback_m : float, m -- ``match_m`` above which a fix falls back
-    prior_m : float, m -- only cells within this distance of the fallback fix are candidates
-        (0: the whole map)
+    prior_m : float or None, m -- only cells within this distance of the fallback fix are
+        candidates (0: the whole map; None: :data:`RESYNTH_PRIOR_M` with ``bias="resynth"``,
+        else :data:`PRIOR_M`)
     top : int -- candidate cells refined per fix
     bias : ``"cell"`` or ``"interp"``, the bias model of the refinement
         (:func:`refine_at_cells`); ``"resynth"`` (a map of schema version 2 only): then
@@ -559,6 +564,8 @@ def twin(
         raise PositioningError(f"twin: unknown bias model {bias!r} (cell, interp, resynth, auto)")
     if bias == "resynth" and not fmap.has_paths:
         raise PositioningError("twin: bias=resynth needs a map with paths (schema version 2)")
+    if prior_m is None:
+        prior_m = RESYNTH_PRIOR_M if bias == "resynth" else PRIOR_M
     E, B = prob.rho.shape
     rows = np.flatnonzero(prob.solvable)
     status = np.where(prob.solvable, 0, int(Status.UNSOLVED)).astype(np.int64)
