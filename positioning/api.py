@@ -150,11 +150,18 @@ METHODS: dict[str, Method] = {
                 "map": (None, _MAP),
                 "fallback": ("nlos-aware", _FALLBACKS),
                 "fallback_m": (_twin.FALLBACK_M, _POS_FLOAT),
-                "prior_m": (_twin.PRIOR_M, "non-negative float"),
+                "prior_m": (None, "non-negative float or none"),
                 "top": (_twin.TOP, _POS_INT),
-                "bias": ("cell", ("cell", "interp")),
+                "bias": ("auto", ("auto", "cell", "interp", "resynth")),
+                "paths": (None, _OPT_COUNT),
+                "fd_jacobian": (True, "bool"),
+                "resynth_m": (_twin.RESYNTH_M, _POS_FLOAT),
+                "cells": ("nearest", ("nearest", "own")),
+                "resynth_top": (_twin.RESYNTH_TOP, _POS_INT),
+                "search_m": (_twin.SEARCH_M, "non-negative float"),
             },
-            "fingerprint-map match + refinement with the map's NLoS bias (--map MAP), 2D",
+            "fingerprint-map match + refinement with the map's NLoS bias or, with a v2 map, "
+            "its paths re-synthesised (--map MAP), 2D",
             needs_map=True,
         ),
     )
@@ -173,6 +180,11 @@ def _coerce(method: str, name: str, value: Any, kind: Any, n_bs: int | None) -> 
         if value is None or (isinstance(value, str) and not value.strip()):
             raise PositioningError(f"method {method!r} needs a fingerprint map (--map MAP)")
         return value
+    if kind == "bool":
+        text = str(value).strip().lower()
+        if isinstance(value, (bool, np.bool_)) or text in ("true", "false", "1", "0"):
+            return text in ("true", "1")
+        raise PositioningError(f"{where} must be true or false, got {value!r}")
     if isinstance(kind, tuple):
         if value not in kind:
             raise PositioningError(f"{where} must be one of {', '.join(kind)}, got {value!r}")
@@ -180,7 +192,7 @@ def _coerce(method: str, name: str, value: Any, kind: Any, n_bs: int | None) -> 
     if isinstance(value, str) and value.strip().lower() in ("none", "null", ""):
         value = None
     if value is None:
-        if kind in (_OPT_INDEX, _OPT_COUNT, "positive float or none"):
+        if kind in (_OPT_INDEX, _OPT_COUNT, "positive float or none", "non-negative float or none"):
             return None
         raise PositioningError(f"{where} must be a {kind}, got None")
     try:
@@ -203,6 +215,7 @@ def _coerce(method: str, name: str, value: Any, kind: Any, n_bs: int | None) -> 
         _COUNT: lambda x: x >= 0,
         _PROB: lambda x: 0 < x < 1,
         "non-negative float": lambda x: np.isfinite(x) and x >= 0,
+        "non-negative float or none": lambda x: np.isfinite(x) and x >= 0,
         _OPT_INDEX: lambda x: x >= 0 and (n_bs is None or x < n_bs),
     }[kind](v)
     if not ok:

@@ -34,6 +34,28 @@ key                   shape, dtype meaning (SI units)
 ``meta_json`` holds a JSON object; the writer records at least ``band``, ``frequency_hz``,
 ``bandwidth_hz``, ``receiver``, ``step_m``, ``height_m``, ``scene``, ``draws`` and, when the scene
 has one, ``service_area`` (a list of ``[x, y]`` vertices).
+
+Schema version 2 adds the K strongest paths per cell and base station, so that the twin can move
+them to a position inside the cell and re-run the receiver (:mod:`positioning.lobe`) instead of
+interpolating its ToA (K paths, fewer padded):
+
+===================== =============== ========================================================
+key                   shape, dtype    meaning (SI units)
+===================== =============== ========================================================
+``path_delay_s``      (N, B, K) f8    path delay, s (NaN: no path)
+``path_gain``         (N, B, K) c     complex field gain relative to transmitted, isotropic
+                                      antennas (0: no path)
+``path_dir``          (N, B, K, 3) f  unit vector of the path's last segment, from its last
+                                      interaction (or the base station) to the cell
+``path_radius_m``     (N, B, K) f     wavefront radius at the cell, m: unfolded length (image
+                                      source) for line of sight, reflections and
+                                      penetrations, distance to the last diffraction point for
+                                      diffracted paths
+===================== =============== ========================================================
+
+and ``meta["receiver_model"]``, the settings of :class:`positioning.lobe.LobeReceiver` (the
+noiseless first-lobe receiver the map's ``toa_s`` came from). Version 1 maps are read as before
+(no paths); :func:`write_map` writes version 2 when the map has paths, else version 1.
 """
 
 from __future__ import annotations
@@ -49,7 +71,9 @@ from .errors import PositioningError
 from .output import write_file
 
 SCHEMA = "hallray-accuracy-map"
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
+#: Versions :func:`read_map` reads.
+READ_VERSIONS = (1, 2)
 
 #: Array keys of schema version 1 and their (shape pattern, kind): ``N`` cells, ``B`` base
 #: stations, ``M`` methods; kinds are numpy ``dtype.kind`` letters accepted for the key.
@@ -68,6 +92,14 @@ ARRAYS: dict[str, tuple[tuple[str | int, ...], str]] = {
     "err_p90_m": (("M", "N"), "f"),
     "err_mean_m": (("M", "N"), "f"),
     "availability": (("M", "N"), "f"),
+}
+
+#: Array keys added by schema version 2 (``K`` paths per cell and base station).
+PATH_ARRAYS: dict[str, tuple[tuple[str | int, ...], str]] = {
+    "path_delay_s": (("N", "B", "K"), "f"),
+    "path_gain": (("N", "B", "K"), "c"),
+    "path_dir": (("N", "B", "K", 3), "f"),
+    "path_radius_m": (("N", "B", "K"), "f"),
 }
 
 
@@ -90,9 +122,26 @@ class FingerprintMap:
     err_mean_m: np.ndarray
     availability: np.ndarray
     meta: dict[str, Any] = field(default_factory=dict)
+    path_delay_s: np.ndarray | None = None
+    path_gain: np.ndarray | None = None
+    path_dir: np.ndarray | None = None
+    path_radius_m: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         _check_arrays({k: getattr(self, k) for k in ARRAYS}, "fingerprint map")
+        have = [getattr(self, k) is not None for k in PATH_ARRAYS]
+        if any(have):
+            _check_paths(self.arrays(), self.meta, "fingerprint map")
+
+    @property
+    def has_paths(self) -> bool:
+        """True for a map with paths (schema version 2)."""
+        return self.path_delay_s is not None
+
+    @property
+    def version(self) -> int:
+        """The schema version this map is written with."""
+        return 2 if self.has_paths else 1
 
     @property
     def n_cells(self) -> int:
@@ -109,13 +158,53 @@ class FingerprintMap:
         return np.count_nonzero(self.los, axis=1)
 
     def arrays(self) -> dict[str, np.ndarray]:
-        """The schema's arrays by key (no copies)."""
-        return {k: getattr(self, k) for k in ARRAYS}
+        """The schema's arrays by key (no copies), with the path arrays of version 2."""
+        out = {k: getattr(self, k) for k in ARRAYS}
+        if self.has_paths:
+            out.update({k: getattr(self, k) for k in PATH_ARRAYS})
+        return out
+
+    def select(self, keep: np.ndarray) -> FingerprintMap:
+        """The map reduced to the cells ``keep`` ((N,) bool or indices)."""
+        per_method = ("err_p90_m", "err_mean_m", "availability")
+        out = {}
+        for k, v in self.arrays().items():
+            if k in per_method:
+                out[k] = v[:, keep]
+            elif k in ("bs_xyz", "bs_names", "methods"):
+                out[k] = v
+            else:
+                out[k] = v[keep]
+        return FingerprintMap(**out, meta=self.meta)
 
 
-def _check_arrays(arrays: dict[str, np.ndarray], what: str) -> None:
-    sizes: dict[str, int] = {}
-    for key, (pattern, kind) in ARRAYS.items():
+def _check_paths(arrays: dict[str, Any], meta: dict[str, Any], what: str) -> None:
+    """Version 2: every path array present, shapes consistent, a usable receiver model."""
+    from .lobe import LobeReceiver
+
+    missing = [k for k in PATH_ARRAYS if arrays.get(k) is None]
+    if missing:
+        raise PositioningError(f"{what}: schema version 2 needs array {missing[0]!r}")
+    sizes = {"N": np.asarray(arrays["cell_xyz"]).shape[0], "B": np.asarray(arrays["bs_xyz"]).shape[0]}
+    _check_arrays(arrays, what, PATH_ARRAYS, sizes)
+    if not np.isfinite(arrays["path_dir"][np.isfinite(arrays["path_delay_s"])]).all():
+        raise PositioningError(f"{what}: non-finite direction of a stored path")
+    try:
+        LobeReceiver.from_meta(meta.get("receiver_model"))
+    except PositioningError as exc:
+        raise PositioningError(f"{what}: {exc}") from None
+
+
+def _check_arrays(
+    arrays: dict[str, np.ndarray],
+    what: str,
+    spec: dict[str, tuple[tuple[str | int, ...], str]] | None = None,
+    sizes: dict[str, int] | None = None,
+) -> None:
+    version_1 = spec is None
+    spec = ARRAYS if spec is None else spec
+    sizes = {} if sizes is None else dict(sizes)
+    for key, (pattern, kind) in spec.items():
         if key not in arrays:
             raise PositioningError(f"{what}: missing array {key!r}")
         arr = np.asarray(arrays[key])
@@ -135,6 +224,8 @@ def _check_arrays(arrays: dict[str, np.ndarray], what: str) -> None:
                 raise PositioningError(
                     f"{what}: {key!r} has shape {arr.shape}, but {want} = {sizes[want]} elsewhere"
                 )
+    if not version_1:
+        return
     if sizes.get("N", 0) == 0 or sizes.get("B", 0) == 0:
         raise PositioningError(f"{what}: no cells or no base stations")
     if not (np.isfinite(arrays["cell_xyz"]).all() and np.isfinite(arrays["bs_xyz"]).all()):
@@ -152,7 +243,7 @@ def write_map(path: str | Path, fmap: FingerprintMap) -> Path:
     path = Path(path)
     payload = {k: np.asarray(v) for k, v in fmap.arrays().items()}
     payload["schema"] = np.array(SCHEMA)
-    payload["schema_version"] = np.array(SCHEMA_VERSION)
+    payload["schema_version"] = np.array(fmap.version)
     payload["meta_json"] = np.array(json.dumps(fmap.meta, sort_keys=True, default=_jsonable))
     write_file(path, lambda fh: np.savez_compressed(fh, **payload), what="map")
     return path
@@ -180,10 +271,14 @@ def read_map(path: str | Path) -> FingerprintMap:
     schema = str(data.get("schema", ""))
     if schema != SCHEMA:
         raise PositioningError(f"{path}: not a {SCHEMA} file (schema {schema!r})")
-    version = int(data.get("schema_version", -1))
-    if version != SCHEMA_VERSION:
+    try:
+        version = int(data.get("schema_version", -1))
+    except (TypeError, ValueError):
+        version = -1
+    if version not in READ_VERSIONS:
         raise PositioningError(
-            f"{path}: {SCHEMA} schema version {version} is not supported (this reader: {SCHEMA_VERSION})"
+            f"{path}: {SCHEMA} schema version {version} is not supported (this reader: "
+            f"{', '.join(map(str, READ_VERSIONS))})"
         )
     try:
         meta = json.loads(str(data.get("meta_json", "{}")))
@@ -192,7 +287,11 @@ def read_map(path: str | Path) -> FingerprintMap:
     if not isinstance(meta, dict):
         raise PositioningError(f"{path}: meta_json is not a JSON object")
     _check_arrays(data, str(path))
-    return FingerprintMap(**{k: data[k] for k in ARRAYS}, meta=meta)
+    keys = list(ARRAYS)
+    if version == 2:
+        _check_paths(data, meta, str(path))
+        keys += list(PATH_ARRAYS)
+    return FingerprintMap(**{k: data[k] for k in keys}, meta=meta)
 
 
 def _jsonable(obj: Any) -> Any:

@@ -20,6 +20,10 @@ including its NLoS excess. The twin moves that bias from the unknowns into the m
    of the model above with the cell's own bias (``bias="cell"``) or the bias interpolated
    bilinearly from the median-smoothed lattice (``bias="interp"``), the position kept within
    :data:`REFINE_BOX` grid steps of the cell; the candidate with the smallest residual wins.
+   With a map of schema version 2 (paths stored) the default ``bias="auto"`` refines the best
+   of those again with the nearest cell's paths moved to the iterate and the receiver re-run on
+   them (``bias="resynth"``, :mod:`positioning.resynth`), used where it fits within
+   :data:`RESYNTH_M`.
 4. **Judge.** ``match_m`` = RMS residual of all received base stations at the refined fix
    (offset re-fitted); per base station ``nlos`` = the matched cell's bias exceeds
    :data:`NLOS_BIAS_M`.
@@ -30,7 +34,7 @@ including its NLoS excess. The twin moves that bias from the unknowns into the m
    cells' bounding box) if it lies outside.
 
 Measured choices (``docs/positioning.md``): the first-lobe receiver's bias on the bundled hall is
-rough between 0.5 m cells, so ``bias="cell"`` is the default.
+rough between 0.5 m cells, so ``bias="cell"`` is used with a v1 map (not ``interp``).
 
 The map is checked on load (:func:`positioning.fingerprint.read_map`, one-line errors); a map
 whose base stations are not the dataset's (count or positions off by more than
@@ -49,6 +53,7 @@ from .errors import PositioningError
 from .fingerprint import FingerprintMap, read_map
 from .fixes import Status
 from .irls import irls
+from .resynth import PathMap, refine_resynth
 from .tdoa import C0, Problem
 
 #: Largest distance between a map's and the dataset's base station, metres.
@@ -61,11 +66,21 @@ NLOS_BIAS_M = 0.25
 FALLBACK_M = 0.6
 #: Default search radius around the map-free fix (m) and candidate cells refined per fix.
 PRIOR_M = 4.0
+#: Default search radius with ``bias="resynth"`` (m): the re-synthesised fit rejects the far
+#: cells that alias with the cell-held one, so the window can hold the right cell even where the
+#: map-free prior is 10 m off (mmWave P21, P23; docs/positioning.md).
+RESYNTH_PRIOR_M = 15.0
 TOP = 3
 #: Gauss-Newton iterations of the refinement.
 REFINE_ITER = 5
 #: The refined fix stays within this many grid steps of its cell centre (per coordinate).
 REFINE_BOX = 1.0
+#: ``bias="resynth"``: largest RMS residual (m) of the re-synthesised solution that is used.
+RESYNTH_M = 0.3
+#: ``bias="resynth"``: best cell-held solutions refined again with re-synthesised paths.
+RESYNTH_TOP = 3
+#: ``bias="resynth"``: half-width (m) of the 5 x 5 grid the Gauss-Newton start is chosen from.
+SEARCH_M = 0.3
 
 
 @dataclass(frozen=True)
@@ -398,6 +413,20 @@ def refine_at_cells(
 # bias interpolation
 
 
+def nearest_cell(lat: _Lattice, xy: np.ndarray) -> np.ndarray:
+    """(A,) int: the map cell at the lattice node nearest to each ``xy`` (A, 2); -1 where that
+    node is a hole or off the lattice."""
+    ny, nx = lat.node_cell.shape
+    fin = np.isfinite(xy).all(axis=1)
+    p = np.where(fin[:, None], xy, 0.0)
+    i = np.rint((p[:, 0] - lat.x0) / lat.step).astype(np.int64)
+    j = np.rint((p[:, 1] - lat.y0) / lat.step).astype(np.int64)
+    on = fin & (i >= 0) & (i < nx) & (j >= 0) & (j < ny)
+    out = np.full(len(xy), -1, dtype=np.int64)
+    out[on] = lat.node_cell[j[on], i[on]]
+    return out
+
+
 def interp_bias(lat: _Lattice, xy: np.ndarray, smooth: bool = False) -> np.ndarray:
     """(A, B) bias at ``xy`` (A, 2), bilinear between lattice nodes (clamped at the edges), of
     the raw or the median-smoothed node biases."""
@@ -472,9 +501,15 @@ def twin(
     map: FingerprintMap | str | Path,  # noqa: A002 - the CLI's name for it
     fallback: Callable[[Problem], dict[str, np.ndarray]] | None = None,
     fallback_m: float = FALLBACK_M,
-    prior_m: float = PRIOR_M,
+    prior_m: float | None = None,
     top: int = TOP,
-    bias: str = "cell",
+    bias: str = "auto",
+    paths: int | None = None,
+    fd_jacobian: bool = True,
+    resynth_m: float = RESYNTH_M,
+    cells: str = "nearest",
+    resynth_top: int = RESYNTH_TOP,
+    search_m: float = SEARCH_M,
 ) -> dict[str, np.ndarray]:
     """The twin estimator (module docstring). 2D only: the map is at one device height.
 
@@ -487,11 +522,29 @@ def twin(
         (:func:`positioning.locate` binds the ``fallback`` method name, default ``irls``);
         None: :func:`positioning.irls.irls`
     fallback_m : float, m -- ``match_m`` above which a fix falls back
-    prior_m : float, m -- only cells within this distance of the fallback fix are candidates
-        (0: the whole map)
+    prior_m : float or None, m -- only cells within this distance of the fallback fix are
+        candidates (0: the whole map; None: :data:`RESYNTH_PRIOR_M` with ``bias="resynth"``,
+        else :data:`PRIOR_M`)
     top : int -- candidate cells refined per fix
     bias : ``"cell"`` or ``"interp"``, the bias model of the refinement
-        (:func:`refine_at_cells`)
+        (:func:`refine_at_cells`); ``"resynth"`` (a map of schema version 2 only): then
+        Gauss-Newton with the nearest cell's paths moved to the iterate and the receiver re-run
+        on them (:func:`positioning.resynth.refine_resynth`); ``"auto"`` (default):
+        ``"resynth"`` for a map with paths, else ``"cell"``
+    paths : int or None, the strongest paths per cell and base station the re-synthesis uses
+        (None or 0: all the map stores)
+    fd_jacobian : bool, ``resynth`` only: Jacobian with the bias gradient by finite
+        differences (default; False: the geometric Jacobian,
+        :func:`positioning.resynth.refine_resynth`)
+    resynth_m : float, m, ``resynth`` only: the re-synthesised solution is used when its RMS
+        residual is at most this, else the cell-held one
+    cells : ``"own"`` -- each candidate's paths are moved from its own cell;
+        ``"nearest"`` (default) -- from the cell nearest to the iterate (switching as it moves)
+    resynth_top : int, ``resynth`` only: how many of the best cell-held solutions are refined
+        again with re-synthesised paths
+    search_m : float, m, ``resynth`` only: > 0 starts Gauss-Newton from the best point of a
+        5 x 5 grid spanning +-search_m around the cell-held solution (default 0.3 m; 0: from the
+        cell-held solution itself)
 
     Returns
     -------
@@ -505,6 +558,14 @@ def twin(
         raise PositioningError("twin solves in 2D only (the map is at one height): drop --3d")
     fmap, lat = load(map)
     check_bs(fmap, prob.bs)
+    if bias == "auto":
+        bias = "resynth" if fmap.has_paths else "cell"
+    if bias not in ("cell", "interp", "resynth"):
+        raise PositioningError(f"twin: unknown bias model {bias!r} (cell, interp, resynth, auto)")
+    if bias == "resynth" and not fmap.has_paths:
+        raise PositioningError("twin: bias=resynth needs a map with paths (schema version 2)")
+    if prior_m is None:
+        prior_m = RESYNTH_PRIOR_M if bias == "resynth" else PRIOR_M
     E, B = prob.rho.shape
     rows = np.flatnonzero(prob.solvable)
     status = np.where(prob.solvable, 0, int(Status.UNSOLVED)).astype(np.int64)
@@ -528,7 +589,32 @@ def twin(
                 )
         else:
             cand, _ = coarse_match(sub, lat, lat.coarse, cell_xy, top=top)
-        xy_k, rms_k = refine_at_cells(sub, lat, cell_xy, cand, mode=bias)
+        xy_k, rms_k = refine_at_cells(sub, lat, cell_xy, cand,
+                                      mode="cell" if bias == "resynth" else bias)  # fmt: skip
+        if bias == "resynth":
+            # the resynth_top best cell-held solutions are refined again with re-synthesised
+            # paths
+            n_r = min(int(resynth_top), cand.shape[1])
+            best = np.argsort(rms_k, axis=1, kind="stable")[:, :n_r]
+            c_r = np.where(np.isfinite(np.take_along_axis(rms_k, best, axis=1)),
+                           np.take_along_axis(cand, best, axis=1), -1)  # fmt: skip
+            s_r = np.take_along_axis(xy_k, best[..., None], axis=1)
+            rep = np.repeat(np.arange(rows.size), n_r)
+            xy_f, rms_f = refine_resynth(
+                sub.rho[rep], sub.valid[rep], sub.height[rep], sub.bs,
+                PathMap.from_map(fmap, paths),
+                (lambda xy: nearest_cell(lat, xy)) if cells == "nearest" else None,
+                s_r.reshape(-1, 2), c_r.ravel(), lat.step * (REFINE_BOX + 0.5),
+                fd_jacobian=fd_jacobian, search_m=search_m,
+            )  # fmt: skip
+            # the re-synthesised solution wins where it fits within resynth_m; where the
+            # nearest cell's paths do not explain the measurements (a path appears or vanishes
+            # between cell and device) the cell-held solution is kept
+            rms_f = rms_f.reshape(-1, n_r)
+            fits = np.min(rms_f, axis=1) <= resynth_m
+            xy_k = np.where(fits[:, None, None], xy_f.reshape(-1, n_r, 2), s_r)
+            rms_k = np.where(fits[:, None], rms_f, np.take_along_axis(rms_k, best, axis=1))
+            cand = np.take_along_axis(cand, best, axis=1)
         k = np.argmin(rms_k, axis=1)
         ar = np.arange(rows.size)
         xy, m, cell = xy_k[ar, k], rms_k[ar, k], cand[ar, k]

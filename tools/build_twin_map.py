@@ -1,4 +1,4 @@
-"""Build a fingerprint map (schema hallray-accuracy-map v1) of the bundled hall for the twin
+"""Build a fingerprint map (schema hallray-accuracy-map v2, v1 with --paths 0) of the bundled hall for the twin
 estimator's evaluation, before the ``accuracy-map`` tool exists on main.
 
 This is an evaluation helper, not the product: it fills the map's ToA fields (``toa_s``,
@@ -6,6 +6,9 @@ This is an evaluation helper, not the product: it fills the map's ToA fields (``
 measurement model the datasets use (``raytrace.emulation.measurement.ToaModel`` on the tracer's
 paths, noise off for ``toa_s``, a few noise draws for the spread) and leaves the accuracy
 fields (``methods``, ``err_*``, ``availability``) empty (M = 0), which the twin does not read.
+With ``--paths K`` (default 16) it also stores the K strongest paths per cell and base station
+and the receiver model (schema v2, ``raytrace.studies.accuracy_map.path_table``), which the
+twin re-runs the receiver on.
 
 The grid: a square lattice of ``--step`` m over the service area whose offset is chosen so that
 every cell centre is at least ``--min-dist`` m from every test point of the scene; cells that
@@ -38,6 +41,7 @@ from raytrace.emulation.dataset import DatasetConfig, service_area  # noqa: E402
 from raytrace.scene.io import load_scene  # noqa: E402
 from raytrace.scene.metadata import SceneMetadata  # noqa: E402
 from raytrace.solver.tracer import trace  # noqa: E402
+from raytrace.studies.accuracy_map import path_table, receiver_model_meta  # noqa: E402
 
 C0 = 299_792_458.0
 
@@ -112,6 +116,8 @@ def main(argv: list[str] | None = None) -> int:
     )
     ap.add_argument("--shift", default=None, help="DX,DY: shift every obstacle (wrong map)")
     ap.add_argument("--material", default=None, help="OBJECT=MATERIAL (wrong map)")
+    ap.add_argument("--paths", type=int, default=16, metavar="K",
+                    help="strongest paths stored per cell and BS (schema v2; 0: v1 map)")
     ap.add_argument("-o", "--output", required=True)
     a = ap.parse_args(argv)
     scene = load_scene(a.scene)
@@ -141,7 +147,11 @@ def main(argv: list[str] | None = None) -> int:
     toa = m0.delay_s[0]  # (N, B) propagation delay, no clock, no schedule
     dist = np.linalg.norm(cells[:, None, :] - md.bs_xyz[None, :, :], axis=2)
     n, b = toa.shape
+    extra = {}
+    if a.paths > 0:
+        extra = path_table(paths, a.paths)
     fmap = FingerprintMap(
+        **extra,
         cell_xyz=cells,
         bs_xyz=md.bs_xyz,
         bs_names=np.array(md.bs_names),
@@ -169,6 +179,7 @@ def main(argv: list[str] | None = None) -> int:
             "min_point_distance_m": a.min_dist,
             "builder": "tools/build_twin_map.py",
             "perturbation": {"shift_m": shift, "material": a.material},
+            **({"receiver_model": receiver_model_meta(model.receiver)} if a.paths > 0 else {}),
         },
     )
     write_map(a.output, fmap)

@@ -9,6 +9,7 @@ and per test point the distance to the nearest map cell.
 Usage::
 
     python tools/eval_twin.py --data /work/data/first-lobe --maps /tmp/maps --prefix hall
+    python tools/eval_twin.py ... --twin-param bias=cell      # the v1 refinement on a v2 map
 """
 
 from __future__ import annotations
@@ -24,7 +25,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from positioning.dataset import load_dataset  # noqa: E402
-from positioning.fingerprint import FingerprintMap, read_map, write_map  # noqa: E402
+from positioning.fingerprint import read_map, write_map  # noqa: E402
 from positioning.fixes import Status  # noqa: E402
 from positioning.metrics import error_2d  # noqa: E402
 from positioning.report import evaluate  # noqa: E402
@@ -51,23 +52,7 @@ def near_points(fmap, radius: float, data: Path, band: str, folder: Path):
     ds = load_dataset(data / f"static-{band}")
     pts = np.unique(ds.true_xyz[:, :2], axis=0)
     d = np.linalg.norm(fmap.cell_xyz[:, None, :2] - pts[None], axis=2).min(axis=1)
-    keep = d <= radius
-    arrays = {
-        k: (v[:, keep] if k in ("err_p90_m", "err_mean_m", "availability") else v)
-        for k, v in fmap.arrays().items()
-    }
-    for k in (
-        "cell_xyz",
-        "los",
-        "first_kind",
-        "excess_m",
-        "toa_s",
-        "toa_std_s",
-        "detected_fraction",
-        "gdop",
-    ):
-        arrays[k] = arrays[k][keep]
-    sub = FingerprintMap(**arrays, meta=fmap.meta)
+    sub = fmap.select(d <= radius)
     return sub, write_map(folder / f"near-{band}.npz", sub)
 
 
@@ -86,7 +71,15 @@ def main(argv: list[str] | None = None) -> int:
         help="use only the map's cells within R m of a test point (to compare with maps built "
         "by build_twin_map.py --near-points R)",
     )
+    ap.add_argument(
+        "--twin-param",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="twin parameter, e.g. bias=cell (the v1 refinement on a v2 map) or paths=16",
+    )
     a = ap.parse_args(argv)
+    twin_params = dict(kv.split("=", 1) for kv in a.twin_param)
     tmp = tempfile.TemporaryDirectory()
     single, tracked, points = [], [], []
     for band in a.bands.split(","):
@@ -97,7 +90,7 @@ def main(argv: list[str] | None = None) -> int:
         for sc in a.scenarios.split(","):
             ds = load_dataset(Path(a.data) / f"{sc}-{band}")
             t0 = time.perf_counter()
-            r = evaluate(ds, SINGLE + TRACKED, {"twin": {"map": str(mp)}})
+            r = evaluate(ds, SINGLE + TRACKED, {"twin": {"map": str(mp), **twin_params}})
             dt = time.perf_counter() - t0
             s = {m: r.summaries[m] for m in r.summaries}
             tw = r.fixes["twin"]

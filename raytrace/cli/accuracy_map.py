@@ -46,6 +46,10 @@ def accuracy_map_parser() -> argparse.ArgumentParser:
     p.add_argument("--draws", type=int, default=am.DEFAULT_DRAWS, metavar="K",
                    help=f"noise draws per cell (default {am.DEFAULT_DRAWS})")  # fmt: skip
     p.add_argument("--seed", type=int, default=am.DEFAULT_SEED, help="random seed (default 1)")
+    p.add_argument("--paths", type=int, default=am.DEFAULT_PATHS, metavar="K",
+                   help="strongest paths stored per cell and base station for the twin's "
+                   f"re-synthesis (schema v2; default {am.DEFAULT_PATHS}; 0: a v1 map; "
+                   "first-lobe receiver only)")  # fmt: skip
     p.add_argument("--workers", type=int, default=None, metavar="N",
                    help="processes (default: every core)")  # fmt: skip
     p.add_argument("--scheduler", metavar="ADDRESS",
@@ -78,7 +82,7 @@ def _accuracy_map(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     settings = MapSettings(
         step_m=args.step, height_m=args.height, band=args.band, receiver=args.receiver,
-        methods=tuple(args.methods), draws=args.draws, seed=args.seed,
+        methods=tuple(args.methods), draws=args.draws, seed=args.seed, paths=args.paths,
         clearance_m=args.clearance, max_cells=args.max_cells, trace=config_from_args(args),
     )  # fmt: skip
     settings.check()

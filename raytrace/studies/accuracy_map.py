@@ -70,6 +70,8 @@ DEFAULT_METHODS = ("ls", "irls")
 FALLBACK_HEIGHT_M = 1.5
 #: Candidate grid offsets per axis and step searched for the clearance rule.
 OFFSET_CANDIDATES = 64
+#: Paths stored per cell and base station (schema v2; 0: a v1 map without paths).
+DEFAULT_PATHS = 16
 
 
 @dataclass(frozen=True)
@@ -90,6 +92,8 @@ class MapSettings:
     max_cells : int, refuse grids with more cells
     trace : TraceConfig, the tracer's limits
     chunk_links : int, links per chunk of cells
+    paths : int, strongest paths stored per cell and base station (schema v2, for the twin's
+        re-synthesis); 0: a version-1 map without paths
     """
 
     step_m: float = DEFAULT_STEP_M
@@ -103,6 +107,7 @@ class MapSettings:
     max_cells: int = MAX_CELLS
     trace: TraceConfig = field(default_factory=TraceConfig)
     chunk_links: int = CHUNK_LINKS
+    paths: int = DEFAULT_PATHS
 
     def check(self) -> None:
         """Raise a one-line :class:`HallrayError` for a bad setting (before any tracing)."""
@@ -126,6 +131,7 @@ class MapSettings:
                 f"unknown positioning method {bad[0] if bad else '(none)'!r}; known: {', '.join(known)}"
             )
         for name, v, lo, hi in (("--draws", self.draws, 1, None),
+                                ("--paths", self.paths, 0, None),
                                 ("--max-cells", self.max_cells, 1, None),
                                 ("chunk_links", self.chunk_links, 1, MAX_CHUNK_LINKS)):  # fmt: skip
             if (isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo
@@ -344,20 +350,105 @@ def _excess_m(paths: Paths, first: np.ndarray) -> np.ndarray:
     return out
 
 
+def last_segment_dirs(paths: Paths) -> np.ndarray:
+    """(P, 3) float: unit vector of each path's last segment, from its last interaction (or the
+    transmitter) towards the receiver (the gradient of its length in the receiver position)."""
+    n_int = (paths.interaction != 0).sum(axis=1)
+    start = paths.tx[paths.tx_index].copy()
+    idx = np.flatnonzero(n_int > 0)
+    start[idx] = paths.points[idx, n_int[idx] - 1]
+    d = paths.rx[paths.rx_index] - start
+    return d / np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
+
+
+def wave_radius(paths: Paths) -> np.ndarray:
+    """(P,) float, m: radius of each path's wavefront at the receiver: the unfolded length (its
+    image source) for line of sight, reflections and penetrations; the distance from the last
+    diffraction point for a diffracted path (its edge source)."""
+    from ..solver.paths import DIFFRACTION
+
+    out = C0 * paths.delay_s
+    dif = paths.interaction == DIFFRACTION
+    rows = np.flatnonzero(dif.any(axis=1))
+    if rows.size:
+        last = dif.shape[1] - 1 - np.argmax(dif[rows, ::-1], axis=1)
+        out[rows] = np.linalg.norm(paths.rx[paths.rx_index[rows]] - paths.points[rows, last], axis=1)
+    return out
+
+
+def path_table(paths: Paths, k: int) -> dict[str, np.ndarray]:
+    """The ``k`` strongest paths of every link as the schema-v2 arrays (n cells, B, k).
+
+    Links are ``tx * n + rx`` (base stations are the transmitters, cells the receivers); slots
+    without a path have delay NaN, gain 0, direction NaN and radius NaN.
+    """
+    n_b, n_c = len(paths.tx), len(paths.rx)
+    out = {
+        "path_delay_s": np.full((n_b, n_c, k), np.nan),
+        "path_gain": np.zeros((n_b, n_c, k), dtype=complex),
+        "path_dir": np.full((n_b, n_c, k, 3), np.nan),
+        "path_radius_m": np.full((n_b, n_c, k), np.nan),
+    }
+    if paths.n_paths and k > 0:
+        order = np.lexsort((-np.abs(paths.gain), paths.link))
+        link = paths.link[order]
+        rank = np.arange(order.size) - np.searchsorted(link, link, side="left")
+        sel = order[rank < k]
+        rank = rank[rank < k]
+        b, c = paths.tx_index[sel], paths.rx_index[sel]
+        out["path_delay_s"][b, c, rank] = paths.delay_s[sel]
+        out["path_gain"][b, c, rank] = paths.gain[sel]
+        out["path_dir"][b, c, rank] = last_segment_dirs(paths.select(sel))
+        out["path_radius_m"][b, c, rank] = wave_radius(paths.select(sel))
+    return {key: np.swapaxes(v, 0, 1) for key, v in out.items()}
+
+
+def receiver_model_meta(receiver: Receiver) -> dict[str, Any]:
+    """The settings the twin's copy of the noiseless first-lobe receiver
+    (:class:`positioning.lobe.LobeReceiver`) needs, as the map's ``meta["receiver_model"]``."""
+    from ..emulation import receivers as rx_mod
+    from ..emulation.receivers import cfar_factor
+
+    band, budget, pulse, fl = receiver.band, receiver.budget, receiver.pulse, receiver.first_lobe
+    return {
+        "frequency_hz": float(band.center_frequency_hz),
+        "period_s": float(pulse.period_s(band)),
+        "roll_off": float(pulse.roll_off),
+        "oversampling": int(pulse.oversampling),
+        "span": int(pulse.span),
+        "noise_std": float(budget.correlator_noise_std(band, pulse)),
+        "alpha": float(cfar_factor(budget.false_alarm_probability, fl.cfar_cells)),
+        "rho": float(fl.rho),
+        "negligible_db": float(rx_mod.NEGLIGIBLE_DB),
+        "min_crossing": float(rx_mod.MIN_CROSSING),
+        "sure_crossing": float(rx_mod.SURE_CROSSING),
+        "post_t": int(rx_mod.POST_T),
+        "top_paths": int(rx_mod.TOP_PATHS),
+    }
+
+
+def stored_paths(settings: MapSettings) -> int:
+    """Paths stored per link: ``settings.paths`` for the first-lobe receiver (the one the twin's
+    re-synthesis models), 0 for the others."""
+    return int(settings.paths) if settings.receiver == "first-lobe" else 0
+
+
 def chunk_seed(seed: int, first_cell: int) -> int:
     """Seed of the noise streams of the chunk starting at ``first_cell`` (module docstring)."""
     return int(np.random.SeedSequence([int(seed), int(first_cell)]).generate_state(1)[0])
 
 
 def measure_cells(
-    paths: Paths, receiver: Receiver, seed: int, draws: int, methods: Sequence[str]
-) -> dict[str, np.ndarray]:
+    paths: Paths, receiver: Receiver, seed: int, draws: int, methods: Sequence[str],
+    n_paths: int = 0,
+) -> dict[str, np.ndarray]:  # fmt: skip
     """Per-cell quantities of a chunk: the paths of B base stations (tx) to n cells (rx).
 
     Returns
     -------
     dict with ``los, first_kind, excess_m, toa_s, toa_std_s, detected_fraction`` (n, B),
-    ``gdop`` (n,), ``err_p90_m, err_mean_m, availability`` (M, n) and ``time_s`` (dict)
+    ``gdop`` (n,), ``err_p90_m, err_mean_m, availability`` (M, n), with ``n_paths > 0`` the
+    :func:`path_table` arrays, and ``time_s`` (dict)
     """
     from positioning import locate
 
@@ -376,6 +467,8 @@ def measure_cells(
         "toa_s": cells(np.where(clean.detected, clean.toa_s, np.nan)),
     }
     out["gdop"] = gdop_2d(paths.rx, paths.tx, np.isfinite(out["toa_s"]))
+    if n_paths > 0:
+        out.update(path_table(paths, n_paths))
     meas = ToaModel(receiver, seed).measure(paths, range(draws), prepared=prep)
     t1 = time.perf_counter()
     out["detected_fraction"] = meas.detected.mean(axis=0)
@@ -410,7 +503,7 @@ def _chunk_job(scene: Scene, job: tuple) -> dict[str, Any]:
                   threads=threads)  # fmt: skip
     t1 = time.perf_counter()
     out = measure_cells(paths, receiver, chunk_seed(settings.seed, first), settings.draws,
-                        settings.methods)  # fmt: skip
+                        settings.methods, stored_paths(settings))  # fmt: skip
     out["time_s"]["trace"] = t1 - t0
     out["n_paths"] = paths.n_paths
     return out
@@ -488,6 +581,8 @@ def compute_map(
     timing["total_wall"] = time.perf_counter() - t_start
     meta = _meta(scene, scene_name, settings, band, grid, n_workers, timing,
                  sum(p["n_paths"] for p in parts))  # fmt: skip
+    if stored_paths(settings) > 0:
+        meta["receiver_model"] = receiver_model_meta(receiver)
     fmap = FingerprintMap(
         cell_xyz=grid.cell_xyz, bs_xyz=bs_xyz, bs_names=np.array(names, dtype=str),
         methods=np.array(settings.methods, dtype=str), meta=meta, **arrays,
@@ -560,6 +655,9 @@ def _join(parts: list[dict[str, Any]], n_methods: int) -> dict[str, np.ndarray]:
         out[key] = np.concatenate([p[key] for p in parts])
     for key in ("err_p90_m", "err_mean_m", "availability"):
         out[key] = np.concatenate([p[key].reshape(n_methods, -1) for p in parts], axis=1)
+    if "path_delay_s" in parts[0]:
+        for key in ("path_delay_s", "path_gain", "path_dir", "path_radius_m"):
+            out[key] = np.concatenate([p[key] for p in parts])
     out["los"] = out["los"].astype(bool)
     out["first_kind"] = out["first_kind"].astype(str)
     return out
@@ -583,6 +681,7 @@ def _meta(
         "scene_sha256": scene.content_hash(),
         "draws": settings.draws,
         "seed": settings.seed,
+        "paths_per_link": stored_paths(settings),
         "noise_streams": "chunk c: ToaModel seed SeedSequence([seed, first cell of c]); "
         "epochs 0..draws-1",
         "chunk_links": settings.chunk_links,

@@ -167,3 +167,46 @@ def synth_toa(
     d = np.linalg.norm(p[:, None, :] - bs[None, :, :], axis=2) + bias(p[:, :2])
     d = d + rng.normal(0.0, sigma_m, d.shape) + (0.0 if extra_m is None else extra_m)
     return d / C0 + rng.uniform(0.0, 1e-3, (n, 1)), p
+
+
+#: Receiver model of the synthetic v2 maps: the C-band first-lobe receiver's settings (as
+#: raytrace.studies.accuracy_map.receiver_model_meta gives them).
+CBAND_MODEL = {"frequency_hz": 3.775e9, "period_s": 1.25e-8, "roll_off": 0.25, "oversampling": 8,
+               "span": 16, "noise_std": 7.81, "alpha": 15.42, "rho": 10 ** (-12 / 20)}  # fmt: skip
+
+
+def two_ray_paths(xyz: np.ndarray, bs: np.ndarray = PAPER_BS, k: int = 4, refl: float = -0.7):
+    """Per point (n, 3) and base station: the line-of-sight path and the floor reflection (image
+    source below the floor, coefficient ``refl``), padded to ``k`` slots: delay (n, B, k) s,
+    gain, direction (n, B, k, 3), radius (n, B, k) m."""
+    f = CBAND_MODEL["frequency_hz"]
+    n, b = len(xyz), len(bs)
+    delay = np.full((n, b, k), np.nan)
+    gain = np.zeros((n, b, k), complex)
+    u = np.full((n, b, k, 3), np.nan)
+    radius = np.full((n, b, k), np.nan)
+    for j, (src, r) in enumerate(((bs, 1.0), (bs * np.array([1.0, 1.0, -1.0]), refl))):
+        v = xyz[:, None, :] - src[None]
+        d = np.linalg.norm(v, axis=2)
+        delay[..., j] = d / C0
+        gain[..., j] = r * C0 / f / (4 * np.pi * d) * np.exp(-2j * np.pi * f * d / C0)
+        u[..., j, :] = v / d[..., None]
+        radius[..., j] = d
+    return delay, gain, u, radius
+
+
+def two_ray_map(step: float = 0.5, area: tuple[float, float] = (29.0, 25.0)):
+    """A schema-v2 map of the synthetic hall with :func:`two_ray_paths` per cell and ``toa_s``
+    from the first-lobe receiver on them (the overlap of the two rays biases it by up to
+    decimetres, changing within a cell)."""
+    from positioning.fingerprint import FingerprintMap
+    from positioning.lobe import LobeReceiver
+
+    base = synth_map(step=step, area=area, bias=lambda xy: np.zeros((len(xy), len(PAPER_BS))))
+    delay, gain, u, radius = two_ray_paths(base.cell_xyz)
+    n, b, k = delay.shape
+    model = LobeReceiver.from_meta(CBAND_MODEL)
+    toa = model.toa(delay.reshape(n * b, k), gain.reshape(n * b, k)).reshape(n, b)
+    return FingerprintMap(**{**base.arrays(), "toa_s": toa},
+                          meta={**base.meta, "receiver_model": CBAND_MODEL},
+                          path_delay_s=delay, path_gain=gain, path_dir=u, path_radius_m=radius)  # fmt: skip

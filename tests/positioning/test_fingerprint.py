@@ -51,7 +51,7 @@ def test_inconsistent_shape_refused():
     "change, match",
     [
         ({"schema": np.array("something-else")}, "not a hallray-accuracy-map file"),
-        ({"schema_version": np.array(SCHEMA_VERSION + 98)}, "version 99 is not supported"),
+        ({"schema_version": np.array(SCHEMA_VERSION + 97)}, "version 99 is not supported"),
         ({"gdop": np.zeros(3)}, "gdop"),
         ({"meta_json": np.array("{oops")}, "meta_json"),
     ],
@@ -81,3 +81,61 @@ def test_missing_key_and_corrupt_file_refused(tmp_path):
         read_map(cut)
     with pytest.raises(PositioningError, match="no such map file"):
         read_map(tmp_path / "absent.npz")
+
+
+RECEIVER_MODEL = {"frequency_hz": 3.5e9, "period_s": 1.25e-8, "roll_off": 0.25,
+                  "oversampling": 8, "span": 16, "noise_std": 1e-2, "alpha": 13.8,
+                  "rho": 0.25}  # fmt: skip
+
+
+def _map_v2(n: int = 6, b: int = 4, k: int = 3) -> FingerprintMap:
+    rng = np.random.default_rng(4)
+    base = _map(n, b)
+    u = rng.normal(size=(n, b, k, 3))
+    delay = rng.uniform(1e-8, 1e-7, (n, b, k))
+    delay[0, 0, 2] = np.nan  # a padded slot
+    gain = rng.normal(size=(n, b, k)) + 1j * rng.normal(size=(n, b, k))
+    gain[0, 0, 2] = 0.0
+    return FingerprintMap(
+        **base.arrays(), meta={**base.meta, "receiver_model": RECEIVER_MODEL},
+        path_delay_s=delay, path_gain=gain, path_dir=u / np.linalg.norm(u, axis=3, keepdims=True),
+        path_radius_m=rng.uniform(1, 40, (n, b, k)),
+    )  # fmt: skip
+
+
+def test_v1_and_v2_round_trip(tmp_path):
+    """A map without paths is written as version 1 and one with paths as version 2; both read
+    back exactly, and the version-1 map has no paths."""
+    for fmap, version in ((_map(), 1), (_map_v2(), 2)):
+        path = write_map(tmp_path / f"v{version}.npz", fmap)
+        with np.load(path) as z:
+            assert int(z["schema_version"]) == version
+        back = read_map(path)
+        assert back.version == version and back.has_paths == (version == 2)
+        for key, arr in fmap.arrays().items():
+            np.testing.assert_array_equal(getattr(back, key), arr, err_msg=key)
+        assert back.meta == fmap.meta
+
+
+@pytest.mark.parametrize(
+    "change, match",
+    [
+        ({"path_gain": None}, "schema version 2 needs array 'path_gain'"),
+        ({"path_dir": np.zeros((6, 4, 2, 3))}, "'path_dir' has shape"),
+        ({"path_delay_s": np.zeros((6, 4, 3), dtype=complex)}, "'path_delay_s' has dtype"),
+        ({"meta_json": np.array('{"band": "C-band"}')}, "receiver model: meta"),
+    ],
+)
+def test_corrupt_v2_map_refused_in_one_line(tmp_path, change, match):
+    path = write_map(tmp_path / "map.npz", _map_v2())
+    with np.load(path) as z:
+        data = {k: z[k] for k in z.files}
+    for key, value in change.items():
+        if value is None:
+            del data[key]
+        else:
+            data[key] = value
+    np.savez(path, **data)
+    with pytest.raises(PositioningError, match=match) as info:
+        read_map(path)
+    assert "\n" not in str(info.value)
