@@ -2,12 +2,23 @@
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pytest
 from test_diffraction_paths import _cluttered_scene
 
 from raytrace import TraceConfig, TraceInputError, trace
-from raytrace.solver.parallel import cpu_count, receiver_chunks, resolve_workers
+from raytrace.solver import parallel
+from raytrace.solver.parallel import (
+    MIN_CHUNK_LINKS,
+    ScenePool,
+    WorkerCrashError,
+    close_pools,
+    cpu_count,
+    receiver_chunks,
+    resolve_workers,
+)
 from raytrace.solver.tracer import trace_chunks
 
 F_C = 3.775e9
@@ -37,6 +48,7 @@ def test_chunks_and_workers_give_the_same_paths_in_the_same_order(scene_links):
     for chunk in (1, 7, 64):  # one receiver, a few, all of them at once
         _same(whole, trace(sc, tx, rx, F_C, cfg, workers=1, chunk_links=chunk * len(tx)))
     _same(whole, trace(sc, tx, rx, F_C, cfg, workers=2, chunk_links=5 * len(tx)))
+    _same(whole, trace(sc, tx, rx, F_C, cfg, workers=2))  # guided chunks, this process stealing
 
 
 def test_reduced_chunks_come_in_order_with_global_indices(scene_links):
@@ -65,3 +77,116 @@ def test_worker_count_is_bounded_and_checked():
             resolve_workers(bad, 4)
     chunks = receiver_chunks(4, 10, 12)  # 3 receivers (12 links) per chunk
     assert [list(c) for c in chunks] == [[0, 1, 2], [3, 4, 5], [6, 7, 8], [9]]
+
+
+def test_guided_chunks_cover_the_receivers_in_order_and_shrink():
+    for n_tx, n_rx, lanes in ((4, 429, 2), (3, 50, 2), (1, 1000, 16), (4, 3, 8)):
+        chunks = receiver_chunks(n_tx, n_rx, None, lanes)
+        assert [r for c in chunks for r in c] == list(range(n_rx))
+        sizes = [len(c) for c in chunks]
+        least = max(1, MIN_CHUNK_LINKS // n_tx)
+        assert all(a >= b for a, b in zip(sizes, sizes[1:]))  # they only shrink
+        # the first is a full chunk, or 1/(2 lanes) of the receivers when that is less
+        assert sizes[0] == min(n_rx, 256 // n_tx, max(least, -(-n_rx // (2 * lanes))))
+        assert max(sizes) * n_tx <= 256
+        assert all(k >= least for k in sizes[:-1])  # none below the floor but the remainder
+        assert sizes[-1] <= least or len(sizes) == 1  # the last ones are small
+    # one lane, or a given chunk size: fixed chunks as before
+    assert receiver_chunks(4, 10, None, 1) == receiver_chunks(4, 10)
+    assert receiver_chunks(4, 10, 12, 8) == receiver_chunks(4, 10, 12)
+
+
+def _pid(scene, item):
+    import time
+
+    time.sleep(0.05)
+    return item, os.getpid(), parallel.in_job()
+
+
+def test_pool_is_kept_for_the_same_scene_and_renewed_for_another(scene_links):
+    if cpu_count() < 2:
+        pytest.skip("needs two cores")
+    sc, tx, rx, cfg = scene_links
+    close_pools()
+    with ScenePool(sc, 2) as pool:
+        first = list(pool.map(_pid, range(30)))
+    ex = parallel._KEPT["executor"]
+    with ScenePool(sc, 2) as pool:  # the same scene again: the same worker processes
+        second = list(pool.map(_pid, range(30)))
+    assert parallel._KEPT["executor"] is ex
+    # in order, every item run as a job; both this process and the worker worked
+    for out in (first, second):
+        assert [i for i, _, _ in out] == list(range(30))
+        assert all(job for _, _, job in out)
+    workers = {p for _, p, _ in first + second} - {os.getpid()}
+    assert len(workers) == 1
+    assert os.getpid() in {p for _, p, _ in second}
+    other, _, _ = _cluttered_scene(4)
+    with ScenePool(other, 2) as pool:  # another scene: a new pool
+        third = list(pool.map(_pid, range(30)))
+    assert parallel._KEPT["executor"] is not ex
+    assert not workers & {p for _, p, _ in third}
+    close_pools()
+    assert not parallel._KEPT
+    # a closed pool is started again on demand, and traces as before
+    whole = trace(sc, tx, rx, F_C, cfg, threads=1)
+    _same(whole, trace(sc, tx, rx, F_C, cfg, workers=2, chunk_links=4 * len(tx)))
+    close_pools()
+
+
+def _die_in_worker(scene, item):
+    import time
+
+    if parallel._SCENE.get("worker"):
+        os._exit(3)
+    time.sleep(1.0)  # this process is slow: the worker takes the first item
+    return item
+
+
+def test_a_dead_worker_is_one_clear_error_and_the_next_pool_works(scene_links):
+    if cpu_count() < 2:
+        pytest.skip("needs two cores")
+    sc, tx, rx, cfg = scene_links
+    close_pools()
+    with pytest.raises(WorkerCrashError, match="worker process died"):
+        with ScenePool(sc, 2) as pool:
+            list(pool.map(_die_in_worker, range(4)))
+    assert not parallel._KEPT  # the broken pool was dropped
+    whole = trace(sc, tx, rx, F_C, cfg, threads=1)
+    _same(whole, trace(sc, tx, rx, F_C, cfg, workers=2, chunk_links=4 * len(tx)))
+    close_pools()
+
+
+def _inner_workers(scene, item):
+    return resolve_workers(None, 10), parallel.auto_in_process(10**6)
+
+
+def test_the_auto_rule_by_links_and_cores(monkeypatch):
+    monkeypatch.setattr(parallel, "cpu_count", lambda: 2)
+    assert parallel.auto_in_process(92) and parallel.auto_in_process(499)
+    assert not parallel.auto_in_process(500)
+    monkeypatch.setattr(parallel, "cpu_count", lambda: 16)
+    assert parallel.auto_in_process(383) and not parallel.auto_in_process(384)
+    monkeypatch.setattr(parallel, "cpu_count", lambda: 1)
+    assert parallel.auto_in_process(10**6)
+
+
+def test_work_inside_a_job_stays_in_its_process(scene_links):
+    sc = scene_links[0]
+    assert list(ScenePool(sc, 1).map(_inner_workers, range(2))) == [(1, True)] * 2
+    assert resolve_workers(None, 10) == min(cpu_count(), 10)
+
+
+def test_the_fork_server_preload_does_not_import_embree():
+    # Embree imported before the fork makes every worker trace about 2x slower
+    import subprocess
+    import sys
+
+    mods = [*parallel.PRELOAD, "raytrace.studies.accuracy_map", "raytrace.emulation.dataset",
+            "raytrace.studies.sweep"]  # fmt: skip
+    code = f"import sys\nfor m in {mods!r}: __import__(m)\nprint('embreex' in sys.modules)"
+    root = os.path.dirname(os.path.dirname(os.path.abspath(parallel.__file__)))
+    env = {**os.environ, "PYTHONPATH": os.path.dirname(root)}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env,
+                         check=True, timeout=120).stdout  # fmt: skip
+    assert out.split()[-1] == "False"

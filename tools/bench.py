@@ -2,11 +2,12 @@
 """Benchmark: links traced per second on the bundled hall, and positions solved per second.
 
 Run from a checkout: ``python tools/bench.py [--json] [--repeat N] [--scene hall] [--snapshots N]
-[--grid-step 2] [--no-scaling]``.
+[--grid-step 2] [--no-scaling | --only-scaling]``.
 Also times the incremental retrace of forklift snapshots against a full retrace, and the scaling
 over cores: links/s and paths/s at 1, 2 and all cores (CPU affinity) on the hall's links and on a
 grid of receivers over its floor, the parallel efficiency, the serial part of a trace over worker
-processes (checks, pool start-up, joining the chunks) and the Amdahl bound it implies for 16 cores.
+processes (checks, pool start-up for the first pool of an interpreter and for a kept one, joining
+the chunks) and the Amdahl bound it implies for 16 cores.
 Not a test: it prints figures to quote, it asserts nothing.
 """
 
@@ -161,24 +162,65 @@ def _noop(scene, item):
     return item
 
 
-def _serial_parts(scene, tx, rx, f, cfg, workers: int) -> dict:
-    """Seconds spent outside the chunks' tracing: the input checks, the start of a pool of
-    ``workers`` processes (each receiving the scene), joining and sorting the chunks' paths."""
-    from raytrace.solver.parallel import ScenePool
+_COLD_START = """
+import sys, time
+sys.path.insert(0, {root!r})
+def main():
+    from raytrace import load_scene
+    from raytrace.solver import parallel as P
+    sys.path.insert(0, {tools!r})
+    from bench import _noop
+    scene = load_scene({scene!r})
+    t0 = time.perf_counter()
+    P.ScenePool(scene, {lanes})  # the kept pool of lanes - 1 workers; wait for each to answer
+    ex = P._KEPT["executor"]
+    [f.result() for f in [ex.submit(P._call, _noop, i) for i in range({lanes} - 1)]]
+    print(time.perf_counter() - t0)
+    P.close_pools()
+if __name__ == "__main__":
+    main()
+"""
+
+
+def _pool_start(scene_name: str, lanes: int, repeat: int) -> dict:
+    """Seconds until the ``lanes - 1`` workers of a pool answer: the first pool of a fresh
+    interpreter (fork server started, its imports; best of ``repeat`` interpreters), and a kept
+    pool taken again for the same scene (the scene pickled and compared)."""
+    import subprocess
+
+    from raytrace.solver import parallel as P
+
+    root = str(Path(__file__).resolve().parent.parent)
+    code = _COLD_START.format(root=root, tools=str(Path(__file__).resolve().parent),
+                              scene=scene_name, lanes=lanes)  # fmt: skip
+    cold = min(
+        float(subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                             check=True).stdout.split()[-1])  # fmt: skip
+        for _ in range(repeat)
+    )
+    scene = load_scene(scene_name)
+    kept = np.inf
+    for _ in range(repeat + 1):  # the first one starts the pool
+        t0 = time.perf_counter()
+        P.ScenePool(scene, lanes)
+        ex = P._KEPT["executor"]
+        [f.result() for f in [ex.submit(P._call, _noop, i) for i in range(lanes - 1)]]
+        kept = min(kept, time.perf_counter() - t0) if _ else np.inf
+    return {"pool_start_first_s": cold, "pool_start_kept_s": kept}
+
+
+def _serial_parts(scene, tx, rx, f, cfg) -> dict:
+    """Seconds spent outside the chunks' tracing: the input checks, joining the chunks' paths."""
     from raytrace.solver.tracer import _checked, join_chunks, trace_chunks
 
     t0 = time.perf_counter()
     _checked(scene, tx, rx, f, cfg)
     t1 = time.perf_counter()
-    if workers > 1:
-        with ScenePool(scene, workers) as pool:
-            list(pool.map(_noop, range(workers)))
-    t2 = time.perf_counter()
     parts = [p for _, p in trace_chunks(scene, tx, rx, f, cfg, workers=1)]
-    t3 = time.perf_counter()
+    t2 = time.perf_counter()
     join_chunks(parts, len(tx))  # what trace() does with the chunks
-    t4 = time.perf_counter()
-    return {"check_s": t1 - t0, "pool_start_s": t2 - t1, "join_s": t4 - t3}
+    t3 = time.perf_counter()
+    return {"check_s": t1 - t0, "join_s": t3 - t2}
 
 
 def _amdahl(serial_fraction: float, n: int = AMDAHL_CORES) -> float:
@@ -201,6 +243,7 @@ def bench_scaling(scene_name: str, repeat: int, grid_step: float) -> dict:
     n_all = cpu_count()
     counts = sorted({1, min(2, n_all), n_all})
     out = {"cores_available": n_all, "load_average": list(os.getloadavg()), "workloads": {}}
+    starts = _pool_start(scene_name, 2, repeat) if n_all >= 2 else {}
     for name, rx in (("hall", inp.point_xyz), (f"grid_{grid_step:g}m", grid.cell_xyz)):
         links = len(inp.bs_xyz) * len(rx)
         rows = {}
@@ -222,17 +265,16 @@ def bench_scaling(scene_name: str, repeat: int, grid_step: float) -> dict:
             r["efficiency"] = round(t1 / r["seconds"] / r["cores"], 3)
         entry = {"links": links, "paths": paths.n_paths, "runs": rows}
         if n_all >= 2:
-            ser = _serial_parts(scene, inp.bs_xyz, rx, f, cfg, 2)
-            serial = sum(ser.values())
-            s_meas = serial / (t1 + ser["pool_start_s"])
+            ser = {**_serial_parts(scene, inp.bs_xyz, rx, f, cfg), **starts}
             s_fit = 2.0 * rows["processes@2"]["seconds"] / t1 - 1.0  # t2 = t1 (s + (1 - s) / 2)
-            entry["serial"] = {
-                **{k: round(v, 4) for k, v in ser.items()},
-                "serial_fraction_measured": round(s_meas, 4),
-                "serial_fraction_from_1_vs_2": round(s_fit, 4),
-                f"amdahl_efficiency_{AMDAHL_CORES}_measured": round(_amdahl(s_meas), 3),
-                f"amdahl_efficiency_{AMDAHL_CORES}_from_1_vs_2": round(_amdahl(s_fit), 3),
-            }
+            entry["serial"] = {k: round(v, 4) for k, v in ser.items()}
+            entry["serial"]["serial_fraction_from_1_vs_2"] = round(s_fit, 4)
+            entry["serial"][f"amdahl_efficiency_{AMDAHL_CORES}_from_1_vs_2"] = round(_amdahl(s_fit), 3)
+            for when in ("first", "kept"):
+                start = ser[f"pool_start_{when}_s"]
+                s_meas = (ser["check_s"] + ser["join_s"] + start) / (t1 + start)
+                entry["serial"][f"serial_fraction_{when}"] = round(s_meas, 4)
+                entry["serial"][f"amdahl_efficiency_{AMDAHL_CORES}_{when}"] = round(_amdahl(s_meas), 3)
         out["workloads"][name] = entry
     return out
 
@@ -253,12 +295,14 @@ def _print_scaling(sc: dict) -> None:
         s = w.get("serial")
         if s:
             print(
-                f"    serial part with 2 workers: checks {s['check_s']:.3f} s, pool start "
-                f"{s['pool_start_s']:.3f} s, join {s['join_s']:.3f} s -> serial fraction "
-                f"{s['serial_fraction_measured']:.3f} measured, "
-                f"{s['serial_fraction_from_1_vs_2']:.3f} from 1 vs 2 workers; Amdahl "
-                f"efficiency on {AMDAHL_CORES} cores {s[f'amdahl_efficiency_{AMDAHL_CORES}_measured']:.2f} "
-                f"/ {s[f'amdahl_efficiency_{AMDAHL_CORES}_from_1_vs_2']:.2f}"
+                f"    serial part with 2 workers: checks {s['check_s']:.3f} s, join "
+                f"{s['join_s']:.3f} s, pool start {s['pool_start_first_s']:.3f} s (first pool of "
+                f"the interpreter) / {s['pool_start_kept_s']:.3f} s (kept pool) -> serial "
+                f"fraction {s['serial_fraction_first']:.3f} / {s['serial_fraction_kept']:.3f}, "
+                f"{s['serial_fraction_from_1_vs_2']:.3f} from 1 vs 2 workers; Amdahl efficiency "
+                f"on {AMDAHL_CORES} cores {s[f'amdahl_efficiency_{AMDAHL_CORES}_first']:.2f} / "
+                f"{s[f'amdahl_efficiency_{AMDAHL_CORES}_kept']:.2f} / "
+                f"{s[f'amdahl_efficiency_{AMDAHL_CORES}_from_1_vs_2']:.2f}"
             )
 
 
@@ -287,8 +331,16 @@ def main() -> int:
     )
     ap.add_argument("--grid-step", type=float, default=2.0, help="grid of the scaling runs, m")
     ap.add_argument("--no-scaling", action="store_true", help="skip the scaling over cores")
+    ap.add_argument("--only-scaling", action="store_true", help="only the scaling over cores")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args()
+    if args.only_scaling:
+        sc = bench_scaling(args.scene, args.repeat, args.grid_step)
+        if args.json:
+            print(json.dumps(sc, indent=1))
+        else:
+            _print_scaling(sc)
+        return 0
     res = {
         "machine": {
             "cpus": os.cpu_count(),

@@ -76,7 +76,7 @@ def accuracy_map_main(argv: Sequence[str] | None = None) -> int:
 def _accuracy_map(args: argparse.Namespace) -> int:
     from ..scene.io import load_scene
     from ..solver.config import config_from_args
-    from ..solver.parallel import resolve_workers
+    from ..solver.parallel import process_context, resolve_workers
     from ..studies.accuracy_map import MapSettings, check_output, compute_map, write_outputs
 
     t0 = time.perf_counter()
@@ -88,6 +88,9 @@ def _accuracy_map(args: argparse.Namespace) -> int:
     settings.check()
     resolve_workers(args.workers, 1)  # a bad --workers is refused before any work
     check_output(args.output, args.force)
+    if args.scheduler is None and resolve_workers(args.workers, 2) > 1:
+        # the workers' fork server imports its modules while this process loads the scene
+        process_context(("raytrace.studies.accuracy_map",))
     scene = load_scene(args.scene, args.materials, default_material=args.default_material)
     amap = compute_map(scene, settings, scene_name=str(args.scene), workers=args.workers,
                        scheduler=args.scheduler, progress=not args.quiet)  # fmt: skip

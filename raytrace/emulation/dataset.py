@@ -613,15 +613,14 @@ def _compute_group(
         for chunk in _chunks(n, 10):
             collect(_run_epochs(g, chunk), len(chunk))
     else:
-        import multiprocessing
-
         size = max(1, min(25, n // (4 * workers)))
         chunks = _chunks(n, size)
-        from ..solver.parallel import resolve_workers
+        from ..solver.parallel import process_context, resolve_workers
 
         workers = resolve_workers(workers, len(chunks))  # never more than the cores, the chunks
-        # spawn, not fork: Embree's and the tracer's threads do not survive a fork
-        ctx = multiprocessing.get_context("spawn")
+        # forks of the preloaded fork server, never of this process: Embree's and the tracer's
+        # threads do not survive a fork (raytrace.solver.parallel)
+        ctx = process_context((__name__,))
         with ProcessPoolExecutor(
             max_workers=workers,
             mp_context=ctx,

@@ -1,30 +1,82 @@
-"""Work over many links: chunks of receivers, run in this process or on worker processes.
+"""Work over many links: chunks of receivers, run in this process and on worker processes.
 
 A trace is independent per link, so the receivers are split into chunks that worker processes
-trace on their own copy of the scene (spawned, not forked: Embree and the tracer's threads do not
-survive a fork; a pickled :class:`~raytrace.scene.model.Scene` carries its arrays and rebuilds its
-intersector). Results come back in chunk order, so what is computed does not depend on the number
-of workers or the chunk size. :class:`ScenePool` is that machinery; the tracer
-(:func:`raytrace.solver.tracer.trace`, :func:`raytrace.solver.tracer.trace_chunks`) uses it.
+trace on their own copy of the scene. Results come back in chunk order, so what is computed does
+not depend on the number of workers or the chunk size. :class:`ScenePool` is that machinery; the
+tracer (:func:`raytrace.solver.tracer.trace`, :func:`raytrace.solver.tracer.trace_chunks`) and the
+accuracy map use it.
+
+What a pool costs, and how it is kept small (measured in docs/tracing.md, "Where the time goes"):
+
+* **Workers come from a fork server** with numpy and raytrace imported once (:data:`PRELOAD`); a
+  worker is a fork of it, ready in tens of milliseconds, where a spawned interpreter spends half a
+  second or more importing them. The fork server never imports Embree nor builds a scene, so its
+  forks are safe (a fork of a process whose Embree or tracer threads are alive is not: that is
+  why the workers are never forked from the caller; and Embree merely imported before a fork
+  makes the fork trace 2x slower). Where there is no fork server (Windows) workers are spawned.
+* **The pool outlives one call**: it is kept for the next call with the same scene (its pickled
+  bytes, compared by digest) and the same number of workers, so a caller that traces many times
+  (the accuracy map, reproduce-paper) starts it once. A call with another scene or another number
+  of workers closes it and starts a new one; :func:`close_pools` closes it, and so does the end of
+  the interpreter.
+* **The scene is sent once per worker** as its pickled bytes (the arrays; the Embree scene is
+  rebuilt in a few milliseconds, the facets and wedges are not recomputed).
+* **The calling process works too**: with ``workers=n`` there are ``n - 1`` worker processes, and
+  this process takes the next chunk of the queue whenever it would otherwise wait, so it traces
+  while the workers start and no core idles while it waits.
+* **Guided chunks** (:func:`receiver_chunks` with ``lanes``): the last chunks are smaller, so the
+  lanes finish together.
+
+A worker process that dies (killed, out of memory) makes the pool raise one
+:class:`WorkerCrashError`; the broken pool is dropped and the next call starts a new one.
 """
 
 from __future__ import annotations
 
+import atexit
+import hashlib
 import os
-from collections.abc import Callable, Iterable, Iterator
-from concurrent.futures import ProcessPoolExecutor
+import pickle
+import threading
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from concurrent.futures import Future, ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 from typing import Any
 
-from ..core.errors import TraceInputError
+from ..core.errors import HallrayError, TraceInputError
 from ..scene.model import Scene
 
 #: Links per chunk of receivers (bounds the candidate arrays of one trace to a few hundred MB).
 CHUNK_LINKS = 256
-#: Below this many links a trace stays in this process: a worker's start-up (imports, scene,
-#: Embree) costs about a second, more than tracing a few hundred links.
-PROCESS_MIN_LINKS = 1000
+#: Smallest guided chunk, links (a chunk has a fixed cost of about 70 ms of CPU on the hall: 16
+#: links per chunk cost 35 % more than 256, 64 links 5 %).
+MIN_CHUNK_LINKS = 64
+#: With ``workers=None``, a trace of fewer links stays in this process, on threads over its
+#: stages, unless it fills :data:`AUTO_MIN_LANES` lanes. Measured on 2 cores (hall, a kept pool,
+#: docs/tracing.md): threads and 2 lanes tie at 92 and 256 links, 2 lanes win from 412 links on
+#: (1.42 s against 1.71 s), and the first pool of an interpreter (0.28 s) is repaid by about 500.
+PROCESS_MIN_LINKS = 500
+#: ... or from this many lanes of :data:`MIN_CHUNK_LINKS` links on as many cores: threads over the
+#: stages cannot go beyond about 2.1x (the costliest stage is 47 % of a trace), 6 lanes can.
+AUTO_MIN_LANES = 6
+#: Modules the fork server imports once, so that its forks (the workers) start with them. Never
+#: embreex (nor trimesh, which imports it): Embree imported before the fork makes every fork
+#: trace about 2x slower (2 workers on the 2 m grid: 10.9 s against 5.5 s); each worker imports
+#: it itself (tests/test_parallel.py checks that these modules do not).
+PRELOAD = ("numpy", "raytrace")
 
-_SCENE: dict[str, Scene] = {}
+
+class WorkerCrashError(HallrayError):
+    """A worker process died while tracing (killed, out of memory, a crash in native code)."""
+
+
+_SCENE: dict[str, Any] = {}  # in a worker: its scene, and that it is a worker
+_STATE: dict[str, Any] = {}  # in the caller: whether the fork server was started
+_LOCK = threading.Lock()
+#: The one kept pool: {"key": (scene digest, processes), "executor": ProcessPoolExecutor}.
+_KEPT: dict[str, Any] = {}
+#: Set in a worker and while this process runs a job: traces inside a job stay in-process.
+_IN_JOB = threading.local()
 
 
 def cpu_count() -> int:
@@ -35,11 +87,24 @@ def cpu_count() -> int:
         return max(1, os.cpu_count() or 1)
 
 
+def in_job() -> bool:
+    """Whether this code runs inside a pool's job (in a worker process of any pool, or a chunk
+    this process took): a trace there must not start processes of its own by default."""
+    import multiprocessing
+
+    return (
+        bool(_SCENE.get("worker"))
+        or getattr(_IN_JOB, "depth", 0) > 0
+        or multiprocessing.parent_process() is not None
+    )
+
+
 def resolve_workers(workers: int | None, n_chunks: int) -> int:
-    """Worker processes to start: the request (default: every core), at most the cores and the
-    chunks. Raises :class:`TraceInputError` for a request that is not a positive integer."""
+    """Lanes to run (this process and ``lanes - 1`` workers): the request (default: every core),
+    at most the cores and the chunks. Raises :class:`TraceInputError` for a request that is not a
+    positive integer."""
     if workers is None:
-        want = cpu_count()
+        want = 1 if in_job() else cpu_count()
     elif isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise TraceInputError(f"workers must be a positive integer, got {workers!r}")
     else:
@@ -47,63 +112,269 @@ def resolve_workers(workers: int | None, n_chunks: int) -> int:
     return max(1, min(want, cpu_count(), max(n_chunks, 1)))
 
 
-def receiver_chunks(n_tx: int, n_rx: int, chunk_links: int | None = None) -> list[range]:
-    """Consecutive ranges of receiver indices with at most ``chunk_links`` links each."""
+def auto_in_process(n_links: int) -> bool:
+    """The rule of ``workers=None``: whether a trace of ``n_links`` links stays in this process
+    (its stages on threads) rather than going over every core in chunks.
+
+    It stays in this process inside a pool's job (:func:`in_job`), on one core, and when it has
+    fewer than :data:`PROCESS_MIN_LINKS` links unless it fills :data:`AUTO_MIN_LANES` lanes of
+    :data:`MIN_CHUNK_LINKS` links (``min(cores, n_links // MIN_CHUNK_LINKS) >= AUTO_MIN_LANES``).
+    On the 2-core development machine this is: processes from 500 links on; on 6 cores or more,
+    from 384 links on.
+    """
+    if in_job() or cpu_count() == 1:
+        return True
+    lanes = min(cpu_count(), n_links // MIN_CHUNK_LINKS)
+    return n_links < PROCESS_MIN_LINKS and lanes < AUTO_MIN_LANES
+
+
+def receiver_chunks(
+    n_tx: int, n_rx: int, chunk_links: int | None = None, lanes: int = 1
+) -> list[range]:
+    """Consecutive ranges of receiver indices with at most ``chunk_links`` links each.
+
+    With ``chunk_links=None`` and several ``lanes``, the chunks are guided: each takes at most
+    ``1 / (2 lanes)`` of the receivers still left (at least :data:`MIN_CHUNK_LINKS` links), so the
+    last chunks are small and the lanes finish together. The chunks never change what is traced.
+    """
     per = max(1, int(chunk_links or CHUNK_LINKS) // max(n_tx, 1))
-    return [range(r0, min(n_rx, r0 + per)) for r0 in range(0, n_rx, per)]
+    if chunk_links is not None or lanes <= 1:
+        return [range(r0, min(n_rx, r0 + per)) for r0 in range(0, n_rx, per)]
+    least = max(1, MIN_CHUNK_LINKS // max(n_tx, 1))
+    out, r0 = [], 0
+    while r0 < n_rx:
+        left = n_rx - r0
+        size = min(per, left, max(least, -(-left // (2 * lanes))))
+        out.append(range(r0, r0 + size))
+        r0 += size
+    return out
 
 
-def _init_worker(scene: Scene) -> None:
-    _SCENE["scene"] = scene
+#: Where this raytrace is (the checkout the fork server and the workers must import).
+_PACKAGE = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def _init_worker(blob: bytes, origin: str) -> None:
+    here = _PACKAGE
+    if here != origin:
+        raise RuntimeError(f"worker imports raytrace from {here}, the caller from {origin}")
+    _SCENE["scene"] = pickle.loads(blob)
+    _SCENE["worker"] = True
 
 
 def _call(fn: Callable[[Scene, Any], Any], item: Any) -> Any:
     return fn(_SCENE["scene"], item)
 
 
+def process_context(preload: Sequence[str] = ()) -> Any:
+    """The multiprocessing context for worker processes: the fork server, started now if it is
+    not running, importing :data:`PRELOAD` and ``preload`` in the background (spawn where there
+    is no fork server). ``preload`` counts only for the first call of the interpreter."""
+    with _LOCK:
+        return _context(preload)
+
+
+def _context(preload: Sequence[str]) -> Any:
+    """:func:`process_context` (the caller holds the lock)."""
+    import multiprocessing
+
+    if "forkserver" not in multiprocessing.get_all_start_methods():
+        return multiprocessing.get_context("spawn")
+    ctx = multiprocessing.get_context("forkserver")
+    if not _STATE.get("forkserver_started"):
+        from multiprocessing import forkserver
+
+        ctx.set_forkserver_preload(list(dict.fromkeys([*PRELOAD, *preload])))
+        # the fork server imports raytrace from where this process does (not another checkout)
+        root = os.path.dirname(_PACKAGE)
+        old = os.environ.get("PYTHONPATH")
+        os.environ["PYTHONPATH"] = root if not old else root + os.pathsep + old
+        try:
+            forkserver.ensure_running()
+        finally:
+            if old is None:
+                os.environ.pop("PYTHONPATH", None)
+            else:
+                os.environ["PYTHONPATH"] = old
+        _STATE["forkserver_started"] = True
+    return ctx
+
+
+def close_pools() -> None:
+    """Stop the kept worker processes (called at the end of the interpreter)."""
+    with _LOCK:
+        ex = _KEPT.pop("executor", None)
+        _KEPT.clear()
+    if ex is not None:
+        ex.shutdown(wait=True, cancel_futures=True)
+
+
+atexit.register(close_pools)
+
+
+def _executor(blob: bytes, processes: int, preload: Sequence[str]) -> ProcessPoolExecutor:
+    """The kept pool for this scene and number of processes, started if it is not there."""
+    key = (hashlib.blake2b(blob, digest_size=16).digest(), processes)
+    with _LOCK:
+        if _KEPT.get("key") == key:
+            return _KEPT["executor"]
+        old = _KEPT.pop("executor", None)
+        if old is not None:
+            old.shutdown(wait=False, cancel_futures=True)
+        ex = ProcessPoolExecutor(
+            max_workers=processes,
+            mp_context=_context(preload),
+            initializer=_init_worker,
+            initargs=(blob, _PACKAGE),
+        )
+        _KEPT.update(key=key, executor=ex)
+        return ex
+
+
+def _drop(ex: ProcessPoolExecutor) -> None:
+    """Forget a broken pool (the next call starts a new one)."""
+    with _LOCK:
+        if _KEPT.get("executor") is ex:
+            _KEPT.clear()
+    # the other workers may still be alive, blocked on a queue left dirty: stop them now
+    for proc in list((getattr(ex, "_processes", None) or {}).values()):
+        proc.terminate()
+    ex.shutdown(wait=False, cancel_futures=True)
+
+
+class _Feeder:
+    """Hands the items of one :meth:`ScenePool.map` to the workers in order, one per worker at a
+    time, so that the rest stay in one queue that this process takes from too."""
+
+    def __init__(
+        self, pool: ProcessPoolExecutor, fn: Callable[[Scene, Any], Any], items: list, lanes: int
+    ) -> None:
+        from collections import deque
+
+        self._pool, self._fn, self._items = pool, fn, items
+        self._left = deque(range(len(items)))
+        self._futures: dict[int, Future] = {}
+        self._cond = threading.Condition()
+        self._slots = threading.Semaphore(max(lanes - 1, 1))
+        self._stopped = False
+        self._thread = threading.Thread(target=self._run, name="scenepool-feeder", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        while True:
+            self._slots.acquire()
+            with self._cond:
+                if self._stopped or not self._left:
+                    return
+                i = self._left.popleft()
+            try:
+                fut = self._pool.submit(_call, self._fn, self._items[i])
+            except Exception as exc:  # noqa: BLE001  broken, or shut down under us: its result
+                fut = Future()
+                fut.set_exception(exc if isinstance(exc, BrokenProcessPool)
+                                  else BrokenProcessPool(f"{type(exc).__name__}: {exc}"))  # fmt: skip
+            fut.add_done_callback(lambda _: self._slots.release())
+            with self._cond:
+                self._futures[i] = fut
+                self._cond.notify_all()
+
+    def future(self, i: int, wait: bool = False) -> Future | None:
+        """Item ``i``'s future once it was handed to a worker (``wait``: until it is)."""
+        with self._cond:
+            if wait:
+                self._cond.wait_for(lambda: i in self._futures)
+            return self._futures.get(i)
+
+    def take_next(self) -> int | None:
+        """The next item no worker has been given (None: there is none left)."""
+        with self._cond:
+            return self._left.popleft() if self._left else None
+
+    def stop(self) -> None:
+        """Hand out nothing more (items already with the workers run to their end)."""
+        with self._cond:
+            self._stopped = True
+            self._left.clear()
+        self._slots.release()
+        self._thread.join()
+
+
 class ScenePool:
-    """``fn(scene, item)`` for many items, in order, in this process or on worker processes that
-    each hold a copy of ``scene``.
+    """``fn(scene, item)`` for many items, in order, on ``workers`` lanes: this process and
+    ``workers - 1`` worker processes that each hold a copy of ``scene``.
 
     Parameters
     ----------
     scene : Scene
-    workers : int, processes (1: run in this process, no pool)
+    workers : int, lanes (1: this process alone, no worker process)
+    preload : sequence of str, optional, more modules for the fork server to import (only
+        before it has started: the first pool of the interpreter)
 
-    ``fn`` must be a module-level function (it is sent to the workers by reference).
+    ``fn`` must be a module-level function (it is sent to the workers by reference). The worker
+    processes are kept after :meth:`close` for the next pool with the same scene and number of
+    workers (see the module's description); :func:`close_pools` stops them.
     """
 
-    def __init__(self, scene: Scene, workers: int) -> None:
+    def __init__(self, scene: Scene, workers: int, preload: Sequence[str] = ()) -> None:
         self.scene, self.workers = scene, int(workers)
         self._pool: ProcessPoolExecutor | None = None
         if self.workers > 1:
-            import multiprocessing
-
-            self._pool = ProcessPoolExecutor(
-                max_workers=self.workers,
-                mp_context=multiprocessing.get_context("spawn"),
-                initializer=_init_worker,
-                initargs=(scene,),
-            )
+            blob = pickle.dumps(scene, protocol=pickle.HIGHEST_PROTOCOL)
+            self._pool = _executor(blob, self.workers - 1, preload)
 
     def map(self, fn: Callable[[Scene, Any], Any], items: Iterable[Any]) -> Iterator[Any]:
-        """The results of ``fn(scene, item)``, in the order of ``items``."""
+        """The results of ``fn(scene, item)``, in the order of ``items``.
+
+        All lanes take the items in order from one queue: a feeder thread hands the next one to
+        a worker as soon as it is free, and this process takes the next one whenever the result
+        it must yield next is not there yet (it traces while the workers start, and the small
+        guided chunks at the end go to whichever lane is free). Raises :class:`WorkerCrashError` if
+        a worker process dies; an exception raised by ``fn`` is raised as it is.
+        """
+        items = list(items)
         if self._pool is None:
             for item in items:
-                yield fn(self.scene, item)
+                yield self._here(fn, item)
             return
-        futures = [self._pool.submit(_call, fn, item) for item in items]
+        feed = _Feeder(self._pool, fn, items, self.workers)
+        done: dict[int, Any] = {}
         try:
-            for fut in futures:
-                yield fut.result()
+            for i in range(len(items)):
+                while i not in done:
+                    fut = feed.future(i)
+                    if fut is not None and fut.done():
+                        break
+                    j = feed.take_next()  # the next result is not there: work meanwhile
+                    if j is None:
+                        fut = feed.future(i, wait=True)
+                        break
+                    done[j] = self._here(fn, items[j])
+                if i in done:
+                    yield done.pop(i)
+                    continue
+                try:
+                    result = fut.result()
+                except BrokenProcessPool as exc:
+                    _drop(self._pool)
+                    raise WorkerCrashError(
+                        f"a worker process died while tracing (killed, out of memory or a crash "
+                        f"in native code): {exc}"
+                    ) from None
+                yield result
         finally:
-            for fut in futures:
-                fut.cancel()
+            feed.stop()
+
+    def _here(self, fn: Callable[[Scene, Any], Any], item: Any) -> Any:
+        """``fn(scene, item)`` in this process, marked as a job (no nested pool)."""
+        _IN_JOB.depth = getattr(_IN_JOB, "depth", 0) + 1
+        try:
+            return fn(self.scene, item)
+        finally:
+            _IN_JOB.depth -= 1
 
     def close(self) -> None:
-        if self._pool is not None:
-            self._pool.shutdown(wait=True, cancel_futures=True)
-            self._pool = None
+        """Release the pool (its worker processes are kept for the next one, see above)."""
+        self._pool = None
 
     def __enter__(self) -> ScenePool:
         return self

@@ -34,7 +34,7 @@ from . import diffraction, specular
 from .config import MIN_POWER_DB, TraceConfig
 from .context import TraceContext, opaque_objects
 from .evaluate import candidates, evaluate
-from .parallel import PROCESS_MIN_LINKS, ScenePool, receiver_chunks, resolve_workers
+from .parallel import ScenePool, auto_in_process, receiver_chunks, resolve_workers
 from .paths import DIFFRACTION, Paths
 
 __all__ = [
@@ -163,18 +163,20 @@ def trace(
         crossing analysis (default :func:`opaque_objects` at this frequency and power cut; give
         the objects opaque at every band when tracing geometry once for several bands with
         ``min_power_db=-inf``)
-    workers : int, optional, processes over chunks of receivers (:func:`trace_chunks`). Default:
-        this process alone below :data:`~raytrace.solver.parallel.PROCESS_MIN_LINKS` links,
-        every core above. The paths do not depend on it.
-    chunk_links : int, optional, links per chunk (default
-        :data:`~raytrace.solver.parallel.CHUNK_LINKS` when chunked)
+    workers : int, optional, lanes over chunks of receivers (:func:`trace_chunks`): this process
+        and ``workers - 1`` worker processes. Default
+        (:func:`~raytrace.solver.parallel.auto_in_process`): this process alone, its stages on
+        threads, below :data:`~raytrace.solver.parallel.PROCESS_MIN_LINKS` links or inside a
+        pool's job; every core from there on. The paths do not depend on it.
+    chunk_links : int, optional, links per chunk (default: guided chunks of at most
+        :data:`~raytrace.solver.parallel.CHUNK_LINKS` links, smaller at the end)
 
     Returns
     -------
     Paths, in their canonical order (:meth:`Paths.sorted`).
     """
     cfg, f, tx, rx = _checked(scene, tx, rx, frequency_hz, config)
-    if workers is None and chunk_links is None and len(tx) * len(rx) < PROCESS_MIN_LINKS:
+    if workers is None and chunk_links is None and auto_in_process(len(tx) * len(rx)):
         return _trace_links(scene, tx, rx, f, cfg, progress, stats, involving, threads, opaque)
     chunks = _chunked(scene, tx, rx, f, cfg, None, workers, chunk_links, progress, stats,
                       involving, opaque)  # fmt: skip
@@ -220,10 +222,10 @@ def trace_chunks(
     scene, tx, rx, frequency_hz, config, involving, opaque : as in :func:`trace`
     reduce : callable, optional, a module-level function ``reduce(paths) -> result`` (it is sent to
         the workers by reference)
-    workers : int, optional, processes (default every core, at most one per chunk; 1: this
-        process)
-    chunk_links : int, optional, links per chunk (default
-        :data:`~raytrace.solver.parallel.CHUNK_LINKS`)
+    workers : int, optional, lanes: this process and ``workers - 1`` worker processes (default
+        every core, 1 inside a pool's job; at most one per chunk)
+    chunk_links : int, optional, links per chunk (default: guided chunks of at most
+        :data:`~raytrace.solver.parallel.CHUNK_LINKS` links, smaller at the end)
     progress : bool or callable, a progress bar over the chunks, or a callback per chunk
     stats : dict, optional, counters summed over the chunks
 
@@ -251,8 +253,8 @@ def _chunked(
     opaque: np.ndarray | None,
 ) -> Iterator[tuple[range, Any]]:
     """:func:`trace_chunks` on validated input."""
-    chunks = receiver_chunks(len(tx), len(rx), chunk_links)
-    n_workers = resolve_workers(workers, len(chunks))
+    n_workers = resolve_workers(workers, len(receiver_chunks(len(tx), len(rx), chunk_links)))
+    chunks = receiver_chunks(len(tx), len(rx), chunk_links, n_workers)
     jobs = [(tx, rx, c, f, cfg, involving, opaque, reduce, n_workers > 1) for c in chunks]
     bar = None
     if progress is True:

@@ -48,13 +48,14 @@ from ..scene.model import Scene
 from ..solver.config import TraceConfig
 from ..solver.parallel import (
     CHUNK_LINKS,
-    PROCESS_MIN_LINKS,
     ScenePool,
     receiver_chunks,
     resolve_workers,
 )
 from ..solver.paths import Paths
 
+#: Most links per chunk of cells (a chunk is traced whole: its candidate arrays in memory at once).
+MAX_CHUNK_LINKS = 999
 #: The CSV companion of map.npz: its schema name and version (first line of the file).
 CSV_SCHEMA, CSV_VERSION = "hallray-accuracy-map-csv", 1
 #: Most cells a map may have unless the caller raises it (a 1 m grid of the hall has ~1700).
@@ -132,7 +133,7 @@ class MapSettings:
         for name, v, lo, hi in (("--draws", self.draws, 1, None),
                                 ("--paths", self.paths, 0, None),
                                 ("--max-cells", self.max_cells, 1, None),
-                                ("chunk_links", self.chunk_links, 1, PROCESS_MIN_LINKS - 1)):  # fmt: skip
+                                ("chunk_links", self.chunk_links, 1, MAX_CHUNK_LINKS)):  # fmt: skip
             if (isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo
                     or (hi is not None and v > hi)):  # fmt: skip
                 raise HallrayError(f"{name} must be an integer in [{lo}, {hi or 'inf'}], got {v!r}")
@@ -497,7 +498,7 @@ def _chunk_job(scene: Scene, job: tuple) -> dict[str, Any]:
 
     tx, cells, first, settings, receiver, threads = job
     t0 = time.perf_counter()
-    # below PROCESS_MIN_LINKS (MapSettings.check) the trace stays in this process, on threads
+    # a job's trace stays in its process, on threads (raytrace.solver.parallel.in_job)
     paths = trace(scene, tx, cells, receiver.band.center_frequency_hz, settings.trace,
                   threads=threads)  # fmt: skip
     t1 = time.perf_counter()
@@ -601,7 +602,7 @@ def _run_chunks(
         bar = tqdm(total=chunks[-1].stop, desc="accuracy map", unit="cell")
     parts = []
     try:
-        with ScenePool(scene, n_workers) as pool:
+        with ScenePool(scene, n_workers, preload=(__name__,)) as pool:
             for chunk, part in zip(chunks, pool.map(_chunk_job, jobs)):
                 parts.append(part)
                 if bar is not None:

@@ -868,13 +868,15 @@ def _execute_local(
             except HallrayError as exc:
                 yield t, None, str(exc)
         return
-    import multiprocessing
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
-    # spawn, not fork: Embree's threads (alive in this process once it has traced anything) do
-    # not survive a fork, and a child's first scene build could wait for them forever
+    from ..solver.parallel import process_context
+
+    # forks of the preloaded fork server, never of this process: Embree's threads (alive here once
+    # it has traced anything) do not survive a fork, and a child's first scene build could wait
+    # for them forever (raytrace.solver.parallel)
     workers = min(workers, len(tasks), os.cpu_count() or 1)  # never more than cores or cells
-    pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"))
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=process_context((__name__,)))
     futures: dict[Any, dict[str, Any]] = {}
     seen: set[Any] = set()
     try:
