@@ -111,3 +111,28 @@ def test_resynth_needs_a_map_with_paths():
     auto = locate(toa, PAPER_BS, "twin", height_m=1.0, map=fmap)
     cell = locate(toa, PAPER_BS, "twin", height_m=1.0, map=fmap, bias="cell")
     np.testing.assert_array_equal(auto, cell)
+
+
+def test_resynth_in_blocks_equals_all_at_once(monkeypatch):
+    """The re-synthesis runs in blocks of fixes to bound memory; the fixes do not depend on the
+    block size (one fix per block, a block that does not divide the fixes, all at once)."""
+    from pos_synth import CBAND_MODEL, PAPER_BS, two_ray_map, two_ray_paths
+
+    import positioning.twin as tw
+    from positioning import locate
+
+    fmap = two_ray_map()
+    rng = np.random.default_rng(11)
+    n = 40
+    p = np.column_stack([rng.uniform(3, 26, n), rng.uniform(3, 22, n), np.ones(n)])
+    delay, gain, _, _ = two_ray_paths(p)
+    toa = LobeReceiver.from_meta(CBAND_MODEL).toa(
+        delay.reshape(4 * n, -1), gain.reshape(4 * n, -1)
+    ).reshape(n, 4) + rng.normal(0, 0.01, (n, 4)) / C0
+    out = {}
+    for block in (1, 7, 10_000):
+        monkeypatch.setattr(tw, "RESYNTH_CHUNK", block)
+        out[block] = locate(toa, PAPER_BS, "twin", height_m=1.0, map=fmap, bias="resynth",
+                            fallback="ls")  # fmt: skip
+    np.testing.assert_array_equal(out[1], out[10_000])
+    np.testing.assert_array_equal(out[7], out[10_000])
