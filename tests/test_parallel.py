@@ -190,3 +190,39 @@ def test_the_fork_server_preload_does_not_import_embree():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env,
                          check=True, timeout=120).stdout  # fmt: skip
     assert out.split()[-1] == "False"
+
+
+def test_workers_import_the_callers_raytrace_not_the_working_directorys(tmp_path):
+    """Run from a directory holding another ``raytrace`` (a source checkout beside an installed
+    package, as `pip install . && reproduce-paper` in the checkout does): the workers import the
+    caller's package, not the working directory's."""
+    import subprocess
+    import sys
+
+    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(parallel.__file__))))
+    cwd = tmp_path / "checkout"
+    cwd.mkdir()
+    # the same code under another path: it imports, but is not the caller's package
+    (cwd / "raytrace").symlink_to(os.path.join(root, "raytrace"), target_is_directory=True)
+    bin_ = tmp_path / "bin"
+    bin_.mkdir()
+    script = bin_ / "run.py"
+    script.write_text(
+        "from raytrace import TraceConfig, trace\n"
+        "from raytrace.scene.io import load_scene\n"
+        "from raytrace.scene.metadata import SceneMetadata\n"
+        "if __name__ == '__main__':\n"
+        "    sc = load_scene('hall')\n"
+        "    m = SceneMetadata.from_scene(sc, require=True)\n"
+        "    cfg = TraceConfig(max_reflections=1, max_penetrations=0, max_diffractions=0)\n"
+        "    a = trace(sc, m.bs_xyz, m.point_xyz, 3.775e9, cfg, threads=1)\n"
+        "    b = trace(sc, m.bs_xyz, m.point_xyz, 3.775e9, cfg, workers=2, chunk_links=16)\n"
+        "    assert a.n_paths == b.n_paths > 0\n"
+        "    print('ok', b.n_paths)\n"
+    )
+    env = {**os.environ, "PYTHONPATH": root}
+    env.pop("PYTHONSAFEPATH", None)
+    out = subprocess.run([sys.executable, str(script)], cwd=cwd, capture_output=True, text=True,
+                         env=env, timeout=300)  # fmt: skip
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.startswith("ok")

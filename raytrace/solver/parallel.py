@@ -37,6 +37,7 @@ import atexit
 import hashlib
 import os
 import pickle
+import sys
 import threading
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from concurrent.futures import Future, ProcessPoolExecutor
@@ -178,7 +179,12 @@ def _context(preload: Sequence[str]) -> Any:
     """:func:`process_context` (the caller holds the lock)."""
     import multiprocessing
 
-    if "forkserver" not in multiprocessing.get_all_start_methods():
+    # the fork server is started as `python -c`, which puts the working directory first on its
+    # sys.path (Python 3.11's fork server does not take this process's sys.path): run from a
+    # source checkout with the package installed elsewhere, it would import the checkout's
+    # raytrace. PYTHONSAFEPATH (3.11+) drops that entry; older Pythons spawn, which does
+    # take this process's sys.path.
+    if "forkserver" not in multiprocessing.get_all_start_methods() or sys.version_info < (3, 11):
         return multiprocessing.get_context("spawn")
     ctx = multiprocessing.get_context("forkserver")
     if not _STATE.get("forkserver_started"):
@@ -187,15 +193,18 @@ def _context(preload: Sequence[str]) -> Any:
         ctx.set_forkserver_preload(list(dict.fromkeys([*PRELOAD, *preload])))
         # the fork server imports raytrace from where this process does (not another checkout)
         root = os.path.dirname(_PACKAGE)
-        old = os.environ.get("PYTHONPATH")
+        saved = {k: os.environ.get(k) for k in ("PYTHONPATH", "PYTHONSAFEPATH")}
+        old = saved["PYTHONPATH"]
         os.environ["PYTHONPATH"] = root if not old else root + os.pathsep + old
+        os.environ["PYTHONSAFEPATH"] = "1"
         try:
             forkserver.ensure_running()
         finally:
-            if old is None:
-                os.environ.pop("PYTHONPATH", None)
-            else:
-                os.environ["PYTHONPATH"] = old
+            for k, v in saved.items():
+                if v is None:
+                    os.environ.pop(k, None)
+                else:
+                    os.environ[k] = v
         _STATE["forkserver_started"] = True
     return ctx
 
