@@ -452,6 +452,14 @@ def _whole_dataset(out: Path) -> bool:
         return sum(1 for _ in fh) == 1 + rows
 
 
+def _whole_report(out: Path) -> bool:
+    """An accuracy report directory with its tables, CDFs and top views."""
+    names = {p.name for p in out.iterdir()}
+    return {"table.md", "table.csv", "cdf_by_method.png", "integrity.md"} <= names and any(
+        n.startswith("topview_") for n in names
+    )
+
+
 def _kill_and_rerun(module: str, func: str, args: list[str], out: Path, rng: random.Random,
                     delays: tuple[float, float], kills: int = 4,
                     whole: Callable[[Path], bool] | None = None) -> None:  # fmt: skip
@@ -507,7 +515,8 @@ def test_fault_injection_accuracy_report(tmp_path):
     out.parent.mkdir()
     args = [str(d), "-o", str(out)]
     _kill_and_rerun(
-        "positioning.cli", "accuracy_report_main", args, out, random.Random(7), (1.0, 5.0)
+        "positioning.cli", "accuracy_report_main", args, out, random.Random(7), (1.0, 5.0),
+        whole=_whole_report,
     )
     assert (out / "table.md").is_file()
 
