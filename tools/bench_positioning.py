@@ -103,29 +103,16 @@ def hall_map_v2_file(folder: str, k: int = 16) -> str:
     line-of-sight path and a floor reflection (coefficient -0.7), padded to ``k`` slots, the
     C-band first-lobe receiver model, ``toa_s`` from that receiver; returns its path."""
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "positioning"))
-    from pos_synth import synth_map
+    from pos_synth import CBAND_MODEL, synth_map, two_ray_paths
 
     from positioning.fingerprint import FingerprintMap, write_map
     from positioning.lobe import LobeReceiver
 
-    f = 3.775e9  # C-band, as raytrace.studies.accuracy_map.receiver_model_meta gives it
-    model = LobeReceiver(frequency_hz=f, period_s=1.25e-8, roll_off=0.25, oversampling=8,
-                         span=16, noise_std=7.81, alpha=15.42, rho=10 ** (-12 / 20))  # fmt: skip
+    model = LobeReceiver.from_meta(CBAND_MODEL)  # C-band, as accuracy-map writes it
     base = synth_map(BS, area=(42.0, 46.0), bias=lambda xy: np.zeros((len(xy), len(BS))))
     cells = base.cell_xyz
     n, b = len(cells), len(BS)
-    image = BS * np.array([1.0, 1.0, -1.0])
-    delay = np.full((n, b, k), np.nan)
-    gain = np.zeros((n, b, k), complex)
-    u = np.full((n, b, k, 3), np.nan)
-    radius = np.full((n, b, k), np.nan)
-    for j, (src, refl) in enumerate(((BS, 1.0), (image, -0.7))):
-        v = cells[:, None, :] - src[None]
-        d = np.linalg.norm(v, axis=2)
-        delay[..., j] = d / C0
-        gain[..., j] = refl * C0 / f / (4 * np.pi * d) * np.exp(-2j * np.pi * f * d / C0)
-        u[..., j, :] = v / d[..., None]
-        radius[..., j] = d
+    delay, gain, u, radius = two_ray_paths(cells, BS, k=k, refl=-0.7)
     toa = model.toa(delay.reshape(n * b, k), gain.reshape(n * b, k)).reshape(n, b)
     arrays = {**base.arrays(), "toa_s": toa}
     fmap = FingerprintMap(**arrays, meta={**base.meta, "receiver_model": model.to_meta()},
