@@ -159,6 +159,7 @@ METHODS: dict[str, Method] = {
                 "cells": ("nearest", ("nearest", "own")),
                 "resynth_top": (_twin.RESYNTH_TOP, _POS_INT),
                 "search_m": (_twin.SEARCH_M, "non-negative float"),
+                "resynth_step": (_twin.RASTER_STEP_M, "non-negative float"),
             },
             "fingerprint-map match + refinement with the map's NLoS bias or, with a v2 map, "
             "its paths re-synthesised (--map MAP), 2D",

@@ -23,7 +23,8 @@ including its NLoS excess. The twin moves that bias from the unknowns into the m
    With a map of schema version 2 (paths stored) the default ``bias="auto"`` refines the best
    of those again with the nearest cell's paths moved to the iterate and the receiver re-run on
    them (``bias="resynth"``, :mod:`positioning.resynth`), used where it fits within
-   :data:`RESYNTH_M`.
+   :data:`RESYNTH_M`; the re-synthesised ToAs come from a 5 cm raster filled around the visited
+   cells on first use (``resynth_step``; :func:`prepare` fills all of it).
 4. **Judge.** ``match_m`` = RMS residual of all received base stations at the refined fix
    (offset re-fitted); per base station ``nlos`` = the matched cell's bias exceeds
    :data:`NLOS_BIAS_M`.
@@ -44,7 +45,7 @@ whose base stations are not the dataset's (count or positions off by more than
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -53,13 +54,16 @@ from .errors import PositioningError
 from .fingerprint import FingerprintMap, read_map
 from .fixes import Status
 from .irls import irls
-from .resynth import PathMap, refine_resynth
+from .resynth import RASTER_STEP_M, PathMap, ToaRaster, normal_step, refine_resynth
 from .tdoa import C0, Problem
 
 #: Largest distance between a map's and the dataset's base station, metres.
 BS_TOL_M = 0.01
 #: The coarse match uses a sub-lattice of at most this many cells (speed).
 COARSE_CELLS = 1200
+#: :func:`window_match` groups the fixes by window centre when there are at least this many
+#: fixes per centre on average (matrix products per group; else one gather per fix).
+WINDOW_GROUP = 4
 #: A map bias above this (m) marks the base station as NLoS at the fix.
 NLOS_BIAS_M = 0.25
 #: Default threshold on match_m (m) above which a fix falls back to the map-free method.
@@ -82,6 +86,9 @@ RESYNTH_TOP = 3
 #: ``bias="resynth"``: fixes re-synthesised per block (bounds memory: about 60 MB per block
 #: with 16 paths per link; all 13 800 fixes of a 60 s dataset at once took 10 GB).
 RESYNTH_CHUNK = 256
+#: The same with the ToA raster (``resynth_step > 0``): only (fixes x top x 25, B) values per
+#: block, so blocks are larger (fewer passes of numpy's per-call overhead).
+RASTER_CHUNK = 4096
 #: ``bias="resynth"``: half-width (m) of the 5 x 5 grid the Gauss-Newton start is chosen from.
 SEARCH_M = 0.3
 
@@ -100,6 +107,8 @@ class _Lattice:
     pred: np.ndarray  # (N, B) c * toa_s, m (NaN: not detected)
     polygon: np.ndarray  # (V, 2) service area
     node_cell: np.ndarray  # (ny, nx) int, the map cell at each lattice node (-1: hole)
+    #: re-synthesised ToA rasters by (paths, spacing, height in mm), kept with the loaded map
+    rasters: dict = field(default_factory=dict, compare=False, repr=False)
 
 
 _CACHE: dict[tuple[str, float], tuple[FingerprintMap, _Lattice]] = {}
@@ -324,8 +333,37 @@ def window_match(
     top = min(top, rel.size)
     best = np.full((E, top), -1, dtype=np.int64)
     best_cost = np.full((E, top), np.inf)
-    rho = np.where(prob.valid, prob.rho, 0.0)
     n = np.maximum(prob.valid.sum(axis=1), 1)
+    # the offset-free misfit does not change with a common shift of a fix's pseudo-ranges:
+    # centring them keeps the expanded sums below well conditioned (rho holds the clock offset)
+    mean = np.sum(np.where(prob.valid, prob.rho, 0.0), axis=1) / n
+    rho = np.where(prob.valid, prob.rho - mean[:, None], 0.0)
+    groups, inv = np.unique(centre, return_inverse=True)
+    if groups.size * WINDOW_GROUP <= E:
+        # fixes share window centres (a device stays near a node for many epochs): per centre
+        # the misfit of all its fixes against all window nodes is four small matrix products
+        order = np.argsort(inv, kind="stable")
+        bounds = np.searchsorted(inv[order], np.arange(groups.size + 1))
+        V = prob.valid.astype(float)
+        rr = np.sum(rho * rho, axis=1)
+        rs = rho.sum(axis=1)
+        for g, c in enumerate(groups):
+            r_ = order[bounds[g] : bounds[g + 1]]
+            idx = c + rel  # (W,)
+            P = flat_pred[idx]  # (W, B)
+            miss = ~np.isfinite(P)
+            P = np.where(miss, 0.0, P)
+            Vg = V[r_]
+            s1 = rs[r_, None] - Vg @ P.T  # (g, W) sum of residuals
+            s2 = rr[r_, None] - 2.0 * (rho[r_] @ P.T) + Vg @ (P * P).T
+            cost = s2 - s1 * s1 / n[r_, None]
+            cost = np.where((Vg @ miss.T) > 0, np.inf, cost)
+            part = np.argpartition(cost, top - 1, axis=1)[:, :top]
+            pc = np.take_along_axis(cost, part, axis=1)
+            o = np.argsort(pc, axis=1)
+            best[r_] = node_cell.ravel()[idx[np.take_along_axis(part, o, axis=1)]]
+            best_cost[r_] = np.take_along_axis(pc, o, axis=1)
+        return np.where(np.isfinite(best_cost), best, -1), best_cost
     for s in range(0, E, chunk):
         r_ = slice(s, min(s + chunk, E))
         idx = centre[r_, None] + rel[None, :]  # (c, W)
@@ -399,9 +437,7 @@ def refine_at_cells(
             ]
         )
         Uc = Uc * use[..., None]
-        A = Uc.transpose(0, 2, 1) @ Uc + 1e-9 * np.eye(2)
-        g = Uc.transpose(0, 2, 1) @ r[..., None]
-        delta = np.linalg.solve(A, g)[..., 0]
+        delta = normal_step(Uc, r, 1e-9)
         xy = np.clip(xy + np.where(np.isfinite(delta), delta, 0.0), centre - half, centre + half)
     if mode == "interp":
         obs = np.where(valid, rho - interp_bias(lat, xy, smooth=True), 0.0)
@@ -410,6 +446,44 @@ def refine_at_cells(
     rms = match_quality(np.where(use > 0, s, np.nan), use > 0)
     rms = np.where(ok & np.isfinite(rms), rms, np.inf)
     return xy.reshape(E, K, 2), rms.reshape(E, K)
+
+
+def prepare(
+    map: FingerprintMap | str | Path,  # noqa: A002 - the CLI's name for it
+    height_m: float,
+    *,
+    paths: int | None = None,
+    resynth_step: float = RASTER_STEP_M,
+    progress: Callable[[int, int], None] | None = None,
+) -> int:
+    """Re-synthesise a version-2 map's whole ToA raster at device height ``height_m`` now, so
+    that :func:`twin` answers every later fix with look-ups only (a server that must run at
+    full speed from its first fix; by default the raster fills lazily around the fixes).
+
+    The raster is kept with the map loaded from ``map`` (a path: cached by path and mtime).
+    Returns the receiver runs (links) spent; ``progress(done, total)`` is called per batch of
+    tiles.
+    """
+    fmap, lat = load(map)
+    if not fmap.has_paths:
+        raise PositioningError("twin: prepare needs a map with paths (schema version 2)")
+    if not (np.isfinite(resynth_step) and resynth_step > 0):
+        raise PositioningError(f"twin: resynth_step must be > 0 m, got {resynth_step!r}")
+    r = _raster(lat, PathMap.from_map(fmap, paths), paths, resynth_step,
+                int(np.rint(float(height_m) * 1000.0)))  # fmt: skip
+    before = r.links
+    r.fill(progress=progress)
+    return r.links - before
+
+
+def _raster(lat: _Lattice, pmap: PathMap, paths: int | None, h: float, h_mm: int) -> ToaRaster:
+    """The lattice's re-synthesised ToA raster for ``paths``, spacing ``h`` (m), device height
+    ``h_mm`` (mm), created on first use."""
+    key = (int(paths or 0), float(h), int(h_mm))
+    if key not in lat.rasters:
+        lat.rasters[key] = ToaRaster(pmap, lat.node_cell, lat.x0, lat.y0, lat.step,
+                                     h_mm / 1000.0, h)  # fmt: skip
+    return lat.rasters[key]
 
 
 # ----------------------------------------------------------------------------------------------
@@ -513,6 +587,7 @@ def twin(
     cells: str = "nearest",
     resynth_top: int = RESYNTH_TOP,
     search_m: float = SEARCH_M,
+    resynth_step: float = RASTER_STEP_M,
 ) -> dict[str, np.ndarray]:
     """The twin estimator (module docstring). 2D only: the map is at one device height.
 
@@ -548,6 +623,11 @@ def twin(
     search_m : float, m, ``resynth`` only: > 0 starts Gauss-Newton from the best point of a
         5 x 5 grid spanning +-search_m around the cell-held solution (default 0.3 m; 0: from the
         cell-held solution itself)
+    resynth_step : float, m, ``resynth`` only: the re-synthesised ToAs are sampled on a raster
+        of this spacing around the visited cells and interpolated bilinearly
+        (:class:`positioning.resynth.ToaRaster`, kept with a map loaded from a file, so later
+        fixes near the same cells cost only look-ups; default 0.05 m); 0: the receiver is re-run
+        at every iterate (exact, about 50x slower)
 
     Returns
     -------
@@ -607,14 +687,21 @@ def twin(
             near = (lambda xy: nearest_cell(lat, xy)) if cells == "nearest" else None
             s_flat, c_flat = s_r.reshape(-1, 2), c_r.ravel()
             xy_f, rms_f = np.empty_like(s_flat), np.empty(rep.size)
-            # in blocks of fixes: the start grid holds (fixes x top x 25, B, K) path arrays
-            for c0 in range(0, rep.size, RESYNTH_CHUNK * n_r):
-                b = slice(c0, min(c0 + RESYNTH_CHUNK * n_r, rep.size))
-                xy_f[b], rms_f[b] = refine_resynth(
-                    sub.rho[rep[b]], sub.valid[rep[b]], sub.height[rep[b]], sub.bs, pmap, near,
-                    s_flat[b], c_flat[b], lat.step * (REFINE_BOX + 0.5),
-                    fd_jacobian=fd_jacobian, search_m=search_m,
-                )  # fmt: skip
+            h_mm = np.rint(sub.height[rep] * 1000.0).astype(np.int64)
+            use_raster = resynth_step > 0 and cells == "nearest"
+            # per device height (one raster each), in blocks of fixes: without the raster the
+            # start grid holds (fixes x top x 25, B, K) path arrays
+            for hv in np.unique(h_mm) if use_raster else [None]:
+                idx = np.flatnonzero(h_mm == hv) if use_raster else np.arange(rep.size)
+                raster = _raster(lat, pmap, paths, resynth_step, hv) if use_raster else None
+                chunk = (RASTER_CHUNK if use_raster else RESYNTH_CHUNK) * n_r
+                for c0 in range(0, idx.size, chunk):
+                    b = idx[c0 : c0 + chunk]
+                    xy_f[b], rms_f[b] = refine_resynth(
+                        sub.rho[rep[b]], sub.valid[rep[b]], sub.height[rep[b]], sub.bs, pmap,
+                        near, s_flat[b], c_flat[b], lat.step * (REFINE_BOX + 0.5),
+                        fd_jacobian=fd_jacobian, search_m=search_m, raster=raster,
+                    )  # fmt: skip
             # the re-synthesised solution wins where it fits within resynth_m; where the
             # nearest cell's paths do not explain the measurements (a path appears or vanishes
             # between cell and device) the cell-held solution is kept

@@ -136,3 +136,156 @@ def test_resynth_in_blocks_equals_all_at_once(monkeypatch):
                             fallback="ls")  # fmt: skip
     np.testing.assert_array_equal(out[1], out[10_000])
     np.testing.assert_array_equal(out[7], out[10_000])
+
+
+def _raster_and_map(h: float = 0.05):
+    from pos_synth import two_ray_map
+
+    import positioning.twin as tw
+    from positioning.resynth import PathMap, ToaRaster
+
+    fmap = two_ray_map(step=0.5, area=(6.0, 5.0))
+    _, lat = tw.load(fmap)
+    pmap = PathMap.from_map(fmap)
+    return ToaRaster(pmap, lat.node_cell, lat.x0, lat.y0, lat.step, 1.0, h), pmap, lat
+
+
+def test_raster_samples_are_the_receiver_on_the_nearest_cells_paths():
+    """At a raster sample the value is the receiver run on the paths of the map node whose
+    square holds the sample, moved there (to float rounding)."""
+    r, pmap, lat = _raster_and_map()
+    rng = np.random.default_rng(3)
+    kx, ky = rng.integers(0, r.NX, 50), rng.integers(0, r.NY, 50)
+    xy = np.column_stack([r.X0 + (kx + 0.5) * r.h, r.Y0 + (ky + 0.5) * r.h])
+    val, _ = r.predict(xy)
+    cell = lat.node_cell[ky // r.m, kx // r.m]
+    assert (cell >= 0).all()  # the synthetic map has no holes
+    want = pmap.predict(cell, np.column_stack([xy, np.ones(len(xy))]))
+    np.testing.assert_allclose(val, want, rtol=0, atol=1e-9)
+
+
+def test_raster_is_bilinear_between_samples_with_its_slope():
+    """Between four samples the value is their bilinear blend and the gradient its slope
+    (finite differences of the raster itself, 1e-6 m steps inside one raster square)."""
+    r, _, _ = _raster_and_map()
+    rng = np.random.default_rng(4)
+    k = np.column_stack([rng.integers(0, r.NX - 1, 40), rng.integers(0, r.NY - 1, 40)])
+    f = rng.uniform(0.05, 0.95, (40, 2))
+    xy = np.column_stack([r.X0 + (k[:, 0] + 0.5 + f[:, 0]) * r.h,
+                          r.Y0 + (k[:, 1] + 0.5 + f[:, 1]) * r.h])  # fmt: skip
+    corner = [r.predict(np.column_stack([r.X0 + (k[:, 0] + 0.5 + a) * r.h,
+                                         r.Y0 + (k[:, 1] + 0.5 + b) * r.h]))[0]
+              for b in (0, 1) for a in (0, 1)]  # fmt: skip
+    fx, fy = f[:, :1], f[:, 1:]
+    want = ((1 - fx) * (1 - fy) * corner[0] + fx * (1 - fy) * corner[1]
+            + (1 - fx) * fy * corner[2] + fx * fy * corner[3])  # fmt: skip
+    val, grad = r.predict(xy)
+    np.testing.assert_allclose(val, want, rtol=0, atol=1e-9)
+    e = 1e-6
+    gx = (r.predict(xy + [e, 0])[0] - r.predict(xy - [e, 0])[0]) / (2 * e)
+    gy = (r.predict(xy + [0, e])[0] - r.predict(xy - [0, e])[0]) / (2 * e)
+    np.testing.assert_allclose(grad, np.stack([gx, gy], -1), rtol=0, atol=1e-5)
+
+
+def test_raster_tiles_are_computed_on_first_use_only():
+    """Queries near one point re-synthesise the few tiles around it, once."""
+    r, _, _ = _raster_and_map()
+    total = r.NX * r.NY * r.B
+    xy = np.array([[3.0, 2.5]]) + np.random.default_rng(0).uniform(-0.1, 0.1, (100, 2))
+    r.predict(xy)
+    first = r.links
+    assert 0 < first <= 4 * 9 * 9 * r.B < total
+    r.predict(xy[::-1])
+    assert r.links == first
+
+
+def test_twin_on_the_raster_matches_the_exact_resynthesis():
+    """The default raster (5 cm) and the exact re-synthesis (the receiver re-run at every
+    iterate) give the same accuracy on the two-ray hall: p90 within 2 cm."""
+    from pos_synth import CBAND_MODEL, PAPER_BS, two_ray_map, two_ray_paths
+
+    from positioning import locate
+    from positioning.metrics import error_2d
+
+    fmap = two_ray_map()
+    rng = np.random.default_rng(8)
+    n = 150
+    p = np.column_stack([rng.uniform(3, 26, n), rng.uniform(3, 22, n), np.ones(n)])
+    delay, gain, _, _ = two_ray_paths(p)
+    toa = LobeReceiver.from_meta(CBAND_MODEL).toa(
+        delay.reshape(4 * n, -1), gain.reshape(4 * n, -1)
+    ).reshape(n, 4) + rng.normal(0, 0.01, (n, 4)) / C0
+    p90 = {}
+    for step in (0.0, 0.05):
+        xyz = locate(toa, PAPER_BS, "twin", height_m=1.0, map=fmap, fallback="ls",
+                     resynth_step=step)  # fmt: skip
+        p90[step] = np.percentile(error_2d(xyz, p), 90)
+    assert p90[0.0] < 0.05
+    assert abs(p90[0.05] - p90[0.0]) < 0.02
+
+
+def test_window_match_grouped_equals_per_fix(monkeypatch):
+    """Fixes grouped by window centre (matrix products) and one gather per fix give the same
+    candidates and misfits (the misfit's expansion is centred: rho carries a clock offset)."""
+    from pos_synth import PAPER_BS, synth_map, synth_toa
+
+    import positioning.twin as tw
+    from positioning.tdoa import make_problem
+
+    fmap = synth_map()
+    _, lat = tw.load(fmap)
+    toa, xyz = synth_toa(200)
+    toa = toa + 1e-3  # a large common clock offset
+    prob = make_problem(toa, PAPER_BS, None, np.full(len(toa), 1.0))
+    prob.valid[::7, 2] = False  # some fixes without base station 2
+    prior = np.round(xyz[:, :2] / 3.0) * 3.0  # few distinct window centres
+    out = {}
+    for g in (1, 10**9):
+        monkeypatch.setattr(tw, "WINDOW_GROUP", g)
+        out[g] = tw.window_match(prob, lat, prior, 4.0, top=3)
+    np.testing.assert_array_equal(out[1][0], out[10**9][0])
+    np.testing.assert_allclose(out[1][1], out[10**9][1], rtol=0, atol=1e-6)
+
+
+def test_normal_step_is_the_damped_least_squares_solution():
+    """The closed-form 2 x 2 step equals numpy's solve of the damped normal equations."""
+    from positioning.resynth import normal_step
+
+    rng = np.random.default_rng(2)
+    J, r = rng.normal(size=(50, 4, 2)), rng.normal(size=(50, 4))
+    want = np.linalg.solve(J.transpose(0, 2, 1) @ J + 1e-3 * np.eye(2),
+                           J.transpose(0, 2, 1) @ r[..., None])[..., 0]  # fmt: skip
+    np.testing.assert_allclose(normal_step(J, r, 1e-3), want, rtol=1e-10, atol=1e-12)
+    assert not np.isfinite(normal_step(np.zeros((1, 4, 2)), np.ones((1, 4)), 0.0)).any()
+
+
+def test_prepare_fills_the_raster_and_later_fixes_only_look_up(tmp_path):
+    """``prepare`` re-synthesises the whole raster once; the fixes after it spend no receiver
+    run and equal those of a lazily filled raster."""
+    import pytest
+    from pos_synth import PAPER_BS, two_ray_map, two_ray_paths
+
+    import positioning.twin as tw
+    from positioning import PositioningError, locate
+    from positioning.fingerprint import write_map
+    from positioning.lobe import LobeReceiver as LR
+
+    fmap = two_ray_map(step=0.5, area=(8.0, 6.0))
+    eager = write_map(tmp_path / "eager.npz", fmap)
+    lazy = write_map(tmp_path / "lazy.npz", fmap)
+    spent = tw.prepare(eager, 1.0)
+    _, lat = tw.load(eager)
+    (raster,) = lat.rasters.values()
+    assert spent == raster.nty * raster.ntx * 81 * 4 == raster.links
+    rng = np.random.default_rng(1)
+    p = np.column_stack([rng.uniform(2, 6, 20), rng.uniform(2, 4, 20), np.ones(20)])
+    d, g, _, _ = two_ray_paths(p, PAPER_BS)
+    from pos_synth import CBAND_MODEL
+
+    toa = LR.from_meta(CBAND_MODEL).toa(d.reshape(80, -1), g.reshape(80, -1)).reshape(20, 4)
+    a = locate(toa, PAPER_BS, "twin", height_m=1.0, map=str(eager), fallback="ls")
+    assert raster.links == spent
+    b = locate(toa, PAPER_BS, "twin", height_m=1.0, map=str(lazy), fallback="ls")
+    np.testing.assert_array_equal(a, b)
+    with pytest.raises(PositioningError, match="resynth_step"):
+        tw.prepare(eager, 1.0, resynth_step=0.0)
