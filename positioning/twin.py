@@ -345,19 +345,31 @@ def window_match(
         order = np.argsort(inv, kind="stable")
         bounds = np.searchsorted(inv[order], np.arange(groups.size + 1))
         V = prob.valid.astype(float)
+        B = prob.n_bs
+        # per node: sum of the predictions and their spread term (inf where one is missing)
+        fin = np.where(np.isfinite(flat_pred), flat_pred, 0.0)
+        node_sum = fin.sum(axis=1)
+        node_term = np.where(np.isfinite(flat_pred).all(axis=1),
+                             np.sum(fin * fin, axis=1) - node_sum**2 / B, np.inf)  # fmt: skip
         rr = np.sum(rho * rho, axis=1)
         rs = rho.sum(axis=1)
         for g, c in enumerate(groups):
             r_ = order[bounds[g] : bounds[g + 1]]
             idx = c + rel  # (W,)
-            P = flat_pred[idx]  # (W, B)
-            miss = ~np.isfinite(P)
-            P = np.where(miss, 0.0, P)
+            P = fin[idx]  # (W, B), 0 where missing
             Vg = V[r_]
-            s1 = rs[r_, None] - Vg @ P.T  # (g, W) sum of residuals
-            s2 = rr[r_, None] - 2.0 * (rho[r_] @ P.T) + Vg @ (P * P).T
-            cost = s2 - s1 * s1 / n[r_, None]
-            cost = np.where((Vg @ miss.T) > 0, np.inf, cost)
+            if Vg.all():
+                # every base station received (the common case): the fix and node terms
+                # separate, one matrix product remains
+                fix = rr[r_] - rs[r_] ** 2 / B
+                cost = fix[:, None] + node_term[idx][None, :] - 2.0 * (rho[r_] @ P.T)
+                cost += (2.0 / B) * rs[r_, None] * node_sum[idx][None, :]
+            else:
+                s1 = rs[r_, None] - Vg @ P.T  # (g, W) sum of residuals
+                s2 = rr[r_, None] - 2.0 * (rho[r_] @ P.T) + Vg @ (P * P).T
+                cost = s2 - s1 * s1 / n[r_, None]
+                miss = ~np.isfinite(flat_pred[idx])
+                cost = np.where((Vg @ miss.T) > 0, np.inf, cost)
             part = np.argpartition(cost, top - 1, axis=1)[:, :top]
             pc = np.take_along_axis(cost, part, axis=1)
             o = np.argsort(pc, axis=1)
