@@ -1,0 +1,68 @@
+"""Speed and accuracy of the ``twin`` estimator on the hall's datasets, per ToA raster spacing.
+
+For each dataset ``DATA/<setup>`` and the map ``MAPS/<band>/map.npz`` (the layout
+``reproduce-paper`` writes: ``hallray-out/datasets`` and ``hallray-out/maps``): p90 / mean of the
+2D error and fixes per CPU second of the twin alone (with its map-free prior), first on an empty
+ToA raster ("cold") and then again ("warm"), for each ``--steps`` value (0: the exact
+re-synthesis, the receiver re-run at every iterate; slow). Run with ``OPENBLAS_NUM_THREADS=1``
+for single-threaded figures.
+
+Usage::
+
+    OPENBLAS_NUM_THREADS=1 python tools/bench_twin.py --data hallray-out/datasets \\
+        --maps hallray-out/maps --steps 0.05,0
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from positioning import api  # noqa: E402
+from positioning.dataset import load_dataset  # noqa: E402
+from positioning.metrics import error_2d  # noqa: E402
+from positioning.report import dataset_problem  # noqa: E402
+from positioning.twin import load  # noqa: E402
+
+SETUPS = "static-c-band,static-mmwave,semi-dynamic-c-band,semi-dynamic-mmwave"
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--data", required=True, help="folder of the datasets (one per setup)")
+    ap.add_argument("--maps", required=True, help="folder with <band>/map.npz")
+    ap.add_argument("--setups", default=SETUPS)
+    ap.add_argument("--steps", default="0.05", help="raster spacings, m, comma-separated")
+    a = ap.parse_args(argv)
+    print("| setup | resynth_step | p90 / mean, m | cold, fixes per CPU s | warm |")
+    print("|---|---|---|---|---|")
+    for setup in a.setups.split(","):
+        band = "c-band" if setup.endswith("c-band") else "mmwave"
+        ds = load_dataset(Path(a.data) / setup)
+        prob = dataset_problem(ds)
+        mp = str(Path(a.maps) / band / "map.npz")
+        for step in (float(x) for x in a.steps.split(",")):
+            p = api.resolve_params("twin", {"map": mp, "resynth_step": step}, prob.n_bs)
+            load(mp)[1].rasters.clear()
+            rate = []
+            for _ in range(2):
+                t0 = time.process_time()
+                out = api.METHODS["twin"].func(prob, **p)
+                rate.append(prob.n_epochs / (time.process_time() - t0))
+                if step == 0:
+                    break  # nothing is kept between passes
+            e = error_2d(out["xyz"], ds.true_xyz)
+            warm = f"{rate[1]:.0f}" if len(rate) > 1 else "(as cold)"
+            print(f"| {setup} | {step:g} | {np.percentile(e, 90):.2f} / {e.mean():.3f} | "
+                  f"{rate[0]:.0f} | {warm} |", flush=True)  # fmt: skip
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
