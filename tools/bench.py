@@ -394,7 +394,7 @@ def main() -> int:
     else:
         print("positioning (fixes per second, batched):")
         for k, v in pos.items():
-            print(f"  {k}: {v}")
+            print(f"  {k}: {v:.1f}" if v < 100 else f"  {k}: {v:.0f}")
     return 0
 
 
