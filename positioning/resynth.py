@@ -22,7 +22,9 @@ Re-running the receiver at every iterate costs about 4 links x 3 candidates x 41
 fix (120 fixes/s). By default (``raster``) the re-synthesised ToAs are instead sampled once on a
 fine lattice (:class:`ToaRaster`, 5 cm; a sample takes the paths of the map node whose square
 holds it, the same nearest-cell rule, and a hole node the nearest cell's) and interpolated
-bilinearly; the bias gradient of the Jacobian is the raster's slope. Tiles of the raster are
+bilinearly; the bias gradient of the Jacobian is the raster's slope, and the solution is the
+raster sample of least exact misfit within :data:`SNAP` samples of Gauss-Newton's (the blend
+between samples misses the ToA's structure finer than 5 cm at mmWave). Tiles of the raster are
 re-synthesised on first use and kept with the loaded map, so fixes near cells visited before
 cost only look-ups (over 10 000 fixes per CPU second); :func:`positioning.twin.prepare` fills
 the whole raster up front.
@@ -101,6 +103,9 @@ RASTER_STEP_M = 0.05
 #: of a bilinear look-up are always in one tile.
 TILE = 8
 _T1 = TILE + 1
+#: The raster solution is the best raster sample within this many samples of Gauss-Newton's
+#: (0: Gauss-Newton's own, on the bilinear blend).
+SNAP = 2
 #: Raster samples re-synthesised per receiver call (bounds memory: about 60 MB at 16 paths).
 RASTER_BATCH = 8192
 
@@ -187,13 +192,23 @@ class ToaRaster:
             if progress is not None:
                 progress(min(s + batch_tiles, todo.size), todo.size)
 
-    def nearest(self, xy: np.ndarray) -> np.ndarray:
-        """``c toa`` (A, B), m, of the sample nearest to each ``xy`` (A, 2): one look-up, for
-        the coarse start search."""
+    def sample_index(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(kx, ky) int indices of the sample nearest to each ``xy`` (A, 2), clipped."""
         u = np.rint((xy[:, 0] - self.X0) / self.h - 0.5)
         v = np.rint((xy[:, 1] - self.Y0) / self.h - 0.5)
         kx = np.clip(np.where(np.isfinite(u), u, 0.0), 0, self.NX - 1).astype(np.int64)
         ky = np.clip(np.where(np.isfinite(v), v, 0.0), 0, self.NY - 1).astype(np.int64)
+        return kx, ky
+
+    def sample_xy(self, kx: np.ndarray, ky: np.ndarray) -> np.ndarray:
+        """(A, 2) positions of samples ``(kx, ky)`` (clipped to the lattice)."""
+        kx, ky = np.clip(kx, 0, self.NX - 1), np.clip(ky, 0, self.NY - 1)
+        return np.column_stack([self.X0 + (kx + 0.5) * self.h, self.Y0 + (ky + 0.5) * self.h])
+
+    def nearest(self, xy: np.ndarray) -> np.ndarray:
+        """``c toa`` (A, B), m, of the sample nearest to each ``xy`` (A, 2): one look-up, for
+        the coarse start search."""
+        kx, ky = self.sample_index(xy)
         tid = (ky // TILE) * self.ntx + kx // TILE
         self._ensure(tid)
         flat = self.tiles[: self.n_tiles].reshape(-1, self.B)
@@ -348,6 +363,22 @@ def refine_resynth(
         norm = np.linalg.norm(step, axis=1, keepdims=True)
         step *= np.minimum(1.0, MAX_STEP_M / np.maximum(norm, 1e-12))
         xy = np.clip(xy + step, centre - box_m, centre + box_m)
+    if raster is not None and SNAP > 0:
+        # the raster's samples are the receiver's exact output, its bilinear blend between them
+        # is not (at mmWave the ToA has structure finer than the samples): the solution is the
+        # best sample within SNAP samples of the Gauss-Newton result, by the exact misfit
+        k = np.arange(-SNAP, SNAP + 1)
+        gx, gy = np.meshgrid(k, k, indexing="ij")
+        S = gx.size
+        kx, ky = raster.sample_index(best_xy)
+        sx = (kx[:, None] + gx.ravel()[None]).ravel()
+        sy = (ky[:, None] + gy.ravel()[None]).ravel()
+        pts = raster.sample_xy(sx, sy)
+        rms = _rms(rho[:, None], valid[:, None], raster.nearest(pts).reshape(A, S, -1))
+        j = np.argmin(rms, axis=1)
+        pick = np.isfinite(rms[np.arange(A), j])
+        best_xy = np.where(pick[:, None], pts.reshape(A, S, 2)[np.arange(A), j], best_xy)
+        best_rms = np.where(pick, rms[np.arange(A), j], best_rms)
     return best_xy, np.where(ok_row, best_rms, np.inf)
 
 
@@ -366,14 +397,15 @@ def normal_step(J: np.ndarray, r: np.ndarray, damping: float) -> np.ndarray:
 
 
 def _rms(rho: np.ndarray, valid: np.ndarray, pred: np.ndarray) -> np.ndarray:
-    """(A,) RMS residual about the offset, m, of the received base stations; plus
-    :data:`MISSING_PENALTY_M` where the prediction misses one; inf with fewer than 3."""
+    """(...,) RMS residual about the offset, m, of the received base stations (last axis;
+    ``rho``, ``valid`` broadcast against ``pred``); plus :data:`MISSING_PENALTY_M` where the
+    prediction misses one; inf with fewer than 3."""
     use = valid & np.isfinite(pred)
-    s = np.where(use, rho - pred, np.nan)
-    n = use.sum(axis=1)
-    mean = np.nansum(s, axis=1) / np.maximum(n, 1)
-    d = np.where(use, s - mean[:, None], 0.0)
+    s = np.where(use, rho - pred, 0.0)
+    n = use.sum(axis=-1)
+    mean = s.sum(axis=-1) / np.maximum(n, 1)
+    d = np.where(use, s - mean[..., None], 0.0)
     with np.errstate(invalid="ignore", divide="ignore"):
-        rms = np.sqrt(np.sum(d * d, axis=1) / np.maximum(n - 1, 1))
-    rms = rms + MISSING_PENALTY_M * (n < valid.sum(axis=1))
+        rms = np.sqrt(np.einsum("...b,...b->...", d, d) / np.maximum(n - 1, 1))
+    rms = rms + MISSING_PENALTY_M * (n < valid.sum(axis=-1))
     return np.where((n >= 3) & np.isfinite(rms), rms, np.inf)

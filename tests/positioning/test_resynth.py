@@ -289,3 +289,48 @@ def test_prepare_fills_the_raster_and_later_fixes_only_look_up(tmp_path):
     np.testing.assert_array_equal(a, b)
     with pytest.raises(PositioningError, match="resynth_step"):
         tw.prepare(eager, 1.0, resynth_step=0.0)
+
+
+def test_raster_sample_index_and_position_round_trip():
+    """A sample's position maps back to its own index; a point maps to the sample within half
+    a spacing of it."""
+    r, _, _ = _raster_and_map()
+    rng = np.random.default_rng(6)
+    kx, ky = rng.integers(0, r.NX, 30), rng.integers(0, r.NY, 30)
+    np.testing.assert_array_equal(r.sample_index(r.sample_xy(kx, ky)), (kx, ky))
+    xy = r.sample_xy(kx, ky) + rng.uniform(-0.49, 0.49, (30, 2)) * r.h
+    inside = (kx > 0) & (ky > 0) & (kx < r.NX - 1) & (ky < r.NY - 1)
+    np.testing.assert_array_equal(np.column_stack(r.sample_index(xy))[inside],
+                                  np.column_stack([kx, ky])[inside])  # fmt: skip
+
+
+def test_raster_solution_is_the_best_sample_near_gauss_newton(monkeypatch):
+    """With SNAP > 0 the raster's solution is the raster sample of least exact misfit within
+    SNAP samples of the Gauss-Newton solution (SNAP = 0), checked by exhaustive look-ups."""
+    from pos_synth import CBAND_MODEL, PAPER_BS, two_ray_paths
+
+    import positioning.resynth as rs
+
+    r, pmap, _ = _raster_and_map()
+    rng = np.random.default_rng(9)
+    n = 20
+    p = np.column_stack([rng.uniform(1.5, 4.5, n), rng.uniform(1.5, 3.5, n), np.ones(n)])
+    d, g, _, _ = two_ray_paths(p, PAPER_BS)
+    toa = LobeReceiver.from_meta(CBAND_MODEL).toa(d.reshape(4 * n, -1), g.reshape(4 * n, -1))
+    rho = C0 * toa.reshape(n, 4) + rng.normal(0, 0.02, (n, 4))
+    valid = np.ones((n, 4), dtype=bool)
+    start = p[:, :2] + rng.uniform(-0.2, 0.2, (n, 2))
+    args = (rho, valid, np.ones(n), PAPER_BS, pmap, None, start, np.zeros(n, int), 100.0)
+    monkeypatch.setattr(rs, "SNAP", 0)
+    gn, _ = rs.refine_resynth(*args, search_m=0.0, raster=r)
+    monkeypatch.setattr(rs, "SNAP", 2)
+    xy, rms = rs.refine_resynth(*args, search_m=0.0, raster=r)
+    k0x, k0y = r.sample_index(gn)
+    kx, ky = r.sample_index(xy)
+    np.testing.assert_allclose(r.sample_xy(kx, ky), xy, atol=1e-12)
+    assert (np.abs(kx - k0x) <= 2).all() and (np.abs(ky - k0y) <= 2).all()
+    best = np.full(n, np.inf)
+    for dx in range(-2, 3):
+        for dy in range(-2, 3):
+            best = np.minimum(best, rs._rms(rho, valid, r.nearest(r.sample_xy(k0x + dx, k0y + dy))))
+    np.testing.assert_allclose(rms, best, rtol=0, atol=1e-12)
