@@ -226,3 +226,46 @@ def test_workers_import_the_callers_raytrace_not_the_working_directorys(tmp_path
                          env=env, timeout=300)  # fmt: skip
     assert out.returncode == 0, out.stderr[-2000:]
     assert out.stdout.startswith("ok")
+
+
+def test_a_script_that_traces_at_its_top_level_runs_once(tmp_path):
+    """A script without ``if __name__ == "__main__":`` (a notebook-style script): the workers
+    do not run it again (multiprocessing would import the parent's __main__ in every worker,
+    which would trace and start pools there). Its top-level print happens once."""
+    import subprocess
+    import sys
+
+    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(parallel.__file__))))
+    script = tmp_path / "plain.py"
+    script.write_text(
+        "from raytrace import TraceConfig, trace\n"
+        "from raytrace.scene.io import load_scene\n"
+        "from raytrace.scene.metadata import SceneMetadata\n"
+        "print('top level')\n"
+        "sc = load_scene('hall')\n"
+        "m = SceneMetadata.from_scene(sc, require=True)\n"
+        "cfg = TraceConfig(max_reflections=1, max_penetrations=0, max_diffractions=0)\n"
+        "a = trace(sc, m.bs_xyz, m.point_xyz, 3.775e9, cfg, threads=1)\n"
+        "b = trace(sc, m.bs_xyz, m.point_xyz, 3.775e9, cfg, workers=2, chunk_links=16)\n"
+        "assert a.n_paths == b.n_paths > 0\n"
+        "print('ok', b.n_paths)\n"
+    )
+    env = {**os.environ, "PYTHONPATH": root}
+    out = subprocess.run([sys.executable, str(script)], cwd=tmp_path, capture_output=True,
+                         text=True, env=env, timeout=300)  # fmt: skip
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.count("top level") == 1
+    assert "ok" in out.stdout
+
+
+def test_a_job_from_main_needs_a_pool_that_imports_main(scene_links):
+    """A job function defined in __main__ cannot reach workers that do not import it: a
+    one-line TypeError names the fix instead of a worker crash."""
+    sc = scene_links[0]
+
+    def job(scene, item):
+        return item
+
+    job.__module__ = "__main__"
+    with pytest.raises(TypeError, match="main=True"), parallel.ScenePool(sc, 2) as pool:
+        list(pool.map(job, range(3)))

@@ -29,12 +29,21 @@ What a pool costs, and how it is kept small (measured in docs/tracing.md, "Where
 
 A worker process that dies (killed, out of memory) makes the pool raise one
 :class:`WorkerCrashError`; the broken pool is dropped and the next call starts a new one.
+
+* **Workers do not run the caller's script.** A fork-server or spawned process imports the
+  parent's ``__main__`` first (``multiprocessing``'s rule), so a script that calls ``trace`` at
+  its top level, without ``if __name__ == "__main__":``, would run again in every worker and
+  start pools there. The jobs are raytrace functions, so workers are started with the parent's
+  ``__main__`` hidden from them; only a pool whose jobs come from ``__main__`` (``main=True``,
+  e.g. a ``reduce`` defined in the script) imports it, and then the script needs the guard.
 """
 
 from __future__ import annotations
 
 import atexit
 import hashlib
+import multiprocessing
+import multiprocessing.context
 import os
 import pickle
 import sys
@@ -209,6 +218,72 @@ def _context(preload: Sequence[str]) -> Any:
     return ctx
 
 
+_MAIN_LOCK = threading.Lock()
+
+
+class _MainHidden:
+    """While entered, ``__main__`` has neither ``__file__`` nor ``__spec__`` (so a process
+    started meanwhile by ``multiprocessing`` is not told to import it)."""
+
+    def __enter__(self) -> None:
+        _MAIN_LOCK.acquire()
+        main = sys.modules.get("__main__")
+        self._saved = {}
+        if main is not None:
+            for k in ("__file__", "__spec__"):
+                if k in main.__dict__:
+                    self._saved[k] = main.__dict__[k]
+            main.__dict__.pop("__file__", None)
+            if "__spec__" in main.__dict__:
+                main.__dict__["__spec__"] = None
+
+    def __exit__(self, *exc: object) -> None:
+        main = sys.modules.get("__main__")
+        if main is not None:
+            main.__dict__.update(self._saved)
+        _MAIN_LOCK.release()
+
+
+class _SpawnProcess(multiprocessing.context.SpawnProcess):
+    """A spawned process that is not told to import the parent's ``__main__``."""
+
+    @staticmethod
+    def _Popen(process_obj: Any) -> Any:
+        with _MainHidden():
+            return multiprocessing.context.SpawnProcess._Popen(process_obj)
+
+
+class _SpawnContext(multiprocessing.context.SpawnContext):
+    Process = _SpawnProcess
+
+
+if hasattr(multiprocessing.context, "ForkServerContext"):  # not on Windows
+
+    class _ForkServerProcess(multiprocessing.context.ForkServerProcess):
+        """A fork-server process that is not told to import the parent's ``__main__``."""
+
+        @staticmethod
+        def _Popen(process_obj: Any) -> Any:
+            with _MainHidden():
+                return multiprocessing.context.ForkServerProcess._Popen(process_obj)
+
+    class _ForkServerContext(multiprocessing.context.ForkServerContext):
+        Process = _ForkServerProcess
+
+
+def _without_main(ctx: Any) -> Any:
+    """The multiprocessing context like ``ctx`` (fork server or spawn) whose processes start
+    without importing the parent's ``__main__``."""
+    if ctx.get_start_method() == "forkserver":
+        return _ForkServerContext()
+    return _SpawnContext()
+
+
+def from_main(fn: object) -> bool:
+    """True if ``fn`` is defined in the caller's ``__main__`` (a worker must import it)."""
+    return getattr(fn, "__module__", None) == "__main__"
+
+
 def close_pools() -> None:
     """Stop the kept worker processes (called at the end of the interpreter)."""
     with _LOCK:
@@ -221,9 +296,12 @@ def close_pools() -> None:
 atexit.register(close_pools)
 
 
-def _executor(blob: bytes, processes: int, preload: Sequence[str]) -> ProcessPoolExecutor:
-    """The kept pool for this scene and number of processes, started if it is not there."""
-    key = (hashlib.blake2b(blob, digest_size=16).digest(), processes)
+def _executor(
+    blob: bytes, processes: int, preload: Sequence[str], main: bool = False
+) -> ProcessPoolExecutor:
+    """The kept pool for this scene and number of processes, started if it is not there
+    (``main``: its workers import the caller's ``__main__``)."""
+    key = (hashlib.blake2b(blob, digest_size=16).digest(), processes, bool(main))
     with _LOCK:
         if _KEPT.get("key") == key:
             return _KEPT["executor"]
@@ -232,7 +310,7 @@ def _executor(blob: bytes, processes: int, preload: Sequence[str]) -> ProcessPoo
             old.shutdown(wait=False, cancel_futures=True)
         ex = ProcessPoolExecutor(
             max_workers=processes,
-            mp_context=_context(preload),
+            mp_context=_context(preload) if main else _without_main(_context(preload)),
             initializer=_init_worker,
             initargs=(blob, _PACKAGE),
         )
@@ -318,18 +396,23 @@ class ScenePool:
     workers : int, lanes (1: this process alone, no worker process)
     preload : sequence of str, optional, more modules for the fork server to import (only
         before it has started: the first pool of the interpreter)
+    main : bool, the workers import the caller's ``__main__`` (needed when ``fn`` or what the
+        items carry is defined there; the script then needs ``if __name__ == "__main__":``).
+        Default False: a script that traces at its top level is not run again in the workers.
 
     ``fn`` must be a module-level function (it is sent to the workers by reference). The worker
     processes are kept after :meth:`close` for the next pool with the same scene and number of
     workers (see the module's description); :func:`close_pools` stops them.
     """
 
-    def __init__(self, scene: Scene, workers: int, preload: Sequence[str] = ()) -> None:
-        self.scene, self.workers = scene, int(workers)
+    def __init__(
+        self, scene: Scene, workers: int, preload: Sequence[str] = (), main: bool = False
+    ) -> None:
+        self.scene, self.workers, self.main = scene, int(workers), bool(main)
         self._pool: ProcessPoolExecutor | None = None
         if self.workers > 1:
             blob = pickle.dumps(scene, protocol=pickle.HIGHEST_PROTOCOL)
-            self._pool = _executor(blob, self.workers - 1, preload)
+            self._pool = _executor(blob, self.workers - 1, preload, self.main)
 
     def map(self, fn: Callable[[Scene, Any], Any], items: Iterable[Any]) -> Iterator[Any]:
         """The results of ``fn(scene, item)``, in the order of ``items``.
@@ -341,6 +424,11 @@ class ScenePool:
         a worker process dies; an exception raised by ``fn`` is raised as it is.
         """
         items = list(items)
+        if self._pool is not None and from_main(fn) and not self.main:
+            raise TypeError(
+                f"{fn.__qualname__} is defined in __main__: the workers need "  # type: ignore[attr-defined]
+                "ScenePool(..., main=True) to import it"
+            )
         if self._pool is None:
             for item in items:
                 yield self._here(fn, item)

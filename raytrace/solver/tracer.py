@@ -34,7 +34,7 @@ from . import diffraction, specular
 from .config import MIN_POWER_DB, TraceConfig
 from .context import TraceContext, opaque_objects
 from .evaluate import candidates, evaluate
-from .parallel import ScenePool, auto_in_process, receiver_chunks, resolve_workers
+from .parallel import ScenePool, auto_in_process, from_main, receiver_chunks, resolve_workers
 from .paths import DIFFRACTION, Paths
 
 __all__ = [
@@ -262,7 +262,7 @@ def _chunked(
 
         bar = tqdm(total=len(rx) * len(tx), desc="tracing", unit="link", leave=False)
     try:
-        with ScenePool(scene, n_workers) as pool:
+        with ScenePool(scene, n_workers, main=from_main(reduce)) as pool:
             for chunk, (result, chunk_stats) in zip(chunks, pool.map(_trace_job, jobs)):
                 if stats is not None:
                     for key, v in chunk_stats.items():
