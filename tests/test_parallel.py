@@ -269,3 +269,24 @@ def test_a_job_from_main_needs_a_pool_that_imports_main(scene_links):
     job.__module__ = "__main__"
     with pytest.raises(TypeError, match="main=True"), parallel.ScenePool(sc, 2) as pool:
         list(pool.map(job, range(3)))
+
+
+def test_a_threaded_join_equals_the_serial_one(scene_links, monkeypatch):
+    """Joining chunks on several threads (large traces) gives the same arrays as one thread, and
+    trace() with the threaded join forced gives the same paths."""
+    import raytrace.solver.tracer as tracer_mod
+    from raytrace.solver.paths import Paths
+
+    sc, tx, rx, cfg = scene_links
+    parts = [p for _, p in trace_chunks(sc, tx, rx, F_C, cfg, workers=1,
+                                        chunk_links=3 * len(tx))]  # fmt: skip
+    pieces = [p.select(slice(0, p.n_paths // 2)) for p in parts]
+    pieces += [p.select(slice(p.n_paths // 2, None)) for p in parts]
+    one = Paths.concatenate(pieces)
+    for threads in (2, 3, 8):
+        many = Paths.concatenate(pieces, threads=threads)
+        for k in Paths._PER_PATH:
+            np.testing.assert_array_equal(getattr(many, k), getattr(one, k))
+    monkeypatch.setattr(tracer_mod, "JOIN_THREADS_PATHS", 1)
+    _same(trace(sc, tx, rx, F_C, cfg, threads=1),
+          trace(sc, tx, rx, F_C, cfg, workers=1, chunk_links=5 * len(tx)))  # fmt: skip

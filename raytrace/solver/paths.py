@@ -113,14 +113,46 @@ class Paths:
         )
 
     @classmethod
-    def concatenate(cls, parts: list[Paths]) -> Paths:
-        """Join path sets of the same links, padding interaction arrays to the deepest."""
+    def concatenate(cls, parts: list[Paths], threads: int = 1) -> Paths:
+        """Join path sets of the same links, padding interaction arrays to the deepest.
+
+        With ``threads > 1`` the copies run on that many threads (numpy copies without the GIL):
+        joining millions of paths is mostly first writes to fresh memory, which the threads
+        fault in side by side. The result does not depend on ``threads``.
+        """
         if not parts:
             raise ValueError("nothing to concatenate")
         depth = max(p.interaction.shape[1] for p in parts)
         padded = [p._padded(depth) for p in parts]
         first = parts[0]
-        kw = {k: np.concatenate([getattr(p, k) for p in padded]) for k in cls._PER_PATH}
+        if threads <= 1 or len(padded) == 1:
+            kw = {k: np.concatenate([getattr(p, k) for p in padded]) for k in cls._PER_PATH}
+            return cls(tx=first.tx, rx=first.rx, frequency_hz=first.frequency_hz, **kw)
+        from concurrent.futures import ThreadPoolExecutor
+
+        starts = np.concatenate([[0], np.cumsum([p.n_paths for p in padded])])
+        kw = {}
+        tasks = []  # (bytes, out, row, source)
+        for k in cls._PER_PATH:
+            src = [getattr(p, k) for p in padded]
+            out = np.empty((int(starts[-1]), *src[0].shape[1:]), dtype=src[0].dtype)
+            kw[k] = out
+            tasks += [(a.nbytes, out, int(r), a) for a, r in zip(src, starts[:-1]) if len(a)]
+        # biggest copies first, each to the least loaded thread
+        tasks.sort(key=lambda t: -t[0])
+        lanes: list[list[tuple]] = [[] for _ in range(int(threads))]
+        load = [0] * len(lanes)
+        for t in tasks:
+            i = load.index(min(load))
+            lanes[i].append(t)
+            load[i] += t[0]
+
+        def run(lane: list[tuple]) -> None:
+            for _, out, row, a in lane:
+                out[row : row + len(a)] = a
+
+        with ThreadPoolExecutor(len(lanes)) as ex:
+            list(ex.map(run, lanes))
         return cls(tx=first.tx, rx=first.rx, frequency_hz=first.frequency_hz, **kw)
 
     def _padded(self, depth: int) -> Paths:

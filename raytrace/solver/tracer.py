@@ -183,6 +183,10 @@ def trace(
     return join_chunks([paths for _, paths in chunks], len(tx))
 
 
+#: Joins of at least this many paths copy on several threads (:meth:`Paths.concatenate`).
+JOIN_THREADS_PATHS = 200_000
+
+
 def join_chunks(parts: list[Paths], n_tx: int) -> Paths:
     """The paths of chunks of consecutive receivers, in order, as one set in canonical order.
 
@@ -192,7 +196,10 @@ def join_chunks(parts: list[Paths], n_tx: int) -> Paths:
     """
     bounds = [np.searchsorted(p.tx_index, np.arange(n_tx + 1)) for p in parts]
     pieces = [p.select(slice(b[t], b[t + 1])) for t in range(n_tx) for p, b in zip(parts, bounds)]
-    return Paths.concatenate(pieces)
+    n = sum(p.n_paths for p in parts)
+    # a large join copies on all cores (it is the serial step after the pool's work)
+    threads = min(os.cpu_count() or 1, 8) if n >= JOIN_THREADS_PATHS else 1
+    return Paths.concatenate(pieces, threads=threads)
 
 
 def trace_chunks(
