@@ -231,7 +231,8 @@ def test_workers_import_the_callers_raytrace_not_the_working_directorys(tmp_path
 def test_a_script_that_traces_at_its_top_level_runs_once(tmp_path):
     """A script without ``if __name__ == "__main__":`` (a notebook-style script): the workers
     do not run it again (multiprocessing would import the parent's __main__ in every worker,
-    which would trace and start pools there). Its top-level print happens once."""
+    which would trace and start pools there), nor do those of ``process_context()`` (the
+    dataset and sweep pools). Its top-level print happens once."""
     import subprocess
     import sys
 
@@ -248,6 +249,11 @@ def test_a_script_that_traces_at_its_top_level_runs_once(tmp_path):
         "a = trace(sc, m.bs_xyz, m.point_xyz, 3.775e9, cfg, threads=1)\n"
         "b = trace(sc, m.bs_xyz, m.point_xyz, 3.775e9, cfg, workers=2, chunk_links=16)\n"
         "assert a.n_paths == b.n_paths > 0\n"
+        "import os\n"
+        "from concurrent.futures import ProcessPoolExecutor\n"
+        "from raytrace.solver.parallel import process_context\n"
+        "with ProcessPoolExecutor(1, mp_context=process_context()) as ex:\n"
+        "    assert ex.submit(os.getpid).result() != os.getpid()\n"
         "print('ok', b.n_paths)\n"
     )
     env = {**os.environ, "PYTHONPATH": root}

@@ -176,12 +176,14 @@ def _call(fn: Callable[[Scene, Any], Any], item: Any) -> Any:
     return fn(_SCENE["scene"], item)
 
 
-def process_context(preload: Sequence[str] = ()) -> Any:
+def process_context(preload: Sequence[str] = (), main: bool = False) -> Any:
     """The multiprocessing context for worker processes: the fork server, started now if it is
     not running, importing :data:`PRELOAD` and ``preload`` in the background (spawn where there
-    is no fork server). ``preload`` counts only for the first call of the interpreter."""
+    is no fork server). ``preload`` counts only for the first call of the interpreter. Its
+    processes do not import the caller's ``__main__`` unless ``main`` (module docstring)."""
     with _LOCK:
-        return _context(preload)
+        ctx = _context(preload)
+    return ctx if main else _without_main(ctx)
 
 
 def _context(preload: Sequence[str]) -> Any:
