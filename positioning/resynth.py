@@ -206,8 +206,8 @@ class ToaRaster:
         return np.column_stack([self.X0 + (kx + 0.5) * self.h, self.Y0 + (ky + 0.5) * self.h])
 
     def nearest(self, xy: np.ndarray) -> np.ndarray:
-        """``c toa`` (A, B), m, of the sample nearest to each ``xy`` (A, 2): one look-up, for
-        the coarse start search."""
+        """``c toa`` (A, B), m, of the sample nearest to each ``xy`` (A, 2): one look-up, the
+        receiver's exact output there (the final sample step of :func:`refine_resynth`)."""
         kx, ky = self.sample_index(xy)
         tid = (ky // TILE) * self.ntx + kx // TILE
         self._ensure(tid)

@@ -481,6 +481,8 @@ def prepare(
         raise PositioningError("twin: prepare needs a map with paths (schema version 2)")
     if not (np.isfinite(resynth_step) and resynth_step > 0):
         raise PositioningError(f"twin: resynth_step must be > 0 m, got {resynth_step!r}")
+    if not np.isfinite(height_m):
+        raise PositioningError(f"twin: prepare needs a finite device height, got {height_m!r}")
     r = _raster(lat, PathMap.from_map(fmap, paths), paths, resynth_step,
                 int(np.rint(float(height_m) * 1000.0)))  # fmt: skip
     before = r.links
@@ -639,7 +641,7 @@ def twin(
         of this spacing around the visited cells and interpolated bilinearly
         (:class:`positioning.resynth.ToaRaster`, kept with a map loaded from a file, so later
         fixes near the same cells cost only look-ups; default 0.05 m); 0: the receiver is re-run
-        at every iterate (exact, about 50x slower)
+        at every iterate (exact, about 90x slower)
 
     Returns
     -------
