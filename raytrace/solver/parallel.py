@@ -282,8 +282,9 @@ def _without_main(ctx: Any) -> Any:
 
 
 def from_main(fn: object) -> bool:
-    """True if ``fn`` is defined in the caller's ``__main__`` (a worker must import it)."""
-    return getattr(fn, "__module__", None) == "__main__"
+    """True if ``fn`` (or the function a ``functools.partial`` wraps) is defined in the
+    caller's ``__main__`` (a worker must import it)."""
+    return getattr(getattr(fn, "func", fn), "__module__", None) == "__main__"
 
 
 def close_pools() -> None:
