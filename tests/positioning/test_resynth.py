@@ -35,6 +35,17 @@ def closed_form_toa(delay: np.ndarray, gain: np.ndarray) -> float:
     return float(t[np.argmax(s)])
 
 
+def two_ray_toa(p: np.ndarray) -> np.ndarray:
+    """(n, 4) noiseless first-lobe ToA, s, of the C-band receiver at ``p`` (n, 3) in the
+    two-ray synthetic hall (line of sight + floor reflection from each paper base station)."""
+    from pos_synth import CBAND_MODEL, two_ray_paths
+
+    n = len(p)
+    delay, gain, _, _ = two_ray_paths(p)
+    model = LobeReceiver.from_meta(CBAND_MODEL)
+    return model.toa(delay.reshape(4 * n, -1), gain.reshape(4 * n, -1)).reshape(n, 4)
+
+
 def test_resynthesis_reproduces_the_receiver_0_3_m_from_the_cell():
     """Two paths 0.7 m apart (a fifth of a pulse) merge into one lobe whose top depends on their
     phase difference: moved 0.3 m from the cell, the re-synthesised paths give the closed-form
@@ -73,7 +84,7 @@ def test_twin_with_paths_removes_the_overlap_bias_the_cell_model_keeps():
     into one lobe whose top moves with their phase). Devices off the grid measure the
     receiver's ToA on the exact rays (+ 1 cm noise); the v1 refinement (cell bias held) keeps
     the bias change between cell and device, the re-synthesis removes it."""
-    from pos_synth import CBAND_MODEL, PAPER_BS, two_ray_map, two_ray_paths
+    from pos_synth import PAPER_BS, two_ray_map
 
     from positioning import locate
     from positioning.metrics import error_2d
@@ -82,9 +93,7 @@ def test_twin_with_paths_removes_the_overlap_bias_the_cell_model_keeps():
     rng = np.random.default_rng(5)
     n = 300
     p = np.column_stack([rng.uniform(3, 26, n), rng.uniform(3, 22, n), np.ones(n)])
-    delay, gain, _, _ = two_ray_paths(p)
-    model = LobeReceiver.from_meta(CBAND_MODEL)
-    toa = model.toa(delay.reshape(4 * n, -1), gain.reshape(4 * n, -1)).reshape(n, 4)
+    toa = two_ray_toa(p)
     bias = C0 * toa - np.linalg.norm(p[:, None] - PAPER_BS[None], axis=2)
     assert np.percentile(np.abs(bias), 90) > 0.1  # the receiver's overlap bias is there
     toa = toa + rng.normal(0, 0.01, toa.shape) / C0 + rng.uniform(0, 1e-3, (n, 1))
@@ -116,7 +125,7 @@ def test_resynth_needs_a_map_with_paths():
 def test_resynth_in_blocks_equals_all_at_once(monkeypatch):
     """The re-synthesis runs in blocks of fixes to bound memory; the fixes do not depend on the
     block size (one fix per block, a block that does not divide the fixes, all at once)."""
-    from pos_synth import CBAND_MODEL, PAPER_BS, two_ray_map, two_ray_paths
+    from pos_synth import PAPER_BS, two_ray_map
 
     import positioning.twin as tw
     from positioning import locate
@@ -125,10 +134,7 @@ def test_resynth_in_blocks_equals_all_at_once(monkeypatch):
     rng = np.random.default_rng(11)
     n = 40
     p = np.column_stack([rng.uniform(3, 26, n), rng.uniform(3, 22, n), np.ones(n)])
-    delay, gain, _, _ = two_ray_paths(p)
-    toa = LobeReceiver.from_meta(CBAND_MODEL).toa(
-        delay.reshape(4 * n, -1), gain.reshape(4 * n, -1)
-    ).reshape(n, 4) + rng.normal(0, 0.01, (n, 4)) / C0
+    toa = two_ray_toa(p) + rng.normal(0, 0.01, (n, 4)) / C0
     out = {}
     for block in (1, 7, 10_000):
         monkeypatch.setattr(tw, "RESYNTH_CHUNK", block)
@@ -202,7 +208,7 @@ def test_raster_tiles_are_computed_on_first_use_only():
 def test_twin_on_the_raster_matches_the_exact_resynthesis():
     """The default raster (5 cm) and the exact re-synthesis (the receiver re-run at every
     iterate) give the same accuracy on the two-ray hall: p90 within 2 cm."""
-    from pos_synth import CBAND_MODEL, PAPER_BS, two_ray_map, two_ray_paths
+    from pos_synth import PAPER_BS, two_ray_map
 
     from positioning import locate
     from positioning.metrics import error_2d
@@ -211,10 +217,7 @@ def test_twin_on_the_raster_matches_the_exact_resynthesis():
     rng = np.random.default_rng(8)
     n = 150
     p = np.column_stack([rng.uniform(3, 26, n), rng.uniform(3, 22, n), np.ones(n)])
-    delay, gain, _, _ = two_ray_paths(p)
-    toa = LobeReceiver.from_meta(CBAND_MODEL).toa(
-        delay.reshape(4 * n, -1), gain.reshape(4 * n, -1)
-    ).reshape(n, 4) + rng.normal(0, 0.01, (n, 4)) / C0
+    toa = two_ray_toa(p) + rng.normal(0, 0.01, (n, 4)) / C0
     p90 = {}
     for step in (0.0, 0.05):
         xyz = locate(toa, PAPER_BS, "twin", height_m=1.0, map=fmap, fallback="ls",
@@ -263,12 +266,11 @@ def test_prepare_fills_the_raster_and_later_fixes_only_look_up(tmp_path):
     """``prepare`` re-synthesises the whole raster once; the fixes after it spend no receiver
     run and equal those of a lazily filled raster."""
     import pytest
-    from pos_synth import PAPER_BS, two_ray_map, two_ray_paths
+    from pos_synth import PAPER_BS, two_ray_map
 
     import positioning.twin as tw
     from positioning import PositioningError, locate
     from positioning.fingerprint import write_map
-    from positioning.lobe import LobeReceiver as LR
 
     fmap = two_ray_map(step=0.5, area=(8.0, 6.0))
     eager = write_map(tmp_path / "eager.npz", fmap)
@@ -279,10 +281,7 @@ def test_prepare_fills_the_raster_and_later_fixes_only_look_up(tmp_path):
     assert spent == raster.nty * raster.ntx * 81 * 4 == raster.links
     rng = np.random.default_rng(1)
     p = np.column_stack([rng.uniform(2, 6, 20), rng.uniform(2, 4, 20), np.ones(20)])
-    d, g, _, _ = two_ray_paths(p, PAPER_BS)
-    from pos_synth import CBAND_MODEL
-
-    toa = LR.from_meta(CBAND_MODEL).toa(d.reshape(80, -1), g.reshape(80, -1)).reshape(20, 4)
+    toa = two_ray_toa(p)
     a = locate(toa, PAPER_BS, "twin", height_m=1.0, map=str(eager), fallback="ls")
     assert raster.links == spent
     b = locate(toa, PAPER_BS, "twin", height_m=1.0, map=str(lazy), fallback="ls")
@@ -307,7 +306,7 @@ def test_raster_sample_index_and_position_round_trip():
 def test_raster_solution_is_the_best_sample_near_gauss_newton(monkeypatch):
     """With SNAP > 0 the raster's solution is the raster sample of least exact misfit within
     SNAP samples of the Gauss-Newton solution (SNAP = 0), checked by exhaustive look-ups."""
-    from pos_synth import CBAND_MODEL, PAPER_BS, two_ray_paths
+    from pos_synth import PAPER_BS
 
     import positioning.resynth as rs
 
@@ -315,9 +314,7 @@ def test_raster_solution_is_the_best_sample_near_gauss_newton(monkeypatch):
     rng = np.random.default_rng(9)
     n = 20
     p = np.column_stack([rng.uniform(1.5, 4.5, n), rng.uniform(1.5, 3.5, n), np.ones(n)])
-    d, g, _, _ = two_ray_paths(p, PAPER_BS)
-    toa = LobeReceiver.from_meta(CBAND_MODEL).toa(d.reshape(4 * n, -1), g.reshape(4 * n, -1))
-    rho = C0 * toa.reshape(n, 4) + rng.normal(0, 0.02, (n, 4))
+    rho = C0 * two_ray_toa(p) + rng.normal(0, 0.02, (n, 4))
     valid = np.ones((n, 4), dtype=bool)
     start = p[:, :2] + rng.uniform(-0.2, 0.2, (n, 2))
     args = (rho, valid, np.ones(n), PAPER_BS, pmap, None, start, np.zeros(n, int), 100.0)
