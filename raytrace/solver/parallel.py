@@ -246,13 +246,18 @@ class _MainHidden:
         _MAIN_LOCK.release()
 
 
-class _SpawnProcess(multiprocessing.context.SpawnProcess):
-    """A spawned process that is not told to import the parent's ``__main__``."""
+def _hiding_main(popen: Callable[[Any], Any]) -> Any:
+    """A process class's ``_Popen`` that launches with ``__main__`` hidden (:class:`_MainHidden`)."""
 
-    @staticmethod
     def _Popen(process_obj: Any) -> Any:
         with _MainHidden():
-            return multiprocessing.context.SpawnProcess._Popen(process_obj)
+            return popen(process_obj)
+
+    return staticmethod(_Popen)
+
+
+class _SpawnProcess(multiprocessing.context.SpawnProcess):
+    _Popen = _hiding_main(multiprocessing.context.SpawnProcess._Popen)
 
 
 class _SpawnContext(multiprocessing.context.SpawnContext):
@@ -262,12 +267,7 @@ class _SpawnContext(multiprocessing.context.SpawnContext):
 if hasattr(multiprocessing.context, "ForkServerContext"):  # not on Windows
 
     class _ForkServerProcess(multiprocessing.context.ForkServerProcess):
-        """A fork-server process that is not told to import the parent's ``__main__``."""
-
-        @staticmethod
-        def _Popen(process_obj: Any) -> Any:
-            with _MainHidden():
-                return multiprocessing.context.ForkServerProcess._Popen(process_obj)
+        _Popen = _hiding_main(multiprocessing.context.ForkServerProcess._Popen)
 
     class _ForkServerContext(multiprocessing.context.ForkServerContext):
         Process = _ForkServerProcess
