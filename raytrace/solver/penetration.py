@@ -324,19 +324,33 @@ def _touches(scene: Scene, o: np.ndarray, a: np.ndarray, d: np.ndarray, tol: flo
     return out
 
 
+def _edge_planes(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
+    """Every face's corners (F, 3, 3) and the outward in-plane unit normals of its three edges
+    (F, 3, 3), edge ``i`` from corner ``i`` to corner ``i + 1``. Cached on the scene."""
+    cache = scene.__dict__.get("_edge_planes")
+    if cache is not None:
+        return cache
+    tri = scene.vertices[scene.faces]
+    nrm = scene.face_normal
+    m = np.empty_like(tri)
+    for i in range(3):
+        v, w = tri[:, i, :], tri[:, (i + 1) % 3, :]
+        e = np.cross(w - v, nrm)  # in-plane normal of the edge, outward (counter-clockwise)
+        m[:, i] = e / np.maximum(np.linalg.norm(e, axis=-1, keepdims=True), 1e-300)
+    scene.__dict__["_edge_planes"] = (tri, m)
+    return tri, m
+
+
 def _edge_distance(scene: Scene, face: np.ndarray, point: np.ndarray) -> np.ndarray:
     """Signed in-plane distance of points from their triangle's boundary, metres: the largest
     of the distances outside its three edge lines, so <= 0 inside the triangle (minus the
     distance to the nearest edge) and > 0 outside. Broadcasts ``face`` (...) against ``point``
     (..., 3)."""
-    tri = scene.vertices[scene.faces[face]]  # (..., 3, 3)
-    nrm = scene.face_normal[face]
+    corners, normals = _edge_planes(scene)
+    tri, edge_n = corners[face], normals[face]  # (..., 3, 3)
     worst = np.full(np.broadcast_shapes(np.shape(face), point.shape[:-1]), -np.inf)
     for i in range(3):
-        v, w = tri[..., i, :], tri[..., (i + 1) % 3, :]
-        m = np.cross(w - v, nrm)  # in-plane normal of the edge, outward (counter-clockwise)
-        m = m / np.maximum(np.linalg.norm(m, axis=-1, keepdims=True), 1e-300)
-        worst = np.maximum(worst, ((point - v) * m).sum(axis=-1))
+        worst = np.maximum(worst, ((point - tri[..., i, :]) * edge_n[..., i, :]).sum(axis=-1))
     return worst
 
 
