@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import pickle
 
 import numpy as np
 import pytest
@@ -84,13 +85,16 @@ def test_guided_chunks_cover_the_receivers_in_order_and_shrink():
         chunks = receiver_chunks(n_tx, n_rx, None, lanes)
         assert [r for c in chunks for r in c] == list(range(n_rx))
         sizes = [len(c) for c in chunks]
-        least = max(1, MIN_CHUNK_LINKS // n_tx)
+        least = min(max(1, MIN_CHUNK_LINKS // n_tx), -(-n_rx // lanes))
         assert all(a >= b for a, b in zip(sizes, sizes[1:]))  # they only shrink
         # the first is a full chunk, or 1/(2 lanes) of the receivers when that is less
         assert sizes[0] == min(n_rx, 256 // n_tx, max(least, -(-n_rx // (2 * lanes))))
         assert max(sizes) * n_tx <= 256
         assert all(k >= least for k in sizes[:-1])  # none below the floor but the remainder
         assert sizes[-1] <= least or len(sizes) == 1  # the last ones are small
+    # a trace smaller than one chunk still gives every lane a share (the hall on 2 lanes)
+    assert [len(c) for c in receiver_chunks(4, 23, None, 2)] == [12, 11]
+    assert [len(c) for c in receiver_chunks(4, 3, None, 8)] == [1, 1, 1]
     # one lane, or a given chunk size: fixed chunks as before
     assert receiver_chunks(4, 10, None, 1) == receiver_chunks(4, 10)
     assert receiver_chunks(4, 10, 12, 8) == receiver_chunks(4, 10, 12)
@@ -131,6 +135,31 @@ def test_pool_is_kept_for_the_same_scene_and_renewed_for_another(scene_links):
     # a closed pool is started again on demand, and traces as before
     whole = trace(sc, tx, rx, F_C, cfg, threads=1)
     _same(whole, trace(sc, tx, rx, F_C, cfg, workers=2, chunk_links=4 * len(tx)))
+    close_pools()
+
+
+def test_a_small_trace_goes_over_every_lane(scene_links):
+    if cpu_count() < 2:
+        pytest.skip("needs two cores")
+    sc, tx, rx, cfg = scene_links
+    assert len(tx) * len(rx) < 256  # less than one fixed chunk
+    chunks = [c for c, _ in trace_chunks(sc, tx, rx, F_C, cfg, workers=2)]
+    assert len(chunks) >= 2 and [r for c in chunks for r in c] == list(range(len(rx)))
+
+
+def test_a_traced_scene_pickles_to_the_same_bytes_and_keeps_its_pool(scene_links):
+    if cpu_count() < 2:
+        pytest.skip("needs two cores")
+    sc, tx, rx, cfg = scene_links
+    fresh = pickle.loads(pickle.dumps(sc))
+    before = pickle.dumps(fresh)
+    close_pools()
+    trace(fresh, tx, rx, F_C, cfg, workers=2)  # fills the scene's derived caches
+    assert fresh.facets.cache and fresh.wedges.cache
+    assert pickle.dumps(fresh) == before  # caches stay behind: the same digest
+    ex = parallel._KEPT["executor"]
+    trace(fresh, tx, rx, F_C, cfg, workers=2)
+    assert parallel._KEPT["executor"] is ex  # the same worker processes
     close_pools()
 
 

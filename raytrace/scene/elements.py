@@ -25,6 +25,15 @@ class _ElementArrays:
         """The per-element arrays by field name (everything but the cache)."""
         return {f.name: getattr(self, f.name) for f in fields(self) if f.name != "cache"}  # type: ignore[arg-type]
 
+    def __getstate__(self) -> dict[str, Any]:
+        # the cache is derived: a pickled copy (a worker's scene) starts without it, so that the
+        # bytes of a scene, and the digest its kept pool is found by, do not change once traced
+        return {**self.arrays(), "cache": {}}
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        for k, v in state.items():
+            object.__setattr__(self, k, v)
+
 
 @dataclass(frozen=True)
 class Facets(_ElementArrays):

@@ -17,7 +17,7 @@ from __future__ import annotations
 import hashlib
 import json
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from typing import Any
 
 import numpy as np
@@ -322,9 +322,10 @@ class Scene:
 
     def __getstate__(self) -> dict[str, Any]:
         # the Embree scenes are native objects: a pickled scene (for worker processes) carries the
-        # arrays only and rebuilds its intersector when unpickled
-        state = self.__dict__.copy()
-        state.pop("_subset_embree", None)
+        # arrays only and rebuilds its intersector when unpickled. Derived caches (convexity,
+        # planes, the scalars below) stay behind too: the bytes of a scene, and the digest its
+        # kept worker pool is found by, must not change once it has been traced
+        state = {f.name: self.__dict__[f.name] for f in fields(self)}
         state["_embree"] = None
         return state
 
@@ -362,19 +363,38 @@ class Scene:
 
     @property
     def margin(self) -> float:
-        """Offset (m) for rays that leave or end on a surface: Embree works in float32."""
-        return max(1e-4, 2e-6 * self.extent)
+        """Offset (m) for rays that leave or end on a surface: Embree works in float32.
+        (Cached, like the per-object arrays below: the tracer reads them thousands of times per
+        trace, and a scene's geometry and objects do not change once it is built.)"""
+        m = self.__dict__.get("_margin")
+        if m is None:
+            m = self.__dict__["_margin"] = max(1e-4, 2e-6 * self.extent)
+        return m
+
+    def _per_object(self, key: str, make: Any) -> np.ndarray:
+        """A cached, read-only (O,) array derived from ``objects``."""
+        cached = self.__dict__.get(key)
+        if cached is None or len(cached) != len(self.objects):
+            cached = np.asarray(make())
+            cached.setflags(write=False)
+            self.__dict__[key] = cached
+        return cached
 
     @property
     def object_closed(self) -> np.ndarray:
-        """(O,) bool, True for closed solids."""
-        return np.array([o.closed for o in self.objects], dtype=bool)
+        """(O,) bool, True for closed solids (read-only)."""
+        return self._per_object(
+            "_object_closed", lambda: np.array([o.closed for o in self.objects], dtype=bool)
+        )
 
     @property
     def object_material(self) -> np.ndarray:
-        """(O,) int, material index of each object."""
-        return np.array(
-            [self.material_names.index(o.material) for o in self.objects], dtype=np.int64
+        """(O,) int, material index of each object (read-only)."""
+        return self._per_object(
+            "_object_material",
+            lambda: np.array(
+                [self.material_names.index(o.material) for o in self.objects], dtype=np.int64
+            ),
         )
 
     @property
@@ -383,8 +403,11 @@ class Scene:
 
     @property
     def object_face_start(self) -> np.ndarray:
-        """(O,) int, index of each object's first face in ``faces``."""
-        return np.array([o.face_start for o in self.objects], dtype=np.int64)
+        """(O,) int, index of each object's first face in ``faces`` (read-only)."""
+        return self._per_object(
+            "_object_face_start",
+            lambda: np.array([o.face_start for o in self.objects], dtype=np.int64),
+        )
 
     def material_thickness(self) -> np.ndarray:
         """(n_materials,) float, slab thickness (m) of each used material, for open sheets."""

@@ -144,13 +144,15 @@ def receiver_chunks(
     """Consecutive ranges of receiver indices with at most ``chunk_links`` links each.
 
     With ``chunk_links=None`` and several ``lanes``, the chunks are guided: each takes at most
-    ``1 / (2 lanes)`` of the receivers still left (at least :data:`MIN_CHUNK_LINKS` links), so the
-    last chunks are small and the lanes finish together. The chunks never change what is traced.
+    ``1 / (2 lanes)`` of the receivers still left (at least :data:`MIN_CHUNK_LINKS` links, or
+    ``1 / lanes`` of all the receivers when that is less, so that a small trace still gives every
+    lane a share: the hall's 23 receivers on 2 lanes are 12 + 11, not 16 + 7), so the last chunks
+    are small and the lanes finish together. The chunks never change what is traced.
     """
     per = max(1, int(chunk_links or CHUNK_LINKS) // max(n_tx, 1))
     if chunk_links is not None or lanes <= 1:
         return [range(r0, min(n_rx, r0 + per)) for r0 in range(0, n_rx, per)]
-    least = max(1, MIN_CHUNK_LINKS // max(n_tx, 1))
+    least = min(max(1, MIN_CHUNK_LINKS // max(n_tx, 1)), -(-n_rx // lanes))
     out, r0 = [], 0
     while r0 < n_rx:
         left = n_rx - r0

@@ -260,8 +260,11 @@ def _chunked(
     opaque: np.ndarray | None,
 ) -> Iterator[tuple[range, Any]]:
     """:func:`trace_chunks` on validated input."""
-    n_workers = resolve_workers(workers, len(receiver_chunks(len(tx), len(rx), chunk_links)))
+    # guided chunks give every lane a share even of a trace smaller than one fixed chunk
+    n_chunks = len(rx) if chunk_links is None else len(receiver_chunks(len(tx), len(rx), chunk_links))
+    n_workers = resolve_workers(workers, n_chunks)
     chunks = receiver_chunks(len(tx), len(rx), chunk_links, n_workers)
+    n_workers = min(n_workers, len(chunks))
     jobs = [(tx, rx, c, f, cfg, involving, opaque, reduce, n_workers > 1) for c in chunks]
     bar = None
     if progress is True:
