@@ -10,7 +10,7 @@ import pytest
 from test_diffraction_paths import _cluttered_scene
 
 from raytrace import TraceConfig, TraceInputError, trace
-from raytrace.solver import parallel
+from raytrace.solver import parallel, tracer
 from raytrace.solver.parallel import (
     MIN_CHUNK_LINKS,
     ScenePool,
@@ -198,6 +198,36 @@ def test_the_auto_rule_by_links_and_cores(monkeypatch):
     assert parallel.auto_in_process(383) and not parallel.auto_in_process(384)
     monkeypatch.setattr(parallel, "cpu_count", lambda: 1)
     assert parallel.auto_in_process(10**6)
+
+
+def test_a_running_pool_takes_small_traces(scene_links, monkeypatch):
+    if cpu_count() < 2:
+        pytest.skip("needs two cores")
+    sc, tx, rx, cfg = scene_links
+    close_pools()
+    assert parallel.auto_in_process(len(tx) * 3, sc, 3)  # no pool: stage threads
+    whole = trace(sc, tx, rx, F_C, cfg, threads=1)
+    ScenePool(sc, cpu_count()).close()  # starts the kept pool of every core
+    assert parallel.pool_is_kept(sc, cpu_count())
+    assert not parallel.pool_is_kept(sc, cpu_count(), main=True)
+    assert not parallel.auto_in_process(len(tx) * 3, sc, 3)
+    assert parallel.auto_in_process(len(tx), sc, 1)  # one receiver: one chunk anyway
+    other, _, _ = _cluttered_scene(4)
+    assert not parallel.pool_is_kept(other, cpu_count())
+    assert parallel.auto_in_process(len(tx) * 3, other, 3)
+    lanes = []
+    monkeypatch.setattr(tracer, "_chunked", _recording(tracer._chunked, lanes))
+    _same(whole, trace(sc, tx, rx, F_C, cfg))
+    assert lanes == [None]  # went over the lanes, workers=None
+    close_pools()
+
+
+def _recording(fn, calls):
+    def wrapped(*args):
+        calls.append(args[6])  # ``workers``
+        return fn(*args)
+
+    return wrapped
 
 
 def test_work_inside_a_job_stays_in_its_process(scene_links):

@@ -166,8 +166,9 @@ def trace(
     workers : int, optional, lanes over chunks of receivers (:func:`trace_chunks`): this process
         and ``workers - 1`` worker processes. Default
         (:func:`~raytrace.solver.parallel.auto_in_process`): this process alone, its stages on
-        threads, below :data:`~raytrace.solver.parallel.PROCESS_MIN_LINKS` links or inside a
-        pool's job; every core from there on. The paths do not depend on it.
+        threads, below :data:`~raytrace.solver.parallel.PROCESS_MIN_LINKS` links (unless the
+        kept pool for this scene is already running) or inside a pool's job; every core from
+        there on. The paths do not depend on it.
     chunk_links : int, optional, links per chunk (default: guided chunks of at most
         :data:`~raytrace.solver.parallel.CHUNK_LINKS` links, smaller at the end)
 
@@ -176,7 +177,11 @@ def trace(
     Paths, in their canonical order (:meth:`Paths.sorted`).
     """
     cfg, f, tx, rx = _checked(scene, tx, rx, frequency_hz, config)
-    if workers is None and chunk_links is None and auto_in_process(len(tx) * len(rx)):
+    if (
+        workers is None
+        and chunk_links is None
+        and auto_in_process(len(tx) * len(rx), scene, len(rx))
+    ):
         return _trace_links(scene, tx, rx, f, cfg, progress, stats, involving, threads, opaque)
     chunks = _chunked(scene, tx, rx, f, cfg, None, workers, chunk_links, progress, stats,
                       involving, opaque)  # fmt: skip
