@@ -355,3 +355,52 @@ def test_a_threaded_join_equals_the_serial_one(scene_links, monkeypatch):
     monkeypatch.setattr(tracer_mod, "JOIN_THREADS_PATHS", 1)
     _same(trace(sc, tx, rx, F_C, cfg, threads=1),
           trace(sc, tx, rx, F_C, cfg, workers=1, chunk_links=5 * len(tx)))  # fmt: skip
+
+
+def test_workers_end_when_their_caller_is_killed(tmp_path):
+    """A caller killed without closing its pools (SIGKILL, the out-of-memory killer): its worker
+    processes (children of the fork server, waiting on the pool's queue) end within seconds, both
+    the trace pool's and those of ``process_context()`` (the dataset and sweep pools)."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    if cpu_count() < 2:
+        pytest.skip("needs two cores")
+    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(parallel.__file__))))
+    script = tmp_path / "stay.py"
+    script.write_text(
+        "import os, sys, time\n"
+        "from concurrent.futures import ProcessPoolExecutor\n"
+        "from raytrace.scene.io import load_scene\n"
+        "from raytrace.solver.parallel import ScenePool, process_context\n"
+        "if __name__ == '__main__':\n"
+        "    pool = ScenePool(load_scene('hall'), 2)\n"
+        "    other = ProcessPoolExecutor(1, mp_context=process_context())\n"
+        "    pids = [pool._pool.submit(os.getpid).result(), other.submit(os.getpid).result()]\n"
+        "    print(*pids, flush=True)\n"
+        "    time.sleep(120)\n"
+    )
+    env = {**os.environ, "PYTHONPATH": root}
+    proc = subprocess.Popen([sys.executable, str(script)], cwd=tmp_path, stdout=subprocess.PIPE,
+                            text=True, env=env)  # fmt: skip
+    try:
+        workers = [int(p) for p in proc.stdout.readline().split()]
+        assert len(workers) == 2 and proc.pid not in workers
+    finally:
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait()
+    left = set(workers)
+    deadline = time.monotonic() + 10 * parallel.CALLER_WATCH_S + 5
+    while left and time.monotonic() < deadline:
+        time.sleep(0.1)
+        left = {p for p in left if parallel._caller_token(p) is not None}
+    for p in left:
+        os.kill(p, signal.SIGKILL)
+    assert not left, f"worker processes {sorted(left)} outlived their killed caller"
+
+
+def test_a_process_is_told_apart_from_a_gone_one():
+    assert parallel._caller_token(os.getpid()) == parallel._caller_token(os.getpid()) is not None
+    assert parallel._caller_token(2**30) is None  # above any pid_max: no such process

@@ -20,7 +20,8 @@ What a pool costs, and how it is kept small (measured in docs/tracing.md, "Where
   of workers closes it and starts a new one; :func:`close_pools` closes it, and so does the end of
   the interpreter.
 * **The scene is sent once per worker** as its pickled bytes (the arrays; the Embree scene is
-  rebuilt in a few milliseconds, the facets and wedges are not recomputed).
+  rebuilt in a few milliseconds, the facets and wedges are not recomputed; their derived caches
+  are, once per worker, so that the bytes do not change when a trace fills them).
 * **The calling process works too**: with ``workers=n`` there are ``n - 1`` worker processes, and
   this process takes the next chunk of the queue whenever it would otherwise wait, so it traces
   while the workers start and no core idles while it waits.
@@ -28,7 +29,10 @@ What a pool costs, and how it is kept small (measured in docs/tracing.md, "Where
   lanes finish together.
 
 A worker process that dies (killed, out of memory) makes the pool raise one
-:class:`WorkerCrashError`; the broken pool is dropped and the next call starts a new one.
+:class:`WorkerCrashError`; the broken pool is dropped and the next call starts a new one. The
+other way round, a worker ends within about a second (:data:`CALLER_WATCH_S`) of the process
+that started it, if that one dies without closing its pools (SIGKILL, the out-of-memory killer):
+every pool's processes watch their caller (:func:`_watch_caller`).
 
 * **Workers do not run the caller's script.** A fork-server or spawned process imports the
   parent's ``__main__`` first (``multiprocessing``'s rule), so a script that calls ``trace`` at
@@ -203,10 +207,11 @@ def process_context(preload: Sequence[str] = (), main: bool = False) -> Any:
     """The multiprocessing context for worker processes: the fork server, started now if it is
     not running, importing :data:`PRELOAD` and ``preload`` in the background (spawn where there
     is no fork server). ``preload`` counts only for the first call of the interpreter. Its
-    processes do not import the caller's ``__main__`` unless ``main`` (module docstring)."""
+    processes do not import the caller's ``__main__`` unless ``main`` (module docstring), and
+    end when this process is gone (:func:`_watch_caller`)."""
     with _LOCK:
         ctx = _context(preload)
-    return ctx if main else _without_main(ctx)
+    return _wrapped(ctx, main)
 
 
 def _context(preload: Sequence[str]) -> Any:
@@ -270,38 +275,118 @@ class _MainHidden:
 
 
 def _hiding_main(popen: Callable[[Any], Any]) -> Any:
-    """A process class's ``_Popen`` that launches with ``__main__`` hidden (:class:`_MainHidden`)."""
+    """A process class's ``_Popen`` that launches with ``__main__`` hidden (:class:`_MainHidden`)
+    unless the process is to import it (``_hide_main`` False)."""
 
     def _Popen(process_obj: Any) -> Any:
+        if not getattr(process_obj, "_hide_main", True):
+            return popen(process_obj)
         with _MainHidden():
             return popen(process_obj)
 
     return staticmethod(_Popen)
 
 
-class _SpawnProcess(multiprocessing.context.SpawnProcess):
+#: Seconds between a worker's checks that the process that started it is still there.
+CALLER_WATCH_S = 1.0
+
+
+def _caller_token(pid: int) -> Any:
+    """Something that identifies the running process ``pid`` (None: it is gone): its start time
+    where /proc tells it (a zombie counts as gone, and a new process with the same pid differs),
+    else whether a signal can be sent to it."""
+    try:
+        with open(f"/proc/{pid}/stat", "rb") as fh:
+            stat = fh.read()
+    except FileNotFoundError:
+        return None
+    except OSError:
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            return None
+        except OSError:
+            pass
+        return True
+    fields = stat[stat.rindex(b")") + 2 :].split()  # after "pid (comm) ": state, ppid, ...
+    return None if fields[0] in (b"Z", b"X") else fields[19]  # field 22: start time
+
+
+def _watch_caller(pid: int, period_s: float = CALLER_WATCH_S) -> None:
+    """In a worker: end this process when the process that started the pool is gone.
+
+    A worker waits on its pool's queue, whose pipe its siblings also hold open, so a caller that
+    dies without closing the pool (SIGKILL, the out-of-memory killer) would leave its workers
+    (a fork server's children, not the caller's) waiting for ever, each with its copy of the
+    scene and its memory."""
+    token = _caller_token(pid)
+    if token is None:
+        os._exit(0)
+
+    def watch() -> None:
+        import time
+
+        while True:
+            time.sleep(period_s)
+            if _caller_token(pid) != token:
+                os._exit(0)
+
+    threading.Thread(target=watch, name="caller-watch", daemon=True).start()
+
+
+class _Watched:
+    """Mixin of a worker process class: records the starting process, and in the worker watches
+    it (:func:`_watch_caller`)."""
+
+    _hide_main = True
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)  # type: ignore[call-arg]
+        self._caller = os.getpid()
+
+    def run(self) -> None:
+        _watch_caller(self._caller)
+        super().run()  # type: ignore[misc]
+
+
+class _SpawnProcess(_Watched, multiprocessing.context.SpawnProcess):
     _Popen = _hiding_main(multiprocessing.context.SpawnProcess._Popen)
+
+
+class _SpawnProcessMain(_SpawnProcess):
+    _hide_main = False
 
 
 class _SpawnContext(multiprocessing.context.SpawnContext):
     Process = _SpawnProcess
 
 
+class _SpawnContextMain(multiprocessing.context.SpawnContext):
+    Process = _SpawnProcessMain
+
+
 if hasattr(multiprocessing.context, "ForkServerContext"):  # not on Windows
 
-    class _ForkServerProcess(multiprocessing.context.ForkServerProcess):
+    class _ForkServerProcess(_Watched, multiprocessing.context.ForkServerProcess):
         _Popen = _hiding_main(multiprocessing.context.ForkServerProcess._Popen)
+
+    class _ForkServerProcessMain(_ForkServerProcess):
+        _hide_main = False
 
     class _ForkServerContext(multiprocessing.context.ForkServerContext):
         Process = _ForkServerProcess
 
+    class _ForkServerContextMain(multiprocessing.context.ForkServerContext):
+        Process = _ForkServerProcessMain
 
-def _without_main(ctx: Any) -> Any:
-    """The multiprocessing context like ``ctx`` (fork server or spawn) whose processes start
-    without importing the parent's ``__main__``."""
+
+def _wrapped(ctx: Any, main: bool) -> Any:
+    """The multiprocessing context like ``ctx`` (fork server or spawn) whose processes watch this
+    one (:func:`_watch_caller`) and start without importing the parent's ``__main__`` unless
+    ``main``."""
     if ctx.get_start_method() == "forkserver":
-        return _ForkServerContext()
-    return _SpawnContext()
+        return _ForkServerContextMain() if main else _ForkServerContext()
+    return _SpawnContextMain() if main else _SpawnContext()
 
 
 def from_main(fn: object) -> bool:
@@ -336,7 +421,7 @@ def _executor(
             old.shutdown(wait=False, cancel_futures=True)
         ex = ProcessPoolExecutor(
             max_workers=processes,
-            mp_context=_context(preload) if main else _without_main(_context(preload)),
+            mp_context=_wrapped(_context(preload), main),
             initializer=_init_worker,
             initargs=(blob, _PACKAGE),
         )
