@@ -113,16 +113,21 @@ def second_order(ctx: TraceContext) -> list[Paths]:
         for c0 in range(0, len(f1a), step):
             sl = slice(c0, c0 + step)
             ok_qr = side_rx.T[f2[sl]] == s_img[sl, None]
-            ok_qr &= _cone_reaches_points(img2[sl], centre[f2[sl]], radius[f2[sl]], rx_c)
-            # unfolded at the second reflection, the path is straight from the first image to
-            # the receiver's mirror image in the second facet, through the first facet
-            n2, off2 = fc.normal[f2[sl]], fc.offset[f2[sl]]
-            dist = rx_c[0] * n2[:, 0:1] + rx_c[1] * n2[:, 1:2] + rx_c[2] * n2[:, 2:3]
-            dist -= off2[:, None]
-            mirrored = [rx_c[c] - 2.0 * dist * n2[:, c : c + 1] for c in range(3)]
-            f1s = f1a[sl]
-            ok_qr &= _cone_reaches_points(img1[i1[sl]], centre[f1s], radius[f1s], mirrored)
+            b2 = refl.beam(img2[sl], centre[f2[sl]], radius[f2[sl]])
+            ok_qr &= _in_beam(b2, slice(None), rx_c)
             q, r_idx = np.nonzero(ok_qr)
+            # unfolded at the second reflection, the path is straight from the first image to
+            # the receiver's mirror image in the second facet, through the first facet (tested
+            # on the pairs left, the same arithmetic per pair as on the whole matrix)
+            n2, off2 = fc.normal[f2[sl]][q], fc.offset[f2[sl]][q]
+            r_c = ctx.rx.T[:, r_idx]
+            dist = r_c[0] * n2[:, 0] + r_c[1] * n2[:, 1] + r_c[2] * n2[:, 2]
+            dist -= off2
+            mirrored = [r_c[c] - 2.0 * dist * n2[:, c] for c in range(3)]
+            f1s = f1a[sl]
+            b1 = refl.beam(img1[i1[sl]], centre[f1s], radius[f1s])
+            ok = _in_beam(b1, q, mirrored, pairs=True)
+            q, r_idx = q[ok], r_idx[ok]
             ctx.count("candidates_r2", len(q))
             q = q + c0
             ff1, ff2 = f1a[q], f2[q]
@@ -148,18 +153,22 @@ def second_order(ctx: TraceContext) -> list[Paths]:
     return out
 
 
-def _cone_reaches_points(
-    apex: np.ndarray, centre: np.ndarray, radius: np.ndarray, points_c: np.ndarray
-) -> np.ndarray:
-    """(Q, R) bool: :func:`~raytrace.solver.reflection.cone_reaches` of the cones from ``apex``
-    (Q, 3) through spheres (``centre`` (Q, 3), ``radius`` (Q,)) and points (components
-    ``points_c``, each (1, R) or (Q, R)), as a dense matrix one component at a time. With a target of radius
-    0 the condition ``cos(angle) >= cos_a - 1e-7`` is tested multiplied by the distance (no
-    division); the same necessary condition, its rounding far inside the 1e-7 slack."""
-    b = refl.beam(apex, centre, radius)
-    vx = points_c[0] - apex[:, 0:1]
-    vy = points_c[1] - apex[:, 1:2]
-    vz = points_c[2] - apex[:, 2:3]
+def _in_beam(b: refl.Beam, rows: np.ndarray | slice, points_c, pairs: bool = False) -> np.ndarray:
+    """:func:`~raytrace.solver.reflection.cone_reaches` of beams ``b`` (from their apexes through
+    spheres) and points (target radius 0), one component at a time: as a dense (Q, R) matrix of
+    the beams and the points (components ``points_c``, each (1, R) or (Q, R)), or with
+    ``pairs``, for pairs: beam ``rows[i]`` and point ``i`` (components (P,) each). The
+    condition ``cos(angle) >= cos_a - 1e-7`` is tested multiplied by the distance (no
+    division); the same necessary condition, its rounding far inside the 1e-7 slack, and the
+    same arithmetic per element either way."""
+    apex, axis = b.apex[rows], b.axis[rows]
+    cos_a, inside = b.cos_a[rows], b.apex_inside[rows]
+    if not pairs:
+        apex, axis = apex[:, None, :], axis[:, None, :]
+        cos_a, inside = cos_a[:, None], inside[:, None]
+    vx = points_c[0] - apex[..., 0]
+    vy = points_c[1] - apex[..., 1]
+    vz = points_c[2] - apex[..., 2]
     dt = np.sqrt(vx * vx + vy * vy + vz * vz)
-    dot = b.axis[:, 0:1] * vx + b.axis[:, 1:2] * vy + b.axis[:, 2:3] * vz
-    return (dot >= (b.cos_a - 1e-7)[:, None] * dt) | b.apex_inside[:, None] | (dt <= 0.0)
+    dot = axis[..., 0] * vx + axis[..., 1] * vy + axis[..., 2] * vz
+    return (dot >= (cos_a - 1e-7) * dt) | inside | (dt <= 0.0)
