@@ -1,11 +1,12 @@
-"""raytrace.core.vec: the component-wise cross product and norm are bitwise numpy's."""
+"""raytrace.core.vec: the component-wise cross product and norm are bitwise numpy's, and so are row
+selections (rows, index)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from raytrace.core.vec import cross, norm
+from raytrace.core.vec import cross, index, norm, rows
 
 
 @pytest.mark.parametrize("shape", [(3,), (1000, 3), (40, 7, 3)])
@@ -29,3 +30,18 @@ def test_cross_of_parallel_vectors_is_zero() -> None:
     a = np.array([[1.0, 2.0, 3.0]])
     assert np.array_equal(cross(a, 2.0 * a), np.zeros((1, 3)))
     assert norm(np.array([3.0, 4.0, 12.0])) == 13.0
+
+
+@pytest.mark.parametrize("shape", [(0,), (7,), (50, 3), (50, 4, 3), (50, 2)])
+def test_rows_equal_numpy_indexing(shape: tuple[int, ...]) -> None:
+    rng = np.random.default_rng(3)
+    x = rng.normal(size=shape)
+    n = shape[0]
+    for sel in (rng.random(n) < 0.5, np.ones(n, bool), np.zeros(n, bool),
+                rng.integers(0, max(n, 1), size=2 * n) if n else np.zeros(0, np.int64)):  # fmt: skip
+        got = rows(x, sel)
+        want = x[sel]
+        assert got.shape == want.shape and got.dtype == want.dtype
+        np.testing.assert_array_equal(got, want)
+    np.testing.assert_array_equal(index(np.array([True, False, True])), [0, 2])
+    np.testing.assert_array_equal(index(np.array([2, 0])), [2, 0])

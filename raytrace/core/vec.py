@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["cross", "norm"]
+__all__ = ["cross", "norm", "index", "rows"]
 
 
 def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -30,3 +30,20 @@ def norm(v: np.ndarray) -> np.ndarray:
     ``np.linalg.norm(v, axis=-1)``."""
     v0, v1, v2 = v[..., 0], v[..., 1], v[..., 2]
     return np.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
+
+
+def index(sel: np.ndarray) -> np.ndarray:
+    """Integer row indices of a selection: a boolean mask's true rows, or the indices as they
+    are. Convert a mask once when it selects from several arrays."""
+    sel = np.asarray(sel)
+    return np.flatnonzero(sel) if sel.dtype == bool else sel
+
+
+def rows(x: np.ndarray, sel: np.ndarray) -> np.ndarray:
+    """``x[sel]`` along the first axis (``sel`` a boolean mask or indices), bitwise the same.
+
+    Boolean indexing with a mask that is neither mostly true nor mostly false costs several
+    times the gather of its indices (branch mispredictions), and fancy indexing of
+    multi-dimensional rows goes through generic machinery: ``take`` copies whole rows, about
+    7x faster for an (N, 3) array (25 000 rows: 16 us against 108 us, 236 us with a mask)."""
+    return np.take(x, index(sel), axis=0)

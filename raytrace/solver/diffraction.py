@@ -24,6 +24,7 @@ import numpy as np
 
 from ..core.vec import cross as _cross
 from ..core.vec import norm
+from ..core.vec import rows as take_rows
 from ..physics.utd import (
     diffracted_field,
     diffraction_valid,
@@ -446,19 +447,24 @@ def _one_reflection(ctx: TraceContext, before: bool) -> list[Paths]:
         q, o_idx = np.nonzero((t >= t_lo[sl, None]) & (t <= t_hi[sl, None]) & open_w[w_idx[sl]])
         q += c0
         ctx.count("candidates_rd" if before else "candidates_dr", len(q))
-        ee, ff, ww, im, oth = e_idx[q], f_idx[q], w_idx[q], img[q], others[o_idx]
-        kp = keller_points(im, oth, w.start[ww], w.end[ww])
+        ee, ff, ww = e_idx[q], f_idx[q], w_idx[q]
+        im, oth = take_rows(img, q), take_rows(others, o_idx)
+        kp = keller_points(im, oth, take_rows(w.start, ww), take_rows(w.end, ww))
         ok = kp.on_edge
         # the edge point must lie on the reflecting side (where the end is)
         dpt = kp.point
-        s_d = refl.signed_distance(dpt, fc.normal[ff], fc.offset[ff])
+        n_ff, off_ff = take_rows(fc.normal, ff), fc.offset[ff]
+        s_d = refl.signed_distance(dpt, n_ff, off_ff)
         ok &= np.sign(np.where(ok, s_d, 0.0)) == side_e[ee, ff]
         # nearly every candidate passes the tests below: compact once, at the end
-        u, p = refl.segment_plane_point(im, dpt, fc.normal[ff], fc.offset[ff])
+        u, p = refl.segment_plane_point(im, dpt, n_ff, off_ff)
         ok &= (u > 0) & (u < 1)
-        ok[ok] = accel.points_in_facets(p[ok], ff[ok], fc)
         sel = np.flatnonzero(ok)
-        ee, ff, ww, im, oth, o_idx, dpt, p = (x[sel] for x in (ee, ff, ww, im, oth, o_idx, dpt, p))
+        ok[sel] = accel.points_in_facets(take_rows(p, sel), ff[sel], fc)
+        sel = np.flatnonzero(ok)
+        ee, ff, ww, im, oth, o_idx, dpt, p = (
+            take_rows(x, sel) for x in (ee, ff, ww, im, oth, o_idx, dpt, p)
+        )
         if before:
             t_idx, r_idx = ee, o_idx
             ok = _valid_geometry(ctx, ww, im, oth, dpt)
@@ -472,16 +478,17 @@ def _one_reflection(ctx: TraceContext, before: bool) -> list[Paths]:
             fac = np.stack([ww, ff], axis=1)
             kinds = np.array([[DIFFRACTION, REFLECTION]], np.int8)
         if ok.any():
+            sel = np.flatnonzero(ok)
             out.append(
                 evaluate(
                     ctx,
                     candidates(
                         ctx,
-                        t_idx[ok],
-                        r_idx[ok],
-                        verts[ok],
-                        fac[ok],
-                        kinds=np.repeat(kinds, int(ok.sum()), axis=0),
+                        t_idx[sel],
+                        r_idx[sel],
+                        take_rows(verts, sel),
+                        take_rows(fac, sel),
+                        kinds=np.repeat(kinds, len(sel), axis=0),
                     ),
                     diffraction=field_model(ctx),
                 )

@@ -26,7 +26,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..core.constants import C0
-from ..core.vec import cross, norm
+from ..core.vec import cross, index, norm
+from ..core.vec import rows as take_rows
 from ..physics.materials import slab, slab_group_delay
 from .context import TraceContext
 from .paths import DIFFRACTION, PENETRATION, REFLECTION, Paths
@@ -77,7 +78,8 @@ class Candidates:
 
     def take(self, sel: np.ndarray) -> Candidates:
         """The candidates ``sel`` (indices or mask)."""
-        return Candidates(*(getattr(self, f)[sel] for f in self.__dataclass_fields__))
+        sel = index(sel)
+        return Candidates(*(take_rows(getattr(self, f), sel) for f in self.__dataclass_fields__))
 
 
 def candidates(
@@ -153,14 +155,14 @@ def blocked_by_opaque(ctx: TraceContext, cand: Candidates) -> np.ndarray:
     for j in np.argsort(-total, kind="stable"):
         if len(live) == 0:
             break
-        a = chain[live, j]
-        v = chain[live, j + 1] - a
+        a = take_rows(chain[:, j], live)
+        v = take_rows(chain[:, j + 1], live) - a
         length = norm(v)
         d = np.divide(v, length[:, None], out=np.zeros_like(v), where=length[:, None] > 0)
         hit = ctx.scene.first_hit_among(ctx.opaque, a + margin * d, d, length - 2 * margin)
-        b = (hit >= 0) & (hit != ends[live, j, 0]) & (hit != ends[live, j, 1])
-        blocked[live[b]] = True
-        live = live[~b]
+        b = (hit >= 0) & (hit != ends[:, j, 0][live]) & (hit != ends[:, j, 1][live])
+        blocked[live[np.flatnonzero(b)]] = True
+        live = live[np.flatnonzero(~b)]
     return blocked
 
 
@@ -177,8 +179,9 @@ def within_penetration_limit(ctx: TraceContext, cand: Candidates) -> tuple[Candi
     if ok.all():
         return cand, cross
     sel = np.flatnonzero(ok)
-    rows = (sel[:, None] * (k + 1) + np.arange(k + 1)[None]).reshape(-1)
-    return cand.take(sel), Crossings(*(getattr(cross, f)[rows] for f in cross.__dataclass_fields__))
+    seg = (sel[:, None] * (k + 1) + np.arange(k + 1)[None]).reshape(-1)
+    fields_ = cross.__dataclass_fields__
+    return cand.take(sel), Crossings(*(take_rows(getattr(cross, f), seg) for f in fields_))
 
 
 def path_fields(

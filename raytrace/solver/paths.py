@@ -27,6 +27,8 @@ import numpy as np
 from ..core.constants import linear_power_to_db
 from ..core.errors import HallrayError
 from ..core.fileio import write_atomic
+from ..core.vec import index
+from ..core.vec import rows as take_rows
 
 #: Interaction codes in :attr:`Paths.interaction`.
 NONE, REFLECTION, PENETRATION, DIFFRACTION = 0, 1, 2, 3
@@ -172,8 +174,12 @@ class Paths:
         )
 
     def select(self, mask: np.ndarray) -> Paths:
-        """The paths where ``mask`` (bool (P,) or index array) selects."""
-        kw = {k: getattr(self, k)[mask] for k in self._PER_PATH}
+        """The paths where ``mask`` (bool (P,), index array or slice) selects."""
+        if isinstance(mask, slice):
+            kw = {k: getattr(self, k)[mask] for k in self._PER_PATH}
+        else:
+            sel = index(mask)
+            kw = {k: take_rows(getattr(self, k), sel) for k in self._PER_PATH}
         return Paths(tx=self.tx, rx=self.rx, frequency_hz=self.frequency_hz, **kw)
 
     def with_receivers(self, rx: np.ndarray, first: int) -> Paths:

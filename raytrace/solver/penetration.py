@@ -30,6 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..core.vec import rows as take_rows
 from ..scene.model import Scene
 
 
@@ -401,12 +402,13 @@ def segment_crossings(
         if not active.any():
             break
         rows = np.flatnonzero(active)
-        th, face, o = scene.intersect(
-            a[rows] + t[rows, None] * d[rows], d[rows], tmax[rows] - t[rows]
-        )
+        d_r = take_rows(d, rows)
+        th, face, o = scene.intersect(take_rows(a, rows) + t[rows, None] * d_r, d_r,
+                                      tmax[rows] - t[rows])  # fmt: skip
         hit = o >= 0
         active[rows[~hit]] = False
-        rows, th, face, o = rows[hit], th[hit], face[hit], o[hit]
+        h = np.flatnonzero(hit)
+        rows, th, face, o = rows[h], th[h], face[h], o[h]
         t_hit = t[rows] + th
         # hits on a segment's own end objects within the guard are float32 noise of the vertex
         noise = ((o == end_objects[rows, 0]) & (t_hit < guard)) | (
@@ -417,13 +419,15 @@ def segment_crossings(
             active[rows[noise]] &= t[rows[noise]] < tmax[rows[noise]]
             keep = ~noise
             rows, face, o, t_hit = rows[keep], face[keep], o[keep], t_hit[keep]
-        face, touch = canonical_faces(scene, face, o, a[rows], d[rows], t_hit)
+        a_r, d_r = take_rows(a, rows), take_rows(d, rows)
+        face, touch = canonical_faces(scene, face, o, a_r, d_r, t_hit)
         if touch.any():
             t[rows[touch]] = t_hit[touch] + margin
             keep = ~touch
             active[rows[touch]] &= t[rows[touch]] < tmax[rows[touch]]
             rows, face, o, t_hit = rows[keep], face[keep], o[keep], t_hit[keep]
-        t_hit = _plane_distance(scene, face, a[rows], d[rows], t_hit)
+            a_r, d_r = a_r[keep], d_r[keep]
+        t_hit = _plane_distance(scene, face, a_r, d_r, t_hit)
         walk.boundary(rows, face, o, t_hit)
         t[rows] = t_hit + margin
         active[rows] &= (t[rows] < tmax[rows]) & ~walk.exceeded[rows]
