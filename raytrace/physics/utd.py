@@ -54,6 +54,7 @@ from ..core.constants import C0
 from ..core.errors import TraceInputError
 from ..core.vec import cross as _cross
 from ..core.vec import norm as _norm
+from ..core.vec import rows as _rows
 
 __all__ = [
     "KellerPoints",
@@ -322,7 +323,7 @@ class WedgeFrame(NamedTuple):
         """The frames at ``idx``: computing them once per wedge and taking them per diffraction
         gives bitwise what :func:`wedge_geometry` computes per diffraction (row-wise
         arithmetic)."""
-        return WedgeFrame(*(x[idx] for x in self))
+        return WedgeFrame(*(_rows(x, idx) for x in self))
 
 
 def wedge_frames(

@@ -175,11 +175,13 @@ def _pure(ctx: TraceContext) -> Paths:
         if ctx.wedge_mask is not None:
             keep &= ctx.wedge_mask[w_idx]
         t_idx, w_idx, r_idx = t_idx[keep], w_idx[keep], r_idx[keep]
-        kp = keller_points(ctx.tx[t_idx], ctx.rx[r_idx], w.start[w_idx], w.end[w_idx])
-        ok = kp.on_edge
-        t_idx, w_idx, r_idx, pt = t_idx[ok], w_idx[ok], r_idx[ok], kp.point[ok]
-        ok = _valid_geometry(ctx, w_idx, ctx.tx[t_idx], ctx.rx[r_idx], pt)
-        t_idx, w_idx, r_idx, pt = t_idx[ok], w_idx[ok], r_idx[ok], pt[ok]
+        kp = keller_points(take_rows(ctx.tx, t_idx), take_rows(ctx.rx, r_idx),
+                           take_rows(w.start, w_idx), take_rows(w.end, w_idx))  # fmt: skip
+        ok = np.flatnonzero(kp.on_edge)
+        t_idx, w_idx, r_idx, pt = t_idx[ok], w_idx[ok], r_idx[ok], take_rows(kp.point, ok)
+        ok = np.flatnonzero(_valid_geometry(ctx, w_idx, take_rows(ctx.tx, t_idx),
+                                            take_rows(ctx.rx, r_idx), pt))  # fmt: skip
+        t_idx, w_idx, r_idx, pt = t_idx[ok], w_idx[ok], r_idx[ok], take_rows(pt, ok)
         parts.append(
             evaluate(
                 ctx,

@@ -93,7 +93,9 @@ def candidates(
     """Candidates from a stage's arrays (``kinds`` default: all reflections)."""
     m, k = verts.shape[0], verts.shape[1]
     kinds = np.full((m, k), REFLECTION, np.int8) if kinds is None else kinds
-    chain = np.concatenate([ctx.tx[t_idx][:, None], verts, ctx.rx[r_idx][:, None]], axis=1)
+    chain = np.concatenate(
+        [take_rows(ctx.tx, t_idx)[:, None], verts, take_rows(ctx.rx, r_idx)[:, None]], axis=1
+    )
     # the object under each vertex (tx and rx: none), so segments ignore their own vertices
     if k:
         facet_obj = ctx.scene.facets.object[np.where(kinds == REFLECTION, elem, 0)]
