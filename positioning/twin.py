@@ -490,14 +490,24 @@ def prepare(
     return r.links - before
 
 
+#: Re-synthesised ToA rasters kept per loaded map (one per number of paths, spacing and device
+#: height): beyond this, the least recently used is dropped (a filled raster of the hall at
+#: 5 cm is about 30 MB, and a long-running service may see devices at many heights).
+MAX_RASTERS = 8
+
+
 def _raster(lat: _Lattice, pmap: PathMap, paths: int | None, h: float, h_mm: int) -> ToaRaster:
     """The lattice's re-synthesised ToA raster for ``paths``, spacing ``h`` (m), device height
-    ``h_mm`` (mm), created on first use."""
+    ``h_mm`` (mm), created on first use (at most :data:`MAX_RASTERS` kept, least recently used
+    dropped first)."""
     key = (int(paths or 0), float(h), int(h_mm))
-    if key not in lat.rasters:
-        lat.rasters[key] = ToaRaster(pmap, lat.node_cell, lat.x0, lat.y0, lat.step,
-                                     h_mm / 1000.0, h)  # fmt: skip
-    return lat.rasters[key]
+    raster = lat.rasters.pop(key, None)
+    if raster is None:
+        raster = ToaRaster(pmap, lat.node_cell, lat.x0, lat.y0, lat.step, h_mm / 1000.0, h)
+        while len(lat.rasters) >= MAX_RASTERS:
+            lat.rasters.pop(next(iter(lat.rasters)))
+    lat.rasters[key] = raster  # last: the most recently used
+    return raster
 
 
 # ----------------------------------------------------------------------------------------------

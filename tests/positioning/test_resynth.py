@@ -331,3 +331,24 @@ def test_raster_solution_is_the_best_sample_near_gauss_newton(monkeypatch):
         for dy in range(-2, 3):
             best = np.minimum(best, rs._rms(rho, valid, r.nearest(r.sample_xy(k0x + dx, k0y + dy))))
     np.testing.assert_allclose(rms, best, rtol=0, atol=1e-12)
+
+
+def test_rasters_kept_per_map_are_bounded_least_recently_used_first(monkeypatch):
+    """A long-running service sees devices at many heights: at most ``MAX_RASTERS`` rasters stay
+    with a loaded map, the least recently used dropped first; a kept one is reused as it is."""
+    from pos_synth import two_ray_map
+
+    import positioning.twin as tw
+    from positioning.resynth import PathMap
+
+    monkeypatch.setattr(tw, "MAX_RASTERS", 3)
+    fmap = two_ray_map(step=0.5, area=(8.0, 6.0))
+    _, lat = tw.load(fmap)
+    pmap = PathMap.from_map(fmap, None)
+    first = tw._raster(lat, pmap, None, 0.05, 1000)
+    for h_mm in (1100, 1200):
+        tw._raster(lat, pmap, None, 0.05, h_mm)
+    assert tw._raster(lat, pmap, None, 0.05, 1000) is first  # reused, now the most recent
+    tw._raster(lat, pmap, None, 0.05, 1300)  # a fourth: the least recently used (1100) goes
+    assert sorted(k[2] for k in lat.rasters) == [1000, 1200, 1300]
+    assert tw._raster(lat, pmap, None, 0.05, 1000) is first
