@@ -17,6 +17,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from ..core.errors import HallrayError
 from ..emulation.receivers import DEFAULT_TOA_METHOD, TOA_METHODS
 from ..solver.config import add_trace_arguments
 from .harness import OneLineParser, add_scene_arguments, run_tool
@@ -46,10 +47,10 @@ def accuracy_map_parser() -> argparse.ArgumentParser:
     p.add_argument("--draws", type=int, default=am.DEFAULT_DRAWS, metavar="K",
                    help=f"noise draws per cell (default {am.DEFAULT_DRAWS})")  # fmt: skip
     p.add_argument("--seed", type=int, default=am.DEFAULT_SEED, help="random seed (default 1)")
-    p.add_argument("--paths", type=int, default=am.DEFAULT_PATHS, metavar="K",
+    p.add_argument("--paths", type=int, default=None, metavar="K",
                    help="strongest paths stored per cell and base station for the twin's "
-                   f"re-synthesis (schema v2; default {am.DEFAULT_PATHS}; 0: a v1 map; "
-                   "first-lobe receiver only)")  # fmt: skip
+                   f"re-synthesis (schema v2; default {am.DEFAULT_PATHS} with the first-lobe "
+                   "receiver, which is the one the twin re-synthesises, else 0: a v1 map)")  # fmt: skip
     p.add_argument("--workers", type=int, default=None, metavar="N",
                    help="processes (default: every core)")  # fmt: skip
     p.add_argument("--scheduler", metavar="ADDRESS",
@@ -80,6 +81,15 @@ def _accuracy_map(args: argparse.Namespace) -> int:
     from ..studies.accuracy_map import MapSettings, check_output, compute_map, write_outputs
 
     t0 = time.perf_counter()
+    if args.paths is None:
+        from ..studies.accuracy_map import DEFAULT_PATHS
+
+        args.paths = DEFAULT_PATHS
+    elif args.paths > 0 and args.receiver != "first-lobe":
+        raise HallrayError(
+            f"--paths {args.paths} needs --receiver first-lobe (the twin re-synthesises that "
+            "receiver's ToA only); without --paths the map has none (schema v1)"
+        )
     settings = MapSettings(
         step_m=args.step, height_m=args.height, band=args.band, receiver=args.receiver,
         methods=tuple(args.methods), draws=args.draws, seed=args.seed, paths=args.paths,
