@@ -404,3 +404,14 @@ def test_workers_end_when_their_caller_is_killed(tmp_path):
 def test_a_process_is_told_apart_from_a_gone_one():
     assert parallel._caller_token(os.getpid()) == parallel._caller_token(os.getpid()) is not None
     assert parallel._caller_token(2**30) is None  # above any pid_max: no such process
+
+
+def test_without_proc_a_process_is_found_by_signal(monkeypatch):
+    """Where there is no /proc (macOS) the caller is looked up by signal, not taken for gone
+    (which would end every worker at once)."""
+    if os.name == "nt":
+        pytest.skip("not watched on Windows")
+    real = os.path.isdir
+    monkeypatch.setattr(os.path, "isdir", lambda p: False if p == "/proc/self" else real(p))
+    assert parallel._caller_token(os.getpid()) is True
+    assert parallel._caller_token(2**30) is None

@@ -32,7 +32,7 @@ A worker process that dies (killed, out of memory) makes the pool raise one
 :class:`WorkerCrashError`; the broken pool is dropped and the next call starts a new one. The
 other way round, a worker ends within about a second (:data:`CALLER_WATCH_S`) of the process
 that started it, if that one dies without closing its pools (SIGKILL, the out-of-memory killer):
-every pool's processes watch their caller (:func:`_watch_caller`).
+every pool's processes watch their caller (:func:`_watch_caller`; not on Windows).
 
 * **Workers do not run the caller's script.** A fork-server or spawned process imports the
   parent's ``__main__`` first (``multiprocessing``'s rule), so a script that calls ``trace`` at
@@ -294,20 +294,22 @@ CALLER_WATCH_S = 1.0
 def _caller_token(pid: int) -> Any:
     """Something that identifies the running process ``pid`` (None: it is gone): its start time
     where /proc tells it (a zombie counts as gone, and a new process with the same pid differs),
-    else whether a signal can be sent to it."""
-    try:
-        with open(f"/proc/{pid}/stat", "rb") as fh:
-            stat = fh.read()
-    except FileNotFoundError:
-        return None
-    except OSError:
+    else whether a signal can be sent to it; on Windows always True (not watched there)."""
+    if os.name == "nt":  # os.kill(pid, 0) would terminate it there: no watch on Windows
+        return True
+    if not os.path.isdir("/proc/self"):  # no /proc (macOS): whether it can be signalled
         try:
             os.kill(pid, 0)
         except ProcessLookupError:
             return None
-        except OSError:
+        except OSError:  # it exists but belongs to someone else, or the platform says no more
             pass
         return True
+    try:
+        with open(f"/proc/{pid}/stat", "rb") as fh:
+            stat = fh.read()
+    except OSError:
+        return None
     fields = stat[stat.rindex(b")") + 2 :].split()  # after "pid (comm) ": state, ppid, ...
     return None if fields[0] in (b"Z", b"X") else fields[19]  # field 22: start time
 
