@@ -15,10 +15,10 @@ What a pool costs, and how it is kept small (measured in docs/tracing.md, "Where
   why the workers are never forked from the caller; and Embree merely imported before a fork
   makes the fork trace 2x slower). Where there is no fork server (Windows) workers are spawned.
 * **The pool outlives one call**: it is kept for the next call with the same scene (its pickled
-  bytes, compared by digest) and the same number of workers, so a caller that traces many times
-  (the accuracy map, reproduce-paper) starts it once. A call with another scene or another number
-  of workers closes it and starts a new one; :func:`close_pools` closes it, and so does the end of
-  the interpreter.
+  bytes, compared by digest) and as many workers or fewer, so a caller that traces many times
+  (the accuracy map, reproduce-paper) starts it once. A call with another scene or more workers
+  closes it and starts a new one; :func:`close_pools` closes it, and so does the end of the
+  interpreter.
 * **The scene is sent once per worker** as its pickled bytes (the arrays; the Embree scene is
   rebuilt in a few milliseconds, the facets and wedges are not recomputed; their derived caches
   are, once per worker, so that the bytes do not change when a trace fills them).
@@ -149,11 +149,11 @@ def auto_in_process(n_links: int, scene: Scene | None = None, n_rx: int = 0) -> 
 
 def pool_is_kept(scene: Scene, workers: int, main: bool = False) -> bool:
     """Whether the kept pool (module description) is the one ``ScenePool(scene, workers, main=
-    main)`` would use: the same scene (by the digest of its bytes), as many processes (a broken
-    pool is dropped, so a kept one has not failed)."""
+    main)`` would use: the same scene (by the digest of its bytes), at least as many processes
+    (a broken pool is dropped, so a kept one has not failed)."""
     with _LOCK:
         key = _KEPT.get("key")
-    if key is None or key[1:] != (workers - 1, bool(main)):
+    if key is None or key[1] < workers - 1 or key[2] != bool(main):
         return False
     return key[0] == _digest(pickle.dumps(scene, protocol=pickle.HIGHEST_PROTOCOL))
 
@@ -416,7 +416,10 @@ def _executor(
     (``main``: its workers import the caller's ``__main__``)."""
     key = (_digest(blob), processes, bool(main))
     with _LOCK:
-        if _KEPT.get("key") == key:
+        kept = _KEPT.get("key")
+        # a kept pool with more processes serves fewer lanes as well (ScenePool hands out at most
+        # lanes - 1 items at a time): a small trace after a big one keeps the big one's workers
+        if kept is not None and kept[0] == key[0] and kept[2] == key[2] and kept[1] >= processes:
             return _KEPT["executor"]
         old = _KEPT.pop("executor", None)
         if old is not None:
@@ -514,8 +517,8 @@ class ScenePool:
         Default False: a script that traces at its top level is not run again in the workers.
 
     ``fn`` must be a module-level function (it is sent to the workers by reference). The worker
-    processes are kept after :meth:`close` for the next pool with the same scene and number of
-    workers (see the module's description); :func:`close_pools` stops them.
+    processes are kept after :meth:`close` for the next pool with the same scene and as many
+    workers or fewer (see the module's description); :func:`close_pools` stops them.
     """
 
     def __init__(
