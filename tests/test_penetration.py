@@ -110,9 +110,10 @@ def test_stacked_solids_chords_do_not_depend_on_the_bvh():
     """Segments entering a pallet low through its side, crossing the plane it shares with the
     boxes on it and leaving the boxes through their side. Which of the two coincident faces
     Embree reports first depends on its BVH (here changed by far-away objects); the crossings
-    must not. Closed form: equivalent slab = chord x cos(incidence) on the entry face, i.e. the
-    pallet's chord times |d_y| (entered through y = 0.8) and the boxes' chord times |d_z|
-    (entered through z = 0.15), whatever face the chord leaves through."""
+    must not. Closed form: equivalent slab = chord x cos(incidence) on the more head-on of the
+    entry and exit faces, i.e. the pallet's chord (entered through y = 0.8, left through
+    z = 0.15) and the boxes' chord (entered through z = 0.15, left through y = 0.1) times
+    max(|d_y|, |d_z|)."""
     rng = np.random.default_rng(7)
     n = 64
     p1 = np.column_stack([rng.uniform(0.35, 0.85, n), np.full(n, 0.8), rng.uniform(0.01, 0.1, n)])
@@ -122,7 +123,9 @@ def test_stacked_solids_chords_do_not_depend_on_the_bvh():
     t_side, t_shared = 0.2, 0.2 + np.linalg.norm(p2 - p1, axis=1)
     t_exit = t_side + (0.8 - 0.1) / -d[:, 1]  # the boxes' y = 0.1 face (below their top)
     a, b = p1 - t_side * d, p1 + (t_exit - t_side + 0.3)[:, None] * d
-    want = np.column_stack([(t_shared - t_side) * -d[:, 1], (t_exit - t_shared) * d[:, 2]])
+    cos = np.maximum(-d[:, 1], d[:, 2])
+    want = np.column_stack([(t_shared - t_side) * cos, (t_exit - t_shared) * cos])
+    boxes_face = np.where((d[:, 2] >= -d[:, 1])[:, None], [0, 0, -1.0], [0, -1.0, 0])
 
     reported, thickness = set(), []
     for n_spare in (0, 5, 10, 15):
@@ -132,8 +135,7 @@ def test_stacked_solids_chords_do_not_depend_on_the_bvh():
         assert np.all(cr.count == 2) and not cr.exceeded.any()
         np.testing.assert_array_equal(cr.object[:, :2], np.broadcast_to([0, 1], (n, 2)))
         np.testing.assert_allclose(cr.thickness[:, :2], want, atol=CHORD_TOL_M)
-        np.testing.assert_allclose(cr.normal[:, 1], np.broadcast_to([0, 0, -1.0], (n, 3)),
-                                   atol=0)  # fmt: skip
+        np.testing.assert_allclose(cr.normal[:, 1], boxes_face, atol=0)
         # the object whose face Embree reports at the shared plane
         probe = a + (t_shared - 1e-3)[:, None] * d
         reported |= set(sc.intersect(probe, d, np.full(n, 2e-3))[2].tolist())
@@ -234,9 +236,9 @@ def test_a_segment_ending_under_stacked_solids_crosses_both_whatever_the_bvh():
         cr = segment_crossings(sc, a, end, 4, end_objects=np.array([[-1, 2]] * n))
         assert np.all(cr.count == 2)
         np.testing.assert_array_equal(cr.object[:, :2], np.broadcast_to([1, 0], (n, 2)))
-        # boxes: entered through y = 0.7; pallet: entered through z = 0.15, to a margin before
-        # the end
-        want_boxes = (p_side[:, 2] - 0.15) / -d[:, 2] * -d[:, 1]
+        # boxes: entered through y = 0.7, left through z = 0.15 (the more head-on of the two);
+        # pallet: entered through z = 0.15, to a margin before the end
+        want_boxes = (p_side[:, 2] - 0.15) / -d[:, 2] * np.maximum(-d[:, 1], -d[:, 2])
         want_pallet = 0.15 - sc.margin * -d[:, 2]
         np.testing.assert_allclose(cr.thickness[:, 0], want_boxes, atol=CHORD_TOL_M)
         np.testing.assert_allclose(cr.thickness[:, 1], want_pallet, atol=CHORD_TOL_M)
@@ -262,3 +264,54 @@ def test_a_segment_through_an_edge_enters_through_the_more_head_on_face():
             np.testing.assert_array_equal(cr.count, 1)
             np.testing.assert_allclose(cr.thickness[:, 0], 1.0, atol=CHORD_TOL_M)
             np.testing.assert_allclose(cr.normal[:, 0], np.broadcast_to(normal, (n, 3)), atol=0)
+
+
+def test_a_chord_through_perpendicular_faces_is_the_same_slab_both_ways():
+    """A segment that enters a long box through its side at grazing incidence and leaves through
+    its end head-on (and the same segment reversed): one slab in both directions, on the more
+    head-on face, the end (closed form: chord x cos on the end face). On the entry face alone the
+    slab was 0.14 x chord one way and 0.99 x chord the other."""
+    sc = make_scene([("bar", box((0, 0, 0), (4, 0.8, 1)), "wood")])
+    d = np.array([0.99, 0.14, 0.0]) / np.linalg.norm([0.99, 0.14, 0.0])
+    p_in = np.array([0.0, 0.3, 0.5])  # on the end face x = 0
+    chord = (0.8 - 0.3) / d[1]  # to the side face y = 0.8, at x = 3.5
+    a, b = p_in - 1.0 * d, p_in + (chord + 0.5) * d
+    fwd = segment_crossings(sc, a[None], b[None], 2)
+    rev = segment_crossings(sc, b[None], a[None], 2)
+    for cr in (fwd, rev):
+        assert cr.count[0] == 1
+        np.testing.assert_allclose(cr.thickness[0, 0], chord * d[0], rtol=1e-6)
+        np.testing.assert_allclose(cr.normal[0, 0], [-1.0, 0.0, 0.0], atol=0)
+
+
+def test_penetrated_paths_are_reciprocal():
+    """Swapping transmitter and receiver gives the same paths with the same delays and gains
+    (reflections, and penetrations through solids entered and left through perpendicular
+    faces); a reciprocal medium and the same antenna at both ends."""
+    from raytrace import TraceConfig, trace
+
+    sc = make_scene(
+        [
+            ("floor", box((-6, -6, -0.3), (6, 6, 0.0)), "concrete"),
+            ("crate", box((-1.0, -0.4, 0.05), (1.5, 0.4, 1.2)), "wood"),
+            ("shelf", box((0.5, 1.0, 0.2), (3.0, 1.6, 0.6)), "plasterboard"),
+            ("pane", quad((-3, -2, 0), (0, 4, 0), (0, 0, 2.5)), "glass"),
+        ]
+    )
+    cfg = TraceConfig(max_reflections=2, max_penetrations=2, max_diffractions=0)
+    rng = np.random.default_rng(4)
+    ends_a = np.array([[-4.5, 0.3, 1.5], [4.2, -0.1, 0.9]])
+    ends_b = rng.uniform([-2.5, -3.0, 0.4], [4.5, 3.0, 2.2], (3, 3))
+    ends_b = ends_b[sc.inside_solid(ends_b) < 0]
+    f = 3.775e9
+    fwd = trace(sc, ends_a, ends_b, f, cfg, threads=1)
+    rev = trace(sc, ends_b, ends_a, f, cfg, threads=1)
+    assert (fwd.n_penetrations > 0).sum() > 10
+    for t in range(len(ends_a)):
+        for r in range(len(ends_b)):
+            p = np.flatnonzero((fwd.tx_index == t) & (fwd.rx_index == r))
+            q = np.flatnonzero((rev.tx_index == r) & (rev.rx_index == t))
+            assert len(p) == len(q)
+            p, q = p[np.argsort(fwd.delay_s[p])], q[np.argsort(rev.delay_s[q])]
+            np.testing.assert_allclose(rev.delay_s[q], fwd.delay_s[p], rtol=1e-12)
+            np.testing.assert_allclose(rev.gain[q], fwd.gain[p], rtol=1e-9)
