@@ -351,20 +351,28 @@ class _Watched:
         super().run()  # type: ignore[misc]
 
 
+class _Contexted:
+    """Mixin of a multiprocessing context whose processes (``_process``, a :class:`_Watched`
+    class) import the parent's ``__main__`` only if the context was made with ``main``."""
+
+    _process: type
+
+    def __init__(self, main: bool = False) -> None:
+        super().__init__()
+        self._main = bool(main)
+
+    def Process(self, *args: Any, **kwargs: Any) -> Any:  # noqa: N802 (multiprocessing's name)
+        process = self._process(*args, **kwargs)
+        process._hide_main = not self._main
+        return process
+
+
 class _SpawnProcess(_Watched, multiprocessing.context.SpawnProcess):
     _Popen = _hiding_main(multiprocessing.context.SpawnProcess._Popen)
 
 
-class _SpawnProcessMain(_SpawnProcess):
-    _hide_main = False
-
-
-class _SpawnContext(multiprocessing.context.SpawnContext):
-    Process = _SpawnProcess
-
-
-class _SpawnContextMain(multiprocessing.context.SpawnContext):
-    Process = _SpawnProcessMain
+class _SpawnContext(_Contexted, multiprocessing.context.SpawnContext):
+    _process = _SpawnProcess
 
 
 if hasattr(multiprocessing.context, "ForkServerContext"):  # not on Windows
@@ -372,14 +380,8 @@ if hasattr(multiprocessing.context, "ForkServerContext"):  # not on Windows
     class _ForkServerProcess(_Watched, multiprocessing.context.ForkServerProcess):
         _Popen = _hiding_main(multiprocessing.context.ForkServerProcess._Popen)
 
-    class _ForkServerProcessMain(_ForkServerProcess):
-        _hide_main = False
-
-    class _ForkServerContext(multiprocessing.context.ForkServerContext):
-        Process = _ForkServerProcess
-
-    class _ForkServerContextMain(multiprocessing.context.ForkServerContext):
-        Process = _ForkServerProcessMain
+    class _ForkServerContext(_Contexted, multiprocessing.context.ForkServerContext):
+        _process = _ForkServerProcess
 
 
 def _wrapped(ctx: Any, main: bool) -> Any:
@@ -387,8 +389,8 @@ def _wrapped(ctx: Any, main: bool) -> Any:
     one (:func:`_watch_caller`) and start without importing the parent's ``__main__`` unless
     ``main``."""
     if ctx.get_start_method() == "forkserver":
-        return _ForkServerContextMain() if main else _ForkServerContext()
-    return _SpawnContextMain() if main else _SpawnContext()
+        return _ForkServerContext(main)
+    return _SpawnContext(main)
 
 
 def from_main(fn: object) -> bool:
