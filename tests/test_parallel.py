@@ -23,6 +23,8 @@ from raytrace.solver.parallel import (
 from raytrace.solver.tracer import trace_chunks
 
 F_C = 3.775e9
+#: The directory that holds this raytrace package (what a subprocess puts on PYTHONPATH).
+CHECKOUT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(parallel.__file__))))
 
 
 def _same(a, b) -> None:
@@ -261,7 +263,7 @@ def test_workers_import_the_callers_raytrace_not_the_working_directorys(tmp_path
     import subprocess
     import sys
 
-    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(parallel.__file__))))
+    root = CHECKOUT
     cwd = tmp_path / "checkout"
     cwd.mkdir()
     # the same code under another path: it imports, but is not the caller's package
@@ -298,7 +300,7 @@ def test_a_script_that_traces_at_its_top_level_runs_once(tmp_path):
     import subprocess
     import sys
 
-    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(parallel.__file__))))
+    root = CHECKOUT
     script = tmp_path / "plain.py"
     script.write_text(
         "from raytrace import TraceConfig, trace\n"
@@ -371,7 +373,7 @@ def test_workers_end_when_their_caller_is_killed(tmp_path):
 
     if cpu_count() < 2 or os.name == "nt":
         pytest.skip("needs two cores and SIGKILL")
-    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(parallel.__file__))))
+    root = CHECKOUT
     script = tmp_path / "stay.py"
     script.write_text(
         "import os, sys, time\n"
