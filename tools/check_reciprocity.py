@@ -26,6 +26,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from raytrace import TraceConfig, load_scene, trace  # noqa: E402
 from raytrace.core.constants import C0  # noqa: E402
+from raytrace.core.errors import HallrayError  # noqa: E402
 from raytrace.emulation.bands import get_band  # noqa: E402
 from raytrace.scene.metadata import SceneMetadata  # noqa: E402
 from raytrace.solver.paths import PENETRATION  # noqa: E402
@@ -63,13 +64,18 @@ def main() -> int:
     ap.add_argument("--max-diffractions", type=int, default=1)
     ap.add_argument("--tol-db", type=float, default=1e-6, help="gain difference counted, dB")
     args = ap.parse_args()
-    scene = load_scene(args.scene)
-    inp = SceneMetadata.from_scene(scene, require=True)
-    f = get_band(args.band).center_frequency_hz
-    cfg = TraceConfig(max_reflections=args.max_reflections, max_penetrations=args.max_penetrations,
-                      max_diffractions=args.max_diffractions)  # fmt: skip
-    fwd = trace(scene, inp.bs_xyz, inp.point_xyz, f, cfg)
-    rev = trace(scene, inp.point_xyz, inp.bs_xyz, f, cfg)
+    try:
+        scene = load_scene(args.scene)
+        inp = SceneMetadata.from_scene(scene, require=True)
+        f = get_band(args.band).center_frequency_hz
+        cfg = TraceConfig(max_reflections=args.max_reflections,
+                          max_penetrations=args.max_penetrations,
+                          max_diffractions=args.max_diffractions)  # fmt: skip
+        fwd = trace(scene, inp.bs_xyz, inp.point_xyz, f, cfg)
+        rev = trace(scene, inp.point_xyz, inp.bs_xyz, f, cfg)
+    except HallrayError as exc:  # a bad scene, band or limit: one line, no traceback
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
     back = defaultdict(list)
     for j, k in enumerate(_keys(rev, reverse=True)):
         back[k].append(j)
