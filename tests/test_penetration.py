@@ -315,3 +315,21 @@ def test_penetrated_paths_are_reciprocal():
             p, q = p[np.argsort(fwd.delay_s[p])], q[np.argsort(rev.delay_s[q])]
             np.testing.assert_allclose(rev.delay_s[q], fwd.delay_s[p], rtol=1e-12)
             np.testing.assert_allclose(rev.gain[q], fwd.gain[p], rtol=1e-9)
+
+
+@pytest.mark.parametrize("k", [0, 1, 2])
+def test_grazing_start_on_a_vertex_does_not_use_up_the_crossing_budget(k):
+    """A segment that leaves a diffraction point on a pillar's vertical edge almost along one of
+    its faces (the hall: 0.4 deg off the face, 29 m to a base station) is hit by that face again
+    and again within float32 noise of the vertex. Those steps are not crossings; they used to
+    count against the budget of 2 k + 2 boundaries, so with ``max_penetrations = 0`` the segment
+    was refused one way and kept the other (the reversed segment meets the noise at its end)."""
+    # the hall's extent sets the scene margin (the step over a hit) and float32's resolution
+    sc = make_scene([("pillar", box((6.7, 35.7, 0.0), (7.3, 36.3, 8.8)), "concrete"),
+                     ("floor", box((0.0, 0.0, -0.3), (42.0, 46.0, 0.0)), "concrete")])  # fmt: skip
+    corner = np.float32([6.7, 35.7, 0.0]).astype(float) + [0, 0, 2.49904942]
+    far = np.array([35.5, 35.5, 4.0])
+    fwd = segment_crossings(sc, corner[None], far[None], k, np.array([[0, -1]]))
+    rev = segment_crossings(sc, far[None], corner[None], k, np.array([[-1, 0]]))
+    for cr in (fwd, rev):
+        assert cr.count[0] == 0 and not cr.exceeded[0]

@@ -70,6 +70,10 @@ CONTACT_TOL_MARGINS = 1.0
 #: Embree's (:func:`_plane_distance`).
 GRAZING_COS = 1e-6
 
+#: Rounds of a segment walk beyond its budget of boundaries, for steps that are not boundaries
+#: (float32 noise at either end, at most ``END_GUARD_MARGINS`` steps each, and touches).
+FREE_STEPS = 32
+
 #: Hits on the object a segment starts or ends on (a reflection or diffraction vertex) closer
 #: than this many scene margins to that end are float32 noise of the vertex itself, not crossings.
 END_GUARD_MARGINS = 10.0
@@ -421,8 +425,13 @@ def segment_crossings(
         end_objects = np.full((n, 2), -1, dtype=np.int64)
     t = np.full(n, margin)
     active = (tmax > t) & (length > 0)
-    # each penetration of a solid takes two hits; one more round detects an excess
-    for _ in range(2 * k + 2):
+    # each penetration of a solid takes two boundaries; one more detects an excess. Steps over
+    # float32 noise at a vertex and over touches are not boundaries: they must not use up a
+    # segment's budget, or a segment leaving a diffraction point along its wedge's face would
+    # exceed it where the same segment reversed does not (reciprocity)
+    limit = 2 * k + 2
+    crossed = np.zeros(n, dtype=np.int64)
+    for _ in range(limit + FREE_STEPS):
         if not active.any():
             break
         rows = np.flatnonzero(active)
@@ -454,9 +463,14 @@ def segment_crossings(
         t_hit = _plane_distance(scene, face, a_r, d_r, t_hit)
         walk.boundary(rows, face, o, t_hit)
         t[rows] = t_hit + margin
+        crossed[rows] += 1
         active[rows] &= (t[rows] < tmax[rows]) & ~walk.exceeded[rows]
+        # still walking after the budget: more crossings than allowed
+        over = rows[active[rows] & (crossed[rows] >= limit)]
+        walk.exceeded[over] = True
+        active[over] = False
     else:
-        # still hitting after the last round: more crossings than allowed
+        # still hitting after the last round (a ray along a face, touching it again and again)
         walk.exceeded |= active
     _left_at_the_end(scene, walk, a, tmax)
     return walk.result(a, tmax)
