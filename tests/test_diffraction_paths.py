@@ -313,3 +313,37 @@ def test_no_diffraction_at_room_corners_or_where_a_box_stands(name):
         pts = p.points[d][p.interaction[d] == DIFFRACTION]
         on_bottom = (np.abs(pts[:, 2]) < 1e-6) & np.all(np.abs(pts[:, :2]) <= 1 + 1e-6, axis=1)
         assert d.any() and not on_bottom.any()
+
+
+def test_diffracted_paths_are_reciprocal():
+    """Swapping transmitter and receiver gives the same D, RD and DR paths with the same delays
+    and gains on lossy wedges (a concrete pillar, a wooden crate, a glass pane: solids and a
+    sheet), with one antenna at both ends. Luebbers' original face rule (the incident ray's angle
+    on a face the source lights, the diffracted ray's on the other) changed these gains by up to
+    60 dB on the hall (``tools/check_reciprocity.py``)."""
+    sc = make_scene(
+        [
+            ("floor", box((-8, -8, -0.3), (8, 8, 0.0)), "concrete"),
+            ("pillar", box((-0.4, -0.4, 0.0), (0.4, 0.4, 3.5)), "concrete"),
+            ("crate", box((2.0, 1.0, 0.0), (3.0, 2.5, 1.4)), "wood"),
+            ("pane", quad((-3, 2, 0), (0, 3.5, 0), (0, 0, 2.5)), "glass"),
+        ]
+    )
+    cfg = TraceConfig(max_reflections=1, max_penetrations=0, max_diffractions=1,
+                      min_power_db=-np.inf)  # fmt: skip
+    rng = np.random.default_rng(8)
+    ends_a = np.array([[-5.0, -4.2, 2.7], [5.5, -3.1, 3.1]])
+    ends_b = rng.uniform([-6.0, -1.0, 0.5], [6.0, 6.0, 2.0], (6, 3))
+    ends_b = ends_b[sc.inside_solid(ends_b) < 0]
+    fwd = trace(sc, ends_a, ends_b, F_C, cfg, threads=1)
+    rev = trace(sc, ends_b, ends_a, F_C, cfg, threads=1)
+    has_d = (fwd.interaction == DIFFRACTION).any(axis=1)
+    assert has_d.sum() > 40
+    for t in range(len(ends_a)):
+        for r in range(len(ends_b)):
+            p = np.flatnonzero((fwd.tx_index == t) & (fwd.rx_index == r))
+            q = np.flatnonzero((rev.tx_index == r) & (rev.rx_index == t))
+            assert len(p) == len(q)
+            p, q = p[np.argsort(fwd.delay_s[p])], q[np.argsort(rev.delay_s[q])]
+            np.testing.assert_allclose(rev.delay_s[q], fwd.delay_s[p], rtol=1e-12)
+            np.testing.assert_allclose(rev.gain[q], fwd.gain[p], rtol=1e-9)

@@ -10,7 +10,7 @@ facets, wedges and objects, through the same reflection and diffraction points) 
 same delay and the same complex gain in a reciprocal medium with the same antenna at both ends.
 Prints, per kind (``RD``, ``TRR``, ...), how many paths were found one way only, and the largest
 differences of delay (m) and gain (dB, and relative) between a path and its reverse. Not a test:
-a diagnostic for the physics (docs/tracing.md, "Penetration"; diffraction is not reciprocal yet).
+a diagnostic for the physics (docs/tracing.md, "Penetration"; docs/diffraction.md, (D8a)).
 """
 
 from __future__ import annotations

@@ -569,7 +569,7 @@ def _rotator(k, s_cur, s_tgt):
     return np.stack([np.stack([c, s], -1), np.stack([-s, c], -1)], -2)
 
 
-def sionna_diffraction_gain(tx, q, rx, e, na, nb, refl, k, grouping="sionna", unlit="minus_identity"):
+def sionna_diffraction_gain(tx, q, rx, e, na, nb, refl, k, grouping="sionna", faces="sionna"):
     """Gain of a diffracted path tx -> q -> rx as Sionna RT 2.2 computes it, in numpy float64.
 
     A transcription of ``RadioMaterial._diffraction_matrix``
@@ -588,9 +588,11 @@ def sionna_diffraction_gain(tx, q, rx, e, na, nb, refl, k, grouping="sionna", un
     k : float, rad/m
     grouping : "sionna" for ``R_0 (D1 - D4) + R_n (D2 - D3)`` (lines 1167-1176), or "kp" for
         Kouyoumjian-Pathak / Luebbers' ``-(D1 + D2) I + D4 R_0 + D3 R_n`` with the same matrices
-    unlit : "minus_identity" for ``R_n = -I`` when the source does not light face n (lines
-        1162-1165), or "luebbers": face n's matrix at Luebbers' angle of the diffracted ray, in
-        the face-frame construction of :func:`raytrace.physics.utd.face_reflection_matrix` (D8a)
+    faces : "sionna" for Sionna's face matrices (the incident ray's reflection, and ``R_n = -I``
+        when the source does not light face n, lines 1162-1165), or "d8a": hallray's, both faces
+        at the angle of the face rule (D8a, the specular reflection between the two ends, each
+        taken in front of the face) in the construction of
+        :func:`raytrace.physics.utd.face_reflection_matrix`
 
     Returns
     -------
@@ -645,17 +647,19 @@ def sionna_diffraction_gain(tx, q, rx, e, na, nb, refl, k, grouping="sionna", un
 
     r0 = face(k_sb0, es0, phi_sb0, n0)
     rn = face(k_sbn, esn, phi_sbn, nn)
-    unlit_n = ext > np.pi + phi_p
-    if unlit == "minus_identity":
-        rn[unlit_n] = -np.eye(2)
+    if faces == "sionna":
+        rn[ext > np.pi + phi_p] = -np.eye(2)
     else:
-        # D8a: a face the source does not light reflects at Luebbers' angle of the diffracted
-        # ray, psi_n = pi - (n pi - phi); hallray's face matrix, reordered from (beta0, phi) to
-        # Sionna's (phi, beta0) components; face n's own edge direction is -e
-        psi = np.pi - (ext - phi)
-        r_te, r_tm = refl(np.sin(beta0) * np.abs(np.sin(psi)))
-        t_n = face_reflection_matrix(r_te, r_tm, _dot(ki, -e), psi)[:, ::-1, ::-1]
-        rn[unlit_n] = t_n[unlit_n]
+        # D8a: each face reflects at the in-plane angle of the specular reflection off its plane
+        # between the two ends (each mirrored in front of it); hallray's face matrix, reordered
+        # from (beta0, phi) to Sionna's (phi, beta0) components; face n's edge direction is -e
+        def d8a(a_in, a_out, sign):
+            psi = np.arctan2(s * np.abs(np.sin(a_out)) + s_p * np.abs(np.sin(a_in)),
+                             s_p * np.cos(a_in) - s * np.cos(a_out))
+            r_te, r_tm = refl(np.sin(beta0) * np.abs(np.sin(psi)))
+            return face_reflection_matrix(r_te, r_tm, _dot(ki, sign * e), psi)[:, ::-1, ::-1]
+
+        r0, rn = d8a(phi_p, phi, 1.0), d8a(ext - phi_p, ext - phi, -1.0)
     eye = np.broadcast_to(np.eye(2), r0.shape)
     if grouping == "sionna":
         jm = r0 * (d1 - d4)[:, None, None] + rn * (d2 - d3)[:, None, None]
@@ -781,8 +785,8 @@ def analyse(c: Canon, sw: Sweep, h: PathTable, s: PathTable, f_hz: float,
         model["sionna"] = sionna_diffraction_gain(p_tx, q, p_rx, e, na, nb, refl_sionna, k)
         model["kp grouping"] = sionna_diffraction_gain(
             p_tx, q, p_rx, e, na, nb, refl_sionna, k, grouping="kp")
-        model["kp grouping, Luebbers unlit face"] = sionna_diffraction_gain(
-            p_tx, q, p_rx, e, na, nb, refl_hallray, k, grouping="kp", unlit="luebbers")
+        model["kp grouping, D8a faces"] = sionna_diffraction_gain(
+            p_tx, q, p_rx, e, na, nb, refl_hallray, k, grouping="kp", faces="d8a")
         # hallray's own coefficient through its API (the tracer's value, recomputed)
         g = wedge_geometry(p_tx, p_rx, q, e, na, nb, face0_dir=f0)
         fd = diffracted_field(g, vpol(_unit(q - p_tx)).astype(complex), f_hz,
@@ -877,7 +881,7 @@ def table_model(results: list[SweepResult]) -> str:
     changed step by step into hallray's coefficient. Cells: abs dB median / p90 / max; max abs
     phase (deg)."""
     keys = ["Sionna vs transcription", "transcription vs hallray", "+ KP grouping vs hallray",
-            "+ Luebbers unlit face vs hallray", "hallray API vs hallray trace"]
+            "+ face rule (D8a) vs hallray", "hallray API vs hallray trace"]
     rows: dict[str, dict[str, list]] = {}
     for r in results:
         if not len(r.model):
@@ -887,7 +891,7 @@ def table_model(results: list[SweepResult]) -> str:
         m = r.model
         pairs = dict(zip(keys, (
             (gs, m["sionna"]), (m["sionna"], gh), (m["kp grouping"], gh),
-            (m["kp grouping, Luebbers unlit face"], gh), (m["hallray api"], gh)), strict=True))
+            (m["kp grouping, D8a faces"], gh), (m["hallray api"], gh)), strict=True))
         for lab in np.unique(r.label[is_d]):
             sel = r.label[is_d] == lab
             d = rows.setdefault(lab, {})

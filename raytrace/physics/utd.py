@@ -27,11 +27,12 @@ Conventions (see ``docs/diffraction.md`` for the formulas and their sources)
   the edge into the face, and ``n0`` the outward normal of face 0: ``t0 = n0 x e`` and
   ``n0 = e x t0``; a point ``p`` has ``phi = atan2((p - q).n0, (p - q).t0)`` (``q`` on the edge).
   :func:`wedge_geometry` orients ``e`` itself: the caller only says which face is face 0.
-* Lossy faces (Luebbers' heuristic, made labelling-independent): a face *lit by the source*
-  (source, or image source, in front of the face's plane) reflects at the incidence angle of the
-  incident ray; a face the source does not light takes Luebbers' "reflection angle" of the
-  diffracted ray. The rule is stated per face, so relabelling the faces (or reversing a sheet's
-  winding) changes nothing; with only face 0 lit it is Luebbers' original form.
+* Lossy faces (Luebbers' heuristic with a reciprocal face rule, D8a): each face's term takes the
+  reflection, off the face's plane, of the specular ray between source and receiver seen along
+  the edge (each end taken in front of the plane). Reciprocal, continuous in both end points,
+  independent of which face is called face 0, the geometrical-optics reflection wherever it is
+  seen, and Luebbers' angles in his limits (distant source: the incident ray's ``phi'``; distant
+  receiver: the diffracted ray's ``pi - phi``).
 * ``n`` = exterior angle / pi: 2 for a half-plane (thin sheet), 1.5 for a right-angle convex
   corner of a box; for a convex wedge ``n = 1 + angle(n0, nn) / pi``.
 * Ray-fixed unit vectors (KP): incident direction ``s'`` (source -> edge), ``phi'_hat =
@@ -206,10 +207,9 @@ class WedgeGeometry:
         (``n pi - phi' <= pi``); at least one is True where valid, both for a source that sees
         both faces of a convex wedge (or grazes a half-plane)
     psi_0, psi_n : (P,) float, rad; in-plane angle, measured from the face, of the ray whose
-        reflection in that face the face's diffraction term carries: the source's angle
-        (``phi'`` / ``n pi - phi'``) on a lit face; on a face the source does not light, the
-        virtual incident ray that the face would reflect into the diffracted ray
-        (``pi - phi`` / ``pi - (n pi - phi)``; Luebbers' reflection angle)
+        reflection in that face the face's diffraction term carries: the specular reflection off
+        the face's plane between source and receiver, each taken in front of the plane (D8a,
+        see ``_face_angles``); ``phi'`` on the face's reflection boundary
     cos_theta_0, cos_theta_n : (P,) float; cosine of the incidence angle (to the face normal) at
         which the reflection coefficients ``R_0`` and ``R_n`` are evaluated:
         ``sin(beta0) |sin(psi_0)|``, ``sin(beta0) |sin(psi_n)|``
@@ -354,7 +354,7 @@ def framed_wedge_geometry(
     sin_beta0, phi_hat_in, beta_hat_in, ok_in = _ray_fixed(e, s_hat_in, incident=True)
     _, phi_hat_out, beta_hat_out, ok_out = _ray_fixed(e, s_hat_out, incident=False)
     valid = (s_in > 0) & (s_out > 0) & ok_in & ok_out & ~in_wedge_s & ~in_wedge_d
-    lit_0, lit_n, psi_0, psi_n = _face_angles(n, phi_in, phi)
+    lit_0, lit_n, psi_0, psi_n = _face_angles(n, phi_in, phi, s_in, s_out)
     return WedgeGeometry(
         edge_dir=e,
         face0_tangent=t0,
@@ -451,17 +451,35 @@ def _ray_fixed(
 
 
 def _face_angles(
-    n: np.ndarray, phi_in: np.ndarray, phi: np.ndarray
+    n: np.ndarray, phi_in: np.ndarray, phi: np.ndarray, s_in: np.ndarray, s_out: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Which faces the source lights and each face's (virtual) incidence angle (D8a): a lit face
-    takes the incident ray's angle, an unlit one Luebbers' reflection angle of the diffracted
-    ray. Returns ``lit_0, lit_n`` (bool) and ``psi_0, psi_n`` (rad)."""
+    """Which faces the source lights, and each face's in-plane reflection angle (D8a).
+
+    In the plane perpendicular to the edge, the source is at distance ``s' sin beta0`` and angle
+    ``phi'`` from the face, the receiver at ``s sin beta0`` and ``phi``. The face reflects at the
+    angle of the specular reflection off its plane between the two, each end taken on the face's
+    side of the plane (an end behind it mirrored to the front):
+    ``psi = atan2(s |sin phi| + s' |sin phi'|, s' cos phi' - s cos phi)`` (the ``sin beta0``
+    cancels). This is reciprocal (swapping the ends gives ``pi - psi``, the same reflection),
+    continuous everywhere, the geometrical-optics reflection angle wherever the face's reflection
+    is seen (so ``phi'`` on its reflection boundary), and tends to Luebbers' ``phi'`` for a
+    distant source and to his ``pi - phi`` for a distant receiver. Returns ``lit_0, lit_n``
+    (bool: the source is in front of the face's plane) and ``psi_0, psi_n`` (rad).
+    """
     npi = n * np.pi
     lit_0 = phi_in <= np.pi
     lit_n = npi - phi_in <= np.pi
-    psi_0 = np.where(lit_0, phi_in, np.pi - phi)
-    psi_n = np.where(lit_n, npi - phi_in, np.pi - (npi - phi))
+    psi_0 = _specular_angle(phi_in, phi, s_in, s_out)
+    psi_n = _specular_angle(npi - phi_in, npi - phi, s_in, s_out)
     return lit_0, lit_n, psi_0, psi_n
+
+
+def _specular_angle(a_in, a_out, s_in, s_out) -> np.ndarray:
+    """In-plane angle (rad) of the reflection off a face between a source at angle ``a_in`` and
+    distance ``s_in`` and a receiver at ``a_out``, ``s_out`` (angles from the face), both taken
+    in front of the face's plane (see :func:`_face_angles`)."""
+    height = s_out * np.abs(np.sin(a_out)) + s_in * np.abs(np.sin(a_in))
+    return np.arctan2(height, s_in * np.cos(a_in) - s_out * np.cos(a_out))
 
 
 # -- 3. UTD coefficients --------------------------------------------------------------------------
@@ -699,8 +717,8 @@ def diffracted_field(
 
     ``T_0``, ``T_n`` the faces' reflection matrices (:func:`face_reflection_matrix`, perfect
     conductor: ``diag(1, -1)``, which is KP's ``D_s,h = C[D1 + D2 -+ (D3 + D4)]``), evaluated per
-    face at the angle ``psi_0`` / ``psi_n`` of :class:`WedgeGeometry` (lit face: the incident
-    ray; unlit face: Luebbers' reflection angle of the diffracted ray), ``A = sqrt(s' / (s (s' +
+    face at the angle ``psi_0`` / ``psi_n`` of :class:`WedgeGeometry` (the specular
+    reflection off the face's plane between the two ends, D8a), ``A = sqrt(s' / (s (s' +
     s)))``, ``L = s s' sin^2(beta0) / (s + s')``. Continuous with the geometrical-optics field at
     both reflection boundaries, also at oblique incidence on lossy faces, and independent of which
     face the caller calls face 0.
