@@ -333,3 +333,32 @@ def test_grazing_start_on_a_vertex_does_not_use_up_the_crossing_budget(k):
     rev = segment_crossings(sc, far[None], corner[None], k, np.array([[-1, 0]]))
     for cr in (fwd, rev):
         assert cr.count[0] == 0 and not cr.exceeded[0]
+
+
+def _grazed_pillar_scene(with_sheet: bool):
+    objs = [("pillar", box((20.7, 22.7, 0.0), (21.3, 23.3, 8.8)), "concrete"),
+            ("floor", box((0.0, 0.0, -0.3), (42.0, 46.0, 0.0)), "concrete")]  # fmt: skip
+    if with_sheet:  # a pane across the grazed stretch, at x = 21.0
+        objs.append(("pane", quad((21.0, 22.0, 0.0), (0.0, 3.0, 0.0), (0.0, 0.0, 4.0)), "glass"))
+    return make_scene(objs)
+
+
+@pytest.mark.parametrize("with_sheet", [False, True], ids=["alone", "pane across"])
+def test_segment_in_the_plane_of_a_face_touches_it_both_ways(with_sheet):
+    """A segment that lies in the plane of a pillar's face (a test point and a diffraction point
+    on the grid line y = 23.3 of the hall, along a pillar's side) only touches the pillar, in
+    both directions. On the segment's own line Embree reported the face again at every step one
+    way (the walk ran out of rounds: refused) and not at all the other way; the walk now goes on
+    along a line shifted off the touched solid until past it, so a pane standing across the
+    grazed stretch is still crossed, once, both ways."""
+    sc = _grazed_pillar_scene(with_sheet)
+    a = np.array([34.4, 23.3, 1.0])  # 8e-7 m off the face's float32 plane
+    b = np.float32([7.3, 23.3, 0.0]).astype(float) + [0.0, 0.0, 2.40005815]  # on it
+    k = 1 if with_sheet else 0
+    for p, q in ((a, b), (b, a)):
+        cr = segment_crossings(sc, p[None], q[None], k)
+        assert not cr.exceeded[0]
+        assert cr.count[0] == (1 if with_sheet else 0)
+        if with_sheet:
+            assert sc.objects[cr.object[0, 0]].name == "pane"
+            np.testing.assert_allclose(cr.point[0, 0, 0], 21.0, atol=1e-3)

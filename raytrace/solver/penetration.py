@@ -353,6 +353,28 @@ def _touches(scene: Scene, o: np.ndarray, a: np.ndarray, d: np.ndarray, tol: flo
     return out
 
 
+def _off_the_solid(
+    scene: Scene, face: np.ndarray, o: np.ndarray, a: np.ndarray, d: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Where a walk that touched face ``face`` of convex solid ``o`` continues: a shift (n, 3),
+    metres, of two contact tolerances along the face's outward normal, across the rays ``a + t
+    d``, and the distance ``t`` (n,), metres, at which the line leaves the solid grown by the
+    tolerance (past it, the walk is back on its own line; -inf for other objects)."""
+    tol = CONTACT_TOL_MARGINS * scene.margin
+    nrm = scene.face_normal[face]
+    across = nrm - np.einsum("ij,ij->i", nrm, d)[:, None] * d
+    size = np.linalg.norm(across, axis=1)
+    shift = 2.0 * tol * across / np.maximum(size, 1e-300)[:, None]
+    normal, offset, valid = _convex_planes(scene)
+    n, v = normal[o], valid[o]  # (m, K, 3), (m, K)
+    dn = np.einsum("mkj,mj->mk", n, d)
+    s = np.einsum("mkj,mj->mk", n, a) - offset[o] - tol  # <= 0 inside the grown solid
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t_out = np.where(v & (dn > 0), -s / dn, np.inf).min(axis=1)
+    ok = v.any(axis=1) & np.isfinite(t_out) & (size > 0)
+    return np.where(ok[:, None], shift, 0.0), np.where(ok, t_out, -np.inf)
+
+
 def _edge_planes(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
     """Every face's corners (F, 3, 3) and the outward in-plane unit normals of its three edges
     (F, 3, 3), edge ``i`` from corner ``i`` to corner ``i + 1``. Cached on the scene."""
@@ -431,15 +453,35 @@ def segment_crossings(
     # exceed it where the same segment reversed does not (reciprocity)
     limit = 2 * k + 2
     crossed = np.zeros(n, dtype=np.int64)
+    # after a touch, the walk goes on along a parallel line shifted off the touched solid until
+    # past it: on the segment's own line Embree reports the grazed face again at every step, or
+    # not at all, depending on the direction (a ray in the plane of a pillar's face)
+    shift = np.zeros((n, 3))
+    shift_end = np.full(n, -np.inf)
     for _ in range(limit + FREE_STEPS):
         if not active.any():
             break
         rows = np.flatnonzero(active)
         d_r = take_rows(d, rows)
-        th, face, o = scene.intersect(take_rows(a, rows) + t[rows, None] * d_r, d_r,
-                                      tmax[rows] - t[rows])  # fmt: skip
+        org = take_rows(a, rows) + t[rows, None] * d_r
+        reach = tmax[rows] - t[rows]
+        shifted = np.flatnonzero(t[rows] < shift_end[rows])
+        if len(shifted):
+            org[shifted] += shift[rows[shifted]]
+            reach[shifted] = np.minimum(reach[shifted], shift_end[rows[shifted]] - t[rows[shifted]])
+        th, face, o = scene.intersect(org, d_r, reach)
         hit = o >= 0
-        active[rows[~hit]] = False
+        miss = ~hit
+        if len(shifted):
+            # nothing on the shifted stretch: the walk goes on along its own line past the solid
+            back = np.zeros(len(rows), dtype=bool)
+            back[shifted] = True
+            back &= miss
+            r_b = rows[back]
+            t[r_b] = shift_end[r_b]
+            active[r_b] = t[r_b] < tmax[r_b]
+            miss &= ~back
+        active[rows[miss]] = False
         h = np.flatnonzero(hit)
         rows, th, face, o = rows[h], th[h], face[h], o[h]
         t_hit = t[rows] + th
@@ -455,7 +497,10 @@ def segment_crossings(
         a_r, d_r = take_rows(a, rows), take_rows(d, rows)
         face, touch = canonical_faces(scene, face, o, a_r, d_r, t_hit)
         if touch.any():
-            t[rows[touch]] = t_hit[touch] + margin
+            r_t = rows[touch]
+            t[r_t] = t_hit[touch] + margin
+            shift[r_t], shift_end[r_t] = _off_the_solid(scene, face[touch], o[touch],
+                                                        a_r[touch], d_r[touch])  # fmt: skip
             keep = ~touch
             active[rows[touch]] &= t[rows[touch]] < tmax[rows[touch]]
             rows, face, o, t_hit = rows[keep], face[keep], o[keep], t_hit[keep]
