@@ -347,3 +347,32 @@ def test_diffracted_paths_are_reciprocal():
             p, q = p[np.argsort(fwd.delay_s[p])], q[np.argsort(rev.delay_s[q])]
             np.testing.assert_allclose(rev.delay_s[q], fwd.delay_s[p], rtol=1e-12)
             np.testing.assert_allclose(rev.gain[q], fwd.gain[p], rtol=1e-9)
+
+
+def test_segment_touching_an_opaque_box_is_not_blocked_one_way_only():
+    """Two metal machines side by side on the hall's grid line y = 12 and a point on that line:
+    the diffraction at the far machine's corner reaches the point along the near machine's face.
+    Embree reported that face from the point's end and not from the corner's, so the path was
+    blocked by the opaque box in one direction only. A touch is not a block: both directions
+    find the path, with the same gain."""
+    sc = make_scene(
+        [
+            ("floor", box((0.0, 0.0, -0.3), (42.0, 46.0, 0.0)), "concrete"),
+            ("st_01", box((27.5, 12.0, 0.0), (29.7, 14.0, 2.2)), "metal"),
+            ("st_02", box((29.9, 12.0, 0.0), (32.1, 14.0, 2.2)), "metal"),
+        ]
+    )
+    cfg = TraceConfig(max_reflections=0, max_penetrations=0, max_diffractions=1)
+    point, bs = np.array([[23.0, 12.0, 1.0]]), np.array([[6.5, 10.5, 4.0]])
+    fwd = trace(sc, bs, point, F_C, cfg, threads=1)
+    rev = trace(sc, point, bs, F_C, cfg, threads=1)
+    corner = [32.1, 12.0]
+
+    def at_corner(p):
+        on = (p.interaction[:, 0] == DIFFRACTION) & np.all(
+            np.abs(p.points[:, 0, :2] - corner) < 1e-5, axis=1)
+        return np.flatnonzero(on)
+
+    i, j = at_corner(fwd), at_corner(rev)
+    assert len(i) == len(j) == 1
+    np.testing.assert_allclose(rev.gain[j], fwd.gain[i], rtol=1e-9)

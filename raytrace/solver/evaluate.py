@@ -31,7 +31,7 @@ from ..core.vec import rows as take_rows
 from ..physics.materials import slab, slab_group_delay
 from .context import TraceContext
 from .paths import DIFFRACTION, PENETRATION, REFLECTION, Paths
-from .penetration import Crossings, segment_crossings
+from .penetration import CONTACT_TOL_MARGINS, Crossings, segment_crossings, touches
 
 #: ``model(wedge (n,), chain (n, k+2, 3), j, field (n, 3), seg_len (n, k+1)) -> (field, scale)``:
 #: the field after the diffraction at vertex ``j`` of each chain and an extra amplitude factor.
@@ -163,6 +163,14 @@ def blocked_by_opaque(ctx: TraceContext, cand: Candidates) -> np.ndarray:
         d = np.divide(v, length[:, None], out=np.zeros_like(v), where=length[:, None] > 0)
         hit = ctx.scene.first_hit_among(ctx.opaque, a + margin * d, d, length - 2 * margin)
         b = (hit >= 0) & (hit != ends[:, j, 0][live]) & (hit != ends[:, j, 1][live])
+        if b.any():
+            # a segment that only touches an opaque solid (lying in the plane of its face, which
+            # Embree reports in one direction and not in the other) is not blocked by it: left
+            # to segment_crossings, which steps past touches and records real crossings
+            sel = np.flatnonzero(b)
+            touch = touches(ctx.scene, hit[sel], take_rows(a, sel), take_rows(d, sel),
+                            CONTACT_TOL_MARGINS * margin)  # fmt: skip
+            b[sel[touch]] = False
         blocked[live[np.flatnonzero(b)]] = True
         live = live[np.flatnonzero(~b)]
     return blocked

@@ -264,7 +264,7 @@ def canonical_faces(
     maybe = edge >= -(tol + 2.0 * tol / np.maximum(cos, 1e-300))
     touch = np.zeros(len(face), dtype=bool)
     if maybe.any():
-        touch[maybe] = _touches(scene, o[maybe], a[maybe], d[maybe], tol)
+        touch[maybe] = touches(scene, o[maybe], a[maybe], d[maybe], tol)
     near = edge >= -tol
     if not near.any():
         return out, touch
@@ -332,7 +332,7 @@ def _convex_planes(scene: Scene) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return normal, offset, valid
 
 
-def _touches(scene: Scene, o: np.ndarray, a: np.ndarray, d: np.ndarray, tol: float) -> np.ndarray:
+def touches(scene: Scene, o: np.ndarray, a: np.ndarray, d: np.ndarray, tol: float) -> np.ndarray:
     """(n,) bool: the line ``a + t d`` never gets deeper than ``tol`` into object ``o``, a convex
     closed solid (False for other objects)."""
     normal, offset, valid = _convex_planes(scene)
