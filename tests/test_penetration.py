@@ -7,7 +7,7 @@ import pytest
 from conftest import box, make_scene, quad
 
 from raytrace.physics.materials import MaterialLibrary
-from raytrace.solver.penetration import segment_crossings
+from raytrace.solver.penetration import segment_crossings, touches
 
 #: Embree hits are float32 (about 1e-7 relative at a few metres); chords are differences of two.
 CHORD_TOL_M = 2e-6
@@ -362,3 +362,23 @@ def test_segment_in_the_plane_of_a_face_touches_it_both_ways(with_sheet):
         if with_sheet:
             assert sc.objects[cr.object[0, 0]].name == "pane"
             np.testing.assert_allclose(cr.point[0, 0, 0], 21.0, atol=1e-3)
+
+
+def test_touches_on_the_line_and_on_a_segment():
+    """``touches``: a line in the plane of a box's face, or past its edge, never gets deeper than
+    the tolerance into it; a line through it does, unless only the segment ``0 <= t <= t_max``
+    before (or after) the box is asked about."""
+    sc = make_scene([("crate", box((0.0, 0.0, 0.0), (2.0, 1.0, 1.0)), "wood")])
+    tol = 1e-4
+    o = np.zeros(4, dtype=np.int64)
+    a = np.array([[-1.0, 0.0, 0.5],      # along the face y = 0
+                  [-1.0, -0.5, 0.5],     # through the box, diagonally
+                  [-1.0, 0.5, 0.5],      # through the box, along x
+                  [-1.0, 1.0 + 2e-5, 2.0]])  # down across the face y = 1, 2e-5 m out
+    d = np.array([[1.0, 0.0, 0.0], [0.6, 0.8, 0.0], [1.0, 0.0, 0.0], [1.0, 0.0, -1.0]])
+    d /= np.linalg.norm(d, axis=1)[:, None]
+    assert touches(sc, o, a, d, tol).tolist() == [True, False, False, True]
+    # the crossing of the third line starts at t = 1 (x = 0): a segment that stops short of it
+    assert touches(sc, o, a, d, tol, np.array([5.0, 5.0, 0.9, 5.0])).tolist() == [
+        True, False, True, True]
+    assert not touches(sc, o[2:3], a[2:3], d[2:3], tol, np.array([1.5]))[0]

@@ -164,12 +164,13 @@ def blocked_by_opaque(ctx: TraceContext, cand: Candidates) -> np.ndarray:
         hit = ctx.scene.first_hit_among(ctx.opaque, a + margin * d, d, length - 2 * margin)
         b = (hit >= 0) & (hit != ends[:, j, 0][live]) & (hit != ends[:, j, 1][live])
         if b.any():
-            # a segment that only touches an opaque solid (lying in the plane of its face, which
-            # Embree reports in one direction and not in the other) is not blocked by it: left
-            # to segment_crossings, which steps past touches and records real crossings
+            # a segment that only touches an opaque solid (lying in the plane of its face, or
+            # leaving a vertex at a neighbour's corner, which Embree reports in one direction
+            # and not in the other) is not blocked by it: left to segment_crossings, which steps
+            # past touches and records real crossings
             sel = np.flatnonzero(b)
             touch = touches(ctx.scene, hit[sel], take_rows(a, sel), take_rows(d, sel),
-                            CONTACT_TOL_MARGINS * margin)  # fmt: skip
+                            CONTACT_TOL_MARGINS * margin, length[sel])  # fmt: skip
             b[sel[touch]] = False
         blocked[live[np.flatnonzero(b)]] = True
         live = live[np.flatnonzero(~b)]

@@ -332,9 +332,17 @@ def _convex_planes(scene: Scene) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return normal, offset, valid
 
 
-def touches(scene: Scene, o: np.ndarray, a: np.ndarray, d: np.ndarray, tol: float) -> np.ndarray:
+def touches(
+    scene: Scene,
+    o: np.ndarray,
+    a: np.ndarray,
+    d: np.ndarray,
+    tol: float,
+    t_max: np.ndarray | None = None,
+) -> np.ndarray:
     """(n,) bool: the line ``a + t d`` never gets deeper than ``tol`` into object ``o``, a convex
-    closed solid (False for other objects)."""
+    closed solid (False for other objects); with ``t_max`` (n,) metres, only its segment
+    ``0 <= t <= t_max`` is asked about."""
     normal, offset, valid = _convex_planes(scene)
     out = np.zeros(len(o), dtype=bool)
     rows = np.flatnonzero(valid[o].any(axis=1))
@@ -348,6 +356,9 @@ def touches(scene: Scene, o: np.ndarray, a: np.ndarray, d: np.ndarray, tol: floa
         tp = -s / dn
     t_in = np.where(v & (dn < 0), tp, -np.inf).max(axis=1)
     t_out = np.where(v & (dn > 0), tp, np.inf).min(axis=1)
+    if t_max is not None:
+        t_in = np.maximum(t_in, 0.0)
+        t_out = np.minimum(t_out, np.asarray(t_max, dtype=float)[rows])
     parallel_out = (v & (dn == 0) & (s > 0)).any(axis=1)
     out[rows] = parallel_out | (t_out <= t_in)
     return out
