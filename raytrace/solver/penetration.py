@@ -345,22 +345,25 @@ def touches(
     ``0 <= t <= t_max`` is asked about."""
     normal, offset, valid = _convex_planes(scene)
     out = np.zeros(len(o), dtype=bool)
-    rows = np.flatnonzero(valid[o].any(axis=1))
-    if not len(rows):
-        return out
-    n, v = normal[o[rows]], valid[o[rows]]  # (m, K, 3), (m, K)
-    dn = np.einsum("mkj,mj->mk", n, d[rows])
-    # signed distance of the line's points from each plane, at least tol inside: s + t dn <= -tol
-    s = np.einsum("mkj,mj->mk", n, a[rows]) - offset[o[rows]] + tol
-    with np.errstate(divide="ignore", invalid="ignore"):
-        tp = -s / dn
-    t_in = np.where(v & (dn < 0), tp, -np.inf).max(axis=1)
-    t_out = np.where(v & (dn > 0), tp, np.inf).min(axis=1)
-    if t_max is not None:
-        t_in = np.maximum(t_in, 0.0)
-        t_out = np.minimum(t_out, np.asarray(t_max, dtype=float)[rows])
-    parallel_out = (v & (dn == 0) & (s > 0)).any(axis=1)
-    out[rows] = parallel_out | (t_out <= t_in)
+    # objects by their number of planes (the first ``count`` slots are theirs): most are boxes,
+    # and padding every row to the largest solid's planes would triple the work
+    count = valid.sum(axis=1)[o]
+    for kk in np.unique(count[count > 0]):
+        rows = np.flatnonzero(count == kk)
+        n = normal[o[rows], :kk]  # (m, kk, 3)
+        dn = np.einsum("mkj,mj->mk", n, d[rows])
+        # signed distance of the line's points from each plane, at least tol inside:
+        # s + t dn <= -tol
+        s = np.einsum("mkj,mj->mk", n, a[rows]) - offset[o[rows], :kk] + tol
+        with np.errstate(divide="ignore", invalid="ignore"):
+            tp = -s / dn
+        t_in = np.where(dn < 0, tp, -np.inf).max(axis=1)
+        t_out = np.where(dn > 0, tp, np.inf).min(axis=1)
+        if t_max is not None:
+            t_in = np.maximum(t_in, 0.0)
+            t_out = np.minimum(t_out, np.asarray(t_max, dtype=float)[rows])
+        parallel_out = ((dn == 0) & (s > 0)).any(axis=1)
+        out[rows] = parallel_out | (t_out <= t_in)
     return out
 
 
@@ -502,6 +505,17 @@ def segment_crossings(
         )
         if noise.any():
             t[rows[noise]] = t_hit[noise] + margin
+            # leaving a vertex along its own solid's face (grazing it within float32 noise for
+            # many steps): go on off the solid, as after a touch, where the line only touches it
+            start = np.flatnonzero(noise & (o == end_objects[rows, 0]))
+            if len(start):
+                r_s, o_s = rows[start], o[start]
+                a_s, d_s = take_rows(a, r_s), take_rows(d, r_s)
+                graze = touches(scene, o_s, a_s, d_s, CONTACT_TOL_MARGINS * margin)
+                if graze.any():
+                    g = r_s[graze]
+                    shift[g], shift_end[g] = _off_the_solid(scene, face[start][graze],
+                                                            o_s[graze], a_s[graze], d_s[graze])  # fmt: skip
             active[rows[noise]] &= t[rows[noise]] < tmax[rows[noise]]
             keep = ~noise
             rows, face, o, t_hit = rows[keep], face[keep], o[keep], t_hit[keep]
