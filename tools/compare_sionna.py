@@ -1004,6 +1004,11 @@ def main(argv: list[str] | None = None) -> int:
         print(f"compare_sionna: {len(names)} scene(s), {n_rx} receivers; running Sionna RT ...",
               file=sys.stderr)
         sres, s_seconds = run_sionna(a.sionna_python, jobs, a.frequency_hz, a.samples, a.seed, work)
+        # hallray loads the same XML while it still exists (without --out it is in ``work``)
+        try:
+            loaded = {nm: load_scene(xmls[nm]) for nm in names}
+        except HallrayError as exc:
+            raise SystemExit(f"compare_sionna: hallray: {exc}") from None
     versions = json.loads(str(sres["versions"]))
 
     results: list[SweepResult] = []
@@ -1012,7 +1017,7 @@ def main(argv: list[str] | None = None) -> int:
     for nm in names:
         c = scenes[nm]
         try:
-            scene = load_scene(xmls[nm])
+            scene = loaded[nm]
             for i, sw in enumerate(c.sweeps):
                 t1 = time.perf_counter()
                 cfg = TraceConfig(max_reflections=1, max_penetrations=0, max_diffractions=1,
