@@ -141,7 +141,8 @@ def blocked_by_opaque(ctx: TraceContext, cand: Candidates) -> np.ndarray:
     """(M,) bool: candidates with a segment that crosses an opaque object.
 
     Conservative: a segment whose first opaque hit is the object under one of its own ends (a ray
-    grazing the face of the object it diffracts on, within float32 noise) is left to
+    grazing the face of the object it diffracts on, within float32 noise), or a solid it only
+    touches (:func:`~raytrace.solver.penetration.touches`), is left to
     :func:`segment_crossings`, which records exactly what it crosses.
     """
     m = len(cand)
