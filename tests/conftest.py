@@ -29,6 +29,20 @@ def make_scene(objects, library: MaterialLibrary | None = None) -> Scene:
     return Scene.from_meshes(list(objects), library or MaterialLibrary.itu())
 
 
+def assert_same_both_ways(fwd, rev, n_a: int, n_b: int, gain_rtol: float = 1e-9) -> None:
+    """Every link A -> B of ``fwd`` has the same paths as B -> A of ``rev``: as many, and, sorted
+    by delay, the same delays (1e-12 relative) and complex gains (``gain_rtol``). Independent of
+    ``raytrace.studies.reciprocity``, which matches paths by their interactions."""
+    for t in range(n_a):
+        for r in range(n_b):
+            p = np.flatnonzero((fwd.tx_index == t) & (fwd.rx_index == r))
+            q = np.flatnonzero((rev.tx_index == r) & (rev.rx_index == t))
+            assert len(p) == len(q), (t, r)
+            p, q = p[np.argsort(fwd.delay_s[p])], q[np.argsort(rev.delay_s[q])]
+            np.testing.assert_allclose(rev.delay_s[q], fwd.delay_s[p], rtol=1e-12)
+            np.testing.assert_allclose(rev.gain[q], fwd.gain[p], rtol=gain_rtol)
+
+
 def shoebox_sheets(size=(10.0, 8.0, 3.0), material="concrete"):
     lx, ly, lz = size
     ex, ey, ez = np.eye(3)

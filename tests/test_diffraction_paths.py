@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import admit_every_beam, box, make_scene, quad
+from conftest import admit_every_beam, assert_same_both_ways, box, make_scene, quad
 from scipy.optimize import minimize_scalar
 
 from raytrace.core.constants import C0
@@ -339,14 +339,7 @@ def test_diffracted_paths_are_reciprocal():
     rev = trace(sc, ends_b, ends_a, F_C, cfg, threads=1)
     has_d = (fwd.interaction == DIFFRACTION).any(axis=1)
     assert has_d.sum() > 40
-    for t in range(len(ends_a)):
-        for r in range(len(ends_b)):
-            p = np.flatnonzero((fwd.tx_index == t) & (fwd.rx_index == r))
-            q = np.flatnonzero((rev.tx_index == r) & (rev.rx_index == t))
-            assert len(p) == len(q)
-            p, q = p[np.argsort(fwd.delay_s[p])], q[np.argsort(rev.delay_s[q])]
-            np.testing.assert_allclose(rev.delay_s[q], fwd.delay_s[p], rtol=1e-12)
-            np.testing.assert_allclose(rev.gain[q], fwd.gain[p], rtol=1e-9)
+    assert_same_both_ways(fwd, rev, len(ends_a), len(ends_b))
 
 
 def test_segment_touching_an_opaque_box_is_not_blocked_one_way_only():
