@@ -375,3 +375,18 @@ def test_touches_on_the_line_and_on_a_segment():
     assert touches(sc, o, a, d, tol, np.array([5.0, 5.0, 0.9, 5.0])).tolist() == [
         True, False, True, True]
     assert not touches(sc, o[2:3], a[2:3], d[2:3], tol, np.array([1.5]))[0]
+
+
+def test_off_the_solid_closed_form():
+    """After touching a box's face y = 0 along it, the walk moves two contact tolerances out
+    along that face's normal (across the ray) until the line leaves the box grown by one
+    tolerance: x = 2 + tol, t = 3 + tol from a = (-1, 0, 0.5)."""
+    from raytrace.solver.penetration import CONTACT_TOL_MARGINS, _off_the_solid
+
+    sc = make_scene([("crate", box((0.0, 0.0, 0.0), (2.0, 1.0, 1.0)), "wood")])
+    tol = CONTACT_TOL_MARGINS * sc.margin
+    face = int(np.flatnonzero(np.all(np.isclose(sc.face_normal, [0.0, -1.0, 0.0]), axis=1))[0])
+    a, d = np.array([[-1.0, 0.0, 0.5]]), np.array([[1.0, 0.0, 0.0]])
+    shift, t_end = _off_the_solid(sc, np.array([face]), np.array([0]), a, d)
+    np.testing.assert_allclose(shift[0], [0.0, -2 * tol, 0.0], atol=1e-15)
+    np.testing.assert_allclose(t_end[0], 3.0 + tol, rtol=1e-12)

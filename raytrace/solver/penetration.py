@@ -332,6 +332,35 @@ def _convex_planes(scene: Scene) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return normal, offset, valid
 
 
+def _line_span(
+    scene: Scene, o: np.ndarray, a: np.ndarray, d: np.ndarray, inset: float
+) -> tuple[np.ndarray, ...]:
+    """Where lines ``a + t d`` are at least ``inset`` metres inside convex solids ``o`` (``inset <
+    0``: within ``-inset`` outside, the solid grown): ``convex`` (n,) bool (the other rows are
+    not answered), ``t_in``, ``t_out`` (n,) metres, and ``parallel_out`` (n,) bool, a line
+    parallel to a plane and beyond it (no span). Objects are taken by their number of planes
+    (the first ``count`` slots are theirs): most are boxes, and padding every row to the largest
+    solid's planes would triple the work."""
+    normal, offset, valid = _convex_planes(scene)
+    n_rows = len(o)
+    t_in, t_out = np.full(n_rows, np.inf), np.full(n_rows, -np.inf)
+    parallel_out = np.zeros(n_rows, dtype=bool)
+    count = valid.sum(axis=1)[o]
+    for kk in np.unique(count[count > 0]):
+        rows = np.flatnonzero(count == kk)
+        n = normal[o[rows], :kk]  # (m, kk, 3)
+        dn = np.einsum("mkj,mj->mk", n, d[rows])
+        # signed distance of the line's points from each plane, at least inset inside:
+        # s + t dn <= 0
+        s = np.einsum("mkj,mj->mk", n, a[rows]) - offset[o[rows], :kk] + inset
+        with np.errstate(divide="ignore", invalid="ignore"):
+            tp = -s / dn
+        t_in[rows] = np.where(dn < 0, tp, -np.inf).max(axis=1)
+        t_out[rows] = np.where(dn > 0, tp, np.inf).min(axis=1)
+        parallel_out[rows] = ((dn == 0) & (s > 0)).any(axis=1)
+    return count > 0, t_in, t_out, parallel_out
+
+
 def touches(
     scene: Scene,
     o: np.ndarray,
@@ -343,28 +372,11 @@ def touches(
     """(n,) bool: the line ``a + t d`` never gets deeper than ``tol`` into object ``o``, a convex
     closed solid (False for other objects); with ``t_max`` (n,) metres, only its segment
     ``0 <= t <= t_max`` is asked about."""
-    normal, offset, valid = _convex_planes(scene)
-    out = np.zeros(len(o), dtype=bool)
-    # objects by their number of planes (the first ``count`` slots are theirs): most are boxes,
-    # and padding every row to the largest solid's planes would triple the work
-    count = valid.sum(axis=1)[o]
-    for kk in np.unique(count[count > 0]):
-        rows = np.flatnonzero(count == kk)
-        n = normal[o[rows], :kk]  # (m, kk, 3)
-        dn = np.einsum("mkj,mj->mk", n, d[rows])
-        # signed distance of the line's points from each plane, at least tol inside:
-        # s + t dn <= -tol
-        s = np.einsum("mkj,mj->mk", n, a[rows]) - offset[o[rows], :kk] + tol
-        with np.errstate(divide="ignore", invalid="ignore"):
-            tp = -s / dn
-        t_in = np.where(dn < 0, tp, -np.inf).max(axis=1)
-        t_out = np.where(dn > 0, tp, np.inf).min(axis=1)
-        if t_max is not None:
-            t_in = np.maximum(t_in, 0.0)
-            t_out = np.minimum(t_out, np.asarray(t_max, dtype=float)[rows])
-        parallel_out = ((dn == 0) & (s > 0)).any(axis=1)
-        out[rows] = parallel_out | (t_out <= t_in)
-    return out
+    convex, t_in, t_out, parallel_out = _line_span(scene, o, a, d, tol)
+    if t_max is not None:
+        t_in = np.maximum(t_in, 0.0)
+        t_out = np.minimum(t_out, np.asarray(t_max, dtype=float))
+    return convex & (parallel_out | (t_out <= t_in))
 
 
 def _off_the_solid(
@@ -379,13 +391,8 @@ def _off_the_solid(
     across = nrm - np.einsum("ij,ij->i", nrm, d)[:, None] * d
     size = np.linalg.norm(across, axis=1)
     shift = 2.0 * tol * across / np.maximum(size, 1e-300)[:, None]
-    normal, offset, valid = _convex_planes(scene)
-    n, v = normal[o], valid[o]  # (m, K, 3), (m, K)
-    dn = np.einsum("mkj,mj->mk", n, d)
-    s = np.einsum("mkj,mj->mk", n, a) - offset[o] - tol  # <= 0 inside the grown solid
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t_out = np.where(v & (dn > 0), -s / dn, np.inf).min(axis=1)
-    ok = v.any(axis=1) & np.isfinite(t_out) & (size > 0)
+    convex, _, t_out, _ = _line_span(scene, o, a, d, -tol)
+    ok = convex & np.isfinite(t_out) & (size > 0)
     return np.where(ok[:, None], shift, 0.0), np.where(ok, t_out, -np.inf)
 
 
