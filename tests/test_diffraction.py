@@ -533,9 +533,8 @@ def test_face_rule_limits_are_luebbers() -> None:
     phi_in = rng.uniform(0.05, 0.95, p) * np.pi  # the source in front of face 0
     phi = rng.uniform(0.05, 1.45, p) * np.pi
     near, far = np.full(p, 2.0), np.full(p, 2e9)
-    n = np.full(p, 1.5)
-    _, _, psi_far_src, _ = dif._face_angles(n, phi_in, phi, far, near)
-    _, _, psi_far_dst, _ = dif._face_angles(n, phi_in, phi, near, far)
+    psi_far_src = dif.face_rule_angle(phi_in, phi, far, near)
+    psi_far_dst = dif.face_rule_angle(phi_in, phi, near, far)
     assert np.allclose(np.abs(np.sin(psi_far_src)), np.sin(phi_in), atol=1e-8)
     assert np.allclose(np.abs(np.sin(psi_far_dst)), np.abs(np.sin(np.pi - phi)), atol=1e-8)
 

@@ -59,6 +59,7 @@ from raytrace.physics.materials import fresnel, permittivity, slab  # noqa: E402
 from raytrace.physics.utd import (  # noqa: E402
     diffracted_field,
     face_reflection_matrix,
+    face_rule_angle,
     transition_function,
     wedge_geometry,
 )
@@ -654,8 +655,7 @@ def sionna_diffraction_gain(tx, q, rx, e, na, nb, refl, k, grouping="sionna", fa
         # between the two ends (each mirrored in front of it); hallray's face matrix, reordered
         # from (beta0, phi) to Sionna's (phi, beta0) components; face n's edge direction is -e
         def d8a(a_in, a_out, sign):
-            psi = np.arctan2(s * np.abs(np.sin(a_out)) + s_p * np.abs(np.sin(a_in)),
-                             s_p * np.cos(a_in) - s * np.cos(a_out))
+            psi = face_rule_angle(a_in, a_out, s_p, s)
             r_te, r_tm = refl(np.sin(beta0) * np.abs(np.sin(psi)))
             return face_reflection_matrix(r_te, r_tm, _dot(ki, sign * e), psi)[:, ::-1, ::-1]
 

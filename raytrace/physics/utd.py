@@ -67,6 +67,7 @@ __all__ = [
     "wedge_frames",
     "framed_wedge_geometry",
     "diffraction_valid",
+    "face_rule_angle",
     "transition_function",
     "utd_coefficients",
     "face_reflection_matrix",
@@ -469,15 +470,18 @@ def _face_angles(
     npi = n * np.pi
     lit_0 = phi_in <= np.pi
     lit_n = npi - phi_in <= np.pi
-    psi_0 = _specular_angle(phi_in, phi, s_in, s_out)
-    psi_n = _specular_angle(npi - phi_in, npi - phi, s_in, s_out)
+    psi_0 = face_rule_angle(phi_in, phi, s_in, s_out)
+    psi_n = face_rule_angle(npi - phi_in, npi - phi, s_in, s_out)
     return lit_0, lit_n, psi_0, psi_n
 
 
-def _specular_angle(a_in, a_out, s_in, s_out) -> np.ndarray:
-    """In-plane angle (rad) of the reflection off a face between a source at angle ``a_in`` and
-    distance ``s_in`` and a receiver at ``a_out``, ``s_out`` (angles from the face), both taken
-    in front of the face's plane (see :func:`_face_angles`)."""
+def face_rule_angle(
+    a_in: np.ndarray, a_out: np.ndarray, s_in: np.ndarray, s_out: np.ndarray
+) -> np.ndarray:
+    """The face rule (D8a): in-plane angle (rad) of the reflection off a face's plane between a
+    source at angle ``a_in`` (rad, from the face) and distance ``s_in`` (m) from the edge and a
+    receiver at ``a_out``, ``s_out``, both taken in front of the plane; (P,) arrays broadcast.
+    See :func:`_face_angles`."""
     height = s_out * np.abs(np.sin(a_out)) + s_in * np.abs(np.sin(a_in))
     return np.arctan2(height, s_in * np.cos(a_in) - s_out * np.cos(a_out))
 
