@@ -63,8 +63,13 @@ def shoebox() -> Scene:
 
 
 def admit_every_beam(monkeypatch) -> None:
-    """Switch the beam (cone) pruning of the tracer off: every target is reachable."""
+    """Switch the candidate pruning of the tracer off: every beam (cone) reaches every target,
+    and the compiled pruning loops (:data:`raytrace.solver.kernels.PRUNE`) return every
+    candidate."""
+    import raytrace.solver.kernels as kernels
     import raytrace.solver.reflection as refl
+
+    monkeypatch.setattr(kernels, "PRUNE", False)
 
     def everything(b, target_centre, target_radius):
         shape = np.broadcast(b.apex[..., 0], np.asarray(target_centre)[..., 0], target_radius)

@@ -33,6 +33,7 @@ from ..physics.utd import (
     wedge_frames,
 )
 from ..scene import accel
+from . import kernels
 from . import reflection as refl
 from .context import TraceContext
 from .evaluate import DiffractionModel, candidates, evaluate
@@ -115,6 +116,10 @@ class _WedgeFrame:
         # edge's direction is that of end - start: prune only wedges where it is, to 1e-10 m
         drift = norm(_cross(w.direction, w.end - w.start))
         self.prunable = (n >= 1.0) & (n < 2.0 - 1e-6) & (drift < 1e-10)
+        #: the frame as :mod:`raytrace.solver.kernels` takes it
+        self.kernel_args = (self.t0, self.n0, self.t_start, self.n_start, self.cos_n, self.sin_n,
+                            np.ascontiguousarray(self.prunable), np.sin(INSIDE_MARGIN_RAD) ** 2,
+                            INSIDE_MIN_RHO_M**2)  # fmt: skip
 
 
 def _wedge_frame(ctx: TraceContext) -> _WedgeFrame:
@@ -133,22 +138,13 @@ def _surely_inside(fr: _WedgeFrame, wi: np.ndarray, px, py, pz) -> np.ndarray:
     With ``x, y`` the point's coordinates along ``t0, n0`` from the edge (azimuth ``phi``
     measured from face 0), the interior ``n pi < phi < 2 pi`` of a wedge with ``1 <= n < 2`` is
     where ``y < 0`` and ``r sin(phi - n pi) = cos(n pi) y - sin(n pi) x > 0``; both must hold by
-    ``sin`` :data:`INSIDE_MARGIN_RAD` times ``r``, at ``r`` above :data:`INSIDE_MIN_RHO_M`.
+    ``sin`` :data:`INSIDE_MARGIN_RAD` times ``r``, at ``r`` above :data:`INSIDE_MIN_RHO_M`
+    (:func:`raytrace.solver.kernels.surely_inside`).
     """
-    t0, n0 = fr.t0, fr.n0
-    x = px * t0[0][wi] + py * t0[1][wi] + pz * t0[2][wi] - fr.t_start[wi]
-    y = px * n0[0][wi] + py * n0[1][wi] + pz * n0[2][wi] - fr.n_start[wi]
-    r2 = x * x + y * y
-    m2 = np.sin(INSIDE_MARGIN_RAD) ** 2 * r2
-    side_n = fr.cos_n[wi] * y - fr.sin_n[wi] * x
-    return (
-        fr.prunable[wi]
-        & (r2 > INSIDE_MIN_RHO_M**2)
-        & (y < 0)
-        & (y * y > m2)
-        & (side_n > 0)
-        & (side_n * side_n > m2)
-    )
+    wi, px, py, pz = np.broadcast_arrays(wi, px, py, pz)
+    flat = [np.ascontiguousarray(x, dtype=t).reshape(-1)
+            for x, t in ((wi, np.int64), (px, float), (py, float), (pz, float))]  # fmt: skip
+    return kernels.surely_inside(*fr.kernel_args, *flat).reshape(wi.shape)
 
 
 def _valid_geometry(ctx: TraceContext, wedge, src, dst, point) -> np.ndarray:
@@ -199,155 +195,36 @@ def _pure(ctx: TraceContext) -> Paths:
     return Paths.concatenate(parts) if parts else Paths.empty(ctx.tx, ctx.rx, ctx.f, 1)
 
 
-def _edge_plane_distances(fc, w) -> tuple[np.ndarray, np.ndarray]:
-    """Signed distances (m) of the edges' start and end points from every facet plane: (W, K)
-    each (cached on the facets, for these wedges)."""
-    cached = fc.cache.get("edge_plane_distances")
-    if cached is None or cached[0] is not w:
-        dist = tuple(x @ fc.normal.T - fc.offset for x in (w.start, w.end))
-        for x in dist:
-            x.setflags(write=False)
-        cached = fc.cache["edge_plane_distances"] = (w, dist)
-    return cached[1]
+def _writable(x: np.ndarray) -> np.ndarray:
+    """A writable C-ordered copy: the kernels' signatures take writable arrays, and the scene's
+    cached arrays are read-only."""
+    return np.array(x, order="C", copy=True)
 
 
 class _PairGeometry:
-    """What :func:`_facet_wedge_pairs` reuses for every end point: facet spheres and boxes, wedge
-    groups by object, and the edges' end points' distances from the facet planes."""
+    """What :func:`_facet_wedge_pairs` reuses for every end point: facet spheres, normals,
+    offsets and boxes, wedge groups by object with their spheres, and each edge's sphere."""
 
-    def __init__(self, ctx: TraceContext, restricted: bool) -> None:
-        fc, w = ctx.scene.facets, ctx.scene.wedges
-        self.fc, self.w = fc, w
+    def __init__(self, ctx: TraceContext) -> None:
+        fc, w, c = ctx.scene.facets, ctx.scene.wedges, _writable
         self.f_centre, self.f_radius = accel.facet_spheres(fc)
-        self.g_order, self.g_start, self.g_count, self.g_centre, self.g_radius = accel.wedge_groups(
-            w
-        )
-        self.g_centre_c = np.ascontiguousarray(self.g_centre.T)
-        self.w_mid = 0.5 * (w.start + w.end)
-        self.w_half = 0.5 * w.length * (1 + 1e-9) + 1e-9
-        self.lo, self.hi = accel.facet_boxes(fc, ctx.scene.margin)
-        self.restricted = restricted
-        self.edge_ends = (w.start, w.end)
-        self.mid_c = np.ascontiguousarray(self.w_mid.T)
-        self.start_c, self.end_c = np.ascontiguousarray(w.start.T), np.ascontiguousarray(w.end.T)
-        self.length = np.einsum("ij,ij->i", w.end - w.start, w.direction)
-        self.lo_c, self.hi_c = np.ascontiguousarray(self.lo.T), np.ascontiguousarray(self.hi.T)
-        if restricted:
-            g_in = ctx.wedge_mask[self.g_order[self.g_start]]  # a group is one object's wedges
-            self.g_chosen, self.g_other = np.flatnonzero(g_in), np.flatnonzero(~g_in)
-            self.dist = None  # few candidates: distances per candidate
-        else:
-            self.dist = _edge_plane_distances(fc, w)
+        order, start, count, centre, radius = accel.wedge_groups(w)
+        lo, hi = accel.facet_boxes(fc, ctx.scene.margin)
+        self.g_order, self.g_start = c(order.astype(np.int64)), c(start.astype(np.int64))
+        self.facets = (c(fc.normal), c(fc.offset), c(lo), c(hi))
+        self.groups = (self.g_order, self.g_start, c(count.astype(np.int64)), c(centre), c(radius))
+        length = np.einsum("ij,ij->i", w.end - w.start, w.direction)
+        half = 0.5 * w.length * (1 + 1e-9) + 1e-9
+        self.wedges = (c(w.start), c(w.end), c(0.5 * (w.start + w.end)), c(half), c(length))
 
-    def plane_dist(self, wi: np.ndarray, f_idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Signed distances of the start and the end of wedges ``wi`` from facets ``f_idx``'
-        planes, metres."""
-        if self.dist is not None:
-            flat = wi * self.dist[0].shape[1] + f_idx
-            return self.dist[0].ravel().take(flat), self.dist[1].ravel().take(flat)
-        fc = self.fc
-        nrm, off = fc.normal[f_idx], fc.offset[f_idx]
-        return tuple(np.einsum("ij,ij->i", x[wi], nrm) - off for x in self.edge_ends)
-
-    def object_pairs(self, ctx, f_ok, sgn, nrm, off, f_beam) -> tuple[np.ndarray, np.ndarray]:
-        """(group, facet) pairs whose group sphere reaches the end's side of the facet plane and
-        the beam from the end's image through the facet (dense per block)."""
-        if self.restricted:
-            # only pairs with the wedge or the facet on a chosen object: two blocks of the
-            # (group, facet) matrix
-            f_all = np.arange(len(f_ok))
-            blocks = [(self.g_chosen, f_all), (self.g_other, np.flatnonzero(ctx.facet_mask[f_ok]))]
-        else:
-            blocks = [(np.arange(len(self.g_start)), np.arange(len(f_ok)))]
-        gi_parts, fj_parts = [np.zeros(0, np.int64)], [np.zeros(0, np.int64)]
-        for gs, fs in blocks:
-            if len(gs) == 0 or len(fs) == 0:
-                continue
-            c, r = self.g_centre[gs], self.g_radius[gs]
-            near = (c @ nrm[fs].T - off[fs]) * sgn[fs] + r[:, None] > accel.PLANE_TOL_M
-            near &= _beam_reaches_c(f_beam, fs[None, :], self.g_centre_c, gs[:, None], r[:, None])
-            gb, fb = np.nonzero(near)
-            gi_parts.append(gs[gb])
-            fj_parts.append(fs[fb])
-        return np.concatenate(gi_parts), np.concatenate(fj_parts)
-
-    def edge_pairs(self, gi, fj, f_ok, sgn, f_beam) -> tuple[np.ndarray, ...]:
-        """The wedges of the (group, facet) pairs that have a part strictly on the end's side of
-        the facet plane and whose own sphere meets the beam: ``wi, fj, f_idx, da, db``."""
-        cnt = self.g_count[gi]
-        first = np.cumsum(cnt) - cnt
-        wi = self.g_order[np.repeat(self.g_start[gi] - first, cnt) + np.arange(int(cnt.sum()))]
-        fj = np.repeat(fj, cnt)
-        f_idx = f_ok[fj]
-        eps = accel.PLANE_TOL_M
-        s_j = sgn[fj]
-        da, db = self.plane_dist(wi, f_idx)
-        da, db = da * s_j, db * s_j
-        keep = np.flatnonzero((da > eps) | (db > eps))
-        wi, fj, f_idx, da, db = wi[keep], fj[keep], f_idx[keep], da[keep], db[keep]
-        keep = _beam_reaches_c(f_beam, fj, self.mid_c, wi, self.w_half[wi])
-        return wi[keep], fj[keep], f_idx[keep], da[keep], db[keep]
-
-    def visible_span(self, wi, f_idx, img_c, fj, h, da, db) -> tuple[np.ndarray, ...]:
-        """The part of each edge seen from the image through the facet's box: ``ok`` (M,) bool
-        and, for the ok ones, ``t_lo, t_hi`` metres from the wedge's start, padded.
-
-        ``img_c`` are the images' components (3, F), indexed by ``fj``; one component at a time
-        (no (M, 3) temporaries)."""
-        eps = accel.PLANE_TOL_M
-        # clip the edge to the end's side: the cut point at parameter u from the start
-        cut_a, cut_b = da <= eps, db <= eps
-        u = np.where(cut_a | cut_b, (eps - da) / np.where(db != da, db - da, 1.0), 0.0)
-        # project from the image onto the facet plane: the image is at distance h on the other
-        # side, a point at distance s on this side projects at u = h / (h + s) from the image
-        d_a = h + np.maximum(da, eps)  # clipped ends sit at eps
-        d_b = h + np.maximum(db, eps)
-        k_a, k_b = h / d_a, h / d_b
-        # slab test of the projected segment qa -> qb against the facet's box
-        s_in, s_out = np.zeros(len(wi)), np.ones(len(wi))
-        for c in range(3):
-            a, b, ic = self.start_c[c][wi], self.end_c[c][wi], img_c[c][fj]
-            p = a + u * (b - a)
-            a, b = np.where(cut_a, p, a), np.where(cut_b, p, b)
-            qa = ic + k_a * (a - ic)
-            d = ic + k_b * (b - ic) - qa
-            # a component parallel to a slab: dividing by a tiny step gives +-huge (in or out of
-            # the slab) or 0 (on its boundary, which counts as inside)
-            inv = 1.0 / np.where(d == 0.0, 1e-300, d)
-            t1 = (self.lo_c[c][f_idx] - qa) * inv
-            t2 = (self.hi_c[c][f_idx] - qa) * inv
-            np.maximum(s_in, np.minimum(t1, t2), out=s_in)
-            np.minimum(s_out, np.maximum(t1, t2), out=s_out)
-        ok = s_in <= s_out
-        # the part of the edge that projects into the box: the projection is a perspective map,
-        # so the edge parameter of projected parameter s is s D_a / (s D_a + (1 - s) D_b)
-        d_a, d_b = d_a[ok], d_b[ok]
-        lam = [x * d_a / (x * d_a + (1 - x) * d_b) for x in (s_in[ok], s_out[ok])]
-        # the clipped ends, metres from the start (a cut end sits at u of the edge's length)
-        length, u_ok = self.length[wi[ok]], u[ok]
-        t_a = np.where(cut_a[ok], u_ok * length, 0.0)
-        t_b = np.where(cut_b[ok], u_ok * length, length)
-        t_lo = t_a + lam[0] * (t_b - t_a) - SPAN_PAD_M
-        t_hi = t_a + lam[1] * (t_b - t_a) + SPAN_PAD_M
-        return ok, t_lo, t_hi
-
-
-def _beam_reaches_c(f_beam, fj, centre_c, wi, radius) -> np.ndarray:
-    """:func:`~raytrace.solver.reflection.beam_reaches` of beams ``fj`` and spheres (centres
-    ``centre_c`` (3, W) at ``wi``, radii ``radius``), one component at a time and without
-    divisions: ``axis . v >= cos_a sqrt(|v|^2 - r^2) - sin_a min(r, |v|) - 1e-7 |v|`` is the
-    same necessary condition multiplied by ``|v|``. ``f_beam`` holds the beams' components:
-    ``(apex (3, F), axis (3, F), cos_a, sin_a, apex_inside)``."""
-    apex, axis, cos_a, sin_a, inside = f_beam
-    vx = centre_c[0][wi] - apex[0][fj]
-    vy = centre_c[1][wi] - apex[1][fj]
-    vz = centre_c[2][wi] - apex[2][fj]
-    dt2 = vx * vx + vy * vy + vz * vz
-    dot = axis[0][fj] * vx + axis[1][fj] * vy + axis[2][fj] * vz
-    dt = np.sqrt(dt2)
-    r2 = radius * radius
-    thr = cos_a[fj] * np.sqrt(np.maximum(dt2 - r2, 0.0)) - sin_a[fj] * np.minimum(radius, dt)
-    return (dot >= thr - 1e-7 * dt) | inside[fj] | (dt2 <= r2)
+    @staticmethod
+    def of(ctx: TraceContext) -> _PairGeometry:
+        """The scene's pair geometry (cached on its wedges, per scene margin)."""
+        key = ("pair_geometry", float(ctx.scene.margin))
+        cached = ctx.scene.wedges.cache.get(key)
+        if cached is None or cached[0] is not ctx.scene.facets:
+            cached = ctx.scene.wedges.cache[key] = (ctx.scene.facets, _PairGeometry(ctx))
+        return cached[1]
 
 
 def _facet_wedge_pairs(
@@ -359,9 +236,10 @@ def _facet_wedge_pairs(
     restriction to some objects is applied to the joined RDR triples instead). Exact necessary
     conditions, cheapest first: per object, the bounding sphere of its edges must reach the end's
     side of the facet plane and the beam from the end's image through the facet's bounding sphere;
-    per edge, the same with the edge's own sphere; then the edge, clipped to the end's side and
-    projected from the image onto the facet's plane, must meet the facet's (slightly grown)
-    bounding box.
+    per edge, the same with the edge's own sphere; the image must not be inside the wedge; then
+    the edge, clipped to the end's side and projected from the image onto the facet's plane, must
+    meet the facet's (slightly grown) bounding box (:func:`raytrace.solver.kernels.facet_wedge_pairs`,
+    one end at a time).
 
     Returns
     -------
@@ -373,8 +251,16 @@ def _facet_wedge_pairs(
     """
     fc = ctx.scene.facets
     side = refl.reflecting_side(fc, ends)  # (E, K)
-    geo = _PairGeometry(ctx, ctx.facet_mask is not None and not mixed_rdr)
-    frame = _wedge_frame(ctx)
+    geo = _PairGeometry.of(ctx)
+    if ctx.facet_mask is not None and not mixed_rdr:
+        # only pairs with the wedge or the facet on a chosen object (a group is one object's)
+        f_chosen = np.ascontiguousarray(ctx.facet_mask, dtype=bool)
+        g_chosen = np.ascontiguousarray(ctx.wedge_mask[geo.g_order[geo.g_start]], dtype=bool)
+    else:
+        f_chosen = np.ones(len(fc), dtype=bool)
+        g_chosen = np.ones(len(geo.g_start), dtype=bool)
+    fixed = (*geo.facets[:2], f_chosen, *geo.facets[2:], *geo.groups, g_chosen, *geo.wedges,
+             *_wedge_frame(ctx).kernel_args, accel.PLANE_TOL_M, SPAN_PAD_M, kernels.PRUNE)  # fmt: skip
     outs = []
     for e in range(len(ends)):
         f_ok = np.flatnonzero(side[e] != 0)
@@ -384,41 +270,17 @@ def _facet_wedge_pairs(
         img_f = ends[e] - 2.0 * (sgn * h_f)[:, None] * nrm
         # the beam from the image through each facet's bounding sphere
         f_beam = refl.beam(img_f, geo.f_centre[f_ok], geo.f_radius[f_ok])
-        img_c = np.ascontiguousarray(img_f.T)
-        beam_c = (img_c, np.ascontiguousarray(f_beam.axis.T), f_beam.cos_a, f_beam.sin_a,
-                  f_beam.apex_inside)  # fmt: skip
-        gi, fj = geo.object_pairs(ctx, f_ok, sgn, nrm, off, beam_c)
-        if len(gi) == 0:
-            continue
-        wi, fj, f_idx, da, db = geo.edge_pairs(gi, fj, f_ok, sgn, beam_c)
-        if len(wi) == 0:
-            continue
-        # a diffraction from (or towards) an image inside the wedge is never valid
-        keep = np.flatnonzero(~_surely_inside(frame, wi, img_c[0][fj], img_c[1][fj], img_c[2][fj]))
-        wi, fj, f_idx, da, db = wi[keep], fj[keep], f_idx[keep], da[keep], db[keep]
-        ok, t_lo, t_hi = geo.visible_span(wi, f_idx, img_c, fj, h_f[fj], da, db)
-        fj = fj[ok]
-        outs.append((np.full(len(fj), e), f_idx[ok], wi[ok], img_f[fj], t_lo, t_hi))
+        c = np.ascontiguousarray
+        fj, wi, t_lo, t_hi = kernels.facet_wedge_pairs(
+            f_ok, sgn, h_f, c(img_f.T), c(f_beam.axis.T), f_beam.cos_a, f_beam.sin_a,
+            f_beam.apex_inside, *fixed,
+        )  # fmt: skip
+        if len(fj):
+            outs.append((np.full(len(fj), e), f_ok[fj], wi, take_rows(img_f, fj), t_lo, t_hi))
     if not outs:
         z = np.zeros(0, np.int64)
         return z, z, z, np.zeros((0, 3)), np.zeros(0), np.zeros(0)
     return tuple(np.concatenate(x) for x in zip(*outs))
-
-
-def _segment_box_span(
-    a: np.ndarray, b: np.ndarray, lo: np.ndarray, hi: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """Parameters ``[s_in, s_out]`` (within [0, 1]) of the part of segments a -> b inside
-    axis-aligned boxes (slab test), vectorised; ``s_in > s_out`` where they miss."""
-    d = b - a
-    # a component parallel to a slab: dividing by a tiny step gives +-huge (in or out of the
-    # slab) or 0 (on its boundary, which counts as inside)
-    inv = 1.0 / np.where(d == 0.0, 1e-300, d)
-    t1 = (lo - a) * inv
-    t2 = (hi - a) * inv
-    s_in = np.minimum(t1, t2).max(axis=1)
-    s_out = np.maximum(t1, t2).min(axis=1)
-    return np.maximum(s_in, 0.0), np.minimum(s_out, 1.0)
 
 
 def _one_reflection(ctx: TraceContext, before: bool) -> list[Paths]:
@@ -443,11 +305,8 @@ def _one_reflection(ctx: TraceContext, before: bool) -> list[Paths]:
     step = max(1, CHUNK // max(n_o, 1))
     for c0 in range(0, len(e_idx), step):
         sl = slice(c0, min(len(e_idx), c0 + step))
-        td, rd = td_w[w_idx[sl]], rho_w[w_idx[sl]]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            t = ts[sl, None] + (td - ts[sl, None]) * rho_s[sl, None] / (rho_s[sl, None] + rd)
-        q, o_idx = np.nonzero((t >= t_lo[sl, None]) & (t <= t_hi[sl, None]) & open_w[w_idx[sl]])
-        q += c0
+        q, o_idx = kernels.expand_over_others(ts, rho_s, t_lo, t_hi, w_idx, td_w, rho_w, open_w,
+                                              sl.start, sl.stop, kernels.PRUNE)  # fmt: skip
         ctx.count("candidates_rd" if before else "candidates_dr", len(q))
         ee, ff, ww = e_idx[q], f_idx[q], w_idx[q]
         im, oth = take_rows(img, q), take_rows(others, o_idx)

@@ -14,6 +14,7 @@ from collections.abc import Callable
 import numpy as np
 
 from ..scene import accel
+from . import kernels
 from . import reflection as refl
 from .context import TraceContext
 from .evaluate import candidates, evaluate
@@ -81,6 +82,7 @@ def second_order(ctx: TraceContext) -> list[Paths]:
     centre, radius = accel.facet_spheres(fc)
     rx_centre = 0.5 * (ctx.rx.min(axis=0) + ctx.rx.max(axis=0))
     rx_radius = float(np.sqrt(((ctx.rx - rx_centre) ** 2).sum(axis=1)).max()) * (1 + 1e-9) + 1e-9
+    side_rx, rx = _c(side_rx), _c(ctx.rx)
     out: list[Paths] = []
     for t in range(len(ctx.tx)):
         side_t = refl.reflecting_side(fc, ctx.tx[t : t + 1])[0]  # (K,)
@@ -107,27 +109,18 @@ def second_order(ctx: TraceContext) -> list[Paths]:
         near = refl.cone_reaches(img2, centre[f2], radius[f2], rx_centre, rx_radius)
         i1, f1a, f2, img2, s_img = i1[near], f1a[near], f2[near], img2[near], s_img[near]
         # receivers on the same side of the second facet as the first image, inside the
-        # beam from the second image through the second facet
+        # beam from the second image through the second facet; unfolded at the second
+        # reflection, the path is straight from the first image to the receiver's mirror image
+        # in the second facet, through the first facet
         step = max(1, CHUNK // max(len(ctx.rx), 1))
-        rx_c = ctx.rx.T[:, None, :]  # (3, 1, R)
         for c0 in range(0, len(f1a), step):
             sl = slice(c0, c0 + step)
-            ok_qr = side_rx.T[f2[sl]] == s_img[sl, None]
             b2 = refl.beam(img2[sl], centre[f2[sl]], radius[f2[sl]])
-            ok_qr &= _in_beam(b2, slice(None), rx_c)
-            q, r_idx = np.nonzero(ok_qr)
-            # unfolded at the second reflection, the path is straight from the first image to
-            # the receiver's mirror image in the second facet, through the first facet (tested
-            # on the pairs left, the same arithmetic per pair as on the whole matrix)
-            n2, off2 = fc.normal[f2[sl]][q], fc.offset[f2[sl]][q]
-            r_c = ctx.rx.T[:, r_idx]
-            dist = r_c[0] * n2[:, 0] + r_c[1] * n2[:, 1] + r_c[2] * n2[:, 2]
-            dist -= off2
-            mirrored = [r_c[c] - 2.0 * dist * n2[:, c] for c in range(3)]
-            f1s = f1a[sl]
-            b1 = refl.beam(img1[i1[sl]], centre[f1s], radius[f1s])
-            ok = _in_beam(b1, q, mirrored, pairs=True)
-            q, r_idx = q[ok], r_idx[ok]
+            b1 = refl.beam(img1[i1[sl]], centre[f1a[sl]], radius[f1a[sl]])
+            q, r_idx = kernels.second_order_receivers(
+                f2[sl], s_img[sl], side_rx, *_beam_args(b2), *_beam_args(b1),
+                _c(fc.normal[f2[sl]]), _c(fc.offset[f2[sl]]), rx, kernels.PRUNE,
+            )  # fmt: skip
             ctx.count("candidates_r2", len(q))
             q = q + c0
             ff1, ff2 = f1a[q], f2[q]
@@ -153,22 +146,11 @@ def second_order(ctx: TraceContext) -> list[Paths]:
     return out
 
 
-def _in_beam(b: refl.Beam, rows: np.ndarray | slice, points_c, pairs: bool = False) -> np.ndarray:
-    """:func:`~raytrace.solver.reflection.cone_reaches` of beams ``b`` (from their apexes through
-    spheres) and points (target radius 0), one component at a time: as a dense (Q, R) matrix of
-    the beams and the points (components ``points_c``, each (1, R) or (Q, R)), or with
-    ``pairs``, for pairs: beam ``rows[i]`` and point ``i`` (components (P,) each). The
-    condition ``cos(angle) >= cos_a - 1e-7`` is tested multiplied by the distance (no
-    division); the same necessary condition, its rounding far inside the 1e-7 slack, and the
-    same arithmetic per element either way."""
-    apex, axis = b.apex[rows], b.axis[rows]
-    cos_a, inside = b.cos_a[rows], b.apex_inside[rows]
-    if not pairs:
-        apex, axis = apex[:, None, :], axis[:, None, :]
-        cos_a, inside = cos_a[:, None], inside[:, None]
-    vx = points_c[0] - apex[..., 0]
-    vy = points_c[1] - apex[..., 1]
-    vz = points_c[2] - apex[..., 2]
-    dt = np.sqrt(vx * vx + vy * vy + vz * vz)
-    dot = axis[..., 0] * vx + axis[..., 1] * vy + axis[..., 2] * vz
-    return (dot >= (cos_a - 1e-7) * dt) | inside | (dt <= 0.0)
+def _c(x: np.ndarray) -> np.ndarray:
+    """A writable C-ordered array (what the kernels take)."""
+    return x if x.flags.c_contiguous and x.flags.writeable else np.array(x, order="C")
+
+
+def _beam_args(b: refl.Beam) -> tuple[np.ndarray, ...]:
+    """A beam as :func:`raytrace.solver.kernels.second_order_receivers` takes it."""
+    return _c(b.apex), _c(b.axis), _c(b.cos_a), _c(b.apex_inside)

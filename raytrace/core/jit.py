@@ -1,0 +1,51 @@
+"""Compiled loops (numba) for the few places where numpy's array-at-a-time style costs more than
+the arithmetic: pruning that runs over (object, facet, edge) triples with early exits, where the
+numpy form builds dense matrices of which a few per cent survive.
+
+Every kernel is compiled with the same options (:func:`kernel`):
+
+* an explicit signature: compiled (or loaded from the cache) when its module is imported, so
+  that the worker pools' fork server, which imports the tracer once, hands loaded kernels to
+  every worker it forks;
+* ``error_model="numpy"``: a division by zero gives ``inf`` or ``nan`` as in numpy, not an
+  exception;
+* no ``fastmath``: IEEE operations in the order written (no reassociation, no fused
+  multiply-add), so a kernel that writes a numpy expression in the same order gives numpy's bits;
+* ``nogil=True``: a kernel releases the GIL, so the tracer's stage threads run them side by side;
+* ``cache=True``: compiled once per installation (about a second per kernel) and loaded from the
+  cache by later processes (``NUMBA_CACHE_DIR`` moves the cache; numba falls back to a per-user
+  directory when the installation is read-only).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import numba
+
+__all__ = ["kernel", "inline"]
+
+_OPTIONS: dict[str, Any] = dict(cache=True, nogil=True, error_model="numpy", fastmath=False)
+
+
+def kernel(signature: str) -> Callable[[Callable[..., Any]], Any]:
+    """Decorator: a numba kernel of the given signature with the project's options (module
+    docstring). Where no cache directory is writable (numba finds no cache locator), the kernel
+    is compiled in every process instead."""
+
+    def wrap(fn: Callable[..., Any]) -> Any:
+        try:
+            return numba.njit(signature, **_OPTIONS)(fn)
+        except RuntimeError as exc:
+            if "no locator available" not in str(exc):
+                raise
+            return numba.njit(signature, **{**_OPTIONS, "cache": False})(fn)
+
+    return wrap
+
+
+def inline(fn: Callable[..., Any]) -> Any:
+    """Decorator: a scalar helper of kernels, compiled into each kernel that calls it (typed
+    by its callers), with the same options."""
+    return numba.njit(inline="always", **_OPTIONS)(fn)

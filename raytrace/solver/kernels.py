@@ -1,0 +1,342 @@
+"""Compiled pruning loops of the diffraction stages (:mod:`raytrace.core.jit`).
+
+The mixed stages (RD, DR, RDR) look for (end point, facet, wedge) triples where a reflection in
+the facet can reach the edge, then expand each triple over the other ends. In numpy both steps
+build dense (object, facet), (edge, facet) and (triple, other end) matrices of which a few per
+cent survive; these loops test the same exact necessary conditions, cheapest first, and stop at
+the first that fails. They only prune: which paths are found is decided by the exact tests
+after them (Keller's point on the edge, point in facet, wedge validity, Embree), so the traced
+paths are the same as with the numpy form (``tools/trace_identity.py``: bitwise).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..core.jit import inline, kernel
+
+__all__ = ["PRUNE", "surely_inside", "facet_wedge_pairs", "expand_over_others",
+           "second_order_receivers"]
+
+#: The callers pass this as the kernels' ``prune``: False switches their pruning tests off (they
+#: then return every candidate that satisfies the rules, with unbounded spans), so that a trace
+#: with it set shows that the pruning loses no path (the tests do; it is far slower).
+PRUNE = True
+
+
+@inline
+def _inside(t0, n0, t_start, n_start, cos_n, sin_n, prunable, m2_coef, min_rho2, w, px, py, pz):
+    """One point against one wedge: see :func:`surely_inside`."""
+    if not prunable[w]:
+        return False
+    x = px * t0[0, w] + py * t0[1, w] + pz * t0[2, w] - t_start[w]
+    y = px * n0[0, w] + py * n0[1, w] + pz * n0[2, w] - n_start[w]
+    r2 = x * x + y * y
+    m2 = m2_coef * r2
+    side_n = cos_n[w] * y - sin_n[w] * x
+    return r2 > min_rho2 and y < 0 and y * y > m2 and side_n > 0 and side_n * side_n > m2
+
+
+_FRAME = "f8[:, ::1], f8[:, ::1], f8[::1], f8[::1], f8[::1], f8[::1], b1[::1], f8, f8"
+
+
+@kernel(f"b1[::1]({_FRAME}, i8[::1], f8[::1], f8[::1], f8[::1])")
+def surely_inside(t0, n0, t_start, n_start, cos_n, sin_n, prunable, m2_coef, min_rho2,
+                  wi, px, py, pz):  # fmt: skip
+    """(n,) bool: points ``(px, py, pz)`` (n,) m inside wedges ``wi`` (n,) by a margin.
+
+    With ``x, y`` the point's coordinates along the wedge's edge-fixed axes ``t0``, ``n0`` (3, W)
+    from the edge (``t_start``, ``n_start`` (W,): the start's coordinates), the interior of a
+    wedge with exterior angle ``n pi``, ``1 <= n < 2`` (``prunable``), is where ``y < 0`` and
+    ``cos(n pi) y - sin(n pi) x > 0``; both by ``sqrt(m2_coef)`` times ``r`` (``m2_coef =
+    sin(margin)^2``), at ``r^2 > min_rho2``.
+    """
+    out = np.empty(len(wi), dtype=np.bool_)
+    for i in range(len(wi)):
+        out[i] = _inside(t0, n0, t_start, n_start, cos_n, sin_n, prunable, m2_coef, min_rho2,
+                         wi[i], px[i], py[i], pz[i])  # fmt: skip
+    return out
+
+
+@inline
+def _beam_reaches(ax, ay, az, ux, uy, uz, cos_a, sin_a, inside, cx, cy, cz, radius):
+    """The beam (apex ``a``, unit axis ``u``, half-angle cos/sin) can meet the sphere (centre
+    ``c``, ``radius``): :func:`raytrace.solver.reflection.beam_reaches` times ``|c - a|``
+    (no division), a necessary condition."""
+    if inside:
+        return True
+    vx, vy, vz = cx - ax, cy - ay, cz - az
+    dt2 = vx * vx + vy * vy + vz * vz
+    r2 = radius * radius
+    if dt2 <= r2:
+        return True
+    dot = ux * vx + uy * vy + uz * vz
+    dt = np.sqrt(dt2)
+    return dot >= cos_a * np.sqrt(dt2 - r2) - sin_a * min(radius, dt) - 1e-7 * dt
+
+
+@inline
+def _grow(buf, n):
+    """``buf`` with room for at least ``n`` rows (doubled, contents kept)."""
+    if n <= len(buf):
+        return buf
+    new = np.empty(max(n, 2 * len(buf)), dtype=buf.dtype)
+    new[: len(buf)] = buf
+    return new
+
+
+_PAIRS_SIG = (
+    "Tuple((i8[::1], i8[::1], f8[::1], f8[::1]))("
+    # per facet of the end (F,): indices, side sign, end's distance from the plane, image
+    # components (3, F), beam axis components (3, F), cos, sin of its half-angle, apex inside
+    "i8[::1], f8[::1], f8[::1], f8[:, ::1], f8[:, ::1], f8[::1], f8[::1], b1[::1], "
+    # facets (K,): normals (K, 3), offsets, chosen; boxes lo, hi (K, 3)
+    "f8[:, ::1], f8[::1], b1[::1], f8[:, ::1], f8[:, ::1], "
+    # groups (G,): order (W,), start, count, centres (G, 3), radii, chosen
+    "i8[::1], i8[::1], i8[::1], f8[:, ::1], f8[::1], b1[::1], "
+    # wedges (W,): start, end, middle (W, 3), half-length, length
+    "f8[:, ::1], f8[:, ::1], f8[:, ::1], f8[::1], f8[::1], "
+    f"{_FRAME}, f8, f8, b1)"
+)
+
+
+@kernel(_PAIRS_SIG)
+def facet_wedge_pairs(f_ok, sgn, h_f, img_c, axis_c, cos_a, sin_a, apex_in,
+                      normal, offset, f_chosen, lo, hi,
+                      g_order, g_start, g_count, g_centre, g_radius, g_chosen,
+                      w_start, w_end, w_mid, w_half, w_length,
+                      t0, n0, t_start, n_start, cos_n, sin_n, prunable, m2_coef, min_rho2,
+                      eps, pad, prune):  # fmt: skip
+    """The (facet, wedge) pairs of one end point where a reflection in the facet can reach
+    the edge, and the part of the edge it can reach.
+
+    Exact necessary conditions, cheapest first, for every group of wedges (one object's) and
+    facet of the end's reflecting side, on a pair with a chosen group or facet:
+
+    1. the group's bounding sphere reaches the end's side of the facet plane (by ``eps``) and
+       the beam from the end's image through the facet's bounding sphere;
+    2. per wedge of the group: an end of the edge is on the end's side by more than ``eps``, and
+       the edge's own sphere (``w_mid``, ``w_half``) meets the beam;
+    3. the image is not inside the wedge (:func:`surely_inside`);
+    4. the edge, clipped to the end's side and projected from the image onto the facet's plane,
+       meets the facet's box ``lo``, ``hi``: the part of the edge that does, metres from its
+       start and padded by ``pad``, is returned (a diffraction point of the reflection lies in
+       it).
+
+    Returns
+    -------
+    fj : (M,) int, positions in ``f_ok`` (the image is ``img_c[:, fj]``)
+    wi : (M,) int, wedges
+    t_lo, t_hi : (M,) float, metres from the wedge's start
+    """
+    n_f = len(f_ok)
+    cap = 1024
+    out_f = np.empty(cap, dtype=np.int64)
+    out_w = np.empty(cap, dtype=np.int64)
+    out_lo = np.empty(cap, dtype=np.float64)
+    out_hi = np.empty(cap, dtype=np.float64)
+    m = 0
+    for g in range(len(g_start)):
+        gx, gy, gz, gr = g_centre[g, 0], g_centre[g, 1], g_centre[g, 2], g_radius[g]
+        for j in range(n_f):
+            f = f_ok[j]
+            if not (g_chosen[g] or f_chosen[f]):
+                continue
+            s_j = sgn[j]
+            nx, ny, nz, off = normal[f, 0], normal[f, 1], normal[f, 2], offset[f]
+            ix, iy, iz = img_c[0, j], img_c[1, j], img_c[2, j]
+            ux, uy, uz = axis_c[0, j], axis_c[1, j], axis_c[2, j]
+            ca, sa, ai = cos_a[j], sin_a[j], apex_in[j]
+            if prune and not (
+                (gx * nx + gy * ny + gz * nz - off) * s_j + gr > eps
+                and _beam_reaches(ix, iy, iz, ux, uy, uz, ca, sa, ai, gx, gy, gz, gr)
+            ):
+                continue
+            h = h_f[j]
+            for k in range(g_start[g], g_start[g] + g_count[g]):
+                w = g_order[k]
+                ax, ay, az = w_start[w, 0], w_start[w, 1], w_start[w, 2]
+                bx, by, bz = w_end[w, 0], w_end[w, 1], w_end[w, 2]
+                da = (ax * nx + ay * ny + az * nz - off) * s_j
+                db = (bx * nx + by * ny + bz * nz - off) * s_j
+                # the rule, not a pruning: a reflection reaches only an edge with a part strictly
+                # on the reflecting side (an edge in the facet's plane, one of its own, does not)
+                if not (da > eps or db > eps):
+                    continue
+                if not prune:
+                    if m == len(out_f):
+                        out_f, out_w = _grow(out_f, m + 1), _grow(out_w, m + 1)
+                        out_lo, out_hi = _grow(out_lo, m + 1), _grow(out_hi, m + 1)
+                    out_f[m], out_w[m], out_lo[m], out_hi[m] = j, w, -np.inf, np.inf
+                    m += 1
+                    continue
+                if not _beam_reaches(ix, iy, iz, ux, uy, uz, ca, sa, ai,
+                                     w_mid[w, 0], w_mid[w, 1], w_mid[w, 2], w_half[w]):  # fmt: skip
+                    continue
+                if _inside(t0, n0, t_start, n_start, cos_n, sin_n, prunable, m2_coef, min_rho2,
+                           w, ix, iy, iz):  # fmt: skip
+                    continue
+                # clip the edge to the end's side: the cut point at parameter u from the start
+                cut_a, cut_b = da <= eps, db <= eps
+                u = 0.0
+                if cut_a or cut_b:
+                    u = (eps - da) / ((db - da) if db != da else 1.0)
+                # project from the image (distance h behind the plane): a point at distance s
+                # in front projects at h / (h + s) of the way from the image
+                d_a = h + max(da, eps)
+                d_b = h + max(db, eps)
+                k_a, k_b = h / d_a, h / d_b
+                s_in, s_out = 0.0, 1.0
+                for c in range(3):
+                    a_c, b_c, i_c = w_start[w, c], w_end[w, c], img_c[c, j]
+                    p = a_c + u * (b_c - a_c)
+                    if cut_a:
+                        a_c = p
+                    if cut_b:
+                        b_c = p
+                    qa = i_c + k_a * (a_c - i_c)
+                    dq = i_c + k_b * (b_c - i_c) - qa
+                    # parallel to a slab: +-huge (in or out of it) or 0 (on its boundary: in)
+                    inv = 1.0 / (dq if dq != 0.0 else 1e-300)
+                    t1 = (lo[f, c] - qa) * inv
+                    t2 = (hi[f, c] - qa) * inv
+                    s_in = max(s_in, min(t1, t2))
+                    s_out = min(s_out, max(t1, t2))
+                if not s_in <= s_out:
+                    continue
+                # the projection is a perspective map: projected parameter s is edge
+                # parameter s D_a / (s D_a + (1 - s) D_b)
+                lam_in = s_in * d_a / (s_in * d_a + (1 - s_in) * d_b)
+                lam_out = s_out * d_a / (s_out * d_a + (1 - s_out) * d_b)
+                length = w_length[w]
+                t_a = u * length if cut_a else 0.0
+                t_b = u * length if cut_b else length
+                if m == len(out_f):
+                    out_f, out_w = _grow(out_f, m + 1), _grow(out_w, m + 1)
+                    out_lo, out_hi = _grow(out_lo, m + 1), _grow(out_hi, m + 1)
+                out_f[m] = j
+                out_w[m] = w
+                out_lo[m] = t_a + lam_in * (t_b - t_a) - pad
+                out_hi[m] = t_a + lam_out * (t_b - t_a) + pad
+                m += 1
+    return out_f[:m].copy(), out_w[:m].copy(), out_lo[:m].copy(), out_hi[:m].copy()
+
+
+@kernel(
+    "Tuple((i8[::1], i8[::1]))("
+    "f8[::1], f8[::1], f8[::1], f8[::1], i8[::1], f8[:, ::1], f8[:, ::1], b1[:, ::1], i8, i8, b1)"
+)
+def expand_over_others(ts, rho_s, t_lo, t_hi, w_idx, td_w, rho_w, open_w, start, stop, prune):
+    """The (triple, other end) pairs of triples ``start:stop`` whose Keller point lies in the
+    triple's span of the edge.
+
+    Keller's point of the image (edge coordinate ``ts``, distance ``rho_s`` from the edge line)
+    and the other end (``td_w``, ``rho_w`` (W, O) per wedge) is at ``t = ts + (td - ts) rho_s /
+    (rho_s + rho_d)`` along the edge; it must lie in ``[t_lo, t_hi]``, with the other end not
+    surely inside the wedge (``open_w`` (W, O)). The same expression in the same order as numpy;
+    a pair whose ``ts`` and ``td`` are both beyond the same end of the span (by far more than
+    the rounding of ``t``, which lies between them) is skipped without it. With ``prune``
+    False, every pair is returned.
+
+    Returns
+    -------
+    q : (M,) int, triples (absolute indices), in order
+    o : (M,) int, other ends
+    """
+    n_o = td_w.shape[1]
+    cap = 1024
+    out_q = np.empty(cap, dtype=np.int64)
+    out_o = np.empty(cap, dtype=np.int64)
+    m = 0
+    for q in range(start, stop):
+        w = w_idx[q]
+        tq, rq, lo_q, hi_q = ts[q], rho_s[q], t_lo[q], t_hi[q]
+        for o in range(n_o):
+            if prune and not open_w[w, o]:
+                continue
+            # t lies between ts and td (up to rounding): most pairs fail without the division
+            td = td_w[w, o]
+            slack = 1e-9 * (abs(tq) + abs(td) + 1.0)
+            if prune and (max(tq, td) < lo_q - slack or min(tq, td) > hi_q + slack):
+                continue
+            t = tq + (td - tq) * rq / (rq + rho_w[w, o])
+            if (t >= lo_q and t <= hi_q) or not prune:
+                if m == len(out_q):
+                    out_q = _grow(out_q, m + 1)
+                    out_o = _grow(out_o, m + 1)
+                out_q[m] = q
+                out_o[m] = o
+                m += 1
+    return out_q[:m].copy(), out_o[:m].copy()
+
+
+@inline
+def _point_in_beam(ax, ay, az, ux, uy, uz, cos_a, inside, px, py, pz):
+    """The point is within the beam's half-angle (``cos(angle) >= cos_a - 1e-7``, multiplied by
+    the distance: no division): :func:`raytrace.solver.reflection.cone_reaches` with a target of
+    radius 0, a necessary condition."""
+    vx, vy, vz = px - ax, py - ay, pz - az
+    dt = np.sqrt(vx * vx + vy * vy + vz * vz)
+    dot = ux * vx + uy * vy + uz * vz
+    return dot >= (cos_a - 1e-7) * dt or inside or dt <= 0.0
+
+
+_BEAM = "f8[:, ::1], f8[:, ::1], f8[::1], b1[::1]"
+
+
+@inline
+def _in_both_beams(apex2, axis2, cos2, in2, apex1, axis1, cos1, in1, nx, ny, nz, off, rx, q, r):
+    """The beam tests of :func:`second_order_receivers` for second image ``q``, receiver ``r``."""
+    px, py, pz = rx[r, 0], rx[r, 1], rx[r, 2]
+    if not _point_in_beam(apex2[q, 0], apex2[q, 1], apex2[q, 2], axis2[q, 0], axis2[q, 1],
+                          axis2[q, 2], cos2[q], in2[q], px, py, pz):  # fmt: skip
+        return False
+    dist = px * nx + py * ny + pz * nz
+    dist -= off
+    mx, my, mz = px - 2.0 * dist * nx, py - 2.0 * dist * ny, pz - 2.0 * dist * nz
+    return _point_in_beam(apex1[q, 0], apex1[q, 1], apex1[q, 2], axis1[q, 0], axis1[q, 1],
+                          axis1[q, 2], cos1[q], in1[q], mx, my, mz)  # fmt: skip
+
+
+@kernel(
+    "Tuple((i8[::1], i8[::1]))("
+    f"i8[::1], i1[::1], i1[:, ::1], {_BEAM}, {_BEAM}, f8[:, ::1], f8[::1], f8[:, ::1], b1)"
+)
+def second_order_receivers(f2, s_img, side_rx, apex2, axis2, cos2, in2, apex1, axis1, cos1, in1,
+                           n2, off2, rx, prune):  # fmt: skip
+    """The (second image, receiver) pairs of double reflections that pass the receiver tests.
+
+    For second images ``q`` (their second facets ``f2`` (Q,), the first image's side ``s_img``
+    of it) and receivers ``rx`` (R, 3): the receiver is on that side of the second facet
+    (``side_rx`` (R, K)), within the beam from the second image through the second facet's
+    bounding sphere (``apex2``, ``axis2`` (Q, 3), ``cos2``, ``in2`` (Q,)), and its mirror image
+    in the second facet's plane (``n2`` (Q, 3), ``off2`` (Q,)) is within the beam from the first
+    image through the first facet (``apex1``...): unfolded at the second reflection, the path is
+    straight from the first image to that mirror image. The side is the rule; the beams are
+    necessary conditions, not tested with ``prune`` False.
+
+    Returns
+    -------
+    q, r : (M,) int, in (q, r) order
+    """
+    cap = 1024
+    out_q = np.empty(cap, dtype=np.int64)
+    out_r = np.empty(cap, dtype=np.int64)
+    m = 0
+    for q in range(len(f2)):
+        f, s = f2[q], s_img[q]
+        nx, ny, nz, off = n2[q, 0], n2[q, 1], n2[q, 2], off2[q]
+        for r in range(rx.shape[0]):
+            # the rule, not a pruning: the receiver strictly on the reflecting side
+            if side_rx[r, f] != s:
+                continue
+            if prune and not _in_both_beams(apex2, axis2, cos2, in2, apex1, axis1, cos1, in1,
+                                            nx, ny, nz, off, rx, q, r):  # fmt: skip
+                continue
+            if m == len(out_q):
+                out_q = _grow(out_q, m + 1)
+                out_r = _grow(out_r, m + 1)
+            out_q[m] = q
+            out_r[m] = r
+            m += 1
+    return out_q[:m].copy(), out_r[:m].copy()

@@ -1,0 +1,58 @@
+"""raytrace.core.jit: the kernels' options, and compiling without a writable cache."""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+import pytest
+
+from raytrace.core import jit
+
+
+def test_kernel_divides_by_zero_as_numpy_and_adds_without_fusing():
+    @jit.kernel("f8[::1](f8[::1], f8[::1], f8[::1])")
+    def f(a, b, c):
+        out = np.empty(len(a))
+        for i in range(len(a)):
+            out[i] = a[i] * b[i] + c[i] if c[i] != 0.0 else a[i] / c[i]
+        return out
+
+    a = np.array([0.1, 1.0, -1.0, 0.0, 1.0 + 2**-30])
+    b = np.array([0.3, 2.0, 3.0, 0.0, 1.0 - 2**-30])
+    c = np.array([0.7, 0.0, 0.0, 0.0, -1.0])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        expect = np.where(c != 0.0, a * b + c, a / c)
+    # numpy's bits: inf and nan for x / 0 (no exception), and a * b + c rounded twice (a fused
+    # multiply-add would give 2**-60 + ... for the last row, not 0 - 2**-60)
+    np.testing.assert_array_equal(f(a, b, c), expect)
+
+
+def test_kernel_without_a_cache_location_compiles_in_memory(monkeypatch):
+    real = numba.njit
+
+    def no_locator(*args, **kwargs):
+        if kwargs.get("cache"):
+            def fail(fn):
+                raise RuntimeError(f"cannot cache function {fn.__name__!r}: no locator available "
+                                   "for file 'x.py'")  # fmt: skip
+            return fail
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(numba, "njit", no_locator)
+
+    @jit.kernel("f8(f8)")
+    def twice(x):
+        return 2.0 * x
+
+    assert twice(1.5) == 3.0
+
+
+def test_other_compile_errors_are_not_hidden(monkeypatch):
+    def broken(*args, **kwargs):
+        def fail(fn):
+            raise RuntimeError("something else")
+        return fail
+
+    monkeypatch.setattr(numba, "njit", broken)
+    with pytest.raises(RuntimeError, match="something else"):
+        jit.kernel("f8(f8)")(lambda x: x)

@@ -1,0 +1,123 @@
+"""The compiled pruning loops (raytrace.solver.kernels) against independent computations: closed
+forms, the dense numpy expressions they replace, and brute-force sampling of the edges."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from conftest import box, make_scene, quad
+
+from raytrace.scene import accel
+from raytrace.solver import diffraction, kernels
+from raytrace.solver import reflection as refl
+from raytrace.solver.config import TraceConfig
+from raytrace.solver.context import TraceContext
+
+
+def _ctx(scene, tx, rx):
+    return TraceContext(scene, np.atleast_2d(tx), np.atleast_2d(rx), 3.775e9, TraceConfig(),
+                        None, None)  # fmt: skip
+
+
+def test_surely_inside_a_box_corner_closed_form():
+    """A unit cube's vertical edge at (1, 1): its interior is the quadrant x < 1, y < 1. Points
+    in it by more than the margin are inside, points outside it or near the edge line are not."""
+    sc = make_scene([("cube", box((0, 0, 0), (1, 1, 1)), "concrete")])
+    w = sc.wedges
+    edge = np.flatnonzero(
+        (np.abs(w.direction[:, 2]) > 0.99) & np.all(np.abs(w.start[:, :2] - 1.0) < 1e-12, axis=1)
+    )
+    assert len(edge) == 1
+    frame = diffraction._wedge_frame(_ctx(sc, [5, 5, 5], [6, 6, 6]))
+    ang = np.radians([-89.0, -60.0, -10.0, 0.5, 45.0, 95.0, 135.0, 185.0, 269.0, 300.0])
+    r = np.array([0.3] * len(ang))
+    # azimuth about the edge from the +x direction: the interior is 180..270 degrees
+    p = np.stack([1 + r * np.cos(ang), 1 + r * np.sin(ang), np.full(len(ang), 0.5)], axis=1)
+    got = diffraction._surely_inside(frame, np.full(len(p), edge[0]), *p.T)
+    expect = (np.degrees(ang) % 360 > 180) & (np.degrees(ang) % 360 < 270)
+    np.testing.assert_array_equal(got, expect)
+    # on the edge line (r below INSIDE_MIN_RHO_M): never
+    q = np.array([[1 - 1e-4, 1 - 1e-4, 0.5]])
+    assert not diffraction._surely_inside(frame, edge, *q.T).any()
+
+
+def test_expand_over_others_equals_the_dense_numpy_expression():
+    """The kernel keeps exactly the (triple, other end) pairs of the dense formula, in order."""
+    rng = np.random.default_rng(4)
+    n_w, n_o, n_q = 30, 17, 400
+    w_idx = rng.integers(0, n_w, n_q)
+    ts, rho_s = rng.uniform(-3, 8, n_q), rng.uniform(0, 5, n_q)
+    rho_s[:10] = 0.0  # the image on the edge line
+    t_lo = rng.uniform(-1, 4, n_q)
+    t_hi = t_lo + rng.uniform(0, 3, n_q)
+    td_w, rho_w = rng.uniform(-3, 8, (n_w, n_o)), rng.uniform(0, 5, (n_w, n_o))
+    rho_w[0, :3] = 0.0
+    open_w = rng.random((n_w, n_o)) > 0.2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        td, rd = td_w[w_idx], rho_w[w_idx]
+        t = ts[:, None] + (td - ts[:, None]) * rho_s[:, None] / (rho_s[:, None] + rd)
+    q_ref, o_ref = np.nonzero((t >= t_lo[:, None]) & (t <= t_hi[:, None]) & open_w[w_idx])
+    assert 0 < len(q_ref) < n_q * n_o
+    q, o = kernels.expand_over_others(ts, rho_s, t_lo, t_hi, w_idx, td_w, rho_w, open_w, 0, n_q,
+                                      True)  # fmt: skip
+    np.testing.assert_array_equal(q, q_ref)
+    np.testing.assert_array_equal(o, o_ref)
+    # a sub-range gives absolute indices
+    q2, _ = kernels.expand_over_others(ts, rho_s, t_lo, t_hi, w_idx, td_w, rho_w, open_w, 100,
+                                       200, True)  # fmt: skip
+    np.testing.assert_array_equal(q2, q_ref[(q_ref >= 100) & (q_ref < 200)])
+    # no pruning: every pair
+    q3, _ = kernels.expand_over_others(ts, rho_s, t_lo, t_hi, w_idx, td_w, rho_w, open_w, 0, n_q,
+                                       False)  # fmt: skip
+    assert len(q3) == n_q * n_o
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_facet_wedge_spans_hold_every_reachable_point_of_the_edge(seed):
+    """Brute force: sample every edge densely; wherever the segment from an end's image in a
+    facet to the edge point crosses the facet (the point on the end's side), the triple is
+    returned and the point lies in its span."""
+    rng = np.random.default_rng(seed)
+    objs = [("floor", box((-1, -1, -0.3), (9, 9, 0.0)), "concrete"),
+            ("pane", quad((4.0, 1.0, 0.0), (0.0, 3.0, 0.0), (0.0, 0.0, 2.0)), "glass")]  # fmt: skip
+    for i in range(3):
+        lo = np.append(rng.uniform(0.5, 6.5, 2), 0.0)
+        objs.append((f"b{i}", box(lo, lo + np.append(rng.uniform(0.4, 1.5, 2), 1.5)), "metal"))
+    sc = make_scene(objs)
+    ends = np.array([[0.3, 0.4, 2.5], [8.5, 7.7, 1.2]])
+    ends = ends[sc.inside_solid(ends) < 0]
+    ctx = _ctx(sc, ends, ends)
+    e_idx, f_idx, w_idx, _, t_lo, t_hi = diffraction._facet_wedge_pairs(ctx, ends)
+    spans = {(e, f, w): (lo, hi) for e, f, w, lo, hi in zip(e_idx, f_idx, w_idx, t_lo, t_hi)}
+    fc, w = sc.facets, sc.wedges
+    side = refl.reflecting_side(fc, ends)
+    s = np.linspace(0.0, 1.0, 201)
+    checked = 0
+    for e in range(len(ends)):
+        for f in np.flatnonzero(side[e] != 0):
+            img = refl.mirror(ends[e][None], fc.normal[f][None], fc.offset[f][None])[0]
+            pts = w.start[:, None] + s[None, :, None] * (w.end - w.start)[:, None]  # (W, S, 3)
+            flat = pts.reshape(-1, 3)
+            dist = refl.signed_distance(flat, np.broadcast_to(fc.normal[f], flat.shape),
+                                        np.full(len(flat), fc.offset[f]))  # fmt: skip
+            front = np.sign(dist) * side[e, f] > 0
+            front &= np.abs(dist) > 1e-6
+            u, p = refl.segment_plane_point(np.broadcast_to(img, flat.shape), flat,
+                                            np.broadcast_to(fc.normal[f], flat.shape),
+                                            np.full(len(flat), fc.offset[f]))  # fmt: skip
+            ok = front & (u > 0) & (u < 1)
+            ok[ok] = accel.points_in_facets(p[ok], np.full(int(ok.sum()), f), fc)
+            frame = diffraction._wedge_frame(ctx)
+            for k in np.flatnonzero(ok):
+                wi, si = divmod(k, len(s))
+                key = (e, f, wi)
+                if diffraction._surely_inside(frame, np.array([wi]), *img[:, None]).any():
+                    continue  # no valid diffraction from there (tested above)
+                assert key in spans, key
+                lo, hi = spans[key]
+                t = s[si] * w.length[wi]
+                assert lo <= t <= hi, (key, t, lo, hi)
+                checked += 1
+    assert checked > 500
+    # the pruning prunes: far fewer triples than (end, facet, wedge) combinations on the side
+    assert len(e_idx) < 0.5 * (side != 0).sum() * len(w)
