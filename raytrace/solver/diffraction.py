@@ -157,42 +157,63 @@ def _pure(ctx: TraceContext) -> Paths:
     w = ctx.scene.wedges
     n_t, n_r, n_w = len(ctx.tx), len(ctx.rx), len(w)
     parts = []
-    total = n_t * n_w * n_r
-    ctx.count("candidates_d", total)
+    ctx.count("candidates_d", n_t * n_w * n_r)
     frame, w_all = _wedge_frame(ctx), np.arange(n_w)[:, None]
+    # a transmitter or receiver surely inside the wedge: never a valid diffraction
     open_t = ~_surely_inside(frame, w_all, *ctx.tx.T[:, None, :])  # (W, T)
     open_r = ~_surely_inside(frame, w_all, *ctx.rx.T[:, None, :])  # (W, R)
-    for c0 in range(0, total, CHUNK):
-        flat = np.arange(c0, min(total, c0 + CHUNK))
-        t_idx, rest = np.divmod(flat, n_w * n_r)
-        w_idx, r_idx = np.divmod(rest, n_r)
-        # a transmitter or receiver surely inside the wedge: never a valid diffraction
-        keep = open_t[w_idx, t_idx] & open_r[w_idx, r_idx]
-        if ctx.wedge_mask is not None:
-            keep &= ctx.wedge_mask[w_idx]
-        t_idx, w_idx, r_idx = t_idx[keep], w_idx[keep], r_idx[keep]
-        kp = keller_points(take_rows(ctx.tx, t_idx), take_rows(ctx.rx, r_idx),
-                           take_rows(w.start, w_idx), take_rows(w.end, w_idx))  # fmt: skip
-        ok = np.flatnonzero(kp.on_edge)
-        t_idx, w_idx, r_idx, pt = t_idx[ok], w_idx[ok], r_idx[ok], take_rows(kp.point, ok)
-        ok = np.flatnonzero(_valid_geometry(ctx, w_idx, take_rows(ctx.tx, t_idx),
-                                            take_rows(ctx.rx, r_idx), pt))  # fmt: skip
-        t_idx, w_idx, r_idx, pt = t_idx[ok], w_idx[ok], r_idx[ok], take_rows(pt, ok)
-        parts.append(
-            evaluate(
-                ctx,
-                candidates(
-                    ctx,
-                    t_idx,
-                    r_idx,
-                    pt[:, None, :],
-                    w_idx[:, None],
-                    kinds=np.full((len(t_idx), 1), DIFFRACTION, np.int8),
-                ),
-                diffraction=field_model(ctx),
-            )
-        )
+    if ctx.wedge_mask is not None:
+        open_t &= ctx.wedge_mask[:, None]
+    # Keller's point must lie on the edge (padded): tested per (transmitter, wedge) and
+    # receiver before it is computed, in (transmitter, wedge, receiver) order
+    w_idx, t_idx = np.nonzero(open_t)
+    order = np.lexsort((w_idx, t_idx))
+    w_idx, t_idx = w_idx[order], t_idx[order]
+    start_c, unit_c, length = _edge_lines(ctx)
+    ts, rho_s = _along_and_off(ctx.tx.T[:, t_idx], start_c[:, w_idx], unit_c[:, w_idx])
+    tr_w, rho_w = _along_and_off(ctx.rx.T[:, None, :], start_c[..., None], unit_c[..., None])
+    lo = np.full(len(w_idx), -SPAN_PAD_M)
+    hi = length[w_idx] + SPAN_PAD_M
+    step = max(1, CHUNK // max(n_r, 1))
+    for c0 in range(0, len(w_idx), step):
+        q, r_idx = kernels.expand_over_others(ts, rho_s, lo, hi, w_idx, tr_w, rho_w, open_r, c0,
+                                              min(len(w_idx), c0 + step), kernels.PRUNE)  # fmt: skip
+        t_idx_q, w_idx_q = t_idx[q], w_idx[q]
+        parts.append(_pure_candidates(ctx, t_idx_q, w_idx_q, r_idx))
     return Paths.concatenate(parts) if parts else Paths.empty(ctx.tx, ctx.rx, ctx.f, 1)
+
+
+def _edge_lines(ctx: TraceContext) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The edges' starts and unit vectors as components (3, W), and lengths (W,), metres: the
+    same arithmetic as :func:`~raytrace.physics.utd.keller_points` (cached on the wedges)."""
+    w = ctx.scene.wedges
+    cached = w.cache.get("edge_lines")
+    if cached is None:
+        v = w.end - w.start
+        length = norm(v)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            unit = v / length[:, None]
+        cached = w.cache["edge_lines"] = (np.ascontiguousarray(w.start.T),
+                                          np.ascontiguousarray(unit.T), length)  # fmt: skip
+    return cached
+
+
+def _pure_candidates(
+    ctx: TraceContext, t_idx: np.ndarray, w_idx: np.ndarray, r_idx: np.ndarray
+) -> Paths:
+    """D paths of (transmitter, wedge, receiver) candidates: Keller's points on the edges,
+    valid diffractions, then :func:`evaluate`."""
+    w = ctx.scene.wedges
+    kp = keller_points(take_rows(ctx.tx, t_idx), take_rows(ctx.rx, r_idx),
+                       take_rows(w.start, w_idx), take_rows(w.end, w_idx))  # fmt: skip
+    ok = np.flatnonzero(kp.on_edge)
+    t_idx, w_idx, r_idx, pt = t_idx[ok], w_idx[ok], r_idx[ok], take_rows(kp.point, ok)
+    ok = np.flatnonzero(_valid_geometry(ctx, w_idx, take_rows(ctx.tx, t_idx),
+                                        take_rows(ctx.rx, r_idx), pt))  # fmt: skip
+    t_idx, w_idx, r_idx, pt = t_idx[ok], w_idx[ok], r_idx[ok], take_rows(pt, ok)
+    kinds = np.full((len(t_idx), 1), DIFFRACTION, np.int8)
+    cand = candidates(ctx, t_idx, r_idx, pt[:, None, :], w_idx[:, None], kinds=kinds)
+    return evaluate(ctx, cand, diffraction=field_model(ctx))
 
 
 def _writable(x: np.ndarray) -> np.ndarray:
