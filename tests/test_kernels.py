@@ -121,3 +121,51 @@ def test_facet_wedge_spans_hold_every_reachable_point_of_the_edge(seed):
     assert checked > 500
     # the pruning prunes: far fewer triples than (end, facet, wedge) combinations on the side
     assert len(e_idx) < 0.5 * (side != 0).sum() * len(w)
+
+
+def test_line_span_through_a_cube_closed_form():
+    """Lines along x through the unit cube: the part at least ``inset`` inside is
+    ``inset <= x <= 1 - inset``; a line beside it, parallel to its faces, has no span."""
+    from raytrace.solver import penetration
+
+    sc = make_scene([("cube", box((0, 0, 0), (1, 1, 1)), "concrete"),
+                     ("sheet", quad((3, 0, 0), (1, 0, 0), (0, 1, 0)), "glass")])  # fmt: skip
+    a = np.array([[-1.0, 0.5, 0.5], [-1.0, 0.5, 0.5], [-1.0, 2.0, 0.5], [2.0, 0.5, 0.5],
+                  [0.0, 0.0, 0.0]])  # fmt: skip
+    d = np.array([[1.0, 0, 0], [1.0, 0, 0], [1.0, 0, 0], [-1.0, 0, 0], [1.0, 0, 0]])
+    o = np.array([0, 0, 0, 0, 1])
+    for inset in (0.1, -0.05):
+        convex, t_in, t_out, par = penetration._line_span(sc, o, a, d, inset)
+        np.testing.assert_array_equal(convex, [True, True, True, True, False])
+        np.testing.assert_allclose(t_in[:2], 1 + inset, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(t_out[:2], 2 - inset, rtol=0, atol=1e-12)
+        assert par[2] and not par[:2].any()
+        # reversed direction from the other side: the same stretch
+        assert abs(t_in[3] - (1 + inset)) < 1e-12 and abs(t_out[3] - (2 - inset)) < 1e-12
+    # a touch: the line along the cube's face (y = 1) never gets 1 mm inside
+    assert penetration.touches(sc, np.array([0]), np.array([[-1.0, 1.0, 0.5]]),
+                               np.array([[1.0, 0, 0]]), 1e-3)[0]  # fmt: skip
+
+
+def test_edge_distance_against_the_triangle_closed_form():
+    """The distance outside a right triangle's edges, and minus the distance to the nearest
+    edge inside it; broadcasting over faces and points."""
+    from raytrace.solver import penetration
+
+    sc = make_scene([("sheet", quad((0, 0, 0), (2, 0, 0), (0, 2, 0)), "glass")])
+    tri = sc.vertices[sc.faces[0]]
+    rng = np.random.default_rng(7)
+    p = np.column_stack([rng.uniform(-1, 3, (500, 2)), np.zeros(500)])
+    got = penetration._edge_distance(sc, np.zeros(500, np.int64), p)
+    # independent: signed distance to each edge line from the corners, outward normal in-plane
+    ref = np.full(500, -np.inf)
+    n = np.cross(tri[1] - tri[0], tri[2] - tri[0])
+    for i in range(3):
+        e = tri[(i + 1) % 3] - tri[i]
+        out = np.cross(e, n)
+        out /= np.linalg.norm(out)
+        ref = np.maximum(ref, (p - tri[i]) @ out)
+    np.testing.assert_allclose(got, ref, rtol=0, atol=1e-12)
+    both = penetration._edge_distance(sc, np.array([[0], [1]]), p[None, :3])  # (2, 3)
+    assert both.shape == (2, 3)
+    np.testing.assert_allclose(both[0], got[:3], rtol=0, atol=0)

@@ -23,8 +23,9 @@ from collections.abc import Callable
 from typing import Any
 
 import numba
+import numpy as np
 
-__all__ = ["kernel", "inline"]
+__all__ = ["kernel", "inline", "carray"]
 
 _OPTIONS: dict[str, Any] = dict(cache=True, nogil=True, error_model="numpy", fastmath=False)
 
@@ -49,3 +50,12 @@ def inline(fn: Callable[..., Any]) -> Any:
     """Decorator: a scalar helper of kernels, compiled into each kernel that calls it (typed
     by its callers), with the same options."""
     return numba.njit(inline="always", **_OPTIONS)(fn)
+
+
+def carray(x: Any, dtype: Any = np.float64) -> np.ndarray:
+    """``x`` as the kernels' signatures take arrays: C-ordered, writable, of ``dtype`` (a copy
+    only where it is not already)."""
+    x = np.asarray(x, dtype=dtype)
+    if x.flags.c_contiguous and x.flags.writeable:
+        return x
+    return np.array(x, dtype=dtype, order="C", copy=True)

@@ -340,3 +340,75 @@ def second_order_receivers(f2, s_img, side_rx, apex2, axis2, cos2, in2, apex1, a
             out_r[m] = r
             m += 1
     return out_q[:m].copy(), out_r[:m].copy()
+
+
+# -- penetration: lines against convex solids, points against triangles -------------------------
+@inline
+def _dot3(x0, x1, x2, y0, y1, y2):
+    """A 3-vector dot product summed as numpy's einsum sums it here, ``(x0 y0 + x2 y2) + x1 y1``,
+    so that the kernels below give the numpy form's bits."""
+    return (x0 * y0 + x2 * y2) + x1 * y1
+
+
+@kernel(
+    "Tuple((b1[::1], f8[::1], f8[::1], b1[::1]))("
+    "f8[:, :, ::1], f8[:, ::1], i8[::1], i8[::1], f8[:, ::1], f8[:, ::1], f8)"
+)
+def line_span(normal, offset, count, o, a, d, inset):
+    """Where lines ``a + t d`` (n, 3) are at least ``inset`` metres inside convex solids ``o``
+    (n,) given by their planes ``normal . x = offset`` (``normal`` (O, K, 3), ``offset`` (O, K),
+    the first ``count[o]`` slots of each object's).
+
+    Returns
+    -------
+    convex : (n,) bool, the object has planes (the other rows are not answered)
+    t_in, t_out : (n,) float, metres along the line (``t_in > t_out``: no span)
+    parallel_out : (n,) bool, a line parallel to a plane and beyond it (no span)
+    """
+    n = len(o)
+    convex = np.zeros(n, dtype=np.bool_)
+    t_in = np.full(n, np.inf)
+    t_out = np.full(n, -np.inf)
+    parallel_out = np.zeros(n, dtype=np.bool_)
+    for r in range(n):
+        ob = o[r]
+        kk = count[ob]
+        if kk == 0:
+            continue
+        convex[r] = True
+        lo, hi, par = -np.inf, np.inf, False
+        for k in range(kk):
+            dn = _dot3(normal[ob, k, 0], normal[ob, k, 1], normal[ob, k, 2],
+                       d[r, 0], d[r, 1], d[r, 2])  # fmt: skip
+            # signed distance of the line's points from the plane, at least inset inside:
+            # s + t dn <= 0
+            s = _dot3(normal[ob, k, 0], normal[ob, k, 1], normal[ob, k, 2],
+                      a[r, 0], a[r, 1], a[r, 2]) - offset[ob, k] + inset  # fmt: skip
+            tp = -s / dn
+            if dn < 0 and tp > lo:
+                lo = tp
+            elif dn > 0 and tp < hi:
+                hi = tp
+            elif dn == 0 and s > 0:
+                par = True
+        t_in[r], t_out[r], parallel_out[r] = lo, hi, par
+    return convex, t_in, t_out, parallel_out
+
+
+@kernel("f8[::1](f8[:, :, ::1], f8[:, :, ::1], i8[::1], f8[:, ::1])")
+def edge_distance(corners, edge_normals, face, point):
+    """Signed in-plane distance (n,) of points (n, 3) from the boundary of their triangles
+    ``face`` (n,): the largest distance outside the three edge lines (``corners``, outward
+    in-plane unit ``edge_normals`` (F, 3, 3), edge ``i`` from corner ``i``); <= 0 inside."""
+    out = np.empty(len(face))
+    for r in range(len(face)):
+        f = face[r]
+        worst = -np.inf
+        for i in range(3):
+            v = ((point[r, 0] - corners[f, i, 0]) * edge_normals[f, i, 0]
+                 + (point[r, 1] - corners[f, i, 1]) * edge_normals[f, i, 1]) \
+                + (point[r, 2] - corners[f, i, 2]) * edge_normals[f, i, 2]  # fmt: skip
+            if v > worst or v != v:
+                worst = v
+        out[r] = worst
+    return out

@@ -31,8 +31,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..core.jit import carray
 from ..core.vec import rows as take_rows
 from ..scene.model import Scene
+from . import kernels
 
 
 @dataclass(frozen=True)
@@ -342,23 +344,11 @@ def _line_span(
     (the first ``count`` slots are theirs): most are boxes, and padding every row to the largest
     solid's planes would triple the work."""
     normal, offset, valid = _convex_planes(scene)
-    n_rows = len(o)
-    t_in, t_out = np.full(n_rows, np.inf), np.full(n_rows, -np.inf)
-    parallel_out = np.zeros(n_rows, dtype=bool)
-    count = valid.sum(axis=1)[o]
-    for kk in np.unique(count[count > 0]):
-        rows = np.flatnonzero(count == kk)
-        n = normal[o[rows], :kk]  # (m, kk, 3)
-        dn = np.einsum("mkj,mj->mk", n, d[rows])
-        # signed distance of the line's points from each plane, at least inset inside:
-        # s + t dn <= 0
-        s = np.einsum("mkj,mj->mk", n, a[rows]) - offset[o[rows], :kk] + inset
-        with np.errstate(divide="ignore", invalid="ignore"):
-            tp = -s / dn
-        t_in[rows] = np.where(dn < 0, tp, -np.inf).max(axis=1)
-        t_out[rows] = np.where(dn > 0, tp, np.inf).min(axis=1)
-        parallel_out[rows] = ((dn == 0) & (s > 0)).any(axis=1)
-    return count > 0, t_in, t_out, parallel_out
+    count = scene.__dict__.get("_convex_plane_count")
+    if count is None:
+        count = scene.__dict__["_convex_plane_count"] = valid.sum(axis=1).astype(np.int64)
+    return kernels.line_span(normal, offset, count, carray(o, np.int64), carray(a), carray(d),
+                             float(inset))  # fmt: skip
 
 
 def touches(
@@ -419,11 +409,14 @@ def _edge_distance(scene: Scene, face: np.ndarray, point: np.ndarray) -> np.ndar
     distance to the nearest edge) and > 0 outside. Broadcasts ``face`` (...) against ``point``
     (..., 3)."""
     corners, normals = _edge_planes(scene)
-    tri, edge_n = corners[face], normals[face]  # (..., 3, 3)
-    worst = np.full(np.broadcast_shapes(np.shape(face), point.shape[:-1]), -np.inf)
-    for i in range(3):
-        worst = np.maximum(worst, ((point - tri[..., i, :]) * edge_n[..., i, :]).sum(axis=-1))
-    return worst
+    face, point = np.asarray(face), np.asarray(point)
+    if face.ndim == 1 and point.shape == (len(face), 3):  # one point per face: most calls
+        return kernels.edge_distance(corners, normals, carray(face, np.int64), carray(point))
+    shape = np.broadcast_shapes(face.shape, point.shape[:-1])
+    face = np.broadcast_to(face, shape).reshape(-1)
+    point = np.broadcast_to(point, (*shape, 3)).reshape(-1, 3)
+    return kernels.edge_distance(corners, normals, carray(face, np.int64),
+                                 carray(point)).reshape(shape)  # fmt: skip
 
 
 def segment_crossings(
