@@ -169,3 +169,31 @@ def test_edge_distance_against_the_triangle_closed_form():
     both = penetration._edge_distance(sc, np.array([[0], [1]]), p[None, :3])  # (2, 3)
     assert both.shape == (2, 3)
     np.testing.assert_allclose(both[0], got[:3], rtol=0, atol=0)
+
+
+def test_transmitter_side_work_kept_between_traces_changes_nothing():
+    """The transmitters' second images and (facet, wedge) triples are kept on the scene for the
+    next trace (a grid traced in chunks of receivers): traces after the first, with other
+    receivers, other transmitters or a restriction to some objects, give exactly the paths of
+    a fresh copy of the scene."""
+    import pickle
+
+    from test_diffraction_paths import _cluttered_scene
+
+    from raytrace.solver.tracer import trace
+
+    sc, tx, rx = _cluttered_scene(5)
+    cfg = TraceConfig(max_reflections=2, max_penetrations=1, max_diffractions=1,
+                      max_interactions=3)  # fmt: skip
+    fresh = lambda: pickle.loads(pickle.dumps(sc))  # noqa: E731  (a scene pickles without caches)
+    calls = [dict(tx=tx, rx=rx[:4]), dict(tx=tx, rx=rx[4:]), dict(tx=tx[::-1], rx=rx),
+             dict(tx=tx[1:], rx=rx, involving=[2, 5]), dict(tx=tx, rx=rx[::2])]  # fmt: skip
+    for kw in calls:
+        # one thread: the stages in a fixed order (RD before RDR, which share transmitters)
+        kept = trace(sc, frequency_hz=3.775e9, config=cfg, threads=1, **kw)
+        again = trace(fresh(), frequency_hz=3.775e9, config=cfg, threads=1, **kw)
+        assert kept.n_paths == again.n_paths > 0
+        for name in ("link", "interaction", "elements", "delay_s", "gain", "points"):
+            np.testing.assert_array_equal(getattr(kept, name), getattr(again, name))
+    assert sc.wedges.cache.get("end_pairs") and sc.facets.cache.get("second_images")
+    assert not fresh().wedges.cache.get("end_pairs")

@@ -249,7 +249,7 @@ class _PairGeometry:
 
 
 def _facet_wedge_pairs(
-    ctx: TraceContext, ends: np.ndarray, mixed_rdr: bool = False
+    ctx: TraceContext, ends: np.ndarray, mixed_rdr: bool = False, keep: bool = False
 ) -> tuple[np.ndarray, ...]:
     """(end point, facet, wedge) triples where a reflection in the facet can reach the edge.
 
@@ -260,7 +260,9 @@ def _facet_wedge_pairs(
     per edge, the same with the edge's own sphere; the image must not be inside the wedge; then
     the edge, clipped to the end's side and projected from the image onto the facet's plane, must
     meet the facet's (slightly grown) bounding box (:func:`raytrace.solver.kernels.facet_wedge_pairs`,
-    one end at a time).
+    one end at a time). With ``keep`` (the transmitters), each end's triples are kept on the
+    scene for the next trace with the same end, restriction and pruning
+    (:data:`END_PAIRS_KEPT`).
 
     Returns
     -------
@@ -282,33 +284,58 @@ def _facet_wedge_pairs(
         g_chosen = np.ones(len(geo.g_start), dtype=bool)
     fixed = (*geo.facets[:2], f_chosen, *geo.facets[2:], *geo.groups, g_chosen, *geo.wedges,
              *_wedge_frame(ctx).kernel_args, accel.PLANE_TOL_M, SPAN_PAD_M, kernels.PRUNE)  # fmt: skip
+    kept = ctx.scene.wedges.cache.setdefault("end_pairs", {}) if keep else None
+    mask = (None if ctx.facet_mask is None or mixed_rdr
+            else (ctx.facet_mask.tobytes(), ctx.wedge_mask.tobytes()))  # fmt: skip
     outs = []
     for e in range(len(ends)):
-        f_ok = np.flatnonzero(side[e] != 0)
-        sgn = side[e, f_ok].astype(float)
-        nrm, off = fc.normal[f_ok], fc.offset[f_ok]
-        h_f = np.abs(ends[e] @ nrm.T - off)  # the end's distance from each plane
-        img_f = ends[e] - 2.0 * (sgn * h_f)[:, None] * nrm
-        # the beam from the image through each facet's bounding sphere
-        f_beam = refl.beam(img_f, geo.f_centre[f_ok], geo.f_radius[f_ok])
-        c = np.ascontiguousarray
-        fj, wi, t_lo, t_hi = kernels.facet_wedge_pairs(
-            f_ok, sgn, h_f, c(img_f.T), c(f_beam.axis.T), f_beam.cos_a, f_beam.sin_a,
-            f_beam.apex_inside, *fixed,
-        )  # fmt: skip
-        if len(fj):
-            outs.append((np.full(len(fj), e), f_ok[fj], wi, take_rows(img_f, fj), t_lo, t_hi))
+        key = (ends[e].tobytes(), side[e].tobytes(), mask, kernels.PRUNE, float(ctx.scene.margin))
+        found = None if kept is None else kept.get(key)
+        if found is None:
+            found = _end_pairs(fc, geo, fixed, ends[e], side[e])
+            if kept is not None:
+                if len(kept) >= END_PAIRS_KEPT:
+                    kept.pop(next(iter(kept)))
+                kept[key] = found
+        if len(found[0]):
+            outs.append((np.full(len(found[0]), e), *found))
     if not outs:
         z = np.zeros(0, np.int64)
         return z, z, z, np.zeros((0, 3)), np.zeros(0), np.zeros(0)
     return tuple(np.concatenate(x) for x in zip(*outs))
 
 
+#: End points (transmitters) whose (facet, wedge) triples are kept per scene: a grid is traced
+#: in chunks of receivers against the same few transmitters.
+END_PAIRS_KEPT = 16
+
+
+def _end_pairs(fc, geo: _PairGeometry, fixed: tuple, end: np.ndarray, side_e: np.ndarray):
+    """One end point's triples (:func:`_facet_wedge_pairs`): ``f_idx, w_idx, image, t_lo,
+    t_hi`` (read-only)."""
+    f_ok = np.flatnonzero(side_e != 0)
+    sgn = side_e[f_ok].astype(float)
+    nrm, off = fc.normal[f_ok], fc.offset[f_ok]
+    h_f = np.abs(end @ nrm.T - off)  # the end's distance from each plane
+    img_f = end - 2.0 * (sgn * h_f)[:, None] * nrm
+    # the beam from the image through each facet's bounding sphere
+    f_beam = refl.beam(img_f, geo.f_centre[f_ok], geo.f_radius[f_ok])
+    c = np.ascontiguousarray
+    fj, wi, t_lo, t_hi = kernels.facet_wedge_pairs(
+        f_ok, sgn, h_f, c(img_f.T), c(f_beam.axis.T), f_beam.cos_a, f_beam.sin_a,
+        f_beam.apex_inside, *fixed,
+    )  # fmt: skip
+    found = (f_ok[fj], wi, take_rows(img_f, fj), t_lo, t_hi)
+    for x in found:
+        x.setflags(write=False)
+    return found
+
+
 def _one_reflection(ctx: TraceContext, before: bool) -> list[Paths]:
     """RD (``before=True``: reflection at the transmitter's side) or DR paths."""
     fc, w = ctx.scene.facets, ctx.scene.wedges
     ends, others = (ctx.tx, ctx.rx) if before else (ctx.rx, ctx.tx)
-    e_idx, f_idx, w_idx, img, t_lo, t_hi = _facet_wedge_pairs(ctx, ends)
+    e_idx, f_idx, w_idx, img, t_lo, t_hi = _facet_wedge_pairs(ctx, ends, keep=before)
     side_e = refl.reflecting_side(fc, ends)
     # Keller's point in scalar form (see keller_points): t = ts + (td - ts) rho_s / (rho_s + rho_d)
     # with the end's image (ts, rho_s) per triple and the other end (td, rho_d) per wedge, so
@@ -393,7 +420,7 @@ def _along_and_off(
 def _two_reflections(ctx: TraceContext) -> list[Paths]:
     """RDR paths: a reflection on each side of the edge (the two pruned sets joined on the wedge)."""
     fc, w = ctx.scene.facets, ctx.scene.wedges
-    t_e, t_f, t_w, t_img, t_lo, t_hi = _facet_wedge_pairs(ctx, ctx.tx, mixed_rdr=True)
+    t_e, t_f, t_w, t_img, t_lo, t_hi = _facet_wedge_pairs(ctx, ctx.tx, mixed_rdr=True, keep=True)
     r_e, r_f, r_w, r_img, r_lo, r_hi = _facet_wedge_pairs(ctx, ctx.rx, mixed_rdr=True)
     side_t = refl.reflecting_side(fc, ctx.tx)
     side_r = refl.reflecting_side(fc, ctx.rx)

@@ -85,26 +85,9 @@ def second_order(ctx: TraceContext) -> list[Paths]:
     side_rx, rx = _c(side_rx), _c(ctx.rx)
     out: list[Paths] = []
     for t in range(len(ctx.tx)):
-        side_t = refl.reflecting_side(fc, ctx.tx[t : t + 1])[0]  # (K,)
-        f1 = np.flatnonzero(side_t != 0)
-        img1 = refl.mirror(np.broadcast_to(ctx.tx[t], (len(f1), 3)), fc.normal[f1], fc.offset[f1])
-        # only first facets with some partner, and side tests only on possible partners
-        rows = pairs[f1].any(axis=1)
-        f1, img1 = f1[rows], img1[rows]
-        cols = np.flatnonzero(pairs[f1].any(axis=0))
-        # first images on a reflecting side of the second facet (exact necessary condition)
-        side_img = refl.reflecting_side(fc, img1, cols)  # (len(f1), len(cols))
-        a, jc = np.nonzero((side_img != 0) & pairs[f1][:, cols])
-        f2 = cols[jc]
-        # beam test: the second facet must meet the rays from the first image through the
-        # first facet (bounding spheres: a necessary condition)
-        beam = refl.cone_reaches(img1[a], centre[f1[a]], radius[f1[a]], centre[f2], radius[f2])
-        a, f2, jc = a[beam], f2[beam], jc[beam]
-        i1, f1a = a, f1[a]
+        side_t, img1, i1, f1a, f2, img2, s_img = _second_images(ctx, t, pairs)
         if len(f1a) == 0:
             continue
-        img2 = refl.mirror(img1[i1], fc.normal[f2], fc.offset[f2])
-        s_img = side_img[i1, jc]
         # only second images whose beam reaches the receivers' bounding sphere
         near = refl.cone_reaches(img2, centre[f2], radius[f2], rx_centre, rx_radius)
         i1, f1a, f2, img2, s_img = i1[near], f1a[near], f2[near], img2[near], s_img[near]
@@ -144,6 +127,56 @@ def second_order(ctx: TraceContext) -> list[Paths]:
                     evaluate(ctx, candidates(ctx, np.full(int(ok.sum()), t), r_idx[ok], verts, fac))
                 )
     return out
+
+
+#: Transmitters whose second images :func:`second_order` keeps per scene: a grid is traced in
+#: chunks of receivers against the same few transmitters, and these do not depend on them.
+SECOND_IMAGES_KEPT = 16
+
+
+def _second_images(ctx: TraceContext, t: int, pairs: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Transmitter ``t``'s side of double reflections (cached on the facets, per transmitter
+    position, facet restriction and :data:`raytrace.solver.kernels.PRUNE`).
+
+    Returns
+    -------
+    side_t : (K,) int8, the transmitter's reflecting side of every facet
+    img1 : (F1, 3) float, its images in the first facets, metres
+    i1 : (M,) int, rows of ``img1``; f1, f2 : (M,) int, first and second facets
+    img2 : (M, 3) float, the second images, metres
+    s_img : (M,) int8, the side of the second facet the first image is on
+    """
+    fc = ctx.scene.facets
+    mask = None if ctx.facet_mask is None else ctx.facet_mask.tobytes()
+    key = (ctx.tx[t].tobytes(), mask, kernels.PRUNE)
+    kept = fc.cache.setdefault("second_images", {})
+    found = kept.get(key)
+    if found is not None:
+        return found
+    centre, radius = accel.facet_spheres(fc)
+    side_t = refl.reflecting_side(fc, ctx.tx[t : t + 1])[0]  # (K,)
+    f1 = np.flatnonzero(side_t != 0)
+    img1 = refl.mirror(np.broadcast_to(ctx.tx[t], (len(f1), 3)), fc.normal[f1], fc.offset[f1])
+    # only first facets with some partner, and side tests only on possible partners
+    rows = pairs[f1].any(axis=1)
+    f1, img1 = f1[rows], img1[rows]
+    cols = np.flatnonzero(pairs[f1].any(axis=0))
+    # first images on a reflecting side of the second facet (exact necessary condition)
+    side_img = refl.reflecting_side(fc, img1, cols)  # (len(f1), len(cols))
+    a, jc = np.nonzero((side_img != 0) & pairs[f1][:, cols])
+    f2 = cols[jc]
+    # beam test: the second facet must meet the rays from the first image through the
+    # first facet (bounding spheres: a necessary condition)
+    beam = refl.cone_reaches(img1[a], centre[f1[a]], radius[f1[a]], centre[f2], radius[f2])
+    a, f2, jc = a[beam], f2[beam], jc[beam]
+    img2 = refl.mirror(img1[a], fc.normal[f2], fc.offset[f2])
+    found = (side_t, img1, a, f1[a], f2, img2, side_img[a, jc])
+    for x in found:
+        x.setflags(write=False)
+    if len(kept) >= SECOND_IMAGES_KEPT:
+        kept.pop(next(iter(kept)))
+    kept[key] = found
+    return found
 
 
 def _c(x: np.ndarray) -> np.ndarray:
