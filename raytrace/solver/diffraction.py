@@ -22,6 +22,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from ..core.jit import carray
 from ..core.vec import cross as _cross
 from ..core.vec import norm
 from ..core.vec import rows as take_rows
@@ -142,7 +143,7 @@ def _surely_inside(fr: _WedgeFrame, wi: np.ndarray, px, py, pz) -> np.ndarray:
     (:func:`raytrace.solver.kernels.surely_inside`).
     """
     wi, px, py, pz = np.broadcast_arrays(wi, px, py, pz)
-    flat = [np.ascontiguousarray(x, dtype=t).reshape(-1)
+    flat = [carray(x, t).reshape(-1)
             for x, t in ((wi, np.int64), (px, float), (py, float), (pz, float))]  # fmt: skip
     return kernels.surely_inside(*fr.kernel_args, *flat).reshape(wi.shape)
 
@@ -159,9 +160,11 @@ def _pure(ctx: TraceContext) -> Paths:
     parts = []
     ctx.count("candidates_d", n_t * n_w * n_r)
     frame, w_all = _wedge_frame(ctx), np.arange(n_w)[:, None]
-    # a transmitter or receiver surely inside the wedge: never a valid diffraction
+    # a transmitter or receiver surely inside the wedge: never a valid diffraction (pruning)
     open_t = ~_surely_inside(frame, w_all, *ctx.tx.T[:, None, :])  # (W, T)
     open_r = ~_surely_inside(frame, w_all, *ctx.rx.T[:, None, :])  # (W, R)
+    if not kernels.PRUNE:
+        open_t[:] = True
     if ctx.wedge_mask is not None:
         open_t &= ctx.wedge_mask[:, None]
     # Keller's point must lie on the edge (padded): tested per (transmitter, wedge) and
@@ -216,24 +219,18 @@ def _pure_candidates(
     return evaluate(ctx, cand, diffraction=field_model(ctx))
 
 
-def _writable(x: np.ndarray) -> np.ndarray:
-    """A writable C-ordered copy: the kernels' signatures take writable arrays, and the scene's
-    cached arrays are read-only."""
-    return np.array(x, order="C", copy=True)
-
-
 class _PairGeometry:
     """What :func:`_facet_wedge_pairs` reuses for every end point: facet spheres, normals,
     offsets and boxes, wedge groups by object with their spheres, and each edge's sphere."""
 
     def __init__(self, ctx: TraceContext) -> None:
-        fc, w, c = ctx.scene.facets, ctx.scene.wedges, _writable
+        fc, w, c = ctx.scene.facets, ctx.scene.wedges, carray
         self.f_centre, self.f_radius = accel.facet_spheres(fc)
         order, start, count, centre, radius = accel.wedge_groups(w)
         lo, hi = accel.facet_boxes(fc, ctx.scene.margin)
-        self.g_order, self.g_start = c(order.astype(np.int64)), c(start.astype(np.int64))
+        self.g_order, self.g_start = c(order, np.int64), c(start, np.int64)
         self.facets = (c(fc.normal), c(fc.offset), c(lo), c(hi))
-        self.groups = (self.g_order, self.g_start, c(count.astype(np.int64)), c(centre), c(radius))
+        self.groups = (self.g_order, self.g_start, c(count, np.int64), c(centre), c(radius))
         length = np.einsum("ij,ij->i", w.end - w.start, w.direction)
         half = 0.5 * w.length * (1 + 1e-9) + 1e-9
         self.wedges = (c(w.start), c(w.end), c(0.5 * (w.start + w.end)), c(half), c(length))

@@ -13,6 +13,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from ..core.jit import carray
 from ..scene import accel
 from . import kernels
 from . import reflection as refl
@@ -82,7 +83,7 @@ def second_order(ctx: TraceContext) -> list[Paths]:
     centre, radius = accel.facet_spheres(fc)
     rx_centre = 0.5 * (ctx.rx.min(axis=0) + ctx.rx.max(axis=0))
     rx_radius = float(np.sqrt(((ctx.rx - rx_centre) ** 2).sum(axis=1)).max()) * (1 + 1e-9) + 1e-9
-    side_rx, rx = _c(side_rx), _c(ctx.rx)
+    side_rx, rx = carray(side_rx, np.int8), carray(ctx.rx)
     out: list[Paths] = []
     for t in range(len(ctx.tx)):
         side_t, img1, i1, f1a, f2, img2, s_img = _second_images(ctx, t, pairs)
@@ -102,7 +103,7 @@ def second_order(ctx: TraceContext) -> list[Paths]:
             b1 = refl.beam(img1[i1[sl]], centre[f1a[sl]], radius[f1a[sl]])
             q, r_idx = kernels.second_order_receivers(
                 f2[sl], s_img[sl], side_rx, *_beam_args(b2), *_beam_args(b1),
-                _c(fc.normal[f2[sl]]), _c(fc.offset[f2[sl]]), rx, kernels.PRUNE,
+                carray(fc.normal[f2[sl]]), carray(fc.offset[f2[sl]]), rx, kernels.PRUNE,
             )  # fmt: skip
             ctx.count("candidates_r2", len(q))
             q = q + c0
@@ -179,11 +180,6 @@ def _second_images(ctx: TraceContext, t: int, pairs: np.ndarray) -> tuple[np.nda
     return found
 
 
-def _c(x: np.ndarray) -> np.ndarray:
-    """A writable C-ordered array (what the kernels take)."""
-    return x if x.flags.c_contiguous and x.flags.writeable else np.array(x, order="C")
-
-
 def _beam_args(b: refl.Beam) -> tuple[np.ndarray, ...]:
     """A beam as :func:`raytrace.solver.kernels.second_order_receivers` takes it."""
-    return _c(b.apex), _c(b.axis), _c(b.cos_a), _c(b.apex_inside)
+    return carray(b.apex), carray(b.axis), carray(b.cos_a), carray(b.apex_inside, bool)
