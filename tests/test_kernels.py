@@ -197,3 +197,24 @@ def test_transmitter_side_work_kept_between_traces_changes_nothing():
             np.testing.assert_array_equal(getattr(kept, name), getattr(again, name))
     assert sc.wedges.cache.get("end_pairs") and sc.facets.cache.get("second_images")
     assert not fresh().wedges.cache.get("end_pairs")
+
+
+def test_read_only_positions_are_traced():
+    """The kernels take writable C arrays; positions a caller made read-only reach them through
+    copies (core.jit.carray), not as a signature error."""
+    from test_diffraction_paths import _cluttered_scene
+
+    from raytrace.solver.tracer import trace
+
+    sc, tx, rx = _cluttered_scene(11)
+    cfg = TraceConfig(max_reflections=2, max_penetrations=1, max_diffractions=1)
+    ref = trace(sc, tx, rx, 3.775e9, cfg, threads=1)
+    tx_ro, rx_ro = tx.copy(), rx.copy()
+    tx_ro.setflags(write=False)
+    rx_ro.setflags(write=False)
+    got = trace(sc, tx_ro, rx_ro, 3.775e9, cfg, threads=1)
+    np.testing.assert_array_equal(got.gain, ref.gain)
+    frame = diffraction._wedge_frame(_ctx(sc, tx, rx))
+    w = np.zeros(len(rx), np.int64)
+    w.setflags(write=False)
+    assert diffraction._surely_inside(frame, w, *rx_ro.T).shape == (len(rx),)
