@@ -23,6 +23,7 @@ from collections.abc import Callable
 import numpy as np
 
 from ..core.jit import carray
+from ..core.kept import keep as keep_bounded
 from ..core.vec import cross as _cross
 from ..core.vec import norm
 from ..core.vec import rows as take_rows
@@ -291,9 +292,7 @@ def _facet_wedge_pairs(
         if found is None:
             found = _end_pairs(fc, geo, fixed, ends[e], side[e])
             if kept is not None:
-                if len(kept) >= END_PAIRS_KEPT:
-                    kept.pop(next(iter(kept)))
-                kept[key] = found
+                keep_bounded(kept, key, found, END_PAIRS_KEPT)
         if len(found[0]):
             outs.append((np.full(len(found[0]), e), *found))
     if not outs:

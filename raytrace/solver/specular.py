@@ -14,6 +14,7 @@ from collections.abc import Callable
 import numpy as np
 
 from ..core.jit import carray
+from ..core.kept import keep
 from ..scene import accel
 from . import kernels
 from . import reflection as refl
@@ -174,10 +175,7 @@ def _second_images(ctx: TraceContext, t: int, pairs: np.ndarray) -> tuple[np.nda
     found = (side_t, img1, a, f1[a], f2, img2, side_img[a, jc])
     for x in found:
         x.setflags(write=False)
-    if len(kept) >= SECOND_IMAGES_KEPT:
-        kept.pop(next(iter(kept)))
-    kept[key] = found
-    return found
+    return keep(kept, key, found, SECOND_IMAGES_KEPT)
 
 
 def _beam_args(b: refl.Beam) -> tuple[np.ndarray, ...]:
