@@ -20,7 +20,7 @@ float64 (:func:`canonical_faces`, :func:`_plane_distance`): the crossings do not
 BVH, which differs between a static scene and a snapshot with forklifts.
 
 The equivalent slab thickness of a chord through a solid is the chord length times the cosine of
-the incidence angle on the more head-on of its entry and exit faces (:func:`_more_head_on`):
+the incidence angle on the more head-on of its entry and exit faces (:func:`kernels._more_head_on`):
 exact for a slab with parallel faces, an approximation for a chord that leaves through another
 face, and the same in both directions along the chord (reciprocity).
 """
@@ -83,13 +83,15 @@ END_GUARD_MARGINS = 10.0
 
 class _Walk:
     """Per-segment state of the walk along segments: recorded penetrations and the solid the
-    segment is inside of. Arrays over the n segments, K slots each."""
+    segment is inside of. Arrays over the n segments, K slots each; updated in place by the
+    compiled loops :func:`raytrace.solver.kernels.walk_boundary` and its siblings."""
 
     def __init__(self, scene: Scene, d: np.ndarray, k: int) -> None:
         n, kk = len(d), max(k, 1)
-        self.scene, self.d, self.k = scene, d, k
-        self.closed = scene.object_closed
-        self.sheet_thickness = scene.material_thickness()[scene.object_material]
+        self.scene, self.d, self.k = scene, carray(d), k
+        self.closed = carray(scene.object_closed, bool)
+        self.sheet_thickness = carray(scene.material_thickness()[scene.object_material])
+        self.face_normal = carray(scene.face_normal)
         self.count = np.zeros(n, dtype=np.int64)
         self.exceeded = np.zeros(n, dtype=bool)
         self.dist = np.full((n, kk), np.inf)
@@ -102,80 +104,42 @@ class _Walk:
         self.t_last = np.zeros(n)  # distance of the last boundary crossed (0: the start)
         self.normal_last = np.zeros((n, 3))  # unit normal of that boundary's face (0: the start)
 
+    @property
+    def _state(self) -> tuple:
+        return (self.d, self.closed, self.k, self.count, self.exceeded, self.dist, self.obj,
+                self.normal, self.thick, self.inside, self.t_in, self.normal_in, self.t_last,
+                self.normal_last)  # fmt: skip
+
     def record(
         self, rows: np.ndarray, t_entry: np.ndarray, o: np.ndarray, fn: np.ndarray, th: np.ndarray
     ) -> None:
         """One penetration of object ``o`` entered at ``t_entry``, chord ``th`` (a sheet: its
         thickness), with the slab's face of unit normal ``fn`` (n, 3): a sheet's, or for a solid
-        the more head-on of its entry and exit faces (:func:`_more_head_on`); a solid's
+        the more head-on of its entry and exit faces (:func:`kernels._more_head_on`); a solid's
         equivalent slab is the chord times cos(incidence) on that face."""
-        slot = self.count[rows]
-        over = slot >= self.k
-        self.exceeded[rows[over]] = True
-        r, s = rows[~over], slot[~over]
-        self.dist[r, s] = t_entry[~over]
-        self.obj[r, s] = o[~over]
-        fn = fn[~over]
-        self.normal[r, s] = fn
-        cos_i = np.abs(np.einsum("ij,ij->i", fn, self.d[r]))
-        self.thick[r, s] = np.maximum(th[~over], 0.0) * np.where(self.closed[o[~over]], cos_i, 1.0)
-        self.count[rows] += 1
+        kernels.walk_record(carray(rows, np.int64), carray(t_entry), carray(o, np.int64),
+                            carray(fn), carray(th), *self._state)  # fmt: skip
 
     def boundary(self, rows: np.ndarray, face: np.ndarray, o: np.ndarray, t_hit: np.ndarray):
-        """The segments ``rows`` meet face ``face`` of object ``o`` at ``t_hit``."""
-        is_closed = self.closed[o]
-        cur = self.inside[rows]
-        # closed solids face outward: the hit face's orientation says whether the segment enters
-        # or leaves (the bookkeeping alone would miss an entry through a face coincident with
-        # the previous exit, two solids stacked, since each hit is stepped over by the margin)
-        fn = self.scene.face_normal[face]
-        dn = np.einsum("ij,ij->i", fn, self.d[rows])
-        leave = is_closed & ((dn > 0) | ((dn == 0.0) & (cur == o)))
-        enter = is_closed & ~leave
-        # open sheet: one penetration through the material's thickness
-        m = ~is_closed
-        if m.any():
-            self.record(rows[m], t_hit[m], o[m], fn[m], self.sheet_thickness[o[m]])
-        # leaving the solid we are inside of: one penetration through the chord
-        m = leave & (cur == o)
-        if m.any():
-            r = rows[m]
-            face_n = _more_head_on(self.normal_in[r], fn[m], self.d[r])
-            self.record(r, self.t_in[r], o[m], face_n, t_hit[m] - self.t_in[r])
-            self.inside[r] = -1
-        # leaving a solid we did not see entering, outside any other: it began at the previous
-        # boundary (a face coincident with it, whose plane is its entry face) or at the
-        # segment's start (no entry face: the exit face stands in). (Leaving a solid while
-        # inside another is the end of an overlap, whose chord was closed on entering the other.)
-        m = leave & (cur < 0)
-        if m.any():
-            self.unseen(rows[m], o[m], fn[m], t_hit[m])
-        # entering a solid (closing an overlapping one first)
-        if enter.any():
-            r = rows[enter]
-            ov = self.inside[r] >= 0
-            if ov.any():
-                rr = r[ov]
-                face_n = _more_head_on(self.normal_in[rr], fn[enter][ov], self.d[rr])
-                self.record(rr, self.t_in[rr], self.inside[rr], face_n,
-                            t_hit[enter][ov] - self.t_in[rr])  # fmt: skip
-            self.inside[r] = o[enter]
-            self.t_in[r] = t_hit[enter]
-            self.normal_in[r] = fn[enter]
-        self.t_last[rows] = t_hit
-        self.normal_last[rows] = fn
+        """The segments ``rows`` meet face ``face`` of object ``o`` at ``t_hit``: closed solids
+        face outward, so the hit face's orientation says whether the segment enters or leaves
+        (the bookkeeping alone would miss an entry through a face coincident with the previous
+        exit, two solids stacked, since each hit is stepped over by the margin); an open sheet
+        is one penetration through the material's thickness; leaving the solid the segment is
+        inside of closes its chord; a solid left without a seen entry, outside any other, began
+        at the previous boundary or at the segment's start (:meth:`unseen`); entering a solid
+        closes an overlapping one first."""
+        kernels.walk_boundary(carray(rows, np.int64), carray(face, np.int64),
+                              carray(o, np.int64), carray(t_hit), self.face_normal,
+                              self.sheet_thickness, *self._state)  # fmt: skip
 
     def unseen(self, r: np.ndarray, o: np.ndarray, fn_exit: np.ndarray, t_exit: np.ndarray):
         """The segments ``r``, outside any solid, leave solid ``o`` at ``t_exit`` through a face
         of normal ``fn_exit`` without a seen entry: it was entered at the previous boundary
         (through a coincident face: that boundary's plane, turned against the ray, is the entry
         face) or the segment starts in it (no entry face: the exit face stands in)."""
-        prev = self.normal_last[r]
-        start = ~prev.any(axis=1)
-        side = np.where(np.einsum("ij,ij->i", prev, self.d[r]) > 0, -1.0, 1.0)
-        n_entry = np.where(start[:, None], fn_exit, side[:, None] * prev)
-        face_n = _more_head_on(n_entry, fn_exit, self.d[r])
-        self.record(r, self.t_last[r], o, face_n, t_exit - self.t_last[r])
+        kernels.walk_unseen(carray(r, np.int64), carray(o, np.int64), carray(fn_exit),
+                            carray(t_exit), *self._state)  # fmt: skip
 
     def result(self, a: np.ndarray, tmax: np.ndarray) -> Crossings:
         """The crossings, after closing the chord of segments that end inside a solid."""
@@ -194,24 +158,6 @@ class _Walk:
         dist, point, obj, normal, thick = arrays
         return Crossings(self.count, self.exceeded | (self.count > k), dist, point, obj, normal,
                          thick)  # fmt: skip
-
-
-def _more_head_on(n_a: np.ndarray, n_b: np.ndarray, d: np.ndarray) -> np.ndarray:
-    """Of two face normals (n, 3) each, the one the rays ``d`` meet more head-on (larger
-    ``|cos|``; ``n_a`` among equals).
-
-    A chord through a solid is taken as a slab (ITU-R P.2040 sec. 3) of thickness chord x cos on
-    one face, at that face's incidence angle. On the entry face alone, a ray that enters a box
-    through a side at grazing incidence and leaves through its end head-on would cross a thin
-    slab one way and the whole chord the other way round (the hall: up to 1.7 m of delay and a
-    factor 30 in gain between the two directions of one path). Entry and exit swap when the ray
-    is reversed, so the more head-on of the two gives the same slab both ways (reciprocity);
-    with parallel faces (a wall) both give the exact slab. The straight ray's length inside is
-    the chord either way; at the more head-on face the slab's own refraction shortens it least.
-    """
-    ca = np.abs(np.einsum("ij,ij->i", n_a, d))
-    cb = np.abs(np.einsum("ij,ij->i", n_b, d))
-    return np.where((cb > ca)[:, None], n_b, n_a)
 
 
 def canonical_faces(
