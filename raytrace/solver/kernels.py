@@ -350,6 +350,26 @@ def _dot3(x0, x1, x2, y0, y1, y2):
     return (x0 * y0 + x2 * y2) + x1 * y1
 
 
+@inline
+def _span(normal, offset, count, ob, ax, ay, az, dx, dy, dz, inset):
+    """One line against one convex solid: see :func:`line_span` (``lo > hi``: no span)."""
+    lo, hi, par = -np.inf, np.inf, False
+    for k in range(count[ob]):
+        nx, ny, nz = normal[ob, k, 0], normal[ob, k, 1], normal[ob, k, 2]
+        dn = _dot3(nx, ny, nz, dx, dy, dz)
+        # signed distance of the line's points from the plane, at least inset inside:
+        # s + t dn <= 0
+        s = _dot3(nx, ny, nz, ax, ay, az) - offset[ob, k] + inset
+        tp = -s / dn
+        if dn < 0 and tp > lo:
+            lo = tp
+        elif dn > 0 and tp < hi:
+            hi = tp
+        elif dn == 0 and s > 0:
+            par = True
+    return count[ob] > 0, lo, hi, par
+
+
 @kernel(
     "Tuple((b1[::1], f8[::1], f8[::1], b1[::1]))("
     "f8[:, :, ::1], f8[:, ::1], i8[::1], i8[::1], f8[:, ::1], f8[:, ::1], f8)"
@@ -371,28 +391,24 @@ def line_span(normal, offset, count, o, a, d, inset):
     t_out = np.full(n, -np.inf)
     parallel_out = np.zeros(n, dtype=np.bool_)
     for r in range(n):
-        ob = o[r]
-        kk = count[ob]
-        if kk == 0:
-            continue
-        convex[r] = True
-        lo, hi, par = -np.inf, np.inf, False
-        for k in range(kk):
-            dn = _dot3(normal[ob, k, 0], normal[ob, k, 1], normal[ob, k, 2],
-                       d[r, 0], d[r, 1], d[r, 2])  # fmt: skip
-            # signed distance of the line's points from the plane, at least inset inside:
-            # s + t dn <= 0
-            s = _dot3(normal[ob, k, 0], normal[ob, k, 1], normal[ob, k, 2],
-                      a[r, 0], a[r, 1], a[r, 2]) - offset[ob, k] + inset  # fmt: skip
-            tp = -s / dn
-            if dn < 0 and tp > lo:
-                lo = tp
-            elif dn > 0 and tp < hi:
-                hi = tp
-            elif dn == 0 and s > 0:
-                par = True
-        t_in[r], t_out[r], parallel_out[r] = lo, hi, par
+        cv, lo, hi, par = _span(normal, offset, count, o[r], a[r, 0], a[r, 1], a[r, 2],
+                                d[r, 0], d[r, 1], d[r, 2], inset)  # fmt: skip
+        if cv:
+            convex[r], t_in[r], t_out[r], parallel_out[r] = True, lo, hi, par
     return convex, t_in, t_out, parallel_out
+
+
+@inline
+def _edge_distance(corners, edge_normals, f, px, py, pz):
+    """One point against one triangle: see :func:`edge_distance`."""
+    worst = -np.inf
+    for i in range(3):
+        v = ((px - corners[f, i, 0]) * edge_normals[f, i, 0]
+             + (py - corners[f, i, 1]) * edge_normals[f, i, 1]) \
+            + (pz - corners[f, i, 2]) * edge_normals[f, i, 2]  # fmt: skip
+        if v > worst or v != v:
+            worst = v
+    return worst
 
 
 @kernel("f8[::1](f8[:, :, ::1], f8[:, :, ::1], i8[::1], f8[:, ::1])")
@@ -402,16 +418,53 @@ def edge_distance(corners, edge_normals, face, point):
     in-plane unit ``edge_normals`` (F, 3, 3), edge ``i`` from corner ``i``); <= 0 inside."""
     out = np.empty(len(face))
     for r in range(len(face)):
-        f = face[r]
-        worst = -np.inf
-        for i in range(3):
-            v = ((point[r, 0] - corners[f, i, 0]) * edge_normals[f, i, 0]
-                 + (point[r, 1] - corners[f, i, 1]) * edge_normals[f, i, 1]) \
-                + (point[r, 2] - corners[f, i, 2]) * edge_normals[f, i, 2]  # fmt: skip
-            if v > worst or v != v:
-                worst = v
-        out[r] = worst
+        out[r] = _edge_distance(corners, edge_normals, face[r], point[r, 0], point[r, 1],
+                                point[r, 2])  # fmt: skip
     return out
+
+
+@kernel(
+    "Tuple((f8[:, ::1], f8[::1], f8[::1], b1[::1]))("
+    "i8[::1], i8[::1], f8[:, ::1], f8[:, ::1], f8[::1], f8[:, ::1], f8[:, :, ::1], "
+    "f8[:, :, ::1], f8[:, :, ::1], f8[:, ::1], i8[::1], f8)"
+)
+def hit_contacts(face, o, a, d, t, face_normal, corners, edge_normals, normal, offset, count,
+                 tol):  # fmt: skip
+    """Where hits on faces ``face`` of objects ``o`` (rays ``a + t d``) lie on their triangles,
+    and which only touch their solid (:func:`raytrace.solver.penetration.canonical_faces`).
+
+    Returns
+    -------
+    point : (n, 3) float, the hit points, metres
+    edge : (n,) float, their signed distance from their triangle's boundary, metres
+    side : (n,) float, the sign of the ray's direction along the face's normal
+    touch : (n,) bool, the ray's line never gets ``tol`` deep into the convex solid (tested
+        only where the hit is close enough to the triangle's boundary for that to be possible:
+        closer than ``tol + 2 tol / |cos|``)
+    """
+    n = len(face)
+    point = np.empty((n, 3))
+    edge = np.empty(n)
+    side = np.empty(n)
+    touch = np.zeros(n, dtype=np.bool_)
+    for r in range(n):
+        f = face[r]
+        px = a[r, 0] + t[r] * d[r, 0]
+        py = a[r, 1] + t[r] * d[r, 1]
+        pz = a[r, 2] + t[r] * d[r, 2]
+        point[r, 0], point[r, 1], point[r, 2] = px, py, pz
+        e = _edge_distance(corners, edge_normals, f, px, py, pz)
+        edge[r] = e
+        dn = _dot3(face_normal[f, 0], face_normal[f, 1], face_normal[f, 2],
+                   d[r, 0], d[r, 1], d[r, 2])  # fmt: skip
+        side[r] = np.sign(dn)
+        cos = abs(dn)
+        cos = cos if (cos > 1e-300 or cos != cos) else 1e-300  # numpy's maximum(cos, 1e-300)
+        if e >= -(tol + 2.0 * tol / cos):
+            cv, lo, hi, par = _span(normal, offset, count, o[r], a[r, 0], a[r, 1], a[r, 2],
+                                    d[r, 0], d[r, 1], d[r, 2], tol)  # fmt: skip
+            touch[r] = cv and (par or hi <= lo)
+    return point, edge, side, touch
 
 
 # -- penetration: the segment walk's bookkeeping (raytrace.solver.penetration._Walk) ------------

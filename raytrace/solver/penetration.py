@@ -91,7 +91,7 @@ class _Walk:
         self.scene, self.d, self.k = scene, carray(d), k
         self.closed = carray(scene.object_closed, bool)
         self.sheet_thickness = carray(scene.material_thickness()[scene.object_material])
-        self.face_normal = carray(scene.face_normal)
+        self.face_normal = _face_normals(scene)
         self.count = np.zeros(n, dtype=np.int64)
         self.exceeded = np.zeros(n, dtype=bool)
         self.dist = np.full((n, kk), np.inf)
@@ -202,17 +202,15 @@ def canonical_faces(
     if len(face) == 0:
         return out, np.zeros(0, dtype=bool)
     tol = CONTACT_TOL_MARGINS * scene.margin
-    point = a + t[:, None] * d
-    edge = _edge_distance(scene, face, point)
-    side = np.sign(np.einsum("ij,ij->i", scene.face_normal[face], d))
     # A ray that crosses a face further inside it than it needs to go deep into the solid (2 tol
     # along the normal, at most as far sideways, and tol more) does not merely touch it: only
-    # the other hits are tested (a shortcut; thinner solids than 3 tol are not handled).
-    cos = np.abs(np.einsum("ij,ij->i", scene.face_normal[face], d))
-    maybe = edge >= -(tol + 2.0 * tol / np.maximum(cos, 1e-300))
-    touch = np.zeros(len(face), dtype=bool)
-    if maybe.any():
-        touch[maybe] = touches(scene, o[maybe], a[maybe], d[maybe], tol)
+    # the other hits are tested for a touch (a shortcut; thinner solids than 3 tol are not
+    # handled)
+    corners, edge_normals = _edge_planes(scene)
+    point, edge, side, touch = kernels.hit_contacts(
+        carray(face, np.int64), carray(o, np.int64), carray(a), carray(d), carray(t),
+        _face_normals(scene), corners, edge_normals, *_convex_plane_arrays(scene), float(tol),
+    )  # fmt: skip
     near = edge >= -tol
     if not near.any():
         return out, touch
@@ -289,12 +287,27 @@ def _line_span(
     parallel to a plane and beyond it (no span). Objects are taken by their number of planes
     (the first ``count`` slots are theirs): most are boxes, and padding every row to the largest
     solid's planes would triple the work."""
-    normal, offset, valid = _convex_planes(scene)
-    count = scene.__dict__.get("_convex_plane_count")
-    if count is None:
-        count = scene.__dict__["_convex_plane_count"] = valid.sum(axis=1).astype(np.int64)
-    return kernels.line_span(normal, offset, count, carray(o, np.int64), carray(a), carray(d),
-                             float(inset))  # fmt: skip
+    return kernels.line_span(*_convex_plane_arrays(scene), carray(o, np.int64), carray(a),
+                             carray(d), float(inset))  # fmt: skip
+
+
+def _convex_plane_arrays(scene: Scene) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`_convex_planes` as the kernels take them: normals (O, K, 3), offsets (O, K) and
+    each object's number of planes (O,) (cached)."""
+    cache = scene.__dict__.get("_convex_plane_arrays")
+    if cache is None:
+        normal, offset, valid = _convex_planes(scene)
+        cache = (normal, offset, valid.sum(axis=1).astype(np.int64))
+        scene.__dict__["_convex_plane_arrays"] = cache
+    return cache
+
+
+def _face_normals(scene: Scene) -> np.ndarray:
+    """The scene's face normals (F, 3) as the kernels take them (cached)."""
+    cache = scene.__dict__.get("_face_normals_c")
+    if cache is None:
+        cache = scene.__dict__["_face_normals_c"] = carray(scene.face_normal)
+    return cache
 
 
 def touches(
