@@ -1,12 +1,22 @@
-"""Compiled pruning loops of the diffraction stages (:mod:`raytrace.core.jit`).
+"""Compiled loops of the tracer (numba, options in :mod:`raytrace.core.jit`).
 
-The mixed stages (RD, DR, RDR) look for (end point, facet, wedge) triples where a reflection in
-the facet can reach the edge, then expand each triple over the other ends. In numpy both steps
-build dense (object, facet), (edge, facet) and (triple, other end) matrices of which a few per
-cent survive; these loops test the same exact necessary conditions, cheapest first, and stop at
-the first that fails. They only prune: which paths are found is decided by the exact tests
-after them (Keller's point on the edge, point in facet, wedge validity, Embree), so the traced
-paths are the same as with the numpy form (``tools/trace_identity.py``: bitwise).
+* **Pruning** (:func:`facet_wedge_pairs`, :func:`expand_over_others`,
+  :func:`second_order_receivers`, :func:`surely_inside`). The mixed stages (RD, DR, RDR) look
+  for (end point, facet, wedge) triples where a reflection in the facet can reach the edge, then
+  expand each triple over the other ends; double reflections test second images against the
+  receivers. In numpy these steps built dense (object, facet), (edge, facet), (triple, other
+  end) and (image, receiver) matrices of which a few per cent survive; these loops test the
+  same exact necessary conditions, cheapest first, and stop at the first that fails. They only
+  prune: which paths are found is decided by the exact tests after them (Keller's point on the
+  edge, point in facet, wedge validity, Embree), and :data:`PRUNE` switches them off to show it.
+* **Penetration** (:func:`line_span`, :func:`edge_distance`, :func:`hit_contacts`,
+  :func:`walk_boundary`, :func:`walk_record`, :func:`walk_unseen`): lines against convex solids,
+  points against triangles, and the bookkeeping of the segment walk
+  (:mod:`raytrace.solver.penetration`), one hit at a time.
+
+Every kernel writes the numpy expression it replaced in numpy's order, so the traced paths are
+bitwise those of the numpy form on the machine they were checked on
+(``tools/trace_identity.py``).
 """
 
 from __future__ import annotations
@@ -16,7 +26,8 @@ import numpy as np
 from ..core.jit import inline, kernel
 
 __all__ = ["PRUNE", "surely_inside", "facet_wedge_pairs", "expand_over_others",
-           "second_order_receivers"]
+           "second_order_receivers", "line_span", "edge_distance", "hit_contacts", "walk_boundary",
+           "walk_record", "walk_unseen"]
 
 #: The callers pass this as the kernels' ``prune``: False switches their pruning tests off (they
 #: then return every candidate that satisfies the rules, with unbounded spans), so that a trace
