@@ -40,9 +40,13 @@ def test_kernel_without_a_cache_location_compiles_in_memory(monkeypatch):
 
     monkeypatch.setattr(numba, "njit", no_locator)
 
+    @jit.inline
+    def half(x):
+        return 0.5 * x
+
     @jit.kernel("f8(f8)")
     def twice(x):
-        return 2.0 * x
+        return 4.0 * half(x)
 
     assert twice(1.5) == 3.0
 

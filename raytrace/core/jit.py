@@ -30,26 +30,28 @@ __all__ = ["kernel", "inline", "carray"]
 _OPTIONS: dict[str, Any] = dict(cache=True, nogil=True, error_model="numpy", fastmath=False)
 
 
+def _njit(fn: Callable[..., Any], *args: Any, **options: Any) -> Any:
+    """``numba.njit(*args, **options)(fn)`` with the project's options; where no cache directory
+    is writable (numba finds no cache locator), compiled without the cache instead."""
+    try:
+        return numba.njit(*args, **_OPTIONS, **options)(fn)
+    except RuntimeError as exc:
+        if "no locator available" not in str(exc):
+            raise
+        return numba.njit(*args, **{**_OPTIONS, "cache": False}, **options)(fn)
+
+
 def kernel(signature: str) -> Callable[[Callable[..., Any]], Any]:
     """Decorator: a numba kernel of the given signature with the project's options (module
-    docstring). Where no cache directory is writable (numba finds no cache locator), the kernel
-    is compiled in every process instead."""
-
-    def wrap(fn: Callable[..., Any]) -> Any:
-        try:
-            return numba.njit(signature, **_OPTIONS)(fn)
-        except RuntimeError as exc:
-            if "no locator available" not in str(exc):
-                raise
-            return numba.njit(signature, **{**_OPTIONS, "cache": False})(fn)
-
-    return wrap
+    docstring). Where no cache directory is writable, the kernel is compiled in every process
+    instead."""
+    return lambda fn: _njit(fn, signature)
 
 
 def inline(fn: Callable[..., Any]) -> Any:
     """Decorator: a scalar helper of kernels, compiled into each kernel that calls it (typed
     by its callers), with the same options."""
-    return numba.njit(inline="always", **_OPTIONS)(fn)
+    return _njit(fn, inline="always")
 
 
 def carray(x: Any, dtype: Any = np.float64) -> np.ndarray:
