@@ -87,13 +87,15 @@ def _beam_reaches(ax, ay, az, ux, uy, uz, cos_a, sin_a, inside, cx, cy, cz, radi
 
 
 @inline
-def _grow(buf, n):
-    """``buf`` with room for at least ``n`` rows (doubled, contents kept)."""
-    if n <= len(buf):
-        return buf
-    new = np.empty(max(n, 2 * len(buf)), dtype=buf.dtype)
-    new[: len(buf)] = buf
-    return new
+def _put(buf, m, value):
+    """``buf`` with ``value`` written at row ``m``: the output buffers of the kernels, doubled
+    (contents kept) when full; the caller keeps the count and returns ``buf[:m]``."""
+    if m == len(buf):
+        new = np.empty(2 * len(buf), dtype=buf.dtype)
+        new[:m] = buf
+        buf = new
+    buf[m] = value
+    return buf
 
 
 _PAIRS_SIG = (
@@ -175,10 +177,8 @@ def facet_wedge_pairs(f_ok, sgn, h_f, img_c, axis_c, cos_a, sin_a, apex_in,
                 if not (da > eps or db > eps):
                     continue
                 if not prune:
-                    if m == len(out_f):
-                        out_f, out_w = _grow(out_f, m + 1), _grow(out_w, m + 1)
-                        out_lo, out_hi = _grow(out_lo, m + 1), _grow(out_hi, m + 1)
-                    out_f[m], out_w[m], out_lo[m], out_hi[m] = j, w, -np.inf, np.inf
+                    out_f, out_w = _put(out_f, m, j), _put(out_w, m, w)
+                    out_lo, out_hi = _put(out_lo, m, -np.inf), _put(out_hi, m, np.inf)
                     m += 1
                     continue
                 if not _beam_reaches(ix, iy, iz, ux, uy, uz, ca, sa, ai,
@@ -222,13 +222,9 @@ def facet_wedge_pairs(f_ok, sgn, h_f, img_c, axis_c, cos_a, sin_a, apex_in,
                 length = w_length[w]
                 t_a = u * length if cut_a else 0.0
                 t_b = u * length if cut_b else length
-                if m == len(out_f):
-                    out_f, out_w = _grow(out_f, m + 1), _grow(out_w, m + 1)
-                    out_lo, out_hi = _grow(out_lo, m + 1), _grow(out_hi, m + 1)
-                out_f[m] = j
-                out_w[m] = w
-                out_lo[m] = t_a + lam_in * (t_b - t_a) - pad
-                out_hi[m] = t_a + lam_out * (t_b - t_a) + pad
+                out_f, out_w = _put(out_f, m, j), _put(out_w, m, w)
+                out_lo = _put(out_lo, m, t_a + lam_in * (t_b - t_a) - pad)
+                out_hi = _put(out_hi, m, t_a + lam_out * (t_b - t_a) + pad)
                 m += 1
     return out_f[:m].copy(), out_w[:m].copy(), out_lo[:m].copy(), out_hi[:m].copy()
 
@@ -272,11 +268,7 @@ def expand_over_others(ts, rho_s, t_lo, t_hi, w_idx, td_w, rho_w, open_w, start,
                 continue
             t = tq + (td - tq) * rq / (rq + rho_w[w, o])
             if (t >= lo_q and t <= hi_q) or not prune:
-                if m == len(out_q):
-                    out_q = _grow(out_q, m + 1)
-                    out_o = _grow(out_o, m + 1)
-                out_q[m] = q
-                out_o[m] = o
+                out_q, out_o = _put(out_q, m, q), _put(out_o, m, o)
                 m += 1
     return out_q[:m].copy(), out_o[:m].copy()
 
@@ -344,11 +336,7 @@ def second_order_receivers(f2, s_img, side_rx, apex2, axis2, cos2, in2, apex1, a
             if prune and not _in_both_beams(apex2, axis2, cos2, in2, apex1, axis1, cos1, in1,
                                             nx, ny, nz, off, rx, q, r):  # fmt: skip
                 continue
-            if m == len(out_q):
-                out_q = _grow(out_q, m + 1)
-                out_r = _grow(out_r, m + 1)
-            out_q[m] = q
-            out_r[m] = r
+            out_q, out_r = _put(out_q, m, q), _put(out_r, m, r)
             m += 1
     return out_q[:m].copy(), out_r[:m].copy()
 
