@@ -390,3 +390,51 @@ def test_off_the_solid_closed_form():
     shift, t_end = _off_the_solid(sc, np.array([face]), np.array([0]), a, d)
     np.testing.assert_allclose(shift[0], [0.0, -2 * tol, 0.0], atol=1e-15)
     np.testing.assert_allclose(t_end[0], 3.0 + tol, rtol=1e-12)
+
+
+def _faces_containing(sc, point, tol=1e-9):
+    """Faces whose triangle contains ``point`` (barycentric coordinates, independent of the
+    tracer's edge planes)."""
+    out = []
+    for f, tri in enumerate(sc.vertices[sc.faces]):
+        e1, e2, rel = tri[1] - tri[0], tri[2] - tri[0], point - tri[0]
+        n = np.cross(e1, e2)
+        if abs(rel @ n) / np.linalg.norm(n) > tol:
+            continue
+        g = np.array([[e1 @ e1, e1 @ e2], [e1 @ e2, e2 @ e2]])
+        u, v = np.linalg.solve(g, [rel @ e1, rel @ e2])
+        if u >= -tol and v >= -tol and u + v <= 1 + tol:
+            out.append(f)
+    return np.array(out)
+
+
+@pytest.mark.parametrize("leaving", [False, True])
+@pytest.mark.parametrize("steep", [False, True])
+def test_a_hit_on_a_cube_edge_is_booked_on_the_face_met_most_head_on(leaving, steep):
+    """A ray through the edge x = 0, z = 1 of the unit cube meets the side x = 0 at cos 0.894
+    and the top at cos 0.447 (``steep``: the other way round): whichever face containing the
+    point Embree reports, the hit is booked on the lowest-index triangle of the face met most
+    head-on that contains it, entering or leaving; a hit in the middle of a face keeps its
+    face."""
+    from raytrace.solver.penetration import canonical_faces
+
+    sc = make_scene([("cube", box((0, 0, 0), (1, 1, 1)), "concrete")])
+    hit = np.array([0.0, 0.37, 1.0])
+    d = np.array([0.5, 0.0, -1.0] if steep else [1.0, 0.0, -0.5]) / np.sqrt(1.25)
+    if leaving:  # the same line the other way: it leaves the cube through the edge
+        d = -d
+    on = _faces_containing(sc, hit)
+    normal = sc.face_normal[on]
+    assert len(on) >= 2 and {tuple(n) for n in normal.round(12)} == {(-1, 0, 0), (0, 0, 1)}
+    want = on[np.flatnonzero(np.isclose(normal[:, 2] if steep else -normal[:, 0], 1))[0]]
+    a = hit - 3.0 * d
+    face, touch = canonical_faces(sc, on, np.zeros(len(on), np.int64), np.repeat(a[None], len(on), 0),
+                                  np.repeat(d[None], len(on), 0), np.full(len(on), 3.0))  # fmt: skip
+    np.testing.assert_array_equal(face, want)
+    assert not touch.any()
+    # the middle of the top face: far from every edge, the reported face stands
+    mid = np.array([0.5, 0.37, 1.0])
+    top = _faces_containing(sc, mid)[:1]
+    face, _ = canonical_faces(sc, top, np.zeros(1, np.int64), (mid - 3.0 * d)[None], d[None],
+                              np.array([3.0]))  # fmt: skip
+    np.testing.assert_array_equal(face, top)

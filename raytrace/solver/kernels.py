@@ -10,13 +10,15 @@
   prune: which paths are found is decided by the exact tests after them (Keller's point on the
   edge, point in facet, wedge validity, Embree), and :data:`PRUNE` switches them off to show it.
 * **Penetration** (:func:`line_span`, :func:`edge_distance`, :func:`hit_contacts`,
-  :func:`walk_boundary`, :func:`walk_record`, :func:`walk_unseen`): lines against convex solids,
-  points against triangles, and the bookkeeping of the segment walk
-  (:mod:`raytrace.solver.penetration`), one hit at a time.
+  :func:`canonical_face`, :func:`walk_boundary`, :func:`walk_record`, :func:`walk_unseen`):
+  lines against convex solids, points against triangles, the face a hit at an edge is booked
+  on, and the bookkeeping of the segment walk (:mod:`raytrace.solver.penetration`), one hit at a
+  time.
 
-Every kernel writes the numpy expression it replaced in numpy's order, so the traced paths are
-bitwise those of the numpy form on the machine they were checked on
-(``tools/trace_identity.py``).
+Every kernel but :func:`canonical_face` writes the numpy expression it replaced in numpy's order,
+so the traced paths are bitwise those of the numpy form on the machine they were checked on
+(``tools/trace_identity.py``); the numpy form of :func:`canonical_face` took its dot products
+from BLAS, whose summation order is the library's own.
 """
 
 from __future__ import annotations
@@ -26,8 +28,8 @@ import numpy as np
 from ..core.jit import inline, kernel
 
 __all__ = ["PRUNE", "surely_inside", "facet_wedge_pairs", "expand_over_others",
-           "second_order_receivers", "line_span", "edge_distance", "hit_contacts", "walk_boundary",
-           "walk_record", "walk_unseen"]
+           "second_order_receivers", "line_span", "edge_distance", "hit_contacts", "canonical_face",
+           "walk_boundary", "walk_record", "walk_unseen"]
 
 #: The callers pass this as the kernels' ``prune``: False switches their pruning tests off (they
 #: then return every candidate that satisfies the rules, with unbounded spans), so that a trace
@@ -464,6 +466,51 @@ def hit_contacts(face, o, a, d, t, face_normal, corners, edge_normals, normal, o
                                     d[r, 0], d[r, 1], d[r, 2], tol)  # fmt: skip
             touch[r] = cv and (par or hi <= lo)
     return point, edge, side, touch
+
+
+@kernel(
+    "i8[::1](i8[::1], i8[::1], f8[:, ::1], f8[:, ::1], f8[::1], i8[::1], i8[::1], f8[:, ::1], "
+    "f8[:, :, ::1], f8[:, :, ::1], f8)"
+)
+def canonical_face(face, o, point, d, side, face_start, face_count, face_normal, corners,
+                   edge_normals, tol):  # fmt: skip
+    """The face each hit near an edge is booked on
+    (:func:`raytrace.solver.penetration.canonical_faces`): of the faces of object ``o`` whose
+    plane passes within ``tol`` of the hit ``point``, whose triangle contains it within ``tol``
+    and that the ray ``d`` meets the same way (``sign(d . n) == side``), and the reported
+    ``face``, the one met most head-on (largest ``|d . n|``; the lowest index among equals).
+
+    Parameters
+    ----------
+    face, o : (n,) int, the reported faces and their objects
+    point, d : (n, 3) float, hit points (metres) and unit ray directions
+    side : (n,) float, sign of the reported face's ``d . n``
+    face_start, face_count : (O,) int, each object's faces
+    face_normal : (F, 3) float; corners, edge_normals : (F, 3, 3) float, as :func:`edge_distance`
+    tol : float, metres
+
+    Returns
+    -------
+    (n,) int, the chosen faces
+    """
+    out = np.empty(len(face), dtype=np.int64)
+    for r in range(len(face)):
+        px, py, pz = point[r, 0], point[r, 1], point[r, 2]
+        dx, dy, dz = d[r, 0], d[r, 1], d[r, 2]
+        best, best_score = face[r], -np.inf
+        start = face_start[o[r]]
+        for c in range(start, start + face_count[o[r]]):
+            nx, ny, nz = face_normal[c, 0], face_normal[c, 1], face_normal[c, 2]
+            dn = (dx * nx + dy * ny) + dz * nz
+            ok = c == face[r]
+            if not ok and np.sign(dn) == side[r]:
+                h = ((px - corners[c, 0, 0]) * nx + (py - corners[c, 0, 1]) * ny) \
+                    + (pz - corners[c, 0, 2]) * nz  # fmt: skip
+                ok = abs(h) <= tol and _edge_distance(corners, edge_normals, c, px, py, pz) <= tol
+            if ok and abs(dn) > best_score:
+                best, best_score = c, abs(dn)
+        out[r] = best
+    return out
 
 
 # -- penetration: the segment walk's bookkeeping (raytrace.solver.penetration._Walk) ------------

@@ -211,25 +211,14 @@ def canonical_faces(
         carray(face, np.int64), carray(o, np.int64), carray(a), carray(d), carray(t),
         _face_normals(scene), corners, edge_normals, *_convex_plane_arrays(scene), float(tol),
     )  # fmt: skip
-    near = edge >= -tol
-    if not near.any():
-        return out, touch
-    for obj in np.unique(o[near]):  # few rows: hits within a margin of an edge
-        rows = np.flatnonzero(near & (o == obj))
-        ob = scene.objects[obj]
-        cand = np.arange(ob.face_start, ob.face_start + ob.face_count)
-        nrm = scene.face_normal[cand]  # (c, 3)
-        v0 = scene.vertices[scene.faces[cand, 0]]
-        # (r, c): on the face's plane, inside its triangle, facing the ray the same way
-        rel = point[rows, None, :] - v0[None]
-        plane = np.abs((rel * nrm[None]).sum(axis=2)) <= tol
-        inside = _edge_distance(scene, cand[None, :], point[rows, None, :]) <= tol
-        same = np.sign(d[rows] @ nrm.T) == side[rows, None]
-        ok = plane & inside & same
-        ok[np.arange(len(rows)), face[rows] - ob.face_start] = True  # the reported one counts
-        # the most head-on of them (first index among equals)
-        score = np.where(ok, np.abs(d[rows] @ nrm.T), -1.0)
-        out[rows] = cand[np.argmax(score, axis=1)]
+    near = np.flatnonzero(edge >= -tol)  # few rows: hits within a tolerance of an edge
+    if len(near):
+        face_start, face_count = _object_faces(scene)
+        out[near] = kernels.canonical_face(
+            carray(face[near], np.int64), carray(o[near], np.int64), point[near],
+            carray(d[near]), side[near], face_start, face_count, _face_normals(scene), corners,
+            edge_normals, float(tol),
+        )  # fmt: skip
     return out, touch
 
 
@@ -299,6 +288,17 @@ def _convex_plane_arrays(scene: Scene) -> tuple[np.ndarray, np.ndarray, np.ndarr
         normal, offset, valid = _convex_planes(scene)
         cache = (normal, offset, valid.sum(axis=1).astype(np.int64))
         scene.__dict__["_convex_plane_arrays"] = cache
+    return cache
+
+
+def _object_faces(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
+    """Each object's first face and number of faces, (O,) int each, as the kernels take them
+    (cached)."""
+    cache = scene.__dict__.get("_object_faces_c")
+    if cache is None:
+        count = np.array([ob.face_count for ob in scene.objects], dtype=np.int64)
+        cache = (carray(scene.object_face_start, np.int64), count)
+        scene.__dict__["_object_faces_c"] = cache
     return cache
 
 
