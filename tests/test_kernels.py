@@ -218,3 +218,57 @@ def test_read_only_positions_are_traced():
     w = np.zeros(len(rx), np.int64)
     w.setflags(write=False)
     assert diffraction._surely_inside(frame, w, *rx_ro.T).shape == (len(rx),)
+
+
+def _unit(v):
+    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
+def test_track_fields_applies_the_numpy_interactions_in_order():
+    """Two segments with a penetration each and a reflection or a diffraction between them:
+    the compiled loop gives what ``apply_te_tm`` and ``utd.diffracted_field`` (numpy) give
+    applied one after the other, to rounding (numpy's complex products use fused multiply-adds
+    on some CPUs)."""
+    from raytrace.physics import utd
+    from raytrace.solver.evaluate import apply_te_tm, vertical_pol
+    from raytrace.solver.paths import DIFFRACTION, REFLECTION
+
+    rng = np.random.default_rng(3)
+    m = 400
+    pts = rng.uniform(-5, 5, (m, 3, 3))
+    dirs = _unit(pts[:, 1:] - pts[:, :-1])  # (m, 2, 3)
+    pen_n = _unit(rng.normal(size=(m, 2, 1, 3)))
+    pen_c = rng.normal(size=(m, 2, 1, 2)) + 1j * rng.normal(size=(m, 2, 1, 2))
+    normal = _unit(rng.normal(size=(m, 1, 3)))
+    r_c = rng.normal(size=(m, 1, 2)) + 1j * rng.normal(size=(m, 1, 2))
+    # a wedge per path: edge through the middle vertex, normals perpendicular to it
+    edge = _unit(rng.normal(size=(m, 3)))
+    n0 = _unit(np.cross(edge, rng.normal(size=(m, 3))))
+    nn = _unit(np.cross(edge, rng.normal(size=(m, 3))))
+    geo = utd.wedge_geometry(pts[:, 0], pts[:, 2], pts[:, 1], edge, n0, nn)
+    d_mat, spreading = utd.diffraction_matrix(geo, 3.775e9)
+    e_start, e_rx = vertical_pol(dirs[:, 0]), vertical_pol(dirs[:, 1])
+    assert 0.2 < geo.valid.mean() < 1.0  # some diffractions are not valid (ends in the wedge)
+    for kind in (REFLECTION, DIFFRACTION):
+        kinds = np.full((m, 1), kind, np.int8)
+        basis = np.stack([geo.beta_hat_in, geo.phi_hat_in, geo.beta_hat_out, geo.phi_hat_out], 1)
+        got = kernels.track_fields(
+            e_start.astype(complex), np.ascontiguousarray(dirs), np.ones((m, 2), np.int64), pen_n,
+            np.ascontiguousarray(pen_c[..., 0]), np.ascontiguousarray(pen_c[..., 1]), kinds,
+            normal, np.ascontiguousarray(r_c[..., 0]), np.ascontiguousarray(r_c[..., 1]),
+            np.ascontiguousarray(d_mat[:, None]), np.ascontiguousarray(basis[:, None]),
+            np.ascontiguousarray(spreading[:, None]), np.ascontiguousarray(geo.valid[:, None]),
+            e_rx, int(REFLECTION), int(DIFFRACTION),
+        )  # fmt: skip
+        e = apply_te_tm(e_start.astype(complex), dirs[:, 0], dirs[:, 0], pen_n[:, 0, 0],
+                        pen_c[:, 0, 0, 0], pen_c[:, 0, 0, 1])  # fmt: skip
+        if kind == REFLECTION:
+            e = apply_te_tm(e, dirs[:, 0], dirs[:, 1], normal[:, 0], r_c[:, 0, 0], r_c[:, 0, 1])
+        else:
+            e = utd.diffracted_field(geo, e, 3.775e9, phase=False).field
+        e = apply_te_tm(e, dirs[:, 1], dirs[:, 1], pen_n[:, 1, 0], pen_c[:, 1, 0, 0],
+                        pen_c[:, 1, 0, 1])  # fmt: skip
+        want = np.einsum("ij,ij->i", e, e_rx)
+        np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-14 * np.abs(want).max())
+        if kind == DIFFRACTION:
+            assert np.all(got[~geo.valid] == 0) and np.all(got[geo.valid] != 0)

@@ -12,6 +12,8 @@ Physics of one diffraction at a straight wedge edge, vectorised over P candidate
   reflection coefficients for a lossy one (normal incidence on the edge).
 * :func:`face_reflection_matrix` -- a face's Fresnel reflection as a 2 x 2 matrix in the
   ray-fixed (``beta0``, ``phi``) components, exact at oblique incidence on the edge.
+* :func:`diffraction_matrix` -- the dyadic coefficient (UTD with the faces' reflection
+  matrices) and the spreading factor, which :func:`diffracted_field` applies to a field.
 * :func:`diffracted_field` -- the diffracted field vector at the receiver (KP for perfect
   conductors; for lossy faces Luebbers' heuristic with the face rule below, which makes the field
   independent of how the mesh labels the faces).
@@ -71,6 +73,7 @@ __all__ = [
     "transition_function",
     "utd_coefficients",
     "face_reflection_matrix",
+    "diffraction_matrix",
     "diffracted_field",
     "knife_edge_loss_db",
     "fresnel_kirchhoff_v",
@@ -701,6 +704,58 @@ def _fresnel_pair(eta: object, cos_theta: np.ndarray) -> tuple[np.ndarray, np.nd
     return np.asarray(r_te, dtype=complex), np.asarray(r_tm, dtype=complex)
 
 
+def diffraction_matrix(
+    geometry: WedgeGeometry,
+    frequency_hz: float,
+    *,
+    r_0: tuple[np.ndarray, np.ndarray] | None = None,
+    r_n: tuple[np.ndarray, np.ndarray] | None = None,
+    eta_0: complex | np.ndarray | None = None,
+    eta_n: complex | np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The dyadic diffraction coefficient and the spreading factor of :func:`diffracted_field`,
+    which applies them to an incident field (arguments as there).
+
+    Returns
+    -------
+    d_matrix : (P, 2, 2) complex128, sqrt(metres); ``D = C(D1 + D2) I - C D3 T_n - C D4 T_0``
+        in ray-fixed components (rows ``beta0_hat``, ``phi_hat`` of the diffracted ray, columns
+        ``beta0'_hat``, ``phi'_hat`` of the incident one); finite but meaningless where
+        ``geometry.valid`` is False
+    spreading : (P,) float, 1/sqrt(metres); ``A = sqrt(s' / (s (s' + s)))`` (1 where not valid)
+    """
+    g = geometry
+    p = len(g)
+    if not (np.isscalar(frequency_hz) and np.isfinite(frequency_hz) and frequency_hz > 0):
+        raise TraceInputError(f"frequency_hz must be a positive number, got {frequency_hz!r}")
+    k = _TWO_PI * float(frequency_hz) / C0
+    if r_0 is None and eta_0 is not None:
+        r_0 = _fresnel_pair(eta_0, g.cos_theta_0)
+    if r_n is None and eta_n is not None:
+        r_n = _fresnel_pair(eta_n, g.cos_theta_n)
+    ok = g.valid
+    s_in = np.where(ok, g.s_in, 1.0)
+    s_out = np.where(ok, g.s_out, 1.0)
+    sin_b = np.where(ok, g.sin_beta0, 1.0)
+    dist = s_in * s_out * sin_b**2 / (s_in + s_out)
+    d12, d3, d4 = _utd_terms(
+        np.where(ok, g.n, 2.0),
+        np.where(ok, g.phi, 0.0),
+        np.where(ok, g.phi_in, 0.0),
+        sin_b,
+        dist,
+        k,
+    )
+    # each face's reflection in its own frame (e_f = e for face 0, -e for face n)
+    cos_b = np.where(ok, np.einsum("ij,ij->i", g.s_hat_in, g.edge_dir), 0.0)
+    t_0 = face_reflection_matrix(*_reflection_pair(r_0, (p,)), cos_b, g.psi_0)
+    t_n = face_reflection_matrix(*_reflection_pair(r_n, (p,)), -cos_b, g.psi_n)
+    d_mat = -d3[:, None, None] * t_n - d4[:, None, None] * t_0
+    d_mat[:, 0, 0] += d12
+    d_mat[:, 1, 1] += d12
+    return d_mat, np.sqrt(s_in / (s_out * (s_in + s_out)))
+
+
 def diffracted_field(
     geometry: WedgeGeometry,
     e_in: np.ndarray,
@@ -763,42 +818,17 @@ def diffracted_field(
         raise TraceInputError(f"e_in must have shape ({p}, 3), got {e_in.shape}")
     if not np.all(np.isfinite(e_in)):
         raise TraceInputError("e_in contains NaN or infinite values")
-    if not (np.isscalar(frequency_hz) and np.isfinite(frequency_hz) and frequency_hz > 0):
-        raise TraceInputError(f"frequency_hz must be a positive number, got {frequency_hz!r}")
-    k = _TWO_PI * float(frequency_hz) / C0
-    if r_0 is None and eta_0 is not None:
-        r_0 = _fresnel_pair(eta_0, g.cos_theta_0)
-    if r_n is None and eta_n is not None:
-        r_n = _fresnel_pair(eta_n, g.cos_theta_n)
-
+    d_mat, spreading = diffraction_matrix(g, frequency_hz, r_0=r_0, r_n=r_n, eta_0=eta_0,
+                                          eta_n=eta_n)  # fmt: skip
     ok = g.valid
-    s_in = np.where(ok, g.s_in, 1.0)
-    s_out = np.where(ok, g.s_out, 1.0)
-    sin_b = np.where(ok, g.sin_beta0, 1.0)
     length = g.s_in + g.s_out
-    dist = s_in * s_out * sin_b**2 / (s_in + s_out)
-    d12, d3, d4 = _utd_terms(
-        np.where(ok, g.n, 2.0),
-        np.where(ok, g.phi, 0.0),
-        np.where(ok, g.phi_in, 0.0),
-        sin_b,
-        dist,
-        k,
-    )
-    # each face's reflection in its own frame (e_f = e for face 0, -e for face n)
-    cos_b = np.where(ok, np.einsum("ij,ij->i", g.s_hat_in, g.edge_dir), 0.0)
-    t_0 = face_reflection_matrix(*_reflection_pair(r_0, (p,)), cos_b, g.psi_0)
-    t_n = face_reflection_matrix(*_reflection_pair(r_n, (p,)), -cos_b, g.psi_n)
-    d_mat = -d3[:, None, None] * t_n - d4[:, None, None] * t_0
-    d_mat[:, 0, 0] += d12
-    d_mat[:, 1, 1] += d12
-    spreading = np.sqrt(s_in / (s_out * (s_in + s_out)))
     comp_in = np.stack(
         [np.einsum("ij,ij->i", e_in, g.beta_hat_in), np.einsum("ij,ij->i", e_in, g.phi_hat_in)],
         axis=1,
     )
     comp_out = -np.einsum("pij,pj->pi", d_mat, comp_in)
-    amp = spreading * (np.exp(-1j * k * s_out) if phase else 1.0)
+    k = _TWO_PI * float(frequency_hz) / C0
+    amp = spreading * (np.exp(-1j * k * np.where(ok, g.s_out, 1.0)) if phase else 1.0)
     field = (comp_out[:, :1] * g.beta_hat_out + comp_out[:, 1:] * g.phi_hat_out) * amp[:, None]
     field = np.where(ok[:, None], field, 0.0)
     d_mat = np.where(ok[:, None, None], d_mat, 0.0)

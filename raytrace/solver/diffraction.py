@@ -28,7 +28,7 @@ from ..core.vec import cross as _cross
 from ..core.vec import norm
 from ..core.vec import rows as take_rows
 from ..physics.utd import (
-    diffracted_field,
+    diffraction_matrix,
     diffraction_valid,
     framed_wedge_geometry,
     keller_points,
@@ -38,7 +38,7 @@ from ..scene import accel
 from . import kernels
 from . import reflection as refl
 from .context import TraceContext
-from .evaluate import DiffractionModel, candidates, evaluate
+from .evaluate import DiffractionModel, DiffractionOperator, candidates, evaluate
 from .paths import DIFFRACTION, REFLECTION, Paths
 
 #: Work is split into chunks of about this many candidates.
@@ -77,7 +77,7 @@ def field_model(ctx: TraceContext) -> DiffractionModel:
     w = ctx.scene.wedges
     frame = _wedge_frame(ctx).utd
 
-    def apply(wedge, chain, j, e, seg_len):
+    def apply(wedge, chain, j, seg_len):
         point = chain[:, j]
         s_in = seg_len[:, :j].sum(axis=1)
         s_out = seg_len[:, j:].sum(axis=1)
@@ -92,11 +92,12 @@ def field_model(ctx: TraceContext) -> DiffractionModel:
         two = ~ctx.obj_closed[w.object[wedge]]
         r0 = ctx.reflection_coefficients(mat, geo.cos_theta_0, two)
         rn = ctx.reflection_coefficients(mat, geo.cos_theta_n, two)
-        fld = diffracted_field(geo, e, ctx.f, r_0=r0, r_n=rn, phase=False)
+        d_mat, spreading = diffraction_matrix(geo, ctx.f, r_0=r0, r_n=rn)
         # incident spreading of the unfolded incident leg; the phase of the whole path is applied
         # by the back end
         scale = np.where(geo.valid, ctx.wavelength / (4 * np.pi * s_in), 0.0)
-        return fld.field, scale
+        return DiffractionOperator(d_mat, geo.beta_hat_in, geo.phi_hat_in, geo.beta_hat_out,
+                                   geo.phi_hat_out, spreading, geo.valid, scale)  # fmt: skip
 
     return apply
 

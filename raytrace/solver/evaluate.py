@@ -22,20 +22,50 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
 from ..core.constants import C0
+from ..core.jit import carray
 from ..core.vec import cross, index, norm
 from ..core.vec import rows as take_rows
 from ..physics.materials import slab, slab_group_delay
+from . import kernels
 from .context import TraceContext
 from .paths import DIFFRACTION, PENETRATION, REFLECTION, Paths
 from .penetration import CONTACT_TOL_MARGINS, Crossings, segment_crossings, touches
 
-#: ``model(wedge (n,), chain (n, k+2, 3), j, field (n, 3), seg_len (n, k+1)) -> (field, scale)``:
-#: the field after the diffraction at vertex ``j`` of each chain and an extra amplitude factor.
-DiffractionModel = Callable[..., tuple[np.ndarray, np.ndarray]]
+
+class DiffractionOperator(NamedTuple):
+    """What a diffraction does to the field at vertex ``j`` of n chains (a
+    :data:`DiffractionModel`'s answer): ``[E_beta0, E_phi] = -D [E . beta0'_hat, E . phi'_hat]
+    A`` where ``valid``, zero elsewhere, and an extra amplitude factor of the whole path.
+
+    Attributes
+    ----------
+    d_matrix : (n, 2, 2) complex, sqrt(metres), the dyadic coefficient ``D``
+        (:func:`raytrace.physics.utd.diffraction_matrix`)
+    beta_hat_in, phi_hat_in, beta_hat_out, phi_hat_out : (n, 3) float, the ray-fixed unit
+        vectors of the incident and diffracted rays
+    spreading : (n,) float, 1/sqrt(metres), ``A``
+    valid : (n,) bool
+    scale : (n,) float, the extra factor (the incident leg's spreading, 1/metres)
+    """
+
+    d_matrix: np.ndarray
+    beta_hat_in: np.ndarray
+    phi_hat_in: np.ndarray
+    beta_hat_out: np.ndarray
+    phi_hat_out: np.ndarray
+    spreading: np.ndarray
+    valid: np.ndarray
+    scale: np.ndarray
+
+
+#: ``model(wedge (n,), chain (n, k+2, 3), j, seg_len (n, k+1)) -> DiffractionOperator``: the
+#: diffraction at vertex ``j`` of each chain.
+DiffractionModel = Callable[..., DiffractionOperator]
 
 
 @dataclass(frozen=True)
@@ -206,7 +236,9 @@ def path_fields(
 
     The field vector starts vertically polarised, goes through each segment's penetrations (slab
     transmission, ITU-R P.2040 sec. 3) and each vertex's reflection (Fresnel or slab) or
-    diffraction (``diffraction`` model), and is projected on the receive antenna.
+    diffraction (``diffraction`` model), and is projected on the receive antenna. The
+    coefficients are computed per mechanism for every path at once; the compiled loop
+    :func:`raytrace.solver.kernels.track_fields` applies them path by path.
 
     Returns
     -------
@@ -218,45 +250,68 @@ def path_fields(
     seg_len = norm(seg)
     dirs = seg / np.maximum(seg_len, 1e-300)[:, :, None]
     total = seg_len.sum(axis=1)
-    e = vertical_pol(dirs[:, 0]).astype(complex)
     count = cross.count.reshape(m, k + 1)
-    pen_obj = cross.object.reshape(m, k + 1, -1)
-    pen_nrm = cross.normal.reshape(m, k + 1, -1, 3)
-    pen_th = cross.thickness.reshape(m, k + 1, -1)
-    amp_scale = np.ones(m, dtype=complex)  # extra scalar factors (diffraction spreading)
+    n_pen = cross.object.shape[1]
+    # penetrations (slab transmission), every slot of every segment at once
+    pen_normal = cross.normal.reshape(m, k + 1, n_pen, 3)
+    pen_te = np.zeros((m, k + 1, n_pen), dtype=complex)
+    pen_tm = np.zeros((m, k + 1, n_pen), dtype=complex)
     extra_delay = np.zeros(m)  # group delay of the penetrated slabs, s
+    slot = np.flatnonzero(count[:, :, None] > np.arange(n_pen))  # flat over (m, k+1, n_pen)
+    if len(slot):
+        path, j = np.divmod(slot // n_pen, k + 1)
+        nrm = take_rows(pen_normal.reshape(-1, 3), slot)
+        mat = ctx.obj_material[cross.object.reshape(-1)[slot]]
+        cos_i = np.abs(np.einsum("ij,ij->i", nrm, dirs[path, j]))
+        th = cross.thickness.reshape(-1)[slot]
+        _, _, t_te, t_tm = slab(ctx.eta[mat], cos_i, th, ctx.f)
+        pen_te.reshape(-1)[slot], pen_tm.reshape(-1)[slot] = t_te, t_tm
+        if ctx.cfg.slab_delay:
+            # summed per path in segment and slot order, as the field meets them
+            delay = slab_group_delay(ctx.eta[mat], cos_i, th, ctx.eta_slope[mat])
+            extra_delay = np.bincount(path, weights=delay, minlength=m)
+    # reflections, every vertex at once
     fc = ctx.scene.facets
-    for j in range(k + 1):
-        for s in range(pen_obj.shape[2]):
-            has = count[:, j] > s
-            if not has.any():
-                continue
-            mat = ctx.obj_material[pen_obj[has, j, s]]
-            cos_i = np.abs(np.einsum("ij,ij->i", pen_nrm[has, j, s], dirs[has, j]))
-            _, _, t_te, t_tm = slab(ctx.eta[mat], cos_i, pen_th[has, j, s], ctx.f)
-            if ctx.cfg.slab_delay:
-                extra_delay[has] += slab_group_delay(
-                    ctx.eta[mat], cos_i, pen_th[has, j, s], ctx.eta_slope[mat]
-                )
-            e[has] = apply_te_tm(e[has], dirs[has, j], dirs[has, j], pen_nrm[has, j, s], t_te, t_tm)
-        if j == k:
-            break
-        is_r = cand.kinds[:, j] == REFLECTION
-        if is_r.any():
-            fidx = cand.elem[is_r, j]
-            nrm = fc.normal[fidx]
-            cos_i = np.abs(np.einsum("ij,ij->i", nrm, dirs[is_r, j]))
-            r_te, r_tm = ctx.reflection_coefficients(fc.material[fidx], cos_i, fc.two_sided[fidx])
-            e[is_r] = apply_te_tm(e[is_r], dirs[is_r, j], dirs[is_r, j + 1], nrm, r_te, r_tm)
-        is_d = cand.kinds[:, j] == DIFFRACTION
-        if is_d.any():
-            if diffraction is None:
-                raise RuntimeError("diffraction vertex without a diffraction model")
-            e[is_d], scale = diffraction(
-                cand.elem[is_d, j], cand.chain[is_d], j + 1, e[is_d], seg_len[is_d]
-            )
-            amp_scale[is_d] *= scale
-    proj = np.einsum("ij,ij->i", e, vertical_pol(dirs[:, -1]))
+    normal = np.zeros((m, k, 3))
+    r_te = np.zeros((m, k), dtype=complex)
+    r_tm = np.zeros((m, k), dtype=complex)
+    vert = np.flatnonzero(cand.kinds == REFLECTION)  # flat over (m, k)
+    if len(vert):
+        path, j = np.divmod(vert, k)
+        fidx = cand.elem.reshape(-1)[vert]
+        nrm = take_rows(fc.normal, fidx)
+        cos_i = np.abs(np.einsum("ij,ij->i", nrm, dirs[path, j]))
+        normal.reshape(-1, 3)[vert] = nrm
+        r_te.reshape(-1)[vert], r_tm.reshape(-1)[vert] = ctx.reflection_coefficients(
+            fc.material[fidx], cos_i, fc.two_sided[fidx]
+        )
+    # diffractions, every vertex of one position in the chain at once
+    d_matrix = np.zeros((m, k, 2, 2), dtype=complex)
+    d_basis = np.zeros((m, k, 4, 3))
+    d_amp = np.zeros((m, k))
+    d_valid = np.zeros((m, k), dtype=bool)
+    amp_scale = np.ones(m, dtype=complex)  # extra scalar factors (diffraction spreading)
+    for j in range(k):
+        is_d = np.flatnonzero(cand.kinds[:, j] == DIFFRACTION)
+        if not len(is_d):
+            continue
+        if diffraction is None:
+            raise RuntimeError("diffraction vertex without a diffraction model")
+        op = diffraction(cand.elem[is_d, j], take_rows(cand.chain, is_d), j + 1,
+                         take_rows(seg_len, is_d))  # fmt: skip
+        d_matrix[is_d, j] = op.d_matrix
+        d_basis[is_d, j] = np.stack(
+            [op.beta_hat_in, op.phi_hat_in, op.beta_hat_out, op.phi_hat_out], axis=1
+        )
+        d_amp[is_d, j] = op.spreading
+        d_valid[is_d, j] = op.valid
+        amp_scale[is_d] *= op.scale
+    proj = kernels.track_fields(
+        carray(vertical_pol(dirs[:, 0]), complex), carray(dirs), carray(count, np.int64),
+        carray(pen_normal), pen_te, pen_tm, carray(cand.kinds, np.int8), normal, r_te, r_tm,
+        d_matrix, d_basis, d_amp, d_valid, carray(vertical_pol(dirs[:, -1])), int(REFLECTION),
+        int(DIFFRACTION),
+    )  # fmt: skip
     has_d = (cand.kinds == DIFFRACTION).any(axis=1)
     # free-space spreading over the unfolded length (diffracted paths carry their own)
     spread = np.where(has_d, 1.0, ctx.wavelength / (4 * np.pi * total))
