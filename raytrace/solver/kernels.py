@@ -10,10 +10,10 @@
   prune: which paths are found is decided by the exact tests after them (Keller's point on the
   edge, point in facet, wedge validity, Embree), and :data:`PRUNE` switches them off to show it.
 * **Penetration** (:func:`line_span`, :func:`edge_distance`, :func:`hit_contacts`,
-  :func:`canonical_face`, :func:`walk_boundary`, :func:`walk_record`, :func:`walk_unseen`):
-  lines against convex solids, points against triangles, the face a hit at an edge is booked
-  on, and the bookkeeping of the segment walk (:mod:`raytrace.solver.penetration`), one hit at a
-  time.
+  :func:`canonical_face`, :func:`off_the_solid`, :func:`walk_rays`, :func:`walk_hits`,
+  :func:`walk_record`, :func:`walk_unseen`): lines against convex solids, points against
+  triangles, the face a hit at an edge is booked on, and the segment walk
+  (:mod:`raytrace.solver.penetration`): its rays, and a round of its hits, one hit at a time.
 * **Fields** (:func:`track_fields`): the field vector carried along each path through the
   coefficients the physics modules computed, per mechanism, for all paths at once.
 
@@ -33,7 +33,8 @@ from ..core.jit import inline, kernel
 
 __all__ = ["PRUNE", "surely_inside", "facet_wedge_pairs", "expand_over_others",
            "second_order_receivers", "line_span", "edge_distance", "hit_contacts", "canonical_face",
-           "walk_boundary", "walk_record", "walk_unseen", "track_fields"]
+           "off_the_solid", "walk_record", "walk_unseen", "walk_rays", "walk_hits",
+           "track_fields"]
 
 #: The callers pass this as the kernels' ``prune``: False switches their pruning tests off (they
 #: then return every candidate that satisfies the rules, with unbounded spans), so that a trace
@@ -428,6 +429,43 @@ def edge_distance(corners, edge_normals, face, point):
     return out
 
 
+@inline
+def _contact(f, ob, ax, ay, az, dx, dy, dz, t, face_normal, corners, edge_normals, normal, offset,
+             count, tol):  # fmt: skip
+    """One hit: see :func:`hit_contacts` (returns the point's coordinates, edge, side, touch)."""
+    px = ax + t * dx
+    py = ay + t * dy
+    pz = az + t * dz
+    e = _edge_distance(corners, edge_normals, f, px, py, pz)
+    dn = _dot3(face_normal[f, 0], face_normal[f, 1], face_normal[f, 2], dx, dy, dz)
+    cos = abs(dn)
+    cos = cos if (cos > 1e-300 or cos != cos) else 1e-300  # numpy's maximum(cos, 1e-300)
+    touch = False
+    if e >= -(tol + 2.0 * tol / cos):
+        cv, lo, hi, par = _span(normal, offset, count, ob, ax, ay, az, dx, dy, dz, tol)
+        touch = cv and (par or hi <= lo)
+    return px, py, pz, e, np.sign(dn), touch
+
+
+@inline
+def _canonical(f, ob, px, py, pz, dx, dy, dz, side, face_start, face_count, face_normal, corners,
+               edge_normals, tol):  # fmt: skip
+    """One hit: see :func:`canonical_face`."""
+    best, best_score = f, -np.inf
+    start = face_start[ob]
+    for c in range(start, start + face_count[ob]):
+        nx, ny, nz = face_normal[c, 0], face_normal[c, 1], face_normal[c, 2]
+        dn = (dx * nx + dy * ny) + dz * nz
+        ok = c == f
+        if not ok and np.sign(dn) == side:
+            h = ((px - corners[c, 0, 0]) * nx + (py - corners[c, 0, 1]) * ny) \
+                + (pz - corners[c, 0, 2]) * nz  # fmt: skip
+            ok = abs(h) <= tol and _edge_distance(corners, edge_normals, c, px, py, pz) <= tol
+        if ok and abs(dn) > best_score:
+            best, best_score = c, abs(dn)
+    return best
+
+
 @kernel(
     "Tuple((f8[:, ::1], f8[::1], f8[::1], b1[::1]))("
     "i8[::1], i8[::1], f8[:, ::1], f8[:, ::1], f8[::1], f8[:, ::1], f8[:, :, ::1], "
@@ -453,22 +491,11 @@ def hit_contacts(face, o, a, d, t, face_normal, corners, edge_normals, normal, o
     side = np.empty(n)
     touch = np.zeros(n, dtype=np.bool_)
     for r in range(n):
-        f = face[r]
-        px = a[r, 0] + t[r] * d[r, 0]
-        py = a[r, 1] + t[r] * d[r, 1]
-        pz = a[r, 2] + t[r] * d[r, 2]
+        px, py, pz, edge[r], side[r], touch[r] = _contact(
+            face[r], o[r], a[r, 0], a[r, 1], a[r, 2], d[r, 0], d[r, 1], d[r, 2], t[r],
+            face_normal, corners, edge_normals, normal, offset, count, tol,
+        )  # fmt: skip
         point[r, 0], point[r, 1], point[r, 2] = px, py, pz
-        e = _edge_distance(corners, edge_normals, f, px, py, pz)
-        edge[r] = e
-        dn = _dot3(face_normal[f, 0], face_normal[f, 1], face_normal[f, 2],
-                   d[r, 0], d[r, 1], d[r, 2])  # fmt: skip
-        side[r] = np.sign(dn)
-        cos = abs(dn)
-        cos = cos if (cos > 1e-300 or cos != cos) else 1e-300  # numpy's maximum(cos, 1e-300)
-        if e >= -(tol + 2.0 * tol / cos):
-            cv, lo, hi, par = _span(normal, offset, count, o[r], a[r, 0], a[r, 1], a[r, 2],
-                                    d[r, 0], d[r, 1], d[r, 2], tol)  # fmt: skip
-            touch[r] = cv and (par or hi <= lo)
     return point, edge, side, touch
 
 
@@ -499,22 +526,12 @@ def canonical_face(face, o, point, d, side, face_start, face_count, face_normal,
     """
     out = np.empty(len(face), dtype=np.int64)
     for r in range(len(face)):
-        px, py, pz = point[r, 0], point[r, 1], point[r, 2]
-        dx, dy, dz = d[r, 0], d[r, 1], d[r, 2]
-        best, best_score = face[r], -np.inf
-        start = face_start[o[r]]
-        for c in range(start, start + face_count[o[r]]):
-            nx, ny, nz = face_normal[c, 0], face_normal[c, 1], face_normal[c, 2]
-            dn = (dx * nx + dy * ny) + dz * nz
-            ok = c == face[r]
-            if not ok and np.sign(dn) == side[r]:
-                h = ((px - corners[c, 0, 0]) * nx + (py - corners[c, 0, 1]) * ny) \
-                    + (pz - corners[c, 0, 2]) * nz  # fmt: skip
-                ok = abs(h) <= tol and _edge_distance(corners, edge_normals, c, px, py, pz) <= tol
-            if ok and abs(dn) > best_score:
-                best, best_score = c, abs(dn)
-        out[r] = best
+        out[r] = _canonical(face[r], o[r], point[r, 0], point[r, 1], point[r, 2], d[r, 0],
+                            d[r, 1], d[r, 2], side[r], face_start, face_count, face_normal,
+                            corners, edge_normals, tol)  # fmt: skip
     return out
+
+
 
 
 # -- penetration: the segment walk's bookkeeping (raytrace.solver.penetration._Walk) ------------
@@ -582,45 +599,46 @@ _WALK = (
 )
 
 
-@kernel(f"void(i8[::1], i8[::1], i8[::1], f8[::1], f8[:, ::1], f8[::1], {_WALK})")
-def walk_boundary(rows, face, o, t_hit, face_normal, sheet_thickness,
-                  d, closed, k, count, exceeded, dist, obj, normal, thick,
-                  inside, t_in, normal_in, t_last, normal_last):  # fmt: skip
-    """Segments ``rows`` meet face ``face`` of object ``o`` at ``t_hit``: the walk's state (the
-    arrays after ``sheet_thickness``, :class:`raytrace.solver.penetration._Walk`) is updated in
-    place. A sheet is one penetration through its thickness; a closed solid is entered or left
-    by the hit face's orientation, and leaving it closes its chord (the more head-on of its
-    entry and exit faces is the slab's); a solid left without a seen entry began at the previous
-    boundary or at the segment's start."""
-    for i in range(len(rows)):
-        r, ob, th = rows[i], o[i], t_hit[i]
-        fx, fy, fz = face_normal[face[i], 0], face_normal[face[i], 1], face_normal[face[i], 2]
-        cur = inside[r]
-        dn = _dot3(fx, fy, fz, d[r, 0], d[r, 1], d[r, 2])
-        if not closed[ob]:
-            _record(r, th, ob, fx, fy, fz, sheet_thickness[ob], d, closed, k, count, exceeded,
-                    dist, obj, normal, thick)  # fmt: skip
-        elif dn > 0 or (dn == 0.0 and cur == ob):  # leaving
-            if cur == ob:
-                nx, ny, nz = _more_head_on(normal_in[r, 0], normal_in[r, 1], normal_in[r, 2],
-                                           fx, fy, fz, d[r, 0], d[r, 1], d[r, 2])  # fmt: skip
-                _record(r, t_in[r], ob, nx, ny, nz, th - t_in[r], d, closed, k, count,
-                        exceeded, dist, obj, normal, thick)  # fmt: skip
-                inside[r] = -1
-            elif cur < 0:
-                _unseen(r, ob, fx, fy, fz, th, d, closed, k, count, exceeded, dist, obj, normal,
-                        thick, t_last, normal_last)  # fmt: skip
-        else:  # entering, closing an overlapping solid first
-            if cur >= 0:
-                nx, ny, nz = _more_head_on(normal_in[r, 0], normal_in[r, 1], normal_in[r, 2],
-                                           fx, fy, fz, d[r, 0], d[r, 1], d[r, 2])  # fmt: skip
-                _record(r, t_in[r], cur, nx, ny, nz, th - t_in[r], d, closed, k, count,
-                        exceeded, dist, obj, normal, thick)  # fmt: skip
-            inside[r] = ob
-            t_in[r] = th
-            normal_in[r, 0], normal_in[r, 1], normal_in[r, 2] = fx, fy, fz
-        t_last[r] = th
-        normal_last[r, 0], normal_last[r, 1], normal_last[r, 2] = fx, fy, fz
+@inline
+def _boundary(r, f, ob, th, face_normal, sheet_thickness, d, closed, k, count, exceeded, dist,
+              obj, normal, thick, inside, t_in, normal_in, t_last, normal_last):  # fmt: skip
+    """Segment ``r`` meets face ``f`` of object ``ob`` at ``th``; the walk's state (the arrays
+    after ``sheet_thickness``, :class:`raytrace.solver.penetration._Walk`) is updated in place.
+
+    Closed solids face outward, so the hit face's orientation says whether the segment enters or
+    leaves (the bookkeeping alone would miss an entry through a face coincident with the
+    previous exit, two solids stacked, since each hit is stepped over by the margin); an open
+    sheet is one penetration through its thickness; leaving the solid the segment is inside of
+    closes its chord (the more head-on of its entry and exit faces is the slab's); a solid left
+    without a seen entry, outside any other, began at the previous boundary or at the segment's
+    start (:func:`_unseen`); entering a solid closes an overlapping one first."""
+    fx, fy, fz = face_normal[f, 0], face_normal[f, 1], face_normal[f, 2]
+    cur = inside[r]
+    dn = _dot3(fx, fy, fz, d[r, 0], d[r, 1], d[r, 2])
+    if not closed[ob]:
+        _record(r, th, ob, fx, fy, fz, sheet_thickness[ob], d, closed, k, count, exceeded,
+                dist, obj, normal, thick)  # fmt: skip
+    elif dn > 0 or (dn == 0.0 and cur == ob):  # leaving
+        if cur == ob:
+            nx, ny, nz = _more_head_on(normal_in[r, 0], normal_in[r, 1], normal_in[r, 2],
+                                       fx, fy, fz, d[r, 0], d[r, 1], d[r, 2])  # fmt: skip
+            _record(r, t_in[r], ob, nx, ny, nz, th - t_in[r], d, closed, k, count,
+                    exceeded, dist, obj, normal, thick)  # fmt: skip
+            inside[r] = -1
+        elif cur < 0:
+            _unseen(r, ob, fx, fy, fz, th, d, closed, k, count, exceeded, dist, obj, normal,
+                    thick, t_last, normal_last)  # fmt: skip
+    else:  # entering, closing an overlapping solid first
+        if cur >= 0:
+            nx, ny, nz = _more_head_on(normal_in[r, 0], normal_in[r, 1], normal_in[r, 2],
+                                       fx, fy, fz, d[r, 0], d[r, 1], d[r, 2])  # fmt: skip
+            _record(r, t_in[r], cur, nx, ny, nz, th - t_in[r], d, closed, k, count,
+                    exceeded, dist, obj, normal, thick)  # fmt: skip
+        inside[r] = ob
+        t_in[r] = th
+        normal_in[r, 0], normal_in[r, 1], normal_in[r, 2] = fx, fy, fz
+    t_last[r] = th
+    normal_last[r, 0], normal_last[r, 1], normal_last[r, 2] = fx, fy, fz
 
 
 @kernel(f"void(i8[::1], f8[::1], i8[::1], f8[:, ::1], f8[::1], {_WALK})")
@@ -642,6 +660,165 @@ def walk_unseen(rows, o, fn_exit, t_exit, d, closed, k, count, exceeded, dist, o
         _unseen(rows[i], o[i], fn_exit[i, 0], fn_exit[i, 1], fn_exit[i, 2], t_exit[i], d, closed,
                 k, count, exceeded, dist, obj, normal, thick, t_last, normal_last)  # fmt: skip
 
+
+
+@kernel(
+    "Tuple((i8[::1], f4[:, ::1], f4[:, ::1], f4[::1]))("
+    "b1[::1], f8[:, ::1], f8[:, ::1], f8[::1], f8[::1], f8[:, ::1], f8[::1])"
+)
+def walk_rays(active, a, d, t, tmax, shift, shift_end):
+    """The next query of every segment still walking: ``rows`` (n,) int, and Embree's rays
+    (float32): origins ``a + t d`` (n, 3), shifted by ``shift`` while ``t < shift_end`` (a walk
+    past a touched solid), directions ``d`` (n, 3), and reaches ``tmax - t`` (at most ``shift_end
+    - t`` while shifted; 1e30 for an unbounded one), metres."""
+    n = 0
+    for r in range(len(active)):
+        n += active[r]
+    rows = np.empty(n, dtype=np.int64)
+    org = np.empty((n, 3), dtype=np.float32)
+    dirs = np.empty((n, 3), dtype=np.float32)
+    reach = np.empty(n, dtype=np.float32)
+    i = 0
+    for r in range(len(active)):
+        if not active[r]:
+            continue
+        ox, oy, oz = a[r, 0] + t[r] * d[r, 0], a[r, 1] + t[r] * d[r, 1], a[r, 2] + t[r] * d[r, 2]
+        far = tmax[r] - t[r]
+        if t[r] < shift_end[r]:
+            ox, oy, oz = ox + shift[r, 0], oy + shift[r, 1], oz + shift[r, 2]
+            far = min(far, shift_end[r] - t[r])
+        rows[i] = r
+        org[i, 0], org[i, 1], org[i, 2] = ox, oy, oz
+        dirs[i, 0], dirs[i, 1], dirs[i, 2] = d[r, 0], d[r, 1], d[r, 2]
+        reach[i] = far if np.isfinite(far) else 1e30
+        i += 1
+    return rows, org, dirs, reach
+
+
+@inline
+def _off_the_solid(f, ob, ax, ay, az, dx, dy, dz, face_normal, normal, offset, count, tol):
+    """Where a walk that touched face ``f`` of convex solid ``ob`` goes on: a shift of two
+    contact tolerances along the face's outward normal, across the ray, and the distance at
+    which the line leaves the solid grown by ``tol`` (past it, the walk is back on its own
+    line; a zero shift and -inf for other objects)."""
+    nx, ny, nz = face_normal[f, 0], face_normal[f, 1], face_normal[f, 2]
+    dn = _dot3(nx, ny, nz, dx, dy, dz)
+    cx, cy, cz = nx - dn * dx, ny - dn * dy, nz - dn * dz
+    size = np.sqrt(cx * cx + cy * cy + cz * cz)
+    grow = 2.0 * tol
+    den = size if (size > 1e-300 or size != size) else 1e-300
+    cv, lo, hi, par = _span(normal, offset, count, ob, ax, ay, az, dx, dy, dz, -tol)
+    if cv and np.isfinite(hi) and size > 0:
+        return grow * cx / den, grow * cy / den, grow * cz / den, hi
+    return 0.0, 0.0, 0.0, -np.inf
+
+
+@kernel(
+    "Tuple((f8[:, ::1], f8[::1]))(i8[::1], i8[::1], f8[:, ::1], f8[:, ::1], f8[:, ::1], "
+    "f8[:, :, ::1], f8[:, ::1], i8[::1], f8)"
+)
+def off_the_solid(face, o, a, d, face_normal, normal, offset, count, tol):
+    """:func:`_off_the_solid` for n rays ``a + t d`` (n, 3) that touched faces ``face`` of
+    objects ``o``: the shifts (n, 3) and the distances (n,) where the shifted walks end."""
+    n = len(face)
+    shift = np.empty((n, 3))
+    end = np.empty(n)
+    for r in range(n):
+        shift[r, 0], shift[r, 1], shift[r, 2], end[r] = _off_the_solid(
+            face[r], o[r], a[r, 0], a[r, 1], a[r, 2], d[r, 0], d[r, 1], d[r, 2], face_normal,
+            normal, offset, count, tol,
+        )  # fmt: skip
+    return shift, end
+
+
+@kernel(
+    "void(i8[::1], f8[::1], i8[::1], i8[::1], "
+    "f8[:, ::1], f8[::1], f8[::1], f8[::1], b1[::1], i8[::1], f8[:, ::1], f8[::1], i8[:, ::1], "
+    "f8, f8, f8, f8, i8, "
+    "f8[:, :, ::1], f8[:, :, ::1], f8[:, :, ::1], f8[:, ::1], i8[::1], i8[::1], i8[::1], "
+    f"f8[:, ::1], f8[::1], {_WALK})"
+)
+def walk_hits(rows, th, face, o, a, length, tmax, t, active, crossed, shift, shift_end,
+              end_objects, margin, guard, tol, grazing_cos, limit, corners, edge_normals, normal,
+              offset, count_planes, face_start, face_count, face_normal, sheet_thickness,
+              d, closed, k, count, exceeded, dist, obj, normal_p, thick, inside, t_in, normal_in,
+              t_last, normal_last):  # fmt: skip
+    """One round of the segment walk (:func:`raytrace.solver.penetration.segment_crossings`):
+    Embree's answers ``th`` (distance from the query's origin, inf: none), ``face``, ``o`` (-1:
+    none) for the segments ``rows`` (:func:`walk_rays`) update the walk in place.
+
+    Per segment: a miss ends the walk (a shifted one goes back on its own line past the solid);
+    a hit on the object under either end within ``guard`` of it is float32 noise of the vertex,
+    stepped over (leaving along the solid's face: go on off the solid); a hit is booked on its
+    canonical face (:func:`canonical_face`) and a touch (:func:`hit_contacts`) is stepped over
+    off the solid; otherwise its distance is taken on the booked face's plane in float64 (where
+    the ray is not grazing, ``|cos| > grazing_cos``, and the plane is within ``tol`` of
+    Embree's answer: Embree's float32 distance to one plane differs by ~1e-7 relative between
+    the triangles of a face and between coincident faces of two objects, so chords, and the slab
+    delays and losses made of them, would depend on which triangle the BVH reported) and the
+    boundary is booked (:func:`_boundary`). Every step is by
+    ``margin``; a segment that meets more than ``limit`` boundaries exceeds its budget.
+
+    ``t``, ``active``, ``crossed``, ``shift``, ``shift_end`` (per segment) and the arrays after
+    ``sheet_thickness`` (:class:`raytrace.solver.penetration._Walk`) are updated; ``a`` (N, 3),
+    ``length``, ``tmax`` (N,) metres and ``end_objects`` (N, 2) describe the segments; the
+    arrays from ``corners`` to ``face_normal`` are the scene's, as the other kernels take them.
+    """
+    for i in range(len(rows)):
+        r, f, ob = rows[i], face[i], o[i]
+        ax, ay, az, dx, dy, dz = a[r, 0], a[r, 1], a[r, 2], d[r, 0], d[r, 1], d[r, 2]
+        if ob < 0:
+            if t[r] < shift_end[r]:  # nothing on the shifted stretch: back on the own line
+                t[r] = shift_end[r]
+                active[r] = t[r] < tmax[r]
+            else:
+                active[r] = False
+            continue
+        t_hit = t[r] + th[i]
+        if (ob == end_objects[r, 0] and t_hit < guard) or (
+            ob == end_objects[r, 1] and t_hit > length[r] - guard
+        ):
+            t[r] = t_hit + margin
+            if ob == end_objects[r, 0]:
+                # leaving a vertex along its own solid's face: on, off the solid
+                cv, lo, hi, par = _span(normal, offset, count_planes, ob, ax, ay, az, dx, dy, dz,
+                                        tol)  # fmt: skip
+                if cv and (par or hi <= lo):
+                    sx, sy, sz, shift_end[r] = _off_the_solid(f, ob, ax, ay, az, dx, dy, dz,
+                                                              face_normal, normal, offset,
+                                                              count_planes, tol)  # fmt: skip
+                    shift[r, 0], shift[r, 1], shift[r, 2] = sx, sy, sz
+            active[r] = t[r] < tmax[r]
+            continue
+        px, py, pz, e, side, touch = _contact(f, ob, ax, ay, az, dx, dy, dz, t_hit, face_normal,
+                                              corners, edge_normals, normal, offset,
+                                              count_planes, tol)  # fmt: skip
+        if e >= -tol:
+            f = _canonical(f, ob, px, py, pz, dx, dy, dz, side, face_start, face_count,
+                           face_normal, corners, edge_normals, tol)  # fmt: skip
+        if touch:
+            t[r] = t_hit + margin
+            sx, sy, sz, shift_end[r] = _off_the_solid(f, ob, ax, ay, az, dx, dy, dz, face_normal,
+                                                      normal, offset, count_planes, tol)  # fmt: skip
+            shift[r, 0], shift[r, 1], shift[r, 2] = sx, sy, sz
+            active[r] = t[r] < tmax[r]
+            continue
+        # the distance on the booked face's plane, in float64
+        nx, ny, nz = face_normal[f, 0], face_normal[f, 1], face_normal[f, 2]
+        dn = _dot3(nx, ny, nz, dx, dy, dz)
+        ok = abs(dn) > grazing_cos
+        tp = _dot3(nx, ny, nz, corners[f, 0, 0] - ax, corners[f, 0, 1] - ay,
+                   corners[f, 0, 2] - az) / (dn if ok else 1.0)  # fmt: skip
+        if ok and abs(tp - t_hit) <= tol:
+            t_hit = tp
+        _boundary(r, f, ob, t_hit, face_normal, sheet_thickness, d, closed, k, count, exceeded,
+                  dist, obj, normal_p, thick, inside, t_in, normal_in, t_last, normal_last)  # fmt: skip
+        t[r] = t_hit + margin
+        crossed[r] += 1
+        active[r] = t[r] < tmax[r] and not exceeded[r]
+        if active[r] and crossed[r] >= limit:
+            exceeded[r] = True
+            active[r] = False
 
 # -- fields: the field vector along each path (raytrace.solver.evaluate.path_fields) -------------
 @inline

@@ -16,7 +16,7 @@ when its own entry face is the one reported. A solid left without a seen entry a
 start has no entry face; its exit face stands in. Likewise a hit at an edge or a vertex is
 booked on a canonical face, a ray that only touches a convex solid (at an edge, a vertex or
 along a face) does not cross it, and hit distances are taken on the booked face's plane in
-float64 (:func:`canonical_faces`, :func:`_plane_distance`): the crossings do not depend on the
+float64 (:func:`canonical_faces`, :func:`raytrace.solver.kernels.walk_hits`): the crossings do not depend on the
 BVH, which differs between a static scene and a snapshot with forklifts.
 
 The equivalent slab thickness of a chord through a solid is the chord length times the cosine of
@@ -32,7 +32,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..core.jit import carray
-from ..core.vec import rows as take_rows
 from ..scene.model import Scene
 from . import kernels
 
@@ -84,14 +83,13 @@ END_GUARD_MARGINS = 10.0
 class _Walk:
     """Per-segment state of the walk along segments: recorded penetrations and the solid the
     segment is inside of. Arrays over the n segments, K slots each; updated in place by the
-    compiled loops :func:`raytrace.solver.kernels.walk_boundary` and its siblings."""
+    compiled loops :func:`raytrace.solver.kernels.walk_hits` and its siblings."""
 
     def __init__(self, scene: Scene, d: np.ndarray, k: int) -> None:
         n, kk = len(d), max(k, 1)
         self.scene, self.d, self.k = scene, carray(d), k
         self.closed = carray(scene.object_closed, bool)
         self.sheet_thickness = carray(scene.material_thickness()[scene.object_material])
-        self.face_normal = _face_normals(scene)
         self.count = np.zeros(n, dtype=np.int64)
         self.exceeded = np.zeros(n, dtype=bool)
         self.dist = np.full((n, kk), np.inf)
@@ -119,19 +117,6 @@ class _Walk:
         equivalent slab is the chord times cos(incidence) on that face."""
         kernels.walk_record(carray(rows, np.int64), carray(t_entry), carray(o, np.int64),
                             carray(fn), carray(th), *self._state)  # fmt: skip
-
-    def boundary(self, rows: np.ndarray, face: np.ndarray, o: np.ndarray, t_hit: np.ndarray):
-        """The segments ``rows`` meet face ``face`` of object ``o`` at ``t_hit``: closed solids
-        face outward, so the hit face's orientation says whether the segment enters or leaves
-        (the bookkeeping alone would miss an entry through a face coincident with the previous
-        exit, two solids stacked, since each hit is stepped over by the margin); an open sheet
-        is one penetration through the material's thickness; leaving the solid the segment is
-        inside of closes its chord; a solid left without a seen entry, outside any other, began
-        at the previous boundary or at the segment's start (:meth:`unseen`); entering a solid
-        closes an overlapping one first."""
-        kernels.walk_boundary(carray(rows, np.int64), carray(face, np.int64),
-                              carray(o, np.int64), carray(t_hit), self.face_normal,
-                              self.sheet_thickness, *self._state)  # fmt: skip
 
     def unseen(self, r: np.ndarray, o: np.ndarray, fn_exit: np.ndarray, t_exit: np.ndarray):
         """The segments ``r``, outside any solid, leave solid ``o`` at ``t_exit`` through a face
@@ -184,6 +169,9 @@ def canonical_faces(
     BVH, and a reported entry (exit) would be paired with an exit (entry) that is never seen, so
     that the chord would run to the segment's end (start).
 
+    The walk applies this rule per hit (:func:`raytrace.solver.kernels.walk_hits`, with the same
+    compiled helpers); this is its array form.
+
     Parameters
     ----------
     scene : Scene
@@ -220,26 +208,6 @@ def canonical_faces(
             edge_normals, float(tol),
         )  # fmt: skip
     return out, touch
-
-
-def _plane_distance(
-    scene: Scene, face: np.ndarray, a: np.ndarray, d: np.ndarray, t: np.ndarray
-) -> np.ndarray:
-    """Hit distances recomputed in float64 on the plane of the (canonical) hit face, metres.
-
-    Embree's float32 distance to the same plane differs by ~1e-7 relative between the
-    triangles of a face and between coincident faces of two objects, so chords (and the slab
-    delays and losses made of them) depended on which triangle the BVH reported. Where the ray
-    is nearly parallel to the face (``|cos| <= GRAZING_COS``) or the plane's answer is further
-    than a contact tolerance from Embree's, Embree's distance is kept.
-    """
-    n = scene.face_normal[face]
-    v0 = scene.vertices[scene.faces[face, 0]]
-    dn = np.einsum("ij,ij->i", n, d)
-    ok = np.abs(dn) > GRAZING_COS
-    tp = np.einsum("ij,ij->i", n, v0 - a) / np.where(ok, dn, 1.0)
-    ok &= np.abs(tp - t) <= CONTACT_TOL_MARGINS * scene.margin
-    return np.where(ok, tp, t)
 
 
 def _convex_planes(scene: Scene) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -334,15 +302,11 @@ def _off_the_solid(
     """Where a walk that touched face ``face`` of convex solid ``o`` continues: a shift (n, 3),
     metres, of two contact tolerances along the face's outward normal, across the rays ``a + t
     d``, and the distance ``t`` (n,), metres, at which the line leaves the solid grown by the
-    tolerance (past it, the walk is back on its own line; -inf for other objects)."""
-    tol = CONTACT_TOL_MARGINS * scene.margin
-    nrm = scene.face_normal[face]
-    across = nrm - np.einsum("ij,ij->i", nrm, d)[:, None] * d
-    size = np.linalg.norm(across, axis=1)
-    shift = 2.0 * tol * across / np.maximum(size, 1e-300)[:, None]
-    convex, _, t_out, _ = _line_span(scene, o, a, d, -tol)
-    ok = convex & np.isfinite(t_out) & (size > 0)
-    return np.where(ok[:, None], shift, 0.0), np.where(ok, t_out, -np.inf)
+    tolerance (past it, the walk is back on its own line; -inf for other objects). The walk
+    does this per hit (:func:`raytrace.solver.kernels.walk_hits`); this is its array form."""
+    return kernels.off_the_solid(carray(face, np.int64), carray(o, np.int64), carray(a), carray(d),
+                                 _face_normals(scene), *_convex_plane_arrays(scene),
+                                 float(CONTACT_TOL_MARGINS * scene.margin))  # fmt: skip
 
 
 def _edge_planes(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
@@ -389,8 +353,10 @@ def segment_crossings(
 
     The segments' ends are shortened by ``scene.margin`` so that a segment that starts or ends on
     a surface (a reflection or diffraction point) does not count that surface. Each round asks
-    Embree for the next hit of every segment still walking, steps over it by the margin and
-    updates the penetration bookkeeping (:class:`_Walk`).
+    Embree for the next hit of every segment still walking (one batched query,
+    :func:`raytrace.solver.kernels.walk_rays`), steps over it by the margin and updates the
+    penetration bookkeeping (:class:`_Walk`) in one compiled pass over the hits
+    (:func:`raytrace.solver.kernels.walk_hits`).
 
     Parameters
     ----------
@@ -431,73 +397,21 @@ def segment_crossings(
     # not at all, depending on the direction (a ray in the plane of a pillar's face)
     shift = np.zeros((n, 3))
     shift_end = np.full(n, -np.inf)
+    a, length, tmax = carray(a), carray(length), carray(tmax)
+    end_objects = carray(end_objects, np.int64)
+    scene_arrays = (*_edge_planes(scene), *_convex_plane_arrays(scene), *_object_faces(scene),
+                    _face_normals(scene), walk.sheet_thickness)  # fmt: skip
     for _ in range(limit + FREE_STEPS):
-        if not active.any():
+        # one round: the next hit of every segment still walking (kernels.walk_hits says what
+        # is done with it)
+        rows, org, dirs, reach = kernels.walk_rays(active, a, walk.d, t, tmax, shift, shift_end)
+        if not len(rows):
             break
-        rows = np.flatnonzero(active)
-        d_r = take_rows(d, rows)
-        org = take_rows(a, rows) + t[rows, None] * d_r
-        reach = tmax[rows] - t[rows]
-        shifted = np.flatnonzero(t[rows] < shift_end[rows])
-        if len(shifted):
-            org[shifted] += shift[rows[shifted]]
-            reach[shifted] = np.minimum(reach[shifted], shift_end[rows[shifted]] - t[rows[shifted]])
-        th, face, o = scene.intersect(org, d_r, reach)
-        hit = o >= 0
-        miss = ~hit
-        if len(shifted):
-            # nothing on the shifted stretch: the walk goes on along its own line past the solid
-            back = np.zeros(len(rows), dtype=bool)
-            back[shifted] = True
-            back &= miss
-            r_b = rows[back]
-            t[r_b] = shift_end[r_b]
-            active[r_b] = t[r_b] < tmax[r_b]
-            miss &= ~back
-        active[rows[miss]] = False
-        h = np.flatnonzero(hit)
-        rows, th, face, o = rows[h], th[h], face[h], o[h]
-        t_hit = t[rows] + th
-        # hits on a segment's own end objects within the guard are float32 noise of the vertex
-        noise = ((o == end_objects[rows, 0]) & (t_hit < guard)) | (
-            (o == end_objects[rows, 1]) & (t_hit > length[rows] - guard)
-        )
-        if noise.any():
-            t[rows[noise]] = t_hit[noise] + margin
-            # leaving a vertex along its own solid's face (grazing it within float32 noise for
-            # many steps): go on off the solid, as after a touch, where the line only touches it
-            start = np.flatnonzero(noise & (o == end_objects[rows, 0]))
-            if len(start):
-                r_s, o_s = rows[start], o[start]
-                a_s, d_s = take_rows(a, r_s), take_rows(d, r_s)
-                graze = touches(scene, o_s, a_s, d_s, CONTACT_TOL_MARGINS * margin)
-                if graze.any():
-                    g = r_s[graze]
-                    shift[g], shift_end[g] = _off_the_solid(scene, face[start][graze],
-                                                            o_s[graze], a_s[graze], d_s[graze])  # fmt: skip
-            active[rows[noise]] &= t[rows[noise]] < tmax[rows[noise]]
-            keep = ~noise
-            rows, face, o, t_hit = rows[keep], face[keep], o[keep], t_hit[keep]
-        a_r, d_r = take_rows(a, rows), take_rows(d, rows)
-        face, touch = canonical_faces(scene, face, o, a_r, d_r, t_hit)
-        if touch.any():
-            r_t = rows[touch]
-            t[r_t] = t_hit[touch] + margin
-            shift[r_t], shift_end[r_t] = _off_the_solid(scene, face[touch], o[touch],
-                                                        a_r[touch], d_r[touch])  # fmt: skip
-            keep = ~touch
-            active[rows[touch]] &= t[rows[touch]] < tmax[rows[touch]]
-            rows, face, o, t_hit = rows[keep], face[keep], o[keep], t_hit[keep]
-            a_r, d_r = a_r[keep], d_r[keep]
-        t_hit = _plane_distance(scene, face, a_r, d_r, t_hit)
-        walk.boundary(rows, face, o, t_hit)
-        t[rows] = t_hit + margin
-        crossed[rows] += 1
-        active[rows] &= (t[rows] < tmax[rows]) & ~walk.exceeded[rows]
-        # still walking after the budget: more crossings than allowed
-        over = rows[active[rows] & (crossed[rows] >= limit)]
-        walk.exceeded[over] = True
-        active[over] = False
+        th, face, o = scene.intersect(org, dirs, reach)
+        kernels.walk_hits(rows, th, face, o, a, length, tmax, t, active, crossed, shift,
+                          shift_end, end_objects, margin, guard,
+                          CONTACT_TOL_MARGINS * margin, GRAZING_COS, limit, *scene_arrays,
+                          *walk._state)  # fmt: skip
     else:
         # still hitting after the last round (a ray along a face, touching it again and again)
         walk.exceeded |= active
