@@ -622,10 +622,12 @@ class Scene:
                 TriangleMesh(es, self.vertices[f].astype(np.float32))
             cache[key] = (es, members)
         es, members = cache[key]
+        if not ok.all():  # (most calls ask about every ray)
+            origins, directions, length = origins[ok], directions[ok], np.asarray(length)[ok]
         res = es.run(
-            np.asarray(origins[ok], dtype=np.float32),
-            np.asarray(directions[ok], dtype=np.float32),
-            dists=np.asarray(length[ok], dtype=np.float32),
+            np.asarray(origins, dtype=np.float32),
+            np.asarray(directions, dtype=np.float32),
+            dists=np.asarray(length, dtype=np.float32),
             query="INTERSECT",
             output=1,
         )

@@ -178,8 +178,8 @@ def blocked_by_opaque(ctx: TraceContext, cand: Candidates) -> np.ndarray:
     m = len(cand)
     if not ctx.opaque.any() or m == 0:
         return np.zeros(m, dtype=bool)
-    chain, margin = cand.chain, ctx.scene.margin
-    ends = cand.ends.reshape(m, -1, 2)
+    chain, margin = carray(cand.chain), ctx.scene.margin
+    k = cand.depth
     blocked = np.zeros(m, dtype=bool)
     # one segment at a time, the longest on the whole first (the likeliest to be blocked): the
     # other segments of a blocked candidate need no query (each ray's answer is its own)
@@ -188,12 +188,15 @@ def blocked_by_opaque(ctx: TraceContext, cand: Candidates) -> np.ndarray:
     for j in np.argsort(-total, kind="stable"):
         if len(live) == 0:
             break
-        a = take_rows(chain[:, j], live)
-        v = take_rows(chain[:, j + 1], live) - a
-        length = norm(v)
-        d = np.divide(v, length[:, None], out=np.zeros_like(v), where=length[:, None] > 0)
-        hit = ctx.scene.first_hit_among(ctx.opaque, a + margin * d, d, length - 2 * margin)
-        b = (hit >= 0) & (hit != ends[:, j, 0][live]) & (hit != ends[:, j, 1][live])
+        a, d, length, org, reach = kernels.segment_rays(chain, live, int(j), margin)
+        hit = ctx.scene.first_hit_among(ctx.opaque, org, d, reach)
+        b = hit >= 0
+        # a hit on the object under either end of the segment is the vertex's own (left to
+        # segment_crossings, which records exactly what it crosses)
+        if j > 0:
+            b &= hit != cand.vobj[live, j - 1]
+        if j < k:
+            b &= hit != cand.vobj[live, j]
         if b.any():
             # a segment that only touches an opaque solid (lying in the plane of its face, or
             # leaving a vertex at a neighbour's corner, which Embree reports in one direction

@@ -11,9 +11,10 @@
   edge, point in facet, wedge validity, Embree), and :data:`PRUNE` switches them off to show it.
 * **Penetration** (:func:`line_span`, :func:`edge_distance`, :func:`hit_contacts`,
   :func:`canonical_face`, :func:`off_the_solid`, :func:`walk_rays`, :func:`walk_hits`,
-  :func:`walk_record`, :func:`walk_unseen`): lines against convex solids, points against
-  triangles, the face a hit at an edge is booked on, and the segment walk
-  (:mod:`raytrace.solver.penetration`): its rays, and a round of its hits, one hit at a time.
+  :func:`walk_record`, :func:`walk_unseen`, :func:`segment_rays`): lines against convex
+  solids, points against triangles, the face a hit at an edge is booked on, and the segment
+  walk (:mod:`raytrace.solver.penetration`): its rays, and a round of its hits, one hit at a
+  time; the rays of the opaque test.
 * **Fields** (:func:`track_fields`): the field vector carried along each path through the
   coefficients the physics modules computed, per mechanism, for all paths at once.
 
@@ -34,7 +35,7 @@ from ..core.jit import inline, kernel
 __all__ = ["PRUNE", "surely_inside", "facet_wedge_pairs", "expand_over_others",
            "second_order_receivers", "line_span", "edge_distance", "hit_contacts", "canonical_face",
            "off_the_solid", "walk_record", "walk_unseen", "walk_rays", "walk_hits",
-           "track_fields"]
+           "segment_rays", "track_fields"]
 
 #: The callers pass this as the kernels' ``prune``: False switches their pruning tests off (they
 #: then return every candidate that satisfies the rules, with unbounded spans), so that a trace
@@ -819,6 +820,39 @@ def walk_hits(rows, th, face, o, a, length, tmax, t, active, crossed, shift, shi
         if active[r] and crossed[r] >= limit:
             exceeded[r] = True
             active[r] = False
+
+
+@kernel(
+    "Tuple((f8[:, ::1], f8[:, ::1], f8[::1], f8[:, ::1], f8[::1]))("
+    "f8[:, :, ::1], i8[::1], i8, f8)"
+)
+def segment_rays(chain, live, j, margin):
+    """The rays of segment ``j`` of the chains ``live`` (chain (M, k + 2, 3), metres), as
+    :func:`raytrace.solver.evaluate.blocked_by_opaque` asks Embree about them: the start ``a``
+    (n, 3), unit direction ``d`` (n, 3; zero for a segment of zero length), length (n,), and
+    the ray shortened by ``margin`` at both ends: origin ``a + margin d`` (n, 3) and reach
+    ``length - 2 margin`` (n,), metres."""
+    n = len(live)
+    a = np.empty((n, 3))
+    d = np.empty((n, 3))
+    length = np.empty(n)
+    org = np.empty((n, 3))
+    reach = np.empty(n)
+    for i in range(n):
+        c = live[i]
+        ax, ay, az = chain[c, j, 0], chain[c, j, 1], chain[c, j, 2]
+        vx, vy, vz = chain[c, j + 1, 0] - ax, chain[c, j + 1, 1] - ay, chain[c, j + 1, 2] - az
+        ln = np.sqrt(vx * vx + vy * vy + vz * vz)
+        if ln > 0:
+            dx, dy, dz = vx / ln, vy / ln, vz / ln
+        else:
+            dx, dy, dz = 0.0, 0.0, 0.0
+        a[i, 0], a[i, 1], a[i, 2] = ax, ay, az
+        d[i, 0], d[i, 1], d[i, 2] = dx, dy, dz
+        length[i] = ln
+        org[i, 0], org[i, 1], org[i, 2] = ax + margin * dx, ay + margin * dy, az + margin * dz
+        reach[i] = ln - 2 * margin
+    return a, d, length, org, reach
 
 # -- fields: the field vector along each path (raytrace.solver.evaluate.path_fields) -------------
 @inline
