@@ -55,6 +55,8 @@ from scipy.special import wofz
 
 from ..core.constants import C0
 from ..core.errors import TraceInputError
+from ..core.jit import carray as _c
+from ..core.jit import inline, kernel
 from ..core.vec import cross as _cross
 from ..core.vec import norm as _norm
 from ..core.vec import rows as _rows
@@ -213,7 +215,7 @@ class WedgeGeometry:
     psi_0, psi_n : (P,) float, rad; in-plane angle, measured from the face, of the ray whose
         reflection in that face the face's diffraction term carries: the specular reflection off
         the face's plane between source and receiver, each taken in front of the plane (D8a,
-        see ``_face_angles``); ``phi'`` on the face's reflection boundary
+        see :func:`face_rule_angle`); ``phi'`` on the face's reflection boundary
     cos_theta_0, cos_theta_n : (P,) float; cosine of the incidence angle (to the face normal) at
         which the reflection coefficients ``R_0`` and ``R_n`` are evaluated:
         ``sin(beta0) |sin(psi_0)|``, ``sin(beta0) |sin(psi_n)|``
@@ -247,21 +249,6 @@ class WedgeGeometry:
 
     def __len__(self) -> int:
         return int(self.n.shape[0])
-
-
-def _azimuth(v: np.ndarray, t0: np.ndarray, n0: np.ndarray, n: np.ndarray):
-    """Angle of vectors ``v`` from face 0 in ``[0, 2 pi)``, snapped onto faces within rounding.
-
-    Returns ``(phi, inside)``: ``inside`` marks directions inside the wedge (phi > n pi).
-    """
-    phi = np.mod(np.arctan2(_dot(v, n0), _dot(v, t0)), _TWO_PI)
-    npi = n * np.pi
-    over = phi > npi
-    near_face0 = over & (phi >= _TWO_PI - _ANGLE_SNAP_RAD)
-    near_facen = over & (phi <= npi + _ANGLE_SNAP_RAD)
-    phi = np.where(near_face0 & ~near_facen, 0.0, phi)
-    phi = np.where(near_facen, npi, phi)
-    return phi, over & ~near_face0 & ~near_facen
 
 
 def wedge_geometry(
@@ -351,14 +338,9 @@ def framed_wedge_geometry(
     dst = _points("dst", dst, p)
     point = _points("point", point, p)
     e, t0, n0, nn, n = frame
-    s_hat_in, s_in = _unit(point - src)
-    s_hat_out, s_out = _unit(dst - point)
-    phi_in, in_wedge_s = _azimuth(src - point, t0, n0, n)
-    phi, in_wedge_d = _azimuth(dst - point, t0, n0, n)
-    sin_beta0, phi_hat_in, beta_hat_in, ok_in = _ray_fixed(e, s_hat_in, incident=True)
-    _, phi_hat_out, beta_hat_out, ok_out = _ray_fixed(e, s_hat_out, incident=False)
-    valid = (s_in > 0) & (s_out > 0) & ok_in & ok_out & ~in_wedge_s & ~in_wedge_d
-    lit_0, lit_n, psi_0, psi_n = _face_angles(n, phi_in, phi, s_in, s_out)
+    (s_hat_in, s_in, s_hat_out, s_out, phi_in, phi, sin_beta0, phi_hat_in, beta_hat_in,
+     phi_hat_out, beta_hat_out, lit_0, lit_n, valid, psi_0, psi_n, cos_theta_0,
+     cos_theta_n) = _geometry(_c(e), _c(t0), _c(n0), _c(n), _c(src), _c(dst), _c(point))  # fmt: skip
     return WedgeGeometry(
         edge_dir=e,
         face0_tangent=t0,
@@ -380,8 +362,8 @@ def framed_wedge_geometry(
         lit_n=lit_n,
         psi_0=psi_0,
         psi_n=psi_n,
-        cos_theta_0=sin_beta0 * np.abs(np.sin(psi_0)),
-        cos_theta_n=sin_beta0 * np.abs(np.sin(psi_n)),
+        cos_theta_0=cos_theta_0,
+        cos_theta_n=cos_theta_n,
         valid=valid,
     )
 
@@ -393,13 +375,124 @@ def diffraction_valid(
     arithmetic): (P,) bool, source and receiver in the exterior of the wedge, neither on the
     edge line, non-zero distances. src, dst, point : (P, 3) float, metres (not checked)."""
     e, t0, n0, _, n = frame
-    s_hat_in, s_in = _unit(point - src)
-    s_hat_out, s_out = _unit(dst - point)
-    _, in_wedge_s = _azimuth(src - point, t0, n0, n)
-    _, in_wedge_d = _azimuth(dst - point, t0, n0, n)
-    ok_in = _norm(_cross(e, s_hat_in)) > _MIN_SIN_BETA0
-    ok_out = _norm(_cross(e, s_hat_out)) > _MIN_SIN_BETA0
-    return (s_in > 0) & (s_out > 0) & ok_in & ok_out & ~in_wedge_s & ~in_wedge_d
+    return _valid(_c(e), _c(t0), _c(n0), _c(n), _c(src), _c(dst), _c(point))
+
+
+# the geometry of one diffraction, compiled (numba): the kernels below run it over P rows; the
+# sums and products are in the order of the vectorised form they replaced (core.vec, einsum)
+@inline
+def _dot3(ax, ay, az, bx, by, bz):
+    return (ax * bx + az * bz) + ay * by  # einsum's order over a 3-vector
+
+
+@inline
+def _cross3(ax, ay, az, bx, by, bz):
+    return ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx  # core.vec.cross
+
+
+@inline
+def _azimuth1(wx, wy, wz, t0, n0, n, r):
+    """The angle of vector ``w`` from face 0 of wedge ``r``, ``atan2(w . n0, w . t0)`` in ``[0, 2
+    pi)``, snapped onto a face where it is beyond it by rounding only (``_ANGLE_SNAP_RAD``), and
+    whether it points into the wedge (``phi > n pi``, not snapped)."""
+    phi = np.arctan2(_dot3(wx, wy, wz, n0[r, 0], n0[r, 1], n0[r, 2]),
+                     _dot3(wx, wy, wz, t0[r, 0], t0[r, 1], t0[r, 2])) % _TWO_PI  # fmt: skip
+    npi = n[r] * np.pi
+    over = phi > npi
+    near_face0 = over and phi >= _TWO_PI - _ANGLE_SNAP_RAD
+    near_facen = over and phi <= npi + _ANGLE_SNAP_RAD
+    if near_face0 and not near_facen:
+        phi = 0.0
+    if near_facen:
+        phi = npi
+    return phi, over and not near_face0 and not near_facen
+
+
+@inline
+def _legs(e, t0, n0, n, src, dst, point, r):
+    """Unit vectors, lengths, azimuths and ``e x s`` of the incident and diffracted legs."""
+    ix, iy, iz = point[r, 0] - src[r, 0], point[r, 1] - src[r, 1], point[r, 2] - src[r, 2]
+    s_in = np.sqrt(ix * ix + iy * iy + iz * iz)
+    ix, iy, iz = ix / s_in, iy / s_in, iz / s_in
+    ox, oy, oz = dst[r, 0] - point[r, 0], dst[r, 1] - point[r, 1], dst[r, 2] - point[r, 2]
+    s_out = np.sqrt(ox * ox + oy * oy + oz * oz)
+    ox, oy, oz = ox / s_out, oy / s_out, oz / s_out
+    phi_in, in_s = _azimuth1(src[r, 0] - point[r, 0], src[r, 1] - point[r, 1],
+                             src[r, 2] - point[r, 2], t0, n0, n, r)  # fmt: skip
+    phi, in_d = _azimuth1(dst[r, 0] - point[r, 0], dst[r, 1] - point[r, 1],
+                          dst[r, 2] - point[r, 2], t0, n0, n, r)  # fmt: skip
+    cix, ciy, ciz = _cross3(e[r, 0], e[r, 1], e[r, 2], ix, iy, iz)
+    cox, coy, coz = _cross3(e[r, 0], e[r, 1], e[r, 2], ox, oy, oz)
+    sin_in = np.sqrt(cix * cix + ciy * ciy + ciz * ciz)
+    sin_out = np.sqrt(cox * cox + coy * coy + coz * coz)
+    valid = (s_in > 0 and s_out > 0 and sin_in > _MIN_SIN_BETA0 and sin_out > _MIN_SIN_BETA0
+             and not in_s and not in_d)  # fmt: skip
+    return (ix, iy, iz, s_in, ox, oy, oz, s_out, phi_in, phi, cix, ciy, ciz, sin_in, cox, coy,
+            coz, sin_out, valid)  # fmt: skip
+
+
+@inline
+def _face_rule(a_in, a_out, s_in, s_out):
+    """:func:`face_rule_angle` of one diffraction."""
+    height = s_out * abs(np.sin(a_out)) + s_in * abs(np.sin(a_in))
+    return np.arctan2(height, s_in * np.cos(a_in) - s_out * np.cos(a_out))
+
+
+_VECS = "f8[:, ::1], f8[:, ::1], f8[:, ::1], f8[::1], f8[:, ::1], f8[:, ::1], f8[:, ::1]"
+
+
+@kernel(f"b1[::1]({_VECS})")
+def _valid(e, t0, n0, n, src, dst, point):
+    """:func:`diffraction_valid` over P rows."""
+    out = np.empty(len(n), dtype=np.bool_)
+    for r in range(len(n)):
+        out[r] = _legs(e, t0, n0, n, src, dst, point, r)[18]
+    return out
+
+
+@kernel(
+    "Tuple((f8[:, ::1], f8[::1], f8[:, ::1], f8[::1], f8[::1], f8[::1], f8[::1], f8[:, ::1], "
+    "f8[:, ::1], f8[:, ::1], f8[:, ::1], b1[::1], b1[::1], b1[::1], f8[::1], f8[::1], f8[::1], "
+    f"f8[::1]))({_VECS})"
+)
+def _geometry(e, t0, n0, n, src, dst, point):
+    """:func:`framed_wedge_geometry` over P rows: the fields of :class:`WedgeGeometry` after the
+    frame's, in the order ``s_hat_in, s_in, s_hat_out, s_out, phi_in, phi, sin_beta0,
+    phi_hat_in, beta_hat_in, phi_hat_out, beta_hat_out, lit_0, lit_n, valid, psi_0, psi_n,
+    cos_theta_0, cos_theta_n``."""
+    p = len(n)
+    s_hat_in, s_hat_out = np.empty((p, 3)), np.empty((p, 3))
+    phi_hat_in, beta_hat_in = np.empty((p, 3)), np.empty((p, 3))
+    phi_hat_out, beta_hat_out = np.empty((p, 3)), np.empty((p, 3))
+    s_in, s_out, phi_in, phi, sin_beta0 = (np.empty(p), np.empty(p), np.empty(p), np.empty(p),
+                                           np.empty(p))  # fmt: skip
+    psi_0, psi_n, cos_0, cos_n = np.empty(p), np.empty(p), np.empty(p), np.empty(p)
+    lit_0, lit_n = np.empty(p, dtype=np.bool_), np.empty(p, dtype=np.bool_)
+    valid = np.empty(p, dtype=np.bool_)
+    for r in range(p):
+        (ix, iy, iz, si, ox, oy, oz, so, pin, pout, cix, ciy, ciz, sin_in, cox, coy, coz,
+         sin_out, ok) = _legs(e, t0, n0, n, src, dst, point, r)  # fmt: skip
+        s_hat_in[r, 0], s_hat_in[r, 1], s_hat_in[r, 2], s_in[r] = ix, iy, iz, si
+        s_hat_out[r, 0], s_hat_out[r, 1], s_hat_out[r, 2], s_out[r] = ox, oy, oz, so
+        phi_in[r], phi[r], sin_beta0[r], valid[r] = pin, pout, sin_in, ok
+        # KP's ray-fixed unit vectors: phi'_hat = -(e x s') / |e x s'|, phi_hat = (e x s) / |.|,
+        # beta0_hat = s x phi_hat
+        hx, hy, hz = -cix / sin_in, -ciy / sin_in, -ciz / sin_in
+        phi_hat_in[r, 0], phi_hat_in[r, 1], phi_hat_in[r, 2] = hx, hy, hz
+        beta_hat_in[r, 0], beta_hat_in[r, 1], beta_hat_in[r, 2] = _cross3(ix, iy, iz, hx, hy, hz)
+        hx, hy, hz = cox / sin_out, coy / sin_out, coz / sin_out
+        phi_hat_out[r, 0], phi_hat_out[r, 1], phi_hat_out[r, 2] = hx, hy, hz
+        beta_hat_out[r, 0], beta_hat_out[r, 1], beta_hat_out[r, 2] = _cross3(ox, oy, oz, hx, hy,
+                                                                              hz)  # fmt: skip
+        npi = n[r] * np.pi
+        lit_0[r] = pin <= np.pi
+        lit_n[r] = npi - pin <= np.pi
+        psi_0[r] = _face_rule(pin, pout, si, so)
+        psi_n[r] = _face_rule(npi - pin, npi - pout, si, so)
+        cos_0[r] = sin_in * abs(np.sin(psi_0[r]))
+        cos_n[r] = sin_in * abs(np.sin(psi_n[r]))
+    return (s_hat_in, s_in, s_hat_out, s_out, phi_in, phi, sin_beta0, phi_hat_in, beta_hat_in,
+            phi_hat_out, beta_hat_out, lit_0, lit_n, valid, psi_0, psi_n, cos_0, cos_n)  # fmt: skip
 
 
 def _oriented_wedge(
@@ -441,23 +534,12 @@ def _oriented_wedge(
     return e, t0, n0, nn, ext / np.pi
 
 
-def _ray_fixed(
-    e: np.ndarray, s_hat: np.ndarray, *, incident: bool
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """KP ray-fixed unit vectors of a ray ``s_hat`` at the edge ``e``: ``sin beta0``, ``phi_hat``
-    (``-(e x s')/|e x s'|`` for the incident ray, ``(e x s)/|e x s|`` for the diffracted one),
-    ``beta0_hat = s x phi_hat``, and whether the ray is not along the edge."""
-    cross = _cross(e, s_hat)
-    sin_beta0 = _norm(cross)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        phi_hat = (-cross if incident else cross) / sin_beta0[:, None]
-    return sin_beta0, phi_hat, _cross(s_hat, phi_hat), sin_beta0 > _MIN_SIN_BETA0
-
-
-def _face_angles(
-    n: np.ndarray, phi_in: np.ndarray, phi: np.ndarray, s_in: np.ndarray, s_out: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Which faces the source lights, and each face's in-plane reflection angle (D8a).
+def face_rule_angle(
+    a_in: np.ndarray, a_out: np.ndarray, s_in: np.ndarray, s_out: np.ndarray
+) -> np.ndarray:
+    """The face rule (D8a): in-plane angle (rad) of the reflection off a face's plane between a
+    source at angle ``a_in`` (rad, from the face) and distance ``s_in`` (m) from the edge and a
+    receiver at ``a_out``, ``s_out``, both taken in front of the plane; (P,) arrays broadcast.
 
     In the plane perpendicular to the edge, the source is at distance ``s' sin beta0`` and angle
     ``phi'`` from the face, the receiver at ``s sin beta0`` and ``phi``. The face reflects at the
@@ -467,24 +549,10 @@ def _face_angles(
     cancels). This is reciprocal (swapping the ends gives ``pi - psi``, the same reflection),
     continuous everywhere, the geometrical-optics reflection angle wherever the face's reflection
     is seen (so ``phi'`` on its reflection boundary), and tends to Luebbers' ``phi'`` for a
-    distant source and to his ``pi - phi`` for a distant receiver. Returns ``lit_0, lit_n``
-    (bool: the source is in front of the face's plane) and ``psi_0, psi_n`` (rad).
+    distant source and to his ``pi - phi`` for a distant receiver. :class:`WedgeGeometry` takes
+    face 0's angle with ``(phi', phi)`` and face n's with ``(n pi - phi', n pi - phi)``
+    (compiled, :func:`_face_rule`, the same expression).
     """
-    npi = n * np.pi
-    lit_0 = phi_in <= np.pi
-    lit_n = npi - phi_in <= np.pi
-    psi_0 = face_rule_angle(phi_in, phi, s_in, s_out)
-    psi_n = face_rule_angle(npi - phi_in, npi - phi, s_in, s_out)
-    return lit_0, lit_n, psi_0, psi_n
-
-
-def face_rule_angle(
-    a_in: np.ndarray, a_out: np.ndarray, s_in: np.ndarray, s_out: np.ndarray
-) -> np.ndarray:
-    """The face rule (D8a): in-plane angle (rad) of the reflection off a face's plane between a
-    source at angle ``a_in`` (rad, from the face) and distance ``s_in`` (m) from the edge and a
-    receiver at ``a_out``, ``s_out``, both taken in front of the plane; (P,) arrays broadcast.
-    See :func:`_face_angles`."""
     height = s_out * np.abs(np.sin(a_out)) + s_in * np.abs(np.sin(a_in))
     return np.arctan2(height, s_in * np.cos(a_in) - s_out * np.cos(a_out))
 
