@@ -1,6 +1,8 @@
-"""Compiled loops (numba) for the few places where numpy's array-at-a-time style costs more than
-the arithmetic: pruning that runs over (object, facet, edge) triples with early exits, where the
-numpy form builds dense matrices of which a few per cent survive.
+"""Compiled loops (numba) for the places where numpy's array-at-a-time style costs more than the
+arithmetic: pruning that runs over (object, facet, edge) triples with early exits, where the
+numpy form builds dense matrices of which a few per cent survive, and per-row bookkeeping (the
+segment walk, the geometry of a diffraction, field tracking) that numpy spreads over many masked
+passes.
 
 Every kernel is compiled with the same options (:func:`kernel`):
 
@@ -10,7 +12,9 @@ Every kernel is compiled with the same options (:func:`kernel`):
 * ``error_model="numpy"``: a division by zero gives ``inf`` or ``nan`` as in numpy, not an
   exception;
 * no ``fastmath``: IEEE operations in the order written (no reassociation, no fused
-  multiply-add), so a kernel that writes a numpy expression in the same order gives numpy's bits;
+  multiply-add), so a kernel that writes a real numpy expression in the same order gives numpy's
+  bits (not for complex products, which numpy fuses on CPUs with AVX-512, nor for ``arctan2``,
+  ``sin`` and ``cos``, which numpy computes with its own vectorised routines: last bits only);
 * ``nogil=True``: a kernel releases the GIL, so the tracer's stage threads run them side by side;
 * ``cache=True``: compiled once per installation (about a second per kernel) and loaded from the
   cache by later processes (``NUMBA_CACHE_DIR`` moves the cache; numba falls back to a per-user
