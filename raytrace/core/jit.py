@@ -29,7 +29,7 @@ from typing import Any
 import numba
 import numpy as np
 
-__all__ = ["kernel", "inline", "carray"]
+__all__ = ["kernel", "inline", "helper", "carray"]
 
 _OPTIONS: dict[str, Any] = dict(cache=True, nogil=True, error_model="numpy", fastmath=False)
 
@@ -56,6 +56,15 @@ def inline(fn: Callable[..., Any]) -> Any:
     """Decorator: a scalar helper of kernels, compiled into each kernel that calls it (typed
     by its callers), with the same options."""
     return _njit(fn, inline="always")
+
+
+def helper(fn: Callable[..., Any]) -> Any:
+    """Decorator: a scalar helper of kernels compiled once as a function of its own, which the
+    kernels call (typed by its callers), with the same options. For the larger helpers on rare
+    branches: :func:`inline` copies a helper into every call site at numba's level, which is
+    faster per call but multiplies the compilation time of a kernel that calls it from several
+    places."""
+    return _njit(fn)
 
 
 def carray(x: Any, dtype: Any = np.float64) -> np.ndarray:

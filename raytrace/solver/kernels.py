@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..core.jit import inline, kernel
+from ..core.jit import helper, inline, kernel
 
 __all__ = ["PRUNE", "surely_inside", "facet_wedge_pairs", "expand_over_others",
            "second_order_receivers", "line_span", "edge_distance", "hit_contacts", "canonical_face",
@@ -357,7 +357,7 @@ def _dot3(x0, x1, x2, y0, y1, y2):
     return (x0 * y0 + x2 * y2) + x1 * y1
 
 
-@inline
+@helper
 def _span(normal, offset, count, ob, ax, ay, az, dx, dy, dz, inset):
     """One line against one convex solid: see :func:`line_span` (``lo > hi``: no span)."""
     lo, hi, par = -np.inf, np.inf, False
@@ -448,7 +448,7 @@ def _contact(f, ob, ax, ay, az, dx, dy, dz, t, face_normal, corners, edge_normal
     return px, py, pz, e, np.sign(dn), touch
 
 
-@inline
+@helper
 def _canonical(f, ob, px, py, pz, dx, dy, dz, side, face_start, face_count, face_normal, corners,
                edge_normals, tol):  # fmt: skip
     """One hit: see :func:`canonical_face`."""
@@ -577,7 +577,7 @@ def _record(r, t_entry, ob, nx, ny, nz, th, d, closed, k, count, exceeded, dist,
     count[r] += 1
 
 
-@inline
+@helper
 def _unseen(r, ob, fx, fy, fz, t_exit, d, closed, k, count, exceeded, dist, obj, normal, thick,
             t_last, normal_last):  # fmt: skip
     """Segment ``r``, outside any solid, leaves solid ``ob`` at ``t_exit`` through a face of
@@ -696,7 +696,7 @@ def walk_rays(active, a, d, t, tmax, shift, shift_end):
     return rows, org, dirs, reach
 
 
-@inline
+@helper
 def _off_the_solid(f, ob, ax, ay, az, dx, dy, dz, face_normal, normal, offset, count, tol):
     """Where a walk that touched face ``f`` of convex solid ``ob`` goes on: a shift of two
     contact tolerances along the face's outward normal, across the ray, and the distance at
