@@ -16,8 +16,8 @@ when its own entry face is the one reported. A solid left without a seen entry a
 start has no entry face; its exit face stands in. Likewise a hit at an edge or a vertex is
 booked on a canonical face, a ray that only touches a convex solid (at an edge, a vertex or
 along a face) does not cross it, and hit distances are taken on the booked face's plane in
-float64 (:func:`canonical_faces`, :func:`raytrace.solver.kernels.walk_hits`): the crossings do not depend on the
-BVH, which differs between a static scene and a snapshot with forklifts.
+float64 (:func:`canonical_faces`, :func:`raytrace.solver.kernels.walk_hits`): the crossings do
+not depend on the BVH, which differs between a static scene and a snapshot with forklifts.
 
 The equivalent slab thickness of a chord through a solid is the chord length times the cosine of
 the incidence angle on the more head-on of its entry and exit faces (:func:`kernels._more_head_on`):
