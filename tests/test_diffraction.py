@@ -363,12 +363,13 @@ def test_coefficients_vs_textbook_kp() -> None:
 
 def test_boundary_limit_value_and_jump() -> None:
     # KP: cot(eps/2n) F(kL 2 sin^2(eps/2)) -> n [sqrt(2 pi kL) sgn(eps) - 2 kL eps e^{j pi/4}] e^{j pi/4}
-    from raytrace.physics.utd import _wedge_term
+    from raytrace.physics.utd import _transition_over_sqrt, _wedge_factors
 
     n, kl = np.array([1.5, 2.0]), np.array([30.0, 300.0])
     for eps in (1e-3, -1e-3, 1e-6, -1e-6):
-        beta = np.pi - eps  # a^- term with N = 0: eps = pi - beta
-        got = _wedge_term(np.asarray(beta), -1, n, kl)
+        beta = np.pi - eps  # a^- term with N = 0: eps = pi - beta (D2: beta = phi - phi')
+        x, f = _wedge_factors(n, np.full(2, beta), np.zeros(2), kl)
+        got = f[:, 1] * _transition_over_sqrt(x[:, 1])
         approx = (
             n
             * (np.sqrt(2 * np.pi * kl) * np.sign(eps) - 2 * kl * eps * np.exp(0.25j * np.pi))

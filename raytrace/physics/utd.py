@@ -589,22 +589,48 @@ def transition_function(x: float | np.ndarray) -> np.ndarray:
     return np.sqrt(x) * _transition_over_sqrt(x)
 
 
-def _wedge_term(beta: np.ndarray, sign: int, n: np.ndarray, kl: np.ndarray) -> np.ndarray:
-    """``cot((pi + sign beta) / 2n) F(kL a^sign(beta))`` in a form finite at the boundaries.
+@inline
+def _sinc(x):
+    """numpy's ``sinc``: ``sin(pi x) / (pi x)``, with ``x = 1e-20`` standing in for 0."""
+    y = np.pi * (x if x != 0.0 else 1.0e-20)
+    return np.sin(y) / y
+
+
+@inline
+def _wedge_factor(beta, sign, n, kl):
+    """``cot((pi + sign beta) / 2n) F(kL a^sign(beta))`` in a form finite at the boundaries,
+    as ``(x, f)`` with the term ``= f G(x)`` (``G`` = :func:`_transition_over_sqrt`).
 
     With ``N`` the integer nearest to ``(sign beta + pi) / (2 pi n)`` (KP's ``N^+`` for
     sign = +1, ``-N^-`` for sign = -1) and ``eps = pi + sign beta - 2 pi n N`` in ``[-n pi, n pi]``,
     exactly ``cot((pi + sign beta)/2n) = cot(eps/2n)`` and ``a^sign(beta) = 2 sin^2(eps/2)``, so
     the term is ``cot(eps/2n) sqrt(x) G(x)``, ``x = 2 kL sin^2(eps/2)``, ``G = F / sqrt(x)``, and
-    ``cot(eps/2n) |sin(eps/2)| = sgn(eps) n cos(eps/2n) sinc(eps/2pi) / sinc(eps/(2 pi n))``.
+    ``cot(eps/2n) |sin(eps/2)| = sgn(eps) n cos(eps/2n) sinc(eps/2pi) / sinc(eps/(2 pi n))``,
+    so ``f = sgn(eps) n cos(eps/2n) sinc(eps/2pi) / sinc(eps/(2 pi n)) sqrt(2 kL)``.
     Its limit for eps -> 0 is ``n sqrt(2 pi kL) sgn(eps) exp(j pi/4)`` (KP's boundary value); the
     jump of sgn(eps) is the one that cancels the jump of the geometrical-optics field.
     """
-    big_n = np.round((sign * beta + np.pi) / (_TWO_PI * n))
+    big_n = np.rint((sign * beta + np.pi) / (_TWO_PI * n))
     eps = np.pi + sign * beta - _TWO_PI * n * big_n
-    x = 2.0 * kl * np.sin(0.5 * eps) ** 2
-    ratio = n * np.cos(eps / (2.0 * n)) * np.sinc(eps / _TWO_PI) / np.sinc(eps / (_TWO_PI * n))
-    return np.sign(eps) * ratio * np.sqrt(2.0 * kl) * _transition_over_sqrt(x)
+    s = np.sin(0.5 * eps)
+    x = 2.0 * kl * (s * s)
+    ratio = n * np.cos(eps / (2.0 * n)) * _sinc(eps / _TWO_PI) / _sinc(eps / (_TWO_PI * n))
+    return x, np.sign(eps) * ratio * np.sqrt(2.0 * kl)
+
+
+@kernel("Tuple((f8[:, ::1], f8[:, ::1]))(f8[::1], f8[::1], f8[::1], f8[::1])")
+def _wedge_factors(n, phi, phi_in, kl):
+    """:func:`_wedge_factor` of the four terms of P diffractions, (P, 4) each: ``D1``, ``D2``
+    (``beta = phi - phi'``, sign +1, -1) and ``D3``, ``D4`` (``beta = phi + phi'``)."""
+    p = len(n)
+    x, f = np.empty((p, 4)), np.empty((p, 4))
+    for r in range(p):
+        b_m, b_p = phi[r] - phi_in[r], phi[r] + phi_in[r]
+        x[r, 0], f[r, 0] = _wedge_factor(b_m, 1.0, n[r], kl[r])
+        x[r, 1], f[r, 1] = _wedge_factor(b_m, -1.0, n[r], kl[r])
+        x[r, 2], f[r, 2] = _wedge_factor(b_p, 1.0, n[r], kl[r])
+        x[r, 3], f[r, 3] = _wedge_factor(b_p, -1.0, n[r], kl[r])
+    return x, f
 
 
 def _reflection_pair(
@@ -625,12 +651,13 @@ def _utd_terms(n, phi, phi_in, sin_beta0, distance_m, wavenumber):
     n, phi, phi_in, sin_beta0, dist, k = np.broadcast_arrays(
         *(np.asarray(v, dtype=float) for v in (n, phi, phi_in, sin_beta0, distance_m, wavenumber))
     )
+    shape = n.shape
     kl = k * dist
-    beta_m = phi - phi_in
-    beta_p = phi + phi_in
+    x, f = _wedge_factors(*(_c(v.reshape(-1)) for v in (n, phi, phi_in, kl)))
+    w = f * _transition_over_sqrt(x)  # the four terms, one Faddeeva call for all
     c = -np.exp(-0.25j * np.pi) / (2.0 * n * np.sqrt(_TWO_PI * k) * sin_beta0)
-    d12 = c * (_wedge_term(beta_m, +1, n, kl) + _wedge_term(beta_m, -1, n, kl))
-    return d12, c * _wedge_term(beta_p, +1, n, kl), c * _wedge_term(beta_p, -1, n, kl)
+    d12 = c * (w[:, 0] + w[:, 1]).reshape(shape)
+    return d12, c * w[:, 2].reshape(shape), c * w[:, 3].reshape(shape)
 
 
 def utd_coefficients(
