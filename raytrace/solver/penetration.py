@@ -68,7 +68,7 @@ class Crossings:
 CONTACT_TOL_MARGINS = 1.0
 
 #: Below this cosine between a ray and a face, the float64 plane distance is not used in place of
-#: Embree's (:func:`_plane_distance`).
+#: Embree's (:func:`raytrace.solver.kernels.walk_hits`).
 GRAZING_COS = 1e-6
 
 #: Rounds of a segment walk beyond its budget of boundaries, for steps that are not boundaries
