@@ -58,6 +58,7 @@ from ..core.errors import TraceInputError
 from ..core.jit import carray as _c
 from ..core.jit import inline, kernel
 from ..core.vec import cross as _cross
+from ..core.vec import cross3, dot3
 from ..core.vec import norm as _norm
 from ..core.vec import rows as _rows
 
@@ -381,22 +382,12 @@ def diffraction_valid(
 # the geometry of one diffraction, compiled (numba): the kernels below run it over P rows; the
 # sums and products are in the order of the vectorised form they replaced (core.vec, einsum)
 @inline
-def _dot3(ax, ay, az, bx, by, bz):
-    return (ax * bx + az * bz) + ay * by  # einsum's order over a 3-vector
-
-
-@inline
-def _cross3(ax, ay, az, bx, by, bz):
-    return ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx  # core.vec.cross
-
-
-@inline
 def _azimuth1(wx, wy, wz, t0, n0, n, r):
     """The angle of vector ``w`` from face 0 of wedge ``r``, ``atan2(w . n0, w . t0)`` in ``[0, 2
     pi)``, snapped onto a face where it is beyond it by rounding only (``_ANGLE_SNAP_RAD``), and
     whether it points into the wedge (``phi > n pi``, not snapped)."""
-    phi = np.arctan2(_dot3(wx, wy, wz, n0[r, 0], n0[r, 1], n0[r, 2]),
-                     _dot3(wx, wy, wz, t0[r, 0], t0[r, 1], t0[r, 2])) % _TWO_PI  # fmt: skip
+    phi = np.arctan2(dot3(wx, wy, wz, n0[r, 0], n0[r, 1], n0[r, 2]),
+                     dot3(wx, wy, wz, t0[r, 0], t0[r, 1], t0[r, 2])) % _TWO_PI  # fmt: skip
     npi = n[r] * np.pi
     over = phi > npi
     near_face0 = over and phi >= _TWO_PI - _ANGLE_SNAP_RAD
@@ -421,8 +412,8 @@ def _legs(e, t0, n0, n, src, dst, point, r):
                              src[r, 2] - point[r, 2], t0, n0, n, r)  # fmt: skip
     phi, in_d = _azimuth1(dst[r, 0] - point[r, 0], dst[r, 1] - point[r, 1],
                           dst[r, 2] - point[r, 2], t0, n0, n, r)  # fmt: skip
-    cix, ciy, ciz = _cross3(e[r, 0], e[r, 1], e[r, 2], ix, iy, iz)
-    cox, coy, coz = _cross3(e[r, 0], e[r, 1], e[r, 2], ox, oy, oz)
+    cix, ciy, ciz = cross3(e[r, 0], e[r, 1], e[r, 2], ix, iy, iz)
+    cox, coy, coz = cross3(e[r, 0], e[r, 1], e[r, 2], ox, oy, oz)
     sin_in = np.sqrt(cix * cix + ciy * ciy + ciz * ciz)
     sin_out = np.sqrt(cox * cox + coy * coy + coz * coz)
     valid = (s_in > 0 and s_out > 0 and sin_in > _MIN_SIN_BETA0 and sin_out > _MIN_SIN_BETA0
@@ -479,10 +470,10 @@ def _geometry(e, t0, n0, n, src, dst, point):
         # beta0_hat = s x phi_hat
         hx, hy, hz = -cix / sin_in, -ciy / sin_in, -ciz / sin_in
         phi_hat_in[r, 0], phi_hat_in[r, 1], phi_hat_in[r, 2] = hx, hy, hz
-        beta_hat_in[r, 0], beta_hat_in[r, 1], beta_hat_in[r, 2] = _cross3(ix, iy, iz, hx, hy, hz)
+        beta_hat_in[r, 0], beta_hat_in[r, 1], beta_hat_in[r, 2] = cross3(ix, iy, iz, hx, hy, hz)
         hx, hy, hz = cox / sin_out, coy / sin_out, coz / sin_out
         phi_hat_out[r, 0], phi_hat_out[r, 1], phi_hat_out[r, 2] = hx, hy, hz
-        beta_hat_out[r, 0], beta_hat_out[r, 1], beta_hat_out[r, 2] = _cross3(ox, oy, oz, hx, hy,
+        beta_hat_out[r, 0], beta_hat_out[r, 1], beta_hat_out[r, 2] = cross3(ox, oy, oz, hx, hy,
                                                                               hz)  # fmt: skip
         npi = n[r] * np.pi
         lit_0[r] = pin <= np.pi

@@ -31,6 +31,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..core.jit import helper, inline, kernel
+from ..core.vec import cross3, dot3
 
 __all__ = ["PRUNE", "surely_inside", "facet_wedge_pairs", "expand_over_others",
            "second_order_receivers", "line_span", "edge_distance", "hit_contacts", "canonical_face",
@@ -350,23 +351,16 @@ def second_order_receivers(f2, s_img, side_rx, apex2, axis2, cos2, in2, apex1, a
 
 
 # -- penetration: lines against convex solids, points against triangles -------------------------
-@inline
-def _dot3(x0, x1, x2, y0, y1, y2):
-    """A 3-vector dot product summed as numpy's einsum sums it here, ``(x0 y0 + x2 y2) + x1 y1``,
-    so that the kernels below give the numpy form's bits."""
-    return (x0 * y0 + x2 * y2) + x1 * y1
-
-
 @helper
 def _span(normal, offset, count, ob, ax, ay, az, dx, dy, dz, inset):
     """One line against one convex solid: see :func:`line_span` (``lo > hi``: no span)."""
     lo, hi, par = -np.inf, np.inf, False
     for k in range(count[ob]):
         nx, ny, nz = normal[ob, k, 0], normal[ob, k, 1], normal[ob, k, 2]
-        dn = _dot3(nx, ny, nz, dx, dy, dz)
+        dn = dot3(nx, ny, nz, dx, dy, dz)
         # signed distance of the line's points from the plane, at least inset inside:
         # s + t dn <= 0
-        s = _dot3(nx, ny, nz, ax, ay, az) - offset[ob, k] + inset
+        s = dot3(nx, ny, nz, ax, ay, az) - offset[ob, k] + inset
         tp = -s / dn
         if dn < 0 and tp > lo:
             lo = tp
@@ -438,7 +432,7 @@ def _contact(f, ob, ax, ay, az, dx, dy, dz, t, face_normal, corners, edge_normal
     py = ay + t * dy
     pz = az + t * dz
     e = _edge_distance(corners, edge_normals, f, px, py, pz)
-    dn = _dot3(face_normal[f, 0], face_normal[f, 1], face_normal[f, 2], dx, dy, dz)
+    dn = dot3(face_normal[f, 0], face_normal[f, 1], face_normal[f, 2], dx, dy, dz)
     cos = abs(dn)
     cos = cos if (cos > 1e-300 or cos != cos) else 1e-300  # numpy's maximum(cos, 1e-300)
     touch = False
@@ -550,8 +544,8 @@ def _more_head_on(ax, ay, az, bx, by, bz, dx, dy, dz):
     with parallel faces (a wall) both give the exact slab. The straight ray's length inside is
     the chord either way; at the more head-on face the slab's own refraction shortens it least.
     """
-    ca = abs(_dot3(ax, ay, az, dx, dy, dz))
-    cb = abs(_dot3(bx, by, bz, dx, dy, dz))
+    ca = abs(dot3(ax, ay, az, dx, dy, dz))
+    cb = abs(dot3(bx, by, bz, dx, dy, dz))
     if cb > ca:
         return bx, by, bz
     return ax, ay, az
@@ -570,7 +564,7 @@ def _record(r, t_entry, ob, nx, ny, nz, th, d, closed, k, count, exceeded, dist,
         normal[r, slot, 0], normal[r, slot, 1], normal[r, slot, 2] = nx, ny, nz
         chord = th if (th > 0.0 or th != th) else 0.0  # numpy's maximum(th, 0.0)
         if closed[ob]:
-            chord = chord * abs(_dot3(nx, ny, nz, d[r, 0], d[r, 1], d[r, 2]))
+            chord = chord * abs(dot3(nx, ny, nz, d[r, 0], d[r, 1], d[r, 2]))
         else:
             chord = chord * 1.0
         thick[r, slot] = chord
@@ -587,7 +581,7 @@ def _unseen(r, ob, fx, fy, fz, t_exit, d, closed, k, count, exceeded, dist, obj,
     if px == 0.0 and py == 0.0 and pz == 0.0:  # from the segment's start: no entry face
         ex, ey, ez = fx, fy, fz
     else:  # the previous boundary's plane, turned against the ray
-        side = -1.0 if _dot3(px, py, pz, dx, dy, dz) > 0 else 1.0
+        side = -1.0 if dot3(px, py, pz, dx, dy, dz) > 0 else 1.0
         ex, ey, ez = side * px, side * py, side * pz
     nx, ny, nz = _more_head_on(ex, ey, ez, fx, fy, fz, dx, dy, dz)
     _record(r, t_last[r], ob, nx, ny, nz, t_exit - t_last[r], d, closed, k, count, exceeded,
@@ -615,7 +609,7 @@ def _boundary(r, f, ob, th, face_normal, sheet_thickness, d, closed, k, count, e
     start (:func:`_unseen`); entering a solid closes an overlapping one first."""
     fx, fy, fz = face_normal[f, 0], face_normal[f, 1], face_normal[f, 2]
     cur = inside[r]
-    dn = _dot3(fx, fy, fz, d[r, 0], d[r, 1], d[r, 2])
+    dn = dot3(fx, fy, fz, d[r, 0], d[r, 1], d[r, 2])
     if not closed[ob]:
         _record(r, th, ob, fx, fy, fz, sheet_thickness[ob], d, closed, k, count, exceeded,
                 dist, obj, normal, thick)  # fmt: skip
@@ -703,7 +697,7 @@ def _off_the_solid(f, ob, ax, ay, az, dx, dy, dz, face_normal, normal, offset, c
     which the line leaves the solid grown by ``tol`` (past it, the walk is back on its own
     line; a zero shift and -inf for other objects)."""
     nx, ny, nz = face_normal[f, 0], face_normal[f, 1], face_normal[f, 2]
-    dn = _dot3(nx, ny, nz, dx, dy, dz)
+    dn = dot3(nx, ny, nz, dx, dy, dz)
     cx, cy, cz = nx - dn * dx, ny - dn * dy, nz - dn * dz
     size = np.sqrt(cx * cx + cy * cy + cz * cz)
     grow = 2.0 * tol
@@ -806,9 +800,9 @@ def walk_hits(rows, th, face, o, a, length, tmax, t, active, crossed, shift, shi
             continue
         # the distance on the booked face's plane, in float64
         nx, ny, nz = face_normal[f, 0], face_normal[f, 1], face_normal[f, 2]
-        dn = _dot3(nx, ny, nz, dx, dy, dz)
+        dn = dot3(nx, ny, nz, dx, dy, dz)
         ok = abs(dn) > grazing_cos
-        tp = _dot3(nx, ny, nz, corners[f, 0, 0] - ax, corners[f, 0, 1] - ay,
+        tp = dot3(nx, ny, nz, corners[f, 0, 0] - ax, corners[f, 0, 1] - ay,
                    corners[f, 0, 2] - az) / (dn if ok else 1.0)  # fmt: skip
         if ok and abs(tp - t_hit) <= tol:
             t_hit = tp
@@ -856,26 +850,20 @@ def segment_rays(chain, live, j, margin):
 
 # -- fields: the field vector along each path (raytrace.solver.evaluate.path_fields) -------------
 @inline
-def _cross_parts(ax, ay, az, bx, by, bz):
-    """``a x b`` in :func:`raytrace.core.vec.cross`'s order."""
-    return ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
-
-
-@inline
 def _te_tm(e0, e1, e2, kx, ky, kz, ox, oy, oz, nx, ny, nz, c_te, c_tm):
     """The field ``e`` after an interaction with TE/TM coefficients
     (:func:`raytrace.solver.evaluate.apply_te_tm`, the same operations in its order): in the
     basis ``s = k_in x n`` (any ``s`` perpendicular to ``k_in`` at normal incidence), ``p = s x
     k`` on either side, ``e' = c_te (e . s) s + c_tm (e . p_in) p_out``."""
-    sx, sy, sz = _cross_parts(kx, ky, kz, nx, ny, nz)
+    sx, sy, sz = cross3(kx, ky, kz, nx, ny, nz)
     ns = np.sqrt(sx * sx + sy * sy + sz * sz)
     if ns < 1e-9:
         hx, hy = (1.0, 0.0) if abs(kx) < 0.9 else (0.0, 1.0)
-        sx, sy, sz = _cross_parts(kx, ky, kz, hx, hy, 0.0)
+        sx, sy, sz = cross3(kx, ky, kz, hx, hy, 0.0)
         ns = np.sqrt(sx * sx + sy * sy + sz * sz)
     sx, sy, sz = sx / ns, sy / ns, sz / ns
-    px, py, pz = _cross_parts(sx, sy, sz, kx, ky, kz)
-    qx, qy, qz = _cross_parts(sx, sy, sz, ox, oy, oz)
+    px, py, pz = cross3(sx, sy, sz, kx, ky, kz)
+    qx, qy, qz = cross3(sx, sy, sz, ox, oy, oz)
     a = c_te * ((e0 * sx + e1 * sy) + e2 * sz)
     b = c_tm * ((e0 * px + e1 * py) + e2 * pz)
     return a * sx + b * qx, a * sy + b * qy, a * sz + b * qz
