@@ -381,15 +381,17 @@ def test_off_the_solid_closed_form():
     """After touching a box's face y = 0 along it, the walk moves two contact tolerances out
     along that face's normal (across the ray) until the line leaves the box grown by one
     tolerance: x = 2 + tol, t = 3 + tol from a = (-1, 0, 0.5)."""
-    from raytrace.solver.penetration import CONTACT_TOL_MARGINS, _off_the_solid
+    from raytrace.solver import kernels, penetration
 
     sc = make_scene([("crate", box((0.0, 0.0, 0.0), (2.0, 1.0, 1.0)), "wood")])
-    tol = CONTACT_TOL_MARGINS * sc.margin
+    tol = penetration.CONTACT_TOL_MARGINS * sc.margin
     face = int(np.flatnonzero(np.all(np.isclose(sc.face_normal, [0.0, -1.0, 0.0]), axis=1))[0])
-    a, d = np.array([[-1.0, 0.0, 0.5]]), np.array([[1.0, 0.0, 0.0]])
-    shift, t_end = _off_the_solid(sc, np.array([face]), np.array([0]), a, d)
-    np.testing.assert_allclose(shift[0], [0.0, -2 * tol, 0.0], atol=1e-15)
-    np.testing.assert_allclose(t_end[0], 3.0 + tol, rtol=1e-12)
+    # the walk's own compiled helper, called directly
+    *shift, t_end = kernels._off_the_solid(face, 0, -1.0, 0.0, 0.5, 1.0, 0.0, 0.0,
+                                           penetration._face_normals(sc),
+                                           *penetration._convex_plane_arrays(sc), tol)  # fmt: skip
+    np.testing.assert_allclose(shift, [0.0, -2 * tol, 0.0], atol=1e-15)
+    np.testing.assert_allclose(t_end, 3.0 + tol, rtol=1e-12)
 
 
 def _faces_containing(sc, point, tol=1e-9):
@@ -416,9 +418,20 @@ def test_a_hit_on_a_cube_edge_is_booked_on_the_face_met_most_head_on(leaving, st
     point Embree reports, the hit is booked on the lowest-index triangle of the face met most
     head-on that contains it, entering or leaving; a hit in the middle of a face keeps its
     face."""
-    from raytrace.solver.penetration import canonical_faces
+    from raytrace.solver import kernels, penetration
 
     sc = make_scene([("cube", box((0, 0, 0), (1, 1, 1)), "concrete")])
+    tol = penetration.CONTACT_TOL_MARGINS * sc.margin
+    arrays = (penetration._face_normals(sc), *penetration._edge_planes(sc))
+
+    def booked(f, p, d):
+        """The segment walk's handling of a hit on face f at p (kernels.walk_hits' helpers)."""
+        a = p - 3.0 * d
+        *q, _, side, touch = kernels._contact(f, 0, *a, *d, 3.0, *arrays,
+                                              *penetration._convex_plane_arrays(sc), tol)
+        return kernels._canonical(f, 0, *q, *d, side, *penetration._object_faces(sc), *arrays,
+                                  tol), touch  # fmt: skip
+
     hit = np.array([0.0, 0.37, 1.0])
     d = np.array([0.5, 0.0, -1.0] if steep else [1.0, 0.0, -0.5]) / np.sqrt(1.25)
     if leaving:  # the same line the other way: it leaves the cube through the edge
@@ -427,14 +440,9 @@ def test_a_hit_on_a_cube_edge_is_booked_on_the_face_met_most_head_on(leaving, st
     normal = sc.face_normal[on]
     assert len(on) >= 2 and {tuple(n) for n in normal.round(12)} == {(-1, 0, 0), (0, 0, 1)}
     want = on[np.flatnonzero(np.isclose(normal[:, 2] if steep else -normal[:, 0], 1))[0]]
-    a = hit - 3.0 * d
-    face, touch = canonical_faces(sc, on, np.zeros(len(on), np.int64), np.repeat(a[None], len(on), 0),
-                                  np.repeat(d[None], len(on), 0), np.full(len(on), 3.0))  # fmt: skip
-    np.testing.assert_array_equal(face, want)
-    assert not touch.any()
+    for f in on:
+        assert booked(int(f), hit, d) == (want, False)
     # the middle of the top face: far from every edge, the reported face stands
     mid = np.array([0.5, 0.37, 1.0])
-    top = _faces_containing(sc, mid)[:1]
-    face, _ = canonical_faces(sc, top, np.zeros(1, np.int64), (mid - 3.0 * d)[None], d[None],
-                              np.array([3.0]))  # fmt: skip
-    np.testing.assert_array_equal(face, top)
+    top = int(_faces_containing(sc, mid)[0])
+    assert booked(top, mid, d) == (top, False)

@@ -9,21 +9,21 @@
   same exact necessary conditions, cheapest first, and stop at the first that fails. They only
   prune: which paths are found is decided by the exact tests after them (Keller's point on the
   edge, point in facet, wedge validity, Embree), and :data:`PRUNE` switches them off to show it.
-* **Penetration** (:func:`line_span`, :func:`edge_distance`, :func:`hit_contacts`,
-  :func:`canonical_face`, :func:`off_the_solid`, :func:`walk_rays`, :func:`walk_hits`,
-  :func:`walk_record`, :func:`walk_unseen`, :func:`segment_rays`): lines against convex
-  solids, points against triangles, the face a hit at an edge is booked on, and the segment
-  walk (:mod:`raytrace.solver.penetration`): its rays, and a round of its hits, one hit at a
-  time; the rays of the opaque test.
+* **Penetration** (:func:`line_span`, :func:`edge_distance`, :func:`walk_rays`,
+  :func:`walk_hits`, :func:`walk_record`, :func:`walk_unseen`, :func:`segment_rays`): lines
+  against convex solids, points against triangles, and the segment walk
+  (:mod:`raytrace.solver.penetration`): its rays, and a round of its hits one hit at a time
+  (the face a hit at an edge is booked on, :func:`_canonical`; touches, :func:`_contact`;
+  the walk past a touched solid, :func:`_off_the_solid`); the rays of the opaque test.
 * **Fields** (:func:`track_fields`): the field vector carried along each path through the
   coefficients the physics modules computed, per mechanism, for all paths at once.
 
 The pruning and walk kernels write the numpy expressions they replaced in numpy's order, so the
 traced paths' geometry and penetrations are bitwise those of the numpy form on the machine they
-were checked on (``tools/trace_identity.py``). Two kernels differ from their numpy form in the
-last bits only: :func:`canonical_face` (whose numpy form took its dot products from BLAS) and
-:func:`track_fields` (numpy's complex products use fused multiply-adds on CPUs with AVX-512; numba
-rounds each product and sum as written), about 1e-13 relative on the gains.
+were checked on (``tools/trace_identity.py``), the choice of the canonical face included
+(whose numpy form took its dot products from BLAS). :func:`track_fields` differs from its numpy
+form in the last bits only (numpy's complex products use fused multiply-adds on CPUs with
+AVX-512; numba rounds each product and sum as written), about 1e-13 relative on the gains.
 """
 
 from __future__ import annotations
@@ -34,8 +34,8 @@ from ..core.jit import helper, inline, kernel
 from ..core.vec import cross3, dot3
 
 __all__ = ["PRUNE", "surely_inside", "facet_wedge_pairs", "expand_over_others",
-           "second_order_receivers", "line_span", "edge_distance", "hit_contacts", "canonical_face",
-           "off_the_solid", "walk_record", "walk_unseen", "walk_rays", "walk_hits",
+           "second_order_receivers", "line_span", "edge_distance", "walk_record", "walk_unseen",
+           "walk_rays", "walk_hits",
            "segment_rays", "track_fields"]
 
 #: The callers pass this as the kernels' ``prune``: False switches their pruning tests off (they
@@ -427,7 +427,24 @@ def edge_distance(corners, edge_normals, face, point):
 @inline
 def _contact(f, ob, ax, ay, az, dx, dy, dz, t, face_normal, corners, edge_normals, normal, offset,
              count, tol):  # fmt: skip
-    """One hit: see :func:`hit_contacts` (returns the point's coordinates, edge, side, touch)."""
+    """Where a hit on face ``f`` of object ``ob`` (the ray ``a + t d``) lies, and whether it only
+    touches its solid.
+
+    A ray whose line never gets deeper than ``tol`` into a convex closed solid (the chord of its
+    line through the solid shrunk by ``tol``, from the facet planes in float64, is empty) only
+    touches it: at an edge or a vertex, or grazing along a face. Such a hit is a *touch*, stepped
+    over without a crossing; whether Embree reports it at all depends on its BVH, and a reported
+    entry (exit) would be paired with an exit (entry) that is never seen, so that the chord would
+    run to the segment's end (start). Tested only where the hit is close enough to the
+    triangle's boundary for that to be possible (closer than ``tol + 2 tol / |cos|``).
+
+    Returns
+    -------
+    px, py, pz : float, the hit point, metres
+    edge : float, its signed distance from the triangle's boundary (<= 0 inside), metres
+    side : float, the sign of ``d . n`` (entering -1, leaving +1)
+    touch : bool
+    """
     px = ax + t * dx
     py = ay + t * dy
     pz = az + t * dz
@@ -445,7 +462,20 @@ def _contact(f, ob, ax, ay, az, dx, dy, dz, t, face_normal, corners, edge_normal
 @helper
 def _canonical(f, ob, px, py, pz, dx, dy, dz, side, face_start, face_count, face_normal, corners,
                edge_normals, tol):  # fmt: skip
-    """One hit: see :func:`canonical_face`."""
+    """The face a hit at ``p`` on face ``f`` of object ``ob`` (ray direction ``d``, ``side`` the
+    sign of ``d . n`` on ``f``) is booked on, whichever face Embree reported.
+
+    A ray through an edge (or a vertex) of a solid meets two (or more) of its faces at the same
+    point; which one Embree reports depends on its BVH, and the face's normal sets the incidence
+    plane (TE/TM basis) and angle of the penetration, so the equivalent slab (chord times the
+    cosine on the entry face) of a ray through a box's corner could be anything between the chord
+    times one face's cosine and the other's. Of the faces of the object whose plane passes within
+    ``tol`` of the point, whose triangle contains it within ``tol`` and that the ray meets the
+    same way (entering or leaving), and the reported one, the one met most head-on is taken
+    (largest ``|d . n|``; the lowest face index among equals): a choice made from the geometry
+    alone, the same in a scene with more objects appended (a snapshot with forklifts keeps the
+    static faces' indices). Called by :func:`walk_hits` for hits within ``tol`` of an edge.
+    """
     best, best_score = f, -np.inf
     start = face_start[ob]
     for c in range(start, start + face_count[ob]):
@@ -459,74 +489,6 @@ def _canonical(f, ob, px, py, pz, dx, dy, dz, side, face_start, face_count, face
         if ok and abs(dn) > best_score:
             best, best_score = c, abs(dn)
     return best
-
-
-@kernel(
-    "Tuple((f8[:, ::1], f8[::1], f8[::1], b1[::1]))("
-    "i8[::1], i8[::1], f8[:, ::1], f8[:, ::1], f8[::1], f8[:, ::1], f8[:, :, ::1], "
-    "f8[:, :, ::1], f8[:, :, ::1], f8[:, ::1], i8[::1], f8)"
-)
-def hit_contacts(face, o, a, d, t, face_normal, corners, edge_normals, normal, offset, count,
-                 tol):  # fmt: skip
-    """Where hits on faces ``face`` of objects ``o`` (rays ``a + t d``) lie on their triangles,
-    and which only touch their solid (:func:`raytrace.solver.penetration.canonical_faces`).
-
-    Returns
-    -------
-    point : (n, 3) float, the hit points, metres
-    edge : (n,) float, their signed distance from their triangle's boundary, metres
-    side : (n,) float, the sign of the ray's direction along the face's normal
-    touch : (n,) bool, the ray's line never gets ``tol`` deep into the convex solid (tested
-        only where the hit is close enough to the triangle's boundary for that to be possible:
-        closer than ``tol + 2 tol / |cos|``)
-    """
-    n = len(face)
-    point = np.empty((n, 3))
-    edge = np.empty(n)
-    side = np.empty(n)
-    touch = np.zeros(n, dtype=np.bool_)
-    for r in range(n):
-        px, py, pz, edge[r], side[r], touch[r] = _contact(
-            face[r], o[r], a[r, 0], a[r, 1], a[r, 2], d[r, 0], d[r, 1], d[r, 2], t[r],
-            face_normal, corners, edge_normals, normal, offset, count, tol,
-        )  # fmt: skip
-        point[r, 0], point[r, 1], point[r, 2] = px, py, pz
-    return point, edge, side, touch
-
-
-@kernel(
-    "i8[::1](i8[::1], i8[::1], f8[:, ::1], f8[:, ::1], f8[::1], i8[::1], i8[::1], f8[:, ::1], "
-    "f8[:, :, ::1], f8[:, :, ::1], f8)"
-)
-def canonical_face(face, o, point, d, side, face_start, face_count, face_normal, corners,
-                   edge_normals, tol):  # fmt: skip
-    """The face each hit near an edge is booked on
-    (:func:`raytrace.solver.penetration.canonical_faces`): of the faces of object ``o`` whose
-    plane passes within ``tol`` of the hit ``point``, whose triangle contains it within ``tol``
-    and that the ray ``d`` meets the same way (``sign(d . n) == side``), and the reported
-    ``face``, the one met most head-on (largest ``|d . n|``; the lowest index among equals).
-
-    Parameters
-    ----------
-    face, o : (n,) int, the reported faces and their objects
-    point, d : (n, 3) float, hit points (metres) and unit ray directions
-    side : (n,) float, sign of the reported face's ``d . n``
-    face_start, face_count : (O,) int, each object's faces
-    face_normal : (F, 3) float; corners, edge_normals : (F, 3, 3) float, as :func:`edge_distance`
-    tol : float, metres
-
-    Returns
-    -------
-    (n,) int, the chosen faces
-    """
-    out = np.empty(len(face), dtype=np.int64)
-    for r in range(len(face)):
-        out[r] = _canonical(face[r], o[r], point[r, 0], point[r, 1], point[r, 2], d[r, 0],
-                            d[r, 1], d[r, 2], side[r], face_start, face_count, face_normal,
-                            corners, edge_normals, tol)  # fmt: skip
-    return out
-
-
 
 
 # -- penetration: the segment walk's bookkeeping (raytrace.solver.penetration._Walk) ------------
@@ -709,24 +671,6 @@ def _off_the_solid(f, ob, ax, ay, az, dx, dy, dz, face_normal, normal, offset, c
 
 
 @kernel(
-    "Tuple((f8[:, ::1], f8[::1]))(i8[::1], i8[::1], f8[:, ::1], f8[:, ::1], f8[:, ::1], "
-    "f8[:, :, ::1], f8[:, ::1], i8[::1], f8)"
-)
-def off_the_solid(face, o, a, d, face_normal, normal, offset, count, tol):
-    """:func:`_off_the_solid` for n rays ``a + t d`` (n, 3) that touched faces ``face`` of
-    objects ``o``: the shifts (n, 3) and the distances (n,) where the shifted walks end."""
-    n = len(face)
-    shift = np.empty((n, 3))
-    end = np.empty(n)
-    for r in range(n):
-        shift[r, 0], shift[r, 1], shift[r, 2], end[r] = _off_the_solid(
-            face[r], o[r], a[r, 0], a[r, 1], a[r, 2], d[r, 0], d[r, 1], d[r, 2], face_normal,
-            normal, offset, count, tol,
-        )  # fmt: skip
-    return shift, end
-
-
-@kernel(
     "void(i8[::1], f8[::1], i8[::1], i8[::1], "
     "f8[:, ::1], f8[::1], f8[::1], f8[::1], b1[::1], i8[::1], f8[:, ::1], f8[::1], i8[:, ::1], "
     "f8, f8, f8, f8, i8, "
@@ -745,7 +689,7 @@ def walk_hits(rows, th, face, o, a, length, tmax, t, active, crossed, shift, shi
     Per segment: a miss ends the walk (a shifted one goes back on its own line past the solid);
     a hit on the object under either end within ``guard`` of it is float32 noise of the vertex,
     stepped over (leaving along the solid's face: go on off the solid); a hit is booked on its
-    canonical face (:func:`canonical_face`) and a touch (:func:`hit_contacts`) is stepped over
+    canonical face (:func:`_canonical`) and a touch (:func:`_contact`) is stepped over
     off the solid; otherwise its distance is taken on the booked face's plane in float64 (where
     the ray is not grazing, ``|cos| > grazing_cos``, and the plane is within ``tol`` of
     Embree's answer: Embree's float32 distance to one plane differs by ~1e-7 relative between

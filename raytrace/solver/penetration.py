@@ -16,8 +16,8 @@ when its own entry face is the one reported. A solid left without a seen entry a
 start has no entry face; its exit face stands in. Likewise a hit at an edge or a vertex is
 booked on a canonical face, a ray that only touches a convex solid (at an edge, a vertex or
 along a face) does not cross it, and hit distances are taken on the booked face's plane in
-float64 (:func:`canonical_faces`, :func:`raytrace.solver.kernels.walk_hits`): the crossings do
-not depend on the BVH, which differs between a static scene and a snapshot with forklifts.
+float64 (:func:`raytrace.solver.kernels.walk_hits`): the crossings do not depend on the BVH,
+which differs between a static scene and a snapshot with forklifts.
 
 The equivalent slab thickness of a chord through a solid is the chord length times the cosine of
 the incidence angle on the more head-on of its entry and exit faces (:func:`kernels._more_head_on`):
@@ -64,7 +64,7 @@ class Crossings:
 #: Contact tolerance, in scene margins. A hit closer than this to an edge of its triangle may as
 #: well be on the neighbouring face across that edge (Embree's float32 answer for a ray through
 #: an edge depends on its BVH): the face is then chosen canonically. A ray whose line never gets
-#: deeper than this into a convex solid only touches it (:func:`canonical_faces`).
+#: deeper than this into a convex solid only touches it (:func:`raytrace.solver.kernels._contact`).
 CONTACT_TOL_MARGINS = 1.0
 
 #: Below this cosine between a ray and a face, the float64 plane distance is not used in place of
@@ -143,71 +143,6 @@ class _Walk:
         dist, point, obj, normal, thick = arrays
         return Crossings(self.count, self.exceeded | (self.count > k), dist, point, obj, normal,
                          thick)  # fmt: skip
-
-
-def canonical_faces(
-    scene: Scene, face: np.ndarray, o: np.ndarray, a: np.ndarray, d: np.ndarray, t: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """The face a hit is booked on, independent of which one Embree reported at an edge, and
-    whether the hit is only a touch.
-
-    A ray through an edge (or a vertex) of a solid meets two (or more) of its faces at the same
-    point; which one Embree reports depends on its BVH, and the face's normal sets the incidence
-    plane (TE/TM basis) and angle of the penetration, so the equivalent slab (chord times the
-    cosine on the entry face) of a ray through a box's corner can be anything between the chord
-    times one face's cosine and the other's. Of the faces of the hit object that contain the hit
-    point (within ``CONTACT_TOL_MARGINS`` scene margins) and face the ray the same way as the
-    reported one (entering or leaving), the one the ray meets most head-on (largest cosine; the
-    lowest face index among equals) is taken: a choice made from the geometry alone, the same in
-    a scene with more objects appended (a snapshot with forklifts keeps the static faces'
-    indices).
-
-    A ray whose line never gets deeper than the tolerance into a convex closed solid (the chord
-    of its line through the solid shrunk by the tolerance, from the facet planes in float64, is
-    empty) only touches it: at an edge or a vertex, or grazing along a face. Such a hit is a
-    *touch*, stepped over without a crossing; whether Embree reports it at all depends on its
-    BVH, and a reported entry (exit) would be paired with an exit (entry) that is never seen, so
-    that the chord would run to the segment's end (start).
-
-    The walk applies this rule per hit (:func:`raytrace.solver.kernels.walk_hits`, with the same
-    compiled helpers); this is its array form.
-
-    Parameters
-    ----------
-    scene : Scene
-    face : (n,) int, reported faces
-    o : (n,) int, their objects
-    a : (n, 3) float, ray origins (any point on the ray's line), metres
-    d : (n, 3) float, unit ray directions
-    t : (n,) float, hit distances from ``a``, metres
-
-    Returns
-    -------
-    face : (n,) int, the canonical faces
-    touch : (n,) bool, hits that only touch a convex solid
-    """
-    out = face.copy()
-    if len(face) == 0:
-        return out, np.zeros(0, dtype=bool)
-    tol = CONTACT_TOL_MARGINS * scene.margin
-    # A ray that crosses a face further inside it than it needs to go deep into the solid (2 tol
-    # along the normal, at most as far sideways, and tol more) does not merely touch it: only
-    # the other hits are tested for a touch (a shortcut; thinner solids than 3 tol are not
-    # handled)
-    corners, edge_normals = _edge_planes(scene)
-    point, edge, side, touch = kernels.hit_contacts(
-        carray(face, np.int64), carray(o, np.int64), carray(a), carray(d), carray(t),
-        _face_normals(scene), corners, edge_normals, *_convex_plane_arrays(scene), float(tol),
-    )  # fmt: skip
-    near = np.flatnonzero(edge >= -tol)  # few rows: hits within a tolerance of an edge
-    if len(near):
-        face_start, face_count = _object_faces(scene)
-        out[near] = kernels.canonical_face(
-            carray(face[near], np.int64), carray(o[near], np.int64), point[near],
-            carray(d[near]), side[near], face_start, face_count, _face_normals(scene), corners,
-            edge_normals, float(tol),
-        )  # fmt: skip
-    return out, touch
 
 
 def _convex_planes(scene: Scene) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -294,19 +229,6 @@ def touches(
         t_in = np.maximum(t_in, 0.0)
         t_out = np.minimum(t_out, np.asarray(t_max, dtype=float))
     return convex & (parallel_out | (t_out <= t_in))
-
-
-def _off_the_solid(
-    scene: Scene, face: np.ndarray, o: np.ndarray, a: np.ndarray, d: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """Where a walk that touched face ``face`` of convex solid ``o`` continues: a shift (n, 3),
-    metres, of two contact tolerances along the face's outward normal, across the rays ``a + t
-    d``, and the distance ``t`` (n,), metres, at which the line leaves the solid grown by the
-    tolerance (past it, the walk is back on its own line; -inf for other objects). The walk
-    does this per hit (:func:`raytrace.solver.kernels.walk_hits`); this is its array form."""
-    return kernels.off_the_solid(carray(face, np.int64), carray(o, np.int64), carray(a), carray(d),
-                                 _face_normals(scene), *_convex_plane_arrays(scene),
-                                 float(CONTACT_TOL_MARGINS * scene.margin))  # fmt: skip
 
 
 def _edge_planes(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
