@@ -28,7 +28,7 @@ import numpy as np
 
 from ..core.constants import C0
 from ..core.jit import carray
-from ..core.vec import cross, index, norm
+from ..core.vec import index, norm
 from ..core.vec import rows as take_rows
 from ..physics.materials import slab, slab_group_delay
 from . import kernels
@@ -388,39 +388,3 @@ def vertical_pol(direction: np.ndarray) -> np.ndarray:
         n[vertical] = norm(v[vertical])
     return v / n[:, None]
 
-
-def apply_te_tm(
-    e: np.ndarray,
-    k_in: np.ndarray,
-    k_out: np.ndarray,
-    normal: np.ndarray,
-    c_te: np.ndarray,
-    c_tm: np.ndarray,
-) -> np.ndarray:
-    """Field after an interaction with TE/TM coefficients.
-
-    Basis: ``s = k_in x n`` (TE, perpendicular to the plane of incidence), ``p = s x k`` on each
-    side (TM). With this basis the P.2040 coefficients (R_TM -> +1 for a perfect conductor) map
-    the field directly; at normal incidence any ``s`` perpendicular to ``k_in`` serves.
-
-    Parameters
-    ----------
-    e : (n, 3) complex, incident field vector
-    k_in, k_out : (n, 3) float, unit propagation directions before and after
-    normal : (n, 3) float, unit surface normal
-    c_te, c_tm : (n,) complex
-    """
-    s = cross(k_in, normal)
-    ns = norm(s)
-    normal_inc = ns < 1e-9
-    if normal_inc.any():
-        # any direction perpendicular to k_in
-        helper = np.where(np.abs(k_in[normal_inc, 0:1]) < 0.9, [[1.0, 0, 0]], [[0, 1.0, 0]])
-        s[normal_inc] = cross(k_in[normal_inc], helper)
-        ns[normal_inc] = norm(s[normal_inc])
-    s = s / ns[:, None]
-    p_in = cross(s, k_in)
-    p_out = cross(s, k_out)
-    es = np.einsum("ij,ij->i", e, s)
-    ep = np.einsum("ij,ij->i", e, p_in)
-    return (c_te * es)[:, None] * s + (c_tm * ep)[:, None] * p_out

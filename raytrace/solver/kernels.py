@@ -792,13 +792,17 @@ def segment_rays(chain, live, j, margin):
         reach[i] = ln - 2 * margin
     return a, d, length, org, reach
 
+
 # -- fields: the field vector along each path (raytrace.solver.evaluate.path_fields) -------------
 @inline
 def _te_tm(e0, e1, e2, kx, ky, kz, ox, oy, oz, nx, ny, nz, c_te, c_tm):
-    """The field ``e`` after an interaction with TE/TM coefficients
-    (:func:`raytrace.solver.evaluate.apply_te_tm`, the same operations in its order): in the
-    basis ``s = k_in x n`` (any ``s`` perpendicular to ``k_in`` at normal incidence), ``p = s x
-    k`` on either side, ``e' = c_te (e . s) s + c_tm (e . p_in) p_out``."""
+    """The field ``e`` after an interaction (penetration or reflection) with TE/TM coefficients.
+
+    Basis: ``s = k_in x n`` normalised (TE, perpendicular to the plane of incidence; at normal
+    incidence any ``s`` perpendicular to ``k_in``: ``k_in x x``, or ``k_in x y`` for a ray near
+    the x axis) and ``p = s x k`` on either side (TM), so that ``e' = c_te (e . s) s + c_tm (e .
+    p_in) p_out``. With this basis the ITU-R P.2040 coefficients (``R_TM -> +1`` for a perfect
+    conductor) map the field directly."""
     sx, sy, sz = cross3(kx, ky, kz, nx, ny, nz)
     ns = np.sqrt(sx * sx + sy * sy + sz * sz)
     if ns < 1e-9:
@@ -827,8 +831,8 @@ def track_fields(e_start, dirs, count, pen_normal, pen_te, pen_tm, kinds, normal
     incidence); then vertex ``j``: a reflection (TE/TM coefficients on the facet's plane) or a
     diffraction (``[E_beta0, E_phi] = -D [E . beta0'_hat, E . phi'_hat] A``, zero where the
     diffraction is not valid). The coefficients are computed beforehand, per mechanism, by the
-    physics modules; this only applies them, in :func:`raytrace.solver.evaluate.apply_te_tm`'s
-    and :func:`raytrace.physics.utd.diffracted_field`'s order of operations.
+    physics modules; this only applies them (:func:`_te_tm`; a diffraction in
+    :func:`raytrace.physics.utd.diffracted_field`'s order of operations).
 
     Parameters
     ----------
