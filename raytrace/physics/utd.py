@@ -429,6 +429,15 @@ def _face_rule(a_in, a_out, s_in, s_out):
     return np.arctan2(height, s_in * np.cos(a_in) - s_out * np.cos(a_out))
 
 
+@kernel("f8[::1](f8[::1], f8[::1], f8[::1], f8[::1])")
+def _face_rules(a_in, a_out, s_in, s_out):
+    """:func:`_face_rule` over P rows (:func:`face_rule_angle`)."""
+    out = np.empty(len(a_in))
+    for r in range(len(a_in)):
+        out[r] = _face_rule(a_in[r], a_out[r], s_in[r], s_out[r])
+    return out
+
+
 _VECS = "f8[:, ::1], f8[:, ::1], f8[:, ::1], f8[::1], f8[:, ::1], f8[:, ::1], f8[:, ::1]"
 
 
@@ -542,10 +551,13 @@ def face_rule_angle(
     is seen (so ``phi'`` on its reflection boundary), and tends to Luebbers' ``phi'`` for a
     distant source and to his ``pi - phi`` for a distant receiver. :class:`WedgeGeometry` takes
     face 0's angle with ``(phi', phi)`` and face n's with ``(n pi - phi', n pi - phi)``
-    (compiled, :func:`_face_rule`, the same expression).
+    (:func:`_face_rule`, which this evaluates elementwise).
     """
-    height = s_out * np.abs(np.sin(a_out)) + s_in * np.abs(np.sin(a_in))
-    return np.arctan2(height, s_in * np.cos(a_in) - s_out * np.cos(a_out))
+    a_in, a_out, s_in, s_out = np.broadcast_arrays(
+        *(np.asarray(v, dtype=float) for v in (a_in, a_out, s_in, s_out))
+    )
+    psi = _face_rules(*(_c(v.reshape(-1)) for v in (a_in, a_out, s_in, s_out)))
+    return psi.reshape(a_in.shape)[()]  # a scalar for scalar input, as numpy gives
 
 
 # -- 3. UTD coefficients --------------------------------------------------------------------------
