@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 from conftest import box, make_scene, quad
 
+from raytrace.core.jit import carray
 from raytrace.scene import accel
 from raytrace.solver import diffraction, kernels
 from raytrace.solver import reflection as refl
@@ -121,6 +122,69 @@ def test_facet_wedge_spans_hold_every_reachable_point_of_the_edge(seed):
     assert checked > 500
     # the pruning prunes: far fewer triples than (end, facet, wedge) combinations on the side
     assert len(e_idx) < 0.5 * (side != 0).sum() * len(w)
+
+
+@pytest.mark.parametrize("seed", [3, 4])
+def test_reflection_edge_points_equal_the_numpy_tests_of_every_pair(seed):
+    """RD candidates: the kernel's pairs, diffraction points and reflection points are those of
+    the exact tests written out in numpy over every (triple, other end) pair (Keller's point by
+    its closed form, the point on the end's side, the crossing on the segment and in the
+    facet), in order; its pruning drops none of them."""
+    rng = np.random.default_rng(seed)
+    objs = [("floor", box((-1, -1, -0.3), (9, 9, 0.0)), "concrete"),
+            ("pane", quad((4.0, 1.0, 0.0), (0.0, 3.0, 0.0), (0.0, 0.0, 2.0)), "glass")]  # fmt: skip
+    for i in range(3):
+        lo = np.append(rng.uniform(0.5, 6.5, 2), 0.0)
+        objs.append((f"b{i}", box(lo, lo + np.append(rng.uniform(0.4, 1.5, 2), 1.5)), "metal"))
+    sc = make_scene(objs)
+    tx = np.array([[0.3, 0.4, 2.5], [8.5, 7.7, 1.2]])
+    rx = np.column_stack([rng.uniform(-0.5, 8.5, (40, 2)), rng.uniform(0.2, 3.0, 40)])
+    tx, rx = tx[sc.inside_solid(tx) < 0], rx[sc.inside_solid(rx) < 0]
+    ctx = _ctx(sc, tx, rx)
+    fc, w = sc.facets, sc.wedges
+    e_idx, f_idx, w_idx, img, t_lo, t_hi = diffraction._facet_wedge_pairs(ctx, tx)
+    side = refl.reflecting_side(fc, tx)
+    # the numpy reference over every pair
+    q, o = np.divmod(np.arange(len(e_idx) * len(rx)), len(rx))
+    src, dst, f, ww = img[q], rx[o], f_idx[q], w_idx[q]
+    e = (w.end - w.start)[ww] / w.length[ww, None]
+    a = w.start[ww]
+    ts, td = np.einsum("ij,ij->i", src - a, e), np.einsum("ij,ij->i", dst - a, e)
+    rho_s = np.linalg.norm(src - a - ts[:, None] * e, axis=1)
+    rho_d = np.linalg.norm(dst - a - td[:, None] * e, axis=1)
+    t = ts + (td - ts) * rho_s / (rho_s + rho_d)
+    ok = (rho_s > 1e-9) & (rho_d > 1e-9) & (t >= -1e-9) & (t <= w.length[ww] + 1e-9)
+    dpt = a + t[:, None] * e
+    ok &= np.sign(refl.signed_distance(dpt, fc.normal[f], fc.offset[f])) == side[e_idx[q], f]
+    u, p = refl.segment_plane_point(src, dpt, fc.normal[f], fc.offset[f])
+    ok &= (u > 0) & (u < 1)
+    ok[ok] = accel.points_in_facets(p[ok], f[ok], fc)
+    assert ok.sum() > 20
+
+    td_w, rho_w = diffraction._along_and_off(rx.T[:, None, :], w.start.T[..., None],
+                                             w.direction.T[..., None])  # fmt: skip
+    open_w = ~diffraction._surely_inside(diffraction._wedge_frame(ctx),
+                                         np.arange(len(w))[:, None], *rx.T[:, None, :])  # fmt: skip
+    c = carray
+    args = (c(e_idx, np.int64), c(f_idx, np.int64), c(w_idx, np.int64), c(img), c(t_lo),
+            c(t_hi), c(rx), c(td_w), c(rho_w), c(open_w, bool), c(w.start), c(w.direction),
+            c(w.end), c(fc.normal), c(fc.offset), c(side, np.int8),
+            *accel.facet_test_arrays(fc), accel.BARY_TOL, accel.RECT_INSIDE_M, 1e-9)  # fmt: skip
+    for prune in (False, True):
+        kq, ko, pts, n_pairs = kernels.reflection_edge_points(0, len(e_idx), *args, prune)
+        if prune:
+            # the pruning drops pairs whose other end is surely inside the wedge (never a valid
+            # diffraction, tested above) and pairs that fail the exact tests, no others
+            assert n_pairs < len(q) / 3
+            ok &= open_w[ww, o]
+        else:
+            assert n_pairs == len(q)
+        np.testing.assert_array_equal(kq * len(rx) + ko, np.flatnonzero(ok))
+        np.testing.assert_allclose(pts[:, :3], dpt[ok], rtol=0, atol=1e-12)
+        np.testing.assert_allclose(pts[:, 3:], p[ok], rtol=0, atol=1e-12)
+    # a sub-range of triples gives absolute indices
+    kq2, _, _, _ = kernels.reflection_edge_points(5, 40, *args, True)
+    np.testing.assert_array_equal(kq2, kq[(kq >= 5) & (kq < 40)])
 
 
 def test_line_span_through_a_cube_closed_form():

@@ -67,6 +67,8 @@ __all__ = [
     "WedgeGeometry",
     "DiffractedField",
     "keller_points",
+    "keller_point",
+    "KELLER_TOL_M",
     "wedge_geometry",
     "WedgeFrame",
     "wedge_frames",
@@ -91,6 +93,8 @@ _TWO_PI = 2.0 * np.pi
 _ANGLE_SNAP_RAD = 1e-9
 #: An exterior angle (rad) closer than this to 0 or 2 pi is a half-plane (n = 2).
 _HALF_PLANE_RAD = 1e-6
+#: Tolerance (m) of Keller's point for "on the edge line" and "on the finite edge".
+KELLER_TOL_M = 1e-9
 #: Smallest |sin beta0| (ray direction vs edge) for which diffraction is computed.
 _MIN_SIN_BETA0 = 1e-9
 
@@ -143,7 +147,7 @@ def keller_points(
     edge_start: np.ndarray,
     edge_end: np.ndarray,
     *,
-    tol_m: float = 1e-9,
+    tol_m: float = KELLER_TOL_M,
 ) -> KellerPoints:
     """Diffraction point of each (source, receiver, edge) by Keller's law (closed form).
 
@@ -172,19 +176,42 @@ def keller_points(
     dst = _points("dst", dst, p)
     a = _points("edge_start", edge_start, p)
     b = _points("edge_end", edge_end, p)
-    e, length = _unit(b - a)
-    ts = _dot(src - a, e)
-    td = _dot(dst - a, e)
-    rho_s = _norm(src - a - ts[:, None] * e)
-    rho_d = _norm(dst - a - td[:, None] * e)
-    degenerate = (length <= tol_m) | (rho_s <= tol_m) | (rho_d <= tol_m)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = ts + (td - ts) * rho_s / (rho_s + rho_d)
-    t = np.where(degenerate, np.nan, t)
-    point = a + t[:, None] * e
-    with np.errstate(invalid="ignore"):
-        on_edge = ~degenerate & (t >= -tol_m) & (t <= length + tol_m)
-    return KellerPoints(point, t, on_edge)
+    return KellerPoints(*_keller(_c(src), _c(dst), _c(a), _c(b), float(tol_m)))
+
+
+@inline
+def keller_point(sx, sy, sz, dx, dy, dz, ax, ay, az, bx, by, bz, tol):
+    """:func:`keller_points` of one (source, receiver, edge), a compiled scalar helper for
+    kernels: ``px, py, pz, t, on_edge``, the point and ``t`` NaN where degenerate. Sums and products in the order of the vectorised form
+    it replaced (``core.vec.norm``, ``einsum``), so that the solver's kernels, which call it
+    too, find the same points bitwise."""
+    vx, vy, vz = bx - ax, by - ay, bz - az
+    length = np.sqrt(vx * vx + vy * vy + vz * vz)
+    ex, ey, ez = vx / length, vy / length, vz / length
+    qx, qy, qz = sx - ax, sy - ay, sz - az
+    ts = dot3(qx, qy, qz, ex, ey, ez)
+    rx, ry, rz = dx - ax, dy - ay, dz - az
+    td = dot3(rx, ry, rz, ex, ey, ez)
+    qx, qy, qz = qx - ts * ex, qy - ts * ey, qz - ts * ez
+    rho_s = np.sqrt(qx * qx + qy * qy + qz * qz)
+    rx, ry, rz = rx - td * ex, ry - td * ey, rz - td * ez
+    rho_d = np.sqrt(rx * rx + ry * ry + rz * rz)
+    degenerate = length <= tol or rho_s <= tol or rho_d <= tol
+    t = np.nan if degenerate else ts + (td - ts) * rho_s / (rho_s + rho_d)
+    on_edge = not degenerate and t >= -tol and t <= length + tol
+    return ax + t * ex, ay + t * ey, az + t * ez, t, on_edge
+
+
+@kernel("Tuple((f8[:, ::1], f8[::1], b1[::1]))(f8[:, ::1], f8[:, ::1], f8[:, ::1], f8[:, ::1], f8)")
+def _keller(src, dst, a, b, tol):
+    """:func:`keller_point` over P rows: ``point (P, 3), t (P,), on_edge (P,)``."""
+    p = len(src)
+    point, t, on_edge = np.empty((p, 3)), np.empty(p), np.empty(p, dtype=np.bool_)
+    for r in range(p):
+        point[r, 0], point[r, 1], point[r, 2], t[r], on_edge[r] = keller_point(
+            src[r, 0], src[r, 1], src[r, 2], dst[r, 0], dst[r, 1], dst[r, 2], a[r, 0], a[r, 1],
+            a[r, 2], b[r, 0], b[r, 1], b[r, 2], tol)  # fmt: skip
+    return point, t, on_edge
 
 
 # -- 2. wedge geometry ----------------------------------------------------------------------------

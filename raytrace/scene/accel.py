@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..core.jit import carray, inline, kernel
+from ..core.vec import dot3
 from .elements import Facets, Wedges
 
 #: Barycentric tolerance of the point-in-triangle test (dimensionless): a point on the shared
@@ -44,25 +46,67 @@ def points_in_facets(points: np.ndarray, facet: np.ndarray, facets: Facets) -> n
     n = len(points)
     if n == 0:
         return np.zeros(0, dtype=bool)
-    # cheap rejection by the facet's bounding box first: most candidates fail here
-    lo, hi = facet_boxes(facets)
-    near = np.ones(n, dtype=bool)
-    for c in range(3):  # one coordinate at a time: no (n, 3) temporaries
-        x = points[:, c]
-        near &= (x >= lo[facet, c]) & (x <= hi[facet, c])
-    out = np.zeros(n, dtype=bool)
-    if near.any():
-        idx = np.flatnonzero(near)
-        # most facets of a hall are axis-aligned rectangles: a point well inside one is inside
+    return _points_in(carray(points), carray(facet, np.int64), *facet_test_arrays(facets),
+                      BARY_TOL, RECT_INSIDE_M)  # fmt: skip
+
+
+def facet_test_arrays(facets: Facets) -> tuple[np.ndarray, ...]:
+    """What :func:`point_in_facet` takes about the facets, as the kernels take it (cached): the
+    boxes of :func:`facet_boxes`, the rectangles of :func:`_rectangles`, the facets' runs of
+    triangles and the triangles' terms of :func:`_triangle_terms`."""
+    cached = facets.cache.get("facet_test_arrays")
+    if cached is None:
+        lo, hi = facet_boxes(facets)
         rect, r_lo, r_hi = _rectangles(facets)
-        f, p = facet[idx], points[idx]
-        sure = rect[f]
-        for c in range(3):
-            x = p[:, c]
-            sure &= (x >= r_lo[f, c] + RECT_INSIDE_M) & (x <= r_hi[f, c] - RECT_INSIDE_M)
-        out[idx[sure]] = True
-        idx = idx[~sure]
-        out[idx] = _in_triangles(points[idx], facet[idx], facets)
+        cached = (carray(lo), carray(hi), carray(rect, bool), carray(r_lo), carray(r_hi),
+                  carray(facets.tri_start, np.int64), carray(facets.tri_count, np.int64),
+                  *(carray(x) for x in _triangle_terms(facets)))  # fmt: skip
+        facets.cache["facet_test_arrays"] = cached
+    return cached
+
+
+@inline
+def point_in_facet(px, py, pz, f, lo, hi, rect, r_lo, r_hi, tri_start, tri_count, corner, v0, v1,
+              d00, d01, d11, den, bary_tol, rect_inside):  # fmt: skip
+    """Whether a point (on facet ``f``'s plane) lies inside the facet (:func:`points_in_facets`;
+    a compiled scalar helper for kernels, with :func:`facet_test_arrays`' arrays):
+    the bounding box first (most candidates fail there), then, for an axis-aligned rectangle,
+    well inside it, then the barycentric test against each of the facet's triangles. Products
+    and sums in the order of the vectorised form it replaced."""
+    if not (lo[f, 0] <= px <= hi[f, 0] and lo[f, 1] <= py <= hi[f, 1]
+            and lo[f, 2] <= pz <= hi[f, 2]):  # fmt: skip
+        return False
+    if (rect[f] and r_lo[f, 0] + rect_inside <= px <= r_hi[f, 0] - rect_inside
+            and r_lo[f, 1] + rect_inside <= py <= r_hi[f, 1] - rect_inside
+            and r_lo[f, 2] + rect_inside <= pz <= r_hi[f, 2] - rect_inside):  # fmt: skip
+        return True
+    for t in range(tri_start[f], tri_start[f] + tri_count[f]):
+        x, y, z = px - corner[t, 0], py - corner[t, 1], pz - corner[t, 2]
+        d20 = dot3(x, y, z, v0[t, 0], v0[t, 1], v0[t, 2])
+        d21 = dot3(x, y, z, v1[t, 0], v1[t, 1], v1[t, 2])
+        v = (d11[t] * d20 - d01[t] * d21) / den[t]
+        w = (d00[t] * d21 - d01[t] * d20) / den[t]
+        if v >= -bary_tol and w >= -bary_tol and v + w <= 1 + bary_tol:
+            return True
+    return False
+
+
+#: The kernels' signature of :func:`facet_test_arrays` and the two tolerances.
+FACET_TEST_SIG = (
+    "f8[:, ::1], f8[:, ::1], b1[::1], f8[:, ::1], f8[:, ::1], i8[::1], i8[::1], "
+    "f8[:, ::1], f8[:, ::1], f8[:, ::1], f8[::1], f8[::1], f8[::1], f8[::1], f8, f8"
+)
+
+
+@kernel(f"b1[::1](f8[:, ::1], i8[::1], {FACET_TEST_SIG})")
+def _points_in(points, facet, lo, hi, rect, r_lo, r_hi, tri_start, tri_count, corner, v0, v1,
+               d00, d01, d11, den, bary_tol, rect_inside):  # fmt: skip
+    """:func:`point_in_facet` over n points."""
+    out = np.empty(len(points), dtype=np.bool_)
+    for r in range(len(points)):
+        out[r] = point_in_facet(points[r, 0], points[r, 1], points[r, 2], facet[r], lo, hi, rect,
+                           r_lo, r_hi, tri_start, tri_count, corner, v0, v1, d00, d01, d11, den,
+                           bary_tol, rect_inside)  # fmt: skip
     return out
 
 
@@ -110,30 +154,6 @@ def _rectangles(facets: Facets) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     for x in out:
         x.setflags(write=False)
     facets.cache["rectangles"] = out
-    return out
-
-
-def _in_triangles(points: np.ndarray, facet: np.ndarray, facets: Facets) -> np.ndarray:
-    """Barycentric test of points against all triangles of their facets."""
-    n = len(points)
-    counts = facets.tri_count[facet]
-    rep = np.repeat(np.arange(n), counts)
-    # index of each expanded triangle: tri_start[f] + 0..count-1
-    within = np.arange(len(rep)) - np.repeat(np.cumsum(counts) - counts, counts)
-    t = np.repeat(facets.tri_start[facet], counts) + within
-    corner, v0, v1, d00, d01, d11, den = _triangle_terms(facets)
-    v2 = points[rep] - corner[t]
-    d20 = np.einsum("ij,ij->i", v2, v0[t])
-    d21 = np.einsum("ij,ij->i", v2, v1[t])
-    d00, d01, d11, den = d00[t], d01[t], d11[t], den[t]
-    v = (d11 * d20 - d01 * d21) / den
-    w = (d00 * d21 - d01 * d20) / den
-    inside_tri = (v >= -BARY_TOL) & (w >= -BARY_TOL) & (v + w <= 1 + BARY_TOL)
-    # any triangle of each point's facet (runs of a facet without triangles: False)
-    out = np.zeros(n, dtype=bool)
-    has = counts > 0
-    if has.any():
-        out[has] = np.logical_or.reduceat(inside_tri, (np.cumsum(counts) - counts)[has])
     return out
 
 

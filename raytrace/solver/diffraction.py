@@ -28,6 +28,7 @@ from ..core.vec import cross as _cross
 from ..core.vec import norm
 from ..core.vec import rows as take_rows
 from ..physics.utd import (
+    KELLER_TOL_M,
     diffraction_matrix,
     diffraction_valid,
     framed_wedge_geometry,
@@ -333,44 +334,36 @@ def _one_reflection(ctx: TraceContext, before: bool) -> list[Paths]:
     fc, w = ctx.scene.facets, ctx.scene.wedges
     ends, others = (ctx.tx, ctx.rx) if before else (ctx.rx, ctx.tx)
     e_idx, f_idx, w_idx, img, t_lo, t_hi = _facet_wedge_pairs(ctx, ends, keep=before)
-    side_e = refl.reflecting_side(fc, ends)
+    side_e = carray(refl.reflecting_side(fc, ends), np.int8)
     # Keller's point in scalar form (see keller_points): t = ts + (td - ts) rho_s / (rho_s + rho_d)
     # with the end's image (ts, rho_s) per triple and the other end (td, rho_d) per wedge, so
-    # that the expansion over the other ends is a cheap (triples, others) matrix
+    # that the expansion over the other ends is a cheap (triples, others) pass
     start_c, dir_c = w.start.T, w.direction.T
-    ts, rho_s = _along_and_off(img.T, start_c[:, w_idx], dir_c[:, w_idx])
     td_w, rho_w = _along_and_off(
         others.T[:, None, :], start_c[..., None], dir_c[..., None]
     )  # (W, O)
     # the other end inside the wedge: never a valid diffraction
     o_xyz = others.T[:, None, :]  # (3, 1, O)
     open_w = ~_surely_inside(_wedge_frame(ctx), np.arange(len(w))[:, None], *o_xyz)
+    fixed = (carray(others), carray(td_w), carray(rho_w), carray(open_w, bool), carray(w.start),
+             carray(w.direction), carray(w.end), carray(fc.normal), carray(fc.offset), side_e,
+             *accel.facet_test_arrays(fc), accel.BARY_TOL, accel.RECT_INSIDE_M, KELLER_TOL_M,
+             kernels.PRUNE)  # fmt: skip
+    triples = (carray(e_idx, np.int64), carray(f_idx, np.int64), carray(w_idx, np.int64),
+               carray(img), carray(t_lo), carray(t_hi))  # fmt: skip
     out = []
     n_o = len(others)
     step = max(1, CHUNK // max(n_o, 1))
     for c0 in range(0, len(e_idx), step):
-        sl = slice(c0, min(len(e_idx), c0 + step))
-        q, o_idx = kernels.expand_over_others(ts, rho_s, t_lo, t_hi, w_idx, td_w, rho_w, open_w,
-                                              sl.start, sl.stop, kernels.PRUNE)  # fmt: skip
-        ctx.count("candidates_rd" if before else "candidates_dr", len(q))
+        # the pruned pairs' exact tests, one pair at a time: Keller's point on the edge and on
+        # the end's side of the facet, the reflection point on the facet
+        q, o_idx, pts, n_pairs = kernels.reflection_edge_points(
+            c0, min(len(e_idx), c0 + step), *triples, *fixed
+        )  # fmt: skip
+        ctx.count("candidates_rd" if before else "candidates_dr", n_pairs)
         ee, ff, ww = e_idx[q], f_idx[q], w_idx[q]
         im, oth = take_rows(img, q), take_rows(others, o_idx)
-        kp = keller_points(im, oth, take_rows(w.start, ww), take_rows(w.end, ww))
-        ok = kp.on_edge
-        # the edge point must lie on the reflecting side (where the end is)
-        dpt = kp.point
-        n_ff, off_ff = take_rows(fc.normal, ff), fc.offset[ff]
-        s_d = refl.signed_distance(dpt, n_ff, off_ff)
-        ok &= np.sign(np.where(ok, s_d, 0.0)) == side_e[ee, ff]
-        # nearly every candidate passes the tests below: compact once, at the end
-        u, p = refl.segment_plane_point(im, dpt, n_ff, off_ff)
-        ok &= (u > 0) & (u < 1)
-        sel = np.flatnonzero(ok)
-        ok[sel] = accel.points_in_facets(take_rows(p, sel), ff[sel], fc)
-        sel = np.flatnonzero(ok)
-        ee, ff, ww, im, oth, o_idx, dpt, p = (
-            take_rows(x, sel) for x in (ee, ff, ww, im, oth, o_idx, dpt, p)
-        )
+        dpt, p = pts[:, :3], pts[:, 3:]
         if before:
             t_idx, r_idx = ee, o_idx
             ok = _valid_geometry(ctx, ww, im, oth, dpt)

@@ -32,9 +32,11 @@ import numpy as np
 
 from ..core.jit import helper, inline, kernel
 from ..core.vec import cross3, dot3
+from ..physics.utd import keller_point
+from ..scene.accel import FACET_TEST_SIG, point_in_facet
 
 __all__ = ["PRUNE", "surely_inside", "facet_wedge_pairs", "expand_over_others",
-           "second_order_receivers", "line_span", "edge_distance", "walk_record", "walk_unseen",
+           "reflection_edge_points", "second_order_receivers", "line_span", "edge_distance", "walk_record", "walk_unseen",
            "walk_rays", "walk_hits",
            "segment_rays", "track_fields"]
 
@@ -280,6 +282,99 @@ def expand_over_others(ts, rho_s, t_lo, t_hi, w_idx, td_w, rho_w, open_w, start,
                 out_q, out_o = _put(out_q, m, q), _put(out_o, m, o)
                 m += 1
     return out_q[:m].copy(), out_o[:m].copy()
+
+
+@kernel(
+    "Tuple((i8[::1], i8[::1], f8[:, ::1], i8))("
+    # triples start:stop: end, facet, wedge (M,), the end's image (M, 3), span lo, hi (M,)
+    "i8, i8, i8[::1], i8[::1], i8[::1], f8[:, ::1], f8[::1], f8[::1], "
+    # other ends (O, 3); along, off and open per (wedge, other end) (W, O)
+    "f8[:, ::1], f8[:, ::1], f8[:, ::1], b1[:, ::1], "
+    # wedges (W, 3): start, unit direction, end; facets: normal (K, 3), offset (K,)
+    "f8[:, ::1], f8[:, ::1], f8[:, ::1], f8[:, ::1], f8[::1], "
+    # reflecting side of each facet for each end (E, K)
+    f"i1[:, ::1], {FACET_TEST_SIG}, f8, b1)"
+)
+def reflection_edge_points(start, stop, e_idx, f_idx, w_idx, img, t_lo, t_hi, others, td_w,
+                           rho_w, open_w, w_start, w_dir, w_end, normal, offset, side, lo, hi,
+                           rect, r_lo, r_hi, tri_start, tri_count, corner, v0, v1, d00, d01, d11,
+                           den, bary_tol, rect_inside, keller_tol, prune):  # fmt: skip
+    """The RD or DR candidates of triples ``start:stop`` (end, facet, wedge, the end's image in
+    the facet) and the other ends: :func:`expand_over_others`' pruning, then the exact tests
+    of :func:`raytrace.solver.diffraction._one_reflection` one pair at a time, with the same
+    arithmetic as their vectorised forms:
+
+    * Keller's point of the image and the other end on the edge
+      (:func:`raytrace.physics.utd.keller_point`);
+    * that point on the end's reflecting side of the facet's plane;
+    * the segment image -> point crossing the plane between its ends (``0 < u < 1``);
+    * the crossing inside the facet (:func:`raytrace.scene.accel.point_in_facet`).
+
+    The image's edge coordinate and distance from the edge line (which prune only) are computed
+    here as ``diffraction._along_and_off`` computes them.
+
+    Returns
+    -------
+    q : (M,) int, triples (absolute indices), in order
+    o : (M,) int, other ends
+    points : (M, 6) float, metres: the diffraction point, then the reflection point
+    n_pairs : int, the pairs that passed the pruning (the exact tests' candidates)
+    """
+    n_o = td_w.shape[1]
+    cap = 1024
+    out_q = np.empty(cap, dtype=np.int64)
+    out_o = np.empty(cap, dtype=np.int64)
+    out_p = np.empty((cap, 6))
+    m, n_pairs = 0, 0
+    for q in range(start, stop):
+        w, f = w_idx[q], f_idx[q]
+        ix, iy, iz = img[q, 0], img[q, 1], img[q, 2]
+        rx, ry, rz = ix - w_start[w, 0], iy - w_start[w, 1], iz - w_start[w, 2]
+        tq = rx * w_dir[w, 0] + ry * w_dir[w, 1] + rz * w_dir[w, 2]
+        ox, oy, oz = rx - tq * w_dir[w, 0], ry - tq * w_dir[w, 1], rz - tq * w_dir[w, 2]
+        rq = np.sqrt(ox * ox + oy * oy + oz * oz)
+        lo_q, hi_q = t_lo[q], t_hi[q]
+        nx, ny, nz, off = normal[f, 0], normal[f, 1], normal[f, 2], offset[f]
+        sd = side[e_idx[q], f]
+        sa = dot3(ix, iy, iz, nx, ny, nz) - off  # the image's signed distance from the plane
+        for o in range(n_o):
+            if prune and not open_w[w, o]:
+                continue
+            td = td_w[w, o]
+            slack = 1e-9 * (abs(tq) + abs(td) + 1.0)
+            if prune and (max(tq, td) < lo_q - slack or min(tq, td) > hi_q + slack):
+                continue
+            t = tq + (td - tq) * rq / (rq + rho_w[w, o])
+            if prune and not (t >= lo_q and t <= hi_q):
+                continue
+            n_pairs += 1
+            px, py, pz, _, on_edge = keller_point(
+                ix, iy, iz, others[o, 0], others[o, 1], others[o, 2], w_start[w, 0],
+                w_start[w, 1], w_start[w, 2], w_end[w, 0], w_end[w, 1], w_end[w, 2], keller_tol)  # fmt: skip
+            if not on_edge:
+                continue
+            sb = dot3(px, py, pz, nx, ny, nz) - off
+            if not ((sb > 0 and sd > 0) or (sb < 0 and sd < 0) or (sb == 0 and sd == 0)):
+                continue  # np.sign(sb) != side (NaN: never equal)
+            den_u = sa - sb
+            if not abs(den_u) > 0:
+                continue
+            u = sa / den_u
+            if not (u > 0 and u < 1):
+                continue
+            cx, cy, cz = ix + u * (px - ix), iy + u * (py - iy), iz + u * (pz - iz)
+            if not point_in_facet(cx, cy, cz, f, lo, hi, rect, r_lo, r_hi, tri_start, tri_count,
+                             corner, v0, v1, d00, d01, d11, den, bary_tol, rect_inside):  # fmt: skip
+                continue
+            if m == len(out_q):
+                grown = np.empty((2 * m, 6))
+                grown[:m] = out_p
+                out_p = grown
+            out_q, out_o = _put(out_q, m, q), _put(out_o, m, o)
+            out_p[m, 0], out_p[m, 1], out_p[m, 2] = px, py, pz
+            out_p[m, 3], out_p[m, 4], out_p[m, 5] = cx, cy, cz
+            m += 1
+    return out_q[:m].copy(), out_o[:m].copy(), out_p[:m].copy(), n_pairs
 
 
 @inline
