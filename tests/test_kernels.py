@@ -345,3 +345,31 @@ def test_track_fields_applies_the_numpy_interactions_in_order():
         np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-14 * np.abs(want).max())
         if kind == DIFFRACTION:
             assert np.all(got[~geo.valid] == 0) and np.all(got[geo.valid] != 0)
+
+
+def test_interaction_sequences_put_each_segments_penetrations_before_its_vertex():
+    """Random counts of penetrations per segment: the sequences are, per path, the penetrations
+    of segment 0, vertex 0, the penetrations of segment 1, ..., padded (written out in Python)."""
+    rng = np.random.default_rng(7)
+    m, k, n_pen, depth = 50, 2, 2, 4
+    count = rng.integers(0, n_pen + 1, (m, k + 1))
+    count[count.sum(axis=1) > depth - k] = 0
+    pen_obj = rng.integers(0, 99, (m, k + 1, n_pen))
+    pen_pts = rng.normal(size=(m, k + 1, n_pen, 3))
+    kinds = rng.choice(np.array([1, 3], np.int8), (m, k))
+    verts = rng.normal(size=(m, k, 3))
+    vobj, elem = rng.integers(0, 99, (m, k)), rng.integers(0, 99, (m, k))
+    inter, pts, objs, elems = kernels.interaction_sequences(count, pen_obj, pen_pts, kinds, verts,
+                                                            vobj, elem, depth, 2)  # fmt: skip
+    for r in range(m):
+        seq = []
+        for j in range(k + 1):
+            seq += [(2, tuple(pen_pts[r, j, s]), pen_obj[r, j, s], -1) for s in range(count[r, j])]
+            if j < k:
+                seq.append((kinds[r, j], tuple(verts[r, j]), vobj[r, j], elem[r, j]))
+        n = len(seq)
+        assert inter[r, :n].tolist() == [x[0] for x in seq] and not inter[r, n:].any()
+        np.testing.assert_array_equal(pts[r, :n], [x[1] for x in seq])
+        assert np.isnan(pts[r, n:]).all()
+        assert objs[r, :n].tolist() == [x[2] for x in seq] and (objs[r, n:] == -1).all()
+        assert elems[r, :n].tolist() == [x[3] for x in seq] and (elems[r, n:] == -1).all()

@@ -333,29 +333,13 @@ def assemble(
     path: the penetrations of segment ``j``, then vertex ``j``."""
     m, k = len(cand), cand.depth
     count = cross.count.reshape(m, k + 1)
-    pen_obj = cross.object.reshape(m, k + 1, -1)
-    pen_pts = cross.point.reshape(m, k + 1, -1, 3)
-    depth = k + ctx.cfg.max_penetrations
-    inter = np.zeros((m, depth), np.int8)
-    pts = np.full((m, depth, 3), np.nan)
-    objs = np.full((m, depth), -1, np.int64)
-    elems = np.full((m, depth), -1, np.int64)
-    pos = np.zeros(m, dtype=np.int64)
-    rows = np.arange(m)
-    for j in range(k + 1):
-        for s in range(pen_obj.shape[2]):
-            has = count[:, j] > s
-            r = rows[has]
-            inter[r, pos[has]] = PENETRATION
-            pts[r, pos[has]] = pen_pts[has, j, s]
-            objs[r, pos[has]] = pen_obj[has, j, s]
-            pos[has] += 1
-        if j < k:
-            inter[rows, pos] = cand.kinds[:, j]
-            pts[rows, pos] = cand.verts[:, j]
-            objs[rows, pos] = cand.vobj[:, j]
-            elems[rows, pos] = cand.elem[:, j]
-            pos += 1
+    n_pen = cross.object.shape[1]
+    inter, pts, objs, elems = kernels.interaction_sequences(
+        carray(count, np.int64), carray(cross.object, np.int64).reshape(m, k + 1, n_pen),
+        carray(cross.point).reshape(m, k + 1, n_pen, 3), carray(cand.kinds, np.int8),
+        carray(cand.verts), carray(cand.vobj, np.int64), carray(cand.elem, np.int64),
+        k + ctx.cfg.max_penetrations, int(PENETRATION),
+    )  # fmt: skip
     return Paths(
         tx=ctx.tx,
         rx=ctx.rx,

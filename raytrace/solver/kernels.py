@@ -38,7 +38,7 @@ from ..scene.accel import FACET_TEST_SIG, point_in_facet
 __all__ = ["PRUNE", "surely_inside", "facet_wedge_pairs", "expand_over_others",
            "reflection_edge_points", "second_order_receivers", "line_span", "edge_distance", "walk_record", "walk_unseen",
            "walk_rays", "walk_hits",
-           "segment_rays", "track_fields"]
+           "segment_rays", "track_fields", "interaction_sequences"]
 
 #: The callers pass this as the kernels' ``prune``: False switches their pruning tests off (they
 #: then return every candidate that satisfies the rules, with unbounded spans), so that a trace
@@ -979,3 +979,45 @@ def track_fields(e_start, dirs, count, pen_normal, pen_te, pen_tm, kinds, normal
                 e2 = (o0 * b[2, 2] + o1 * b[3, 2]) * amp
         out[r] = (e0 * e_rx[r, 0] + e1 * e_rx[r, 1]) + e2 * e_rx[r, 2]
     return out
+
+
+@kernel(
+    "Tuple((i1[:, ::1], f8[:, :, ::1], i8[:, ::1], i8[:, ::1]))("
+    "i8[:, ::1], i8[:, :, ::1], f8[:, :, :, ::1], i1[:, ::1], f8[:, :, ::1], i8[:, ::1], "
+    "i8[:, ::1], i8, i1)"
+)
+def interaction_sequences(count, pen_obj, pen_pts, kinds, verts, vobj, elem, depth, penetration):
+    """The interaction sequences of M paths in the order the field meets them: the
+    penetrations of segment ``j`` (``count`` (M, k+1), objects (M, k+1, P), entry points
+    (M, k+1, P, 3)), then vertex ``j`` (``kinds``, ``verts``, ``vobj``, ``elem``: (M, k),
+    (M, k, 3)), padded to ``depth`` columns.
+
+    Returns
+    -------
+    interaction : (M, depth) int8, codes (0 pad; ``penetration`` for a penetration)
+    points : (M, depth, 3) float, metres (NaN pad)
+    objects, elements : (M, depth) int, the object of each interaction and the facet or wedge of
+        a vertex (-1 pad; -1 for a penetration's element)
+    """
+    m, k = kinds.shape
+    inter = np.zeros((m, depth), dtype=np.int8)
+    pts = np.full((m, depth, 3), np.nan)
+    objs = np.full((m, depth), -1, dtype=np.int64)
+    elems = np.full((m, depth), -1, dtype=np.int64)
+    for r in range(m):
+        pos = 0
+        for j in range(k + 1):
+            for s in range(min(count[r, j], pen_obj.shape[2])):
+                inter[r, pos] = penetration
+                pts[r, pos, 0], pts[r, pos, 1] = pen_pts[r, j, s, 0], pen_pts[r, j, s, 1]
+                pts[r, pos, 2] = pen_pts[r, j, s, 2]
+                objs[r, pos] = pen_obj[r, j, s]
+                pos += 1
+            if j < k:
+                inter[r, pos] = kinds[r, j]
+                pts[r, pos, 0], pts[r, pos, 1], pts[r, pos, 2] = (verts[r, j, 0], verts[r, j, 1],
+                                                                  verts[r, j, 2])  # fmt: skip
+                objs[r, pos] = vobj[r, j]
+                elems[r, pos] = elem[r, j]
+                pos += 1
+    return inter, pts, objs, elems
