@@ -8,6 +8,7 @@ import pytest
 from conftest import box, make_scene, quad
 
 from raytrace.core.jit import carray
+from raytrace.physics import utd
 from raytrace.scene import accel
 from raytrace.solver import diffraction, kernels
 from raytrace.solver import reflection as refl
@@ -129,7 +130,8 @@ def test_reflection_edge_points_equal_the_numpy_tests_of_every_pair(seed):
     """RD candidates: the kernel's pairs, diffraction points and reflection points are those of
     the exact tests written out in numpy over every (triple, other end) pair (Keller's point by
     its closed form, the point on the end's side, the crossing on the segment and in the
-    facet), in order; its pruning drops none of them."""
+    facet, a valid diffraction from the image to the receiver), in order; its pruning drops none
+    of them."""
     rng = np.random.default_rng(seed)
     objs = [("floor", box((-1, -1, -0.3), (9, 9, 0.0)), "concrete"),
             ("pane", quad((4.0, 1.0, 0.0), (0.0, 3.0, 0.0), (0.0, 0.0, 2.0)), "glass")]  # fmt: skip
@@ -159,6 +161,10 @@ def test_reflection_edge_points_equal_the_numpy_tests_of_every_pair(seed):
     u, p = refl.segment_plane_point(src, dpt, fc.normal[f], fc.offset[f])
     ok &= (u > 0) & (u < 1)
     ok[ok] = accel.points_in_facets(p[ok], f[ok], fc)
+    wo = ww[ok]
+    ok[ok] = utd.wedge_geometry(src[ok], dst[ok], dpt[ok], w.direction[wo], w.normal0[wo],
+                                w.normal1[wo], w.face0_dir[wo]).valid  # fmt: skip
+    frame = diffraction._wedge_frame(ctx).utd
     assert ok.sum() > 20
 
     td_w, rho_w = diffraction._along_and_off(rx.T[:, None, :], w.start.T[..., None],
@@ -169,7 +175,8 @@ def test_reflection_edge_points_equal_the_numpy_tests_of_every_pair(seed):
     args = (c(e_idx, np.int64), c(f_idx, np.int64), c(w_idx, np.int64), c(img), c(t_lo),
             c(t_hi), c(rx), c(td_w), c(rho_w), c(open_w, bool), c(w.start), c(w.direction),
             c(w.end), c(fc.normal), c(fc.offset), c(side, np.int8),
-            *accel.facet_test_arrays(fc), accel.BARY_TOL, accel.RECT_INSIDE_M, 1e-9)  # fmt: skip
+            *accel.facet_test_arrays(fc), accel.BARY_TOL, accel.RECT_INSIDE_M, 1e-9,
+            c(frame.edge_dir), c(frame.face0_tangent), c(frame.normal_0), c(frame.n), True)  # fmt: skip
     for prune in (False, True):
         kq, ko, pts, n_pairs = kernels.reflection_edge_points(0, len(e_idx), *args, prune)
         if prune:

@@ -74,6 +74,7 @@ __all__ = [
     "wedge_frames",
     "framed_wedge_geometry",
     "diffraction_valid",
+    "diffraction_valid1",
     "face_rule_angle",
     "transition_function",
     "utd_coefficients",
@@ -427,26 +428,33 @@ def _azimuth1(wx, wy, wz, t0, n0, n, r):
 
 
 @inline
-def _legs(e, t0, n0, n, src, dst, point, r):
-    """Unit vectors, lengths, azimuths and ``e x s`` of the incident and diffracted legs."""
-    ix, iy, iz = point[r, 0] - src[r, 0], point[r, 1] - src[r, 1], point[r, 2] - src[r, 2]
+def _legs(e, t0, n0, n, w, sx, sy, sz, dx, dy, dz, px, py, pz):
+    """Unit vectors, lengths, azimuths and ``e x s`` of the incident and diffracted legs of a
+    diffraction at ``p`` from ``s`` to ``d`` on the wedge of frame row ``w``."""
+    ix, iy, iz = px - sx, py - sy, pz - sz
     s_in = np.sqrt(ix * ix + iy * iy + iz * iz)
     ix, iy, iz = ix / s_in, iy / s_in, iz / s_in
-    ox, oy, oz = dst[r, 0] - point[r, 0], dst[r, 1] - point[r, 1], dst[r, 2] - point[r, 2]
+    ox, oy, oz = dx - px, dy - py, dz - pz
     s_out = np.sqrt(ox * ox + oy * oy + oz * oz)
     ox, oy, oz = ox / s_out, oy / s_out, oz / s_out
-    phi_in, in_s = _azimuth1(src[r, 0] - point[r, 0], src[r, 1] - point[r, 1],
-                             src[r, 2] - point[r, 2], t0, n0, n, r)  # fmt: skip
-    phi, in_d = _azimuth1(dst[r, 0] - point[r, 0], dst[r, 1] - point[r, 1],
-                          dst[r, 2] - point[r, 2], t0, n0, n, r)  # fmt: skip
-    cix, ciy, ciz = cross3(e[r, 0], e[r, 1], e[r, 2], ix, iy, iz)
-    cox, coy, coz = cross3(e[r, 0], e[r, 1], e[r, 2], ox, oy, oz)
+    phi_in, in_s = _azimuth1(sx - px, sy - py, sz - pz, t0, n0, n, w)
+    phi, in_d = _azimuth1(dx - px, dy - py, dz - pz, t0, n0, n, w)
+    cix, ciy, ciz = cross3(e[w, 0], e[w, 1], e[w, 2], ix, iy, iz)
+    cox, coy, coz = cross3(e[w, 0], e[w, 1], e[w, 2], ox, oy, oz)
     sin_in = np.sqrt(cix * cix + ciy * ciy + ciz * ciz)
     sin_out = np.sqrt(cox * cox + coy * coy + coz * coz)
     valid = (s_in > 0 and s_out > 0 and sin_in > _MIN_SIN_BETA0 and sin_out > _MIN_SIN_BETA0
              and not in_s and not in_d)  # fmt: skip
     return (ix, iy, iz, s_in, ox, oy, oz, s_out, phi_in, phi, cix, ciy, ciz, sin_in, cox, coy,
             coz, sin_out, valid)  # fmt: skip
+
+
+@inline
+def diffraction_valid1(e, t0, n0, n, w, sx, sy, sz, dx, dy, dz, px, py, pz):
+    """:func:`diffraction_valid` of one diffraction at ``p`` from ``s`` to ``d`` on the wedge of
+    frame row ``w`` (``e, t0, n0, n`` of :class:`WedgeFrame`, one row per wedge), a compiled
+    scalar helper for kernels."""
+    return _legs(e, t0, n0, n, w, sx, sy, sz, dx, dy, dz, px, py, pz)[18]
 
 
 @inline
@@ -473,7 +481,8 @@ def _valid(e, t0, n0, n, src, dst, point):
     """:func:`diffraction_valid` over P rows."""
     out = np.empty(len(n), dtype=np.bool_)
     for r in range(len(n)):
-        out[r] = _legs(e, t0, n0, n, src, dst, point, r)[18]
+        out[r] = diffraction_valid1(e, t0, n0, n, r, src[r, 0], src[r, 1], src[r, 2], dst[r, 0],
+                                    dst[r, 1], dst[r, 2], point[r, 0], point[r, 1], point[r, 2])  # fmt: skip
     return out
 
 
@@ -498,7 +507,8 @@ def _geometry(e, t0, n0, n, src, dst, point):
     valid = np.empty(p, dtype=np.bool_)
     for r in range(p):
         (ix, iy, iz, si, ox, oy, oz, so, pin, pout, cix, ciy, ciz, sin_in, cox, coy, coz,
-         sin_out, ok) = _legs(e, t0, n0, n, src, dst, point, r)  # fmt: skip
+         sin_out, ok) = _legs(e, t0, n0, n, r, src[r, 0], src[r, 1], src[r, 2], dst[r, 0],
+                              dst[r, 1], dst[r, 2], point[r, 0], point[r, 1], point[r, 2])  # fmt: skip
         s_hat_in[r, 0], s_hat_in[r, 1], s_hat_in[r, 2], s_in[r] = ix, iy, iz, si
         s_hat_out[r, 0], s_hat_out[r, 1], s_hat_out[r, 2], s_out[r] = ox, oy, oz, so
         phi_in[r], phi[r], sin_beta0[r], valid[r] = pin, pout, sin_in, ok

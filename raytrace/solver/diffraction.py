@@ -345,10 +345,12 @@ def _one_reflection(ctx: TraceContext, before: bool) -> list[Paths]:
     # the other end inside the wedge: never a valid diffraction
     o_xyz = others.T[:, None, :]  # (3, 1, O)
     open_w = ~_surely_inside(_wedge_frame(ctx), np.arange(len(w))[:, None], *o_xyz)
+    fr = _wedge_frame(ctx).utd
     fixed = (carray(others), carray(td_w), carray(rho_w), carray(open_w, bool), carray(w.start),
              carray(w.direction), carray(w.end), carray(fc.normal), carray(fc.offset), side_e,
              *accel.facet_test_arrays(fc), accel.BARY_TOL, accel.RECT_INSIDE_M, KELLER_TOL_M,
-             kernels.PRUNE)  # fmt: skip
+             carray(fr.edge_dir), carray(fr.face0_tangent), carray(fr.normal_0), carray(fr.n),
+             before, kernels.PRUNE)  # fmt: skip
     triples = (carray(e_idx, np.int64), carray(f_idx, np.int64), carray(w_idx, np.int64),
                carray(img), carray(t_lo), carray(t_hi))  # fmt: skip
     out = []
@@ -356,42 +358,25 @@ def _one_reflection(ctx: TraceContext, before: bool) -> list[Paths]:
     step = max(1, CHUNK // max(n_o, 1))
     for c0 in range(0, len(e_idx), step):
         # the pruned pairs' exact tests, one pair at a time: Keller's point on the edge and on
-        # the end's side of the facet, the reflection point on the facet
+        # the end's side of the facet, the reflection point on the facet, a valid diffraction
         q, o_idx, pts, n_pairs = kernels.reflection_edge_points(
             c0, min(len(e_idx), c0 + step), *triples, *fixed
         )  # fmt: skip
         ctx.count("candidates_rd" if before else "candidates_dr", n_pairs)
-        ee, ff, ww = e_idx[q], f_idx[q], w_idx[q]
-        im, oth = take_rows(img, q), take_rows(others, o_idx)
-        dpt, p = pts[:, :3], pts[:, 3:]
+        if not len(q):
+            continue
         if before:
-            t_idx, r_idx = ee, o_idx
-            ok = _valid_geometry(ctx, ww, im, oth, dpt)
-            verts = np.stack([p, dpt], axis=1)
-            fac = np.stack([ff, ww], axis=1)
+            t_idx, r_idx = e_idx[q], o_idx
+            verts = np.stack([pts[:, 3:], pts[:, :3]], axis=1)
+            fac = np.stack([f_idx[q], w_idx[q]], axis=1)
             kinds = np.array([[REFLECTION, DIFFRACTION]], np.int8)
         else:
-            t_idx, r_idx = o_idx, ee
-            ok = _valid_geometry(ctx, ww, oth, im, dpt)
-            verts = np.stack([dpt, p], axis=1)
-            fac = np.stack([ww, ff], axis=1)
+            t_idx, r_idx = o_idx, e_idx[q]
+            verts = pts.reshape(-1, 2, 3)  # (diffraction point, reflection point)
+            fac = np.stack([w_idx[q], f_idx[q]], axis=1)
             kinds = np.array([[DIFFRACTION, REFLECTION]], np.int8)
-        if ok.any():
-            sel = np.flatnonzero(ok)
-            out.append(
-                evaluate(
-                    ctx,
-                    candidates(
-                        ctx,
-                        t_idx[sel],
-                        r_idx[sel],
-                        take_rows(verts, sel),
-                        take_rows(fac, sel),
-                        kinds=np.repeat(kinds, len(sel), axis=0),
-                    ),
-                    diffraction=field_model(ctx),
-                )
-            )
+        cand = candidates(ctx, t_idx, r_idx, verts, fac, kinds=np.repeat(kinds, len(q), axis=0))
+        out.append(evaluate(ctx, cand, diffraction=field_model(ctx)))
     return out
 
 

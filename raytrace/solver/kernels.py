@@ -32,7 +32,7 @@ import numpy as np
 
 from ..core.jit import helper, inline, kernel
 from ..core.vec import cross3, dot3
-from ..physics.utd import keller_point
+from ..physics.utd import diffraction_valid1, keller_point
 from ..scene.accel import FACET_TEST_SIG, point_in_facet
 
 __all__ = ["PRUNE", "surely_inside", "facet_wedge_pairs", "expand_over_others",
@@ -292,13 +292,15 @@ def expand_over_others(ts, rho_s, t_lo, t_hi, w_idx, td_w, rho_w, open_w, start,
     "f8[:, ::1], f8[:, ::1], f8[:, ::1], b1[:, ::1], "
     # wedges (W, 3): start, unit direction, end; facets: normal (K, 3), offset (K,)
     "f8[:, ::1], f8[:, ::1], f8[:, ::1], f8[:, ::1], f8[::1], "
-    # reflecting side of each facet for each end (E, K)
-    f"i1[:, ::1], {FACET_TEST_SIG}, f8, b1)"
+    # reflecting side of each facet for each end (E, K); the wedges' UTD frames e, t0, n0 (W, 3)
+    # and n (W,); the reflection before the edge (RD)
+    f"i1[:, ::1], {FACET_TEST_SIG}, f8, f8[:, ::1], f8[:, ::1], f8[:, ::1], f8[::1], b1, b1)"
 )
 def reflection_edge_points(start, stop, e_idx, f_idx, w_idx, img, t_lo, t_hi, others, td_w,
                            rho_w, open_w, w_start, w_dir, w_end, normal, offset, side, lo, hi,
                            rect, r_lo, r_hi, tri_start, tri_count, corner, v0, v1, d00, d01, d11,
-                           den, bary_tol, rect_inside, keller_tol, prune):  # fmt: skip
+                           den, bary_tol, rect_inside, keller_tol, fr_e, fr_t0, fr_n0, fr_n,
+                           before, prune):  # fmt: skip
     """The RD or DR candidates of triples ``start:stop`` (end, facet, wedge, the end's image in
     the facet) and the other ends: :func:`expand_over_others`' pruning, then the exact tests
     of :func:`raytrace.solver.diffraction._one_reflection` one pair at a time, with the same
@@ -308,7 +310,9 @@ def reflection_edge_points(start, stop, e_idx, f_idx, w_idx, img, t_lo, t_hi, ot
       (:func:`raytrace.physics.utd.keller_point`);
     * that point on the end's reflecting side of the facet's plane;
     * the segment image -> point crossing the plane between its ends (``0 < u < 1``);
-    * the crossing inside the facet (:func:`raytrace.scene.accel.point_in_facet`).
+    * the crossing inside the facet (:func:`raytrace.scene.accel.point_in_facet`);
+    * a valid diffraction from the image (``before``, RD) or the other end (DR) to the other
+      (:func:`raytrace.physics.utd.diffraction_valid1`).
 
     The image's edge coordinate and distance from the edge line (which prune only) are computed
     here as ``diffraction._along_and_off`` computes them.
@@ -365,6 +369,15 @@ def reflection_edge_points(start, stop, e_idx, f_idx, w_idx, img, t_lo, t_hi, ot
             cx, cy, cz = ix + u * (px - ix), iy + u * (py - iy), iz + u * (pz - iz)
             if not point_in_facet(cx, cy, cz, f, lo, hi, rect, r_lo, r_hi, tri_start, tri_count,
                              corner, v0, v1, d00, d01, d11, den, bary_tol, rect_inside):  # fmt: skip
+                continue
+            qx, qy, qz = others[o, 0], others[o, 1], others[o, 2]
+            if before:
+                valid = diffraction_valid1(fr_e, fr_t0, fr_n0, fr_n, w, ix, iy, iz, qx, qy, qz,
+                                           px, py, pz)  # fmt: skip
+            else:
+                valid = diffraction_valid1(fr_e, fr_t0, fr_n0, fr_n, w, qx, qy, qz, ix, iy, iz,
+                                           px, py, pz)  # fmt: skip
+            if not valid:
                 continue
             if m == len(out_q):
                 grown = np.empty((2 * m, 6))
