@@ -315,6 +315,25 @@ def test_transition_function_large_x_asymptote() -> None:
     assert np.all(err <= 1.05 * next_term + F_ROUNDING)
 
 
+def test_transition_series_branch_agrees_with_the_faddeeva_form() -> None:
+    """From X_SERIES on G(x) = F(x)/sqrt(x) is summed from the large-argument series: it agrees
+    with the Faddeeva form (scipy's wofz, accurate to a few 1e-15 there) to 1e-14 relative, and
+    the switch at X_SERIES is continuous to that accuracy."""
+    from scipy.special import wofz
+
+    from raytrace.physics.utd import X_SERIES, _transition_over_sqrt
+
+    x = np.concatenate([np.logspace(np.log10(X_SERIES), 8, 500), [X_SERIES]])
+    faddeeva = np.sqrt(np.pi) * np.exp(0.25j * np.pi) * wofz(np.sqrt(x) * np.exp(0.75j * np.pi))
+    got = _transition_over_sqrt(x)
+    assert np.max(np.abs(got / faddeeva - 1)) < 1e-14
+    below, at = _transition_over_sqrt(np.array([np.nextafter(X_SERIES, 0), X_SERIES]))
+    assert abs(at / below - 1) < 1e-14
+    # shapes: a scalar and an empty array pass through
+    assert _transition_over_sqrt(np.float64(200.0)).shape == ()
+    assert _transition_over_sqrt(np.zeros((0, 4))).shape == (0, 4)
+
+
 def test_transition_function_small_x_form() -> None:
     # F ~ [sqrt(pi x) - 2x exp(j pi/4) - (2/3) x^2 exp(-j pi/4)] exp(j (pi/4 + x)), error O(x^3)
     x = np.logspace(-8, -1, 30)

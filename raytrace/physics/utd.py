@@ -598,15 +598,68 @@ def face_rule_angle(
 
 
 # -- 3. UTD coefficients --------------------------------------------------------------------------
+#: From this argument on, ``G(x)`` is summed from the large-argument series of ``F``
+#: (:func:`_g_large`) instead of the Faddeeva function: eleven terms, the first one left out is
+#: below 7e-16 of ``F`` there.
+X_SERIES = 100.0
+#: Terms of the series (``m = 0 .. _SERIES_TERMS - 1``).
+_SERIES_TERMS = 11
+
+
+@inline
+def _g_large(x):
+    """``G(x) = F(x) / sqrt(x)`` for ``x >= X_SERIES`` from KP's large-argument series
+    ``F(x) ~ sum_m (2m-1)!! (j / 2x)^m``, summed by Horner's rule in ``y^2 = (1 / 2x)^2``
+    separately over the even (real) and odd (imaginary) terms."""
+    y = 0.5 / x
+    y2 = y * y
+    re = 0.0
+    im = 0.0
+    # coefficients (2m-1)!! (-1)^floor(m/2), highest first
+    top = _SERIES_TERMS - 1
+    for m in range(top - top % 2, -1, -2):  # even m: (2m-1)!! (-1)^(m/2) y^m
+        re = re * y2 + _DOUBLE_FACTORIAL[m] * (1.0 if m % 4 == 0 else -1.0)
+    for m in range(top - (top + 1) % 2, 0, -2):  # odd m: (2m-1)!! (-1)^((m-1)/2) y^m
+        im = im * y2 + _DOUBLE_FACTORIAL[m] * (1.0 if m % 4 == 1 else -1.0)
+    im *= y
+    r = np.sqrt(x)
+    return complex(re / r, im / r)
+
+
+#: (2m - 1)!! for m = 0 .. _SERIES_TERMS - 1 ((-1)!! = 1)
+_DOUBLE_FACTORIAL = np.array([float(np.prod(np.arange(2 * m - 1, 0, -2))) for m in range(11)])
+
+
+@kernel("c16[::1](f8[::1])")
+def _g_series(x):
+    """:func:`_g_large` over n arguments."""
+    out = np.empty(len(x), dtype=np.complex128)
+    for i in range(len(x)):
+        out[i] = _g_large(x[i])
+    return out
+
+
 def _transition_over_sqrt(x: np.ndarray) -> np.ndarray:
     """``G(x) = F(x) / sqrt(x)``, finite at 0: ``G(0) = sqrt(pi) exp(j pi/4)``.
 
     ``int_u^inf exp(-j t^2) dt = exp(-j u^2) (sqrt(pi)/2) exp(-j pi/4) w(u exp(j 3pi/4))`` with the
     Faddeeva function ``w(z) = exp(-z^2) erfc(-j z)`` (scipy.special.wofz), stable for all u >= 0:
-    no cancellation between ``1/2`` and a Fresnel integral at large argument.
+    no cancellation between ``1/2`` and a Fresnel integral at large argument. From
+    :data:`X_SERIES` on (most diffractions away from a shadow or reflection boundary), the
+    large-argument series (:func:`_g_large`), about five times cheaper, agrees with it to about
+    1e-15 relative.
     """
-    u = np.sqrt(x)
-    return np.sqrt(np.pi) * np.exp(0.25j * np.pi) * wofz(u * np.exp(0.75j * np.pi))
+    x = np.asarray(x, dtype=float)
+    flat = x.reshape(-1)
+    out = np.empty(flat.shape, dtype=complex)
+    large = flat >= X_SERIES
+    if large.any():
+        out[large] = _g_series(_c(flat[large]))
+    near = np.flatnonzero(~large)
+    if len(near):
+        u = np.sqrt(flat[near])
+        out[near] = np.sqrt(np.pi) * np.exp(0.25j * np.pi) * wofz(u * np.exp(0.75j * np.pi))
+    return out.reshape(x.shape)
 
 
 def transition_function(x: float | np.ndarray) -> np.ndarray:
