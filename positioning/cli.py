@@ -425,5 +425,12 @@ def accuracy_report_main(argv: Sequence[str] | None = None) -> int:
     return run_command(_report, _report_parser(), argv)
 
 
+def accuracy_report(argv: Sequence[str]) -> int:
+    """``accuracy-report`` without the command harness, for a command that runs it inside its
+    own (``reproduce-paper``): bad input and interruptions (Ctrl-C, SIGTERM) propagate to the
+    caller's harness as exceptions instead of becoming an exit status here."""
+    return int(_report(_report_parser().parse_args(list(argv))))
+
+
 if __name__ == "__main__":  # pragma: no cover
     sys.exit(estimate_positions_main())

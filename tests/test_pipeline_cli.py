@@ -54,3 +54,26 @@ def test_reproduce_paper_writes_both_receivers_and_the_comparison(tmp_path, caps
     assert "| first-path | static | C-band | LoS |" in text
     assert "## Tracked rows" in text and "| twin |" in text and "| c-band |" in text
     assert (out / "maps" / "mmwave" / "map.npz").is_file()
+
+
+def test_reproduce_paper_interrupted_in_the_report_says_so_once(tmp_path, capsys, monkeypatch):
+    """Ctrl-C or SIGTERM while the accuracy report runs: the report does not turn it into an
+    exit status of its own; reproduce-paper reports the interruption once, exits 130 and
+    leaves no output."""
+    import positioning.cli
+    from raytrace.emulation import dataset
+
+    def datasets(folder, pairs, **kw):
+        return [{"directory": str(folder / "static-c-band"), "epochs": 1, "toa_method": r}
+                for r in kw["toa_method"]]  # fmt: skip
+
+    def report(args):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(dataset, "make_datasets", datasets)
+    monkeypatch.setattr(positioning.cli, "_report", report)
+    out = tmp_path / "run"
+    assert reproduce_paper_main(["-o", str(out), "-q", "--map-step", "0"]) == 130
+    err = capsys.readouterr().err
+    assert err.count("interrupted") == 1, err
+    assert not out.exists() and not list(tmp_path.iterdir())

@@ -127,7 +127,7 @@ def _build(
     """Datasets of every receiver into ``tmp/datasets`` (one trace), a report per receiver, and
     ``tmp/paper.md``; returns the text of ``paper.md``."""
     from positioning import method_names
-    from positioning.cli import accuracy_report_main
+    from positioning.cli import accuracy_report
 
     from ..emulation.dataset import make_datasets
     from ..studies.paper import costs_markdown, method_costs, write_comparison
@@ -162,7 +162,8 @@ def _build(
             argv += ["--methods", ",".join(m for m in methods if "twin" not in m)]
         print(f"\n== receiver {r} ==")
         sys.stdout.flush()
-        code = accuracy_report_main(argv)
+        # inside this command's harness: an interruption or an error is reported once, by it
+        code = accuracy_report(argv)
         if code != 0:
             raise HallrayError(f"the accuracy report failed (exit status {code}); nothing written")
     main_static = next(d for d in datasets[receivers[0]] if Path(d).name == "static-c-band")
