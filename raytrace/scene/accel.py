@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..core.jit import carray, inline, kernel
+from ..core.jit import carray, helper, kernel
 from ..core.vec import dot3
 from .elements import Facets, Wedges
 
@@ -65,7 +65,7 @@ def facet_test_arrays(facets: Facets) -> tuple[np.ndarray, ...]:
     return cached
 
 
-@inline
+@helper
 def point_in_facet(px, py, pz, f, lo, hi, rect, r_lo, r_hi, tri_start, tri_count, corner, v0, v1,
               d00, d01, d11, den, bary_tol, rect_inside):  # fmt: skip
     """Whether a point (on facet ``f``'s plane) lies inside the facet (:func:`points_in_facets`;

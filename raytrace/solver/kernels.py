@@ -370,14 +370,11 @@ def reflection_edge_points(start, stop, e_idx, f_idx, w_idx, img, t_lo, t_hi, ot
             if not point_in_facet(cx, cy, cz, f, lo, hi, rect, r_lo, r_hi, tri_start, tri_count,
                              corner, v0, v1, d00, d01, d11, den, bary_tol, rect_inside):  # fmt: skip
                 continue
-            qx, qy, qz = others[o, 0], others[o, 1], others[o, 2]
-            if before:
-                valid = diffraction_valid1(fr_e, fr_t0, fr_n0, fr_n, w, ix, iy, iz, qx, qy, qz,
-                                           px, py, pz)  # fmt: skip
-            else:
-                valid = diffraction_valid1(fr_e, fr_t0, fr_n0, fr_n, w, qx, qy, qz, ix, iy, iz,
-                                           px, py, pz)  # fmt: skip
-            if not valid:
+            # the diffraction's source and receiver: the image first for RD, last for DR
+            ax, ay, az = (ix, iy, iz) if before else (others[o, 0], others[o, 1], others[o, 2])
+            bx, by, bz = (others[o, 0], others[o, 1], others[o, 2]) if before else (ix, iy, iz)
+            if not diffraction_valid1(fr_e, fr_t0, fr_n0, fr_n, w, ax, ay, az, bx, by, bz, px,
+                                      py, pz):  # fmt: skip
                 continue
             if m == len(out_q):
                 grown = np.empty((2 * m, 6))
