@@ -56,7 +56,7 @@ from scipy.special import wofz
 from ..core.constants import C0
 from ..core.errors import TraceInputError
 from ..core.jit import carray as _c
-from ..core.jit import helper, inline, kernel
+from ..core.jit import inline, kernel
 from ..core.vec import cross as _cross
 from ..core.vec import cross3, dot3
 from ..core.vec import norm as _norm
@@ -410,13 +410,12 @@ def diffraction_valid(
 # the geometry of one diffraction, compiled (numba): the kernels below run it over P rows; the
 # sums and products are in the order of the vectorised form they replaced (core.vec, einsum)
 @inline
-def _azimuth1(wx, wy, wz, t0, n0, n, r):
-    """The angle of vector ``w`` from face 0 of wedge ``r``, ``atan2(w . n0, w . t0)`` in ``[0, 2
-    pi)``, snapped onto a face where it is beyond it by rounding only (``_ANGLE_SNAP_RAD``), and
-    whether it points into the wedge (``phi > n pi``, not snapped)."""
-    phi = np.arctan2(dot3(wx, wy, wz, n0[r, 0], n0[r, 1], n0[r, 2]),
-                     dot3(wx, wy, wz, t0[r, 0], t0[r, 1], t0[r, 2])) % _TWO_PI  # fmt: skip
-    npi = n[r] * np.pi
+def _azimuth1(wx, wy, wz, t0x, t0y, t0z, n0x, n0y, n0z, npi):
+    """The angle of vector ``w`` from face 0 of a wedge (axes ``t0``, ``n0``, exterior angle
+    ``npi``), ``atan2(w . n0, w . t0)`` in ``[0, 2 pi)``, snapped onto a face where it is beyond
+    it by rounding only (``_ANGLE_SNAP_RAD``), and whether it points into the wedge
+    (``phi > n pi``, not snapped)."""
+    phi = np.arctan2(dot3(wx, wy, wz, n0x, n0y, n0z), dot3(wx, wy, wz, t0x, t0y, t0z)) % _TWO_PI
     over = phi > npi
     near_face0 = over and phi >= _TWO_PI - _ANGLE_SNAP_RAD
     near_facen = over and phi <= npi + _ANGLE_SNAP_RAD
@@ -430,17 +429,21 @@ def _azimuth1(wx, wy, wz, t0, n0, n, r):
 @inline
 def _legs(e, t0, n0, n, w, sx, sy, sz, dx, dy, dz, px, py, pz):
     """Unit vectors, lengths, azimuths and ``e x s`` of the incident and diffracted legs of a
-    diffraction at ``p`` from ``s`` to ``d`` on the wedge of frame row ``w``."""
+    diffraction at ``p`` from ``s`` to ``d`` on the wedge of frame row ``w``. The frame is read
+    before the first branch (see :func:`raytrace.scene.accel.facet_box_test`)."""
+    ex, ey, ez = e[w, 0], e[w, 1], e[w, 2]
+    t0x, t0y, t0z, n0x, n0y, n0z = t0[w, 0], t0[w, 1], t0[w, 2], n0[w, 0], n0[w, 1], n0[w, 2]
+    npi = n[w] * np.pi
     ix, iy, iz = px - sx, py - sy, pz - sz
     s_in = np.sqrt(ix * ix + iy * iy + iz * iz)
     ix, iy, iz = ix / s_in, iy / s_in, iz / s_in
     ox, oy, oz = dx - px, dy - py, dz - pz
     s_out = np.sqrt(ox * ox + oy * oy + oz * oz)
     ox, oy, oz = ox / s_out, oy / s_out, oz / s_out
-    phi_in, in_s = _azimuth1(sx - px, sy - py, sz - pz, t0, n0, n, w)
-    phi, in_d = _azimuth1(dx - px, dy - py, dz - pz, t0, n0, n, w)
-    cix, ciy, ciz = cross3(e[w, 0], e[w, 1], e[w, 2], ix, iy, iz)
-    cox, coy, coz = cross3(e[w, 0], e[w, 1], e[w, 2], ox, oy, oz)
+    phi_in, in_s = _azimuth1(sx - px, sy - py, sz - pz, t0x, t0y, t0z, n0x, n0y, n0z, npi)
+    phi, in_d = _azimuth1(dx - px, dy - py, dz - pz, t0x, t0y, t0z, n0x, n0y, n0z, npi)
+    cix, ciy, ciz = cross3(ex, ey, ez, ix, iy, iz)
+    cox, coy, coz = cross3(ex, ey, ez, ox, oy, oz)
     sin_in = np.sqrt(cix * cix + ciy * ciy + ciz * ciz)
     sin_out = np.sqrt(cox * cox + coy * coy + coz * coz)
     valid = (s_in > 0 and s_out > 0 and sin_in > _MIN_SIN_BETA0 and sin_out > _MIN_SIN_BETA0
@@ -449,7 +452,7 @@ def _legs(e, t0, n0, n, w, sx, sy, sz, dx, dy, dz, px, py, pz):
             coz, sin_out, valid)  # fmt: skip
 
 
-@helper
+@inline
 def diffraction_valid1(e, t0, n0, n, w, sx, sy, sz, dx, dy, dz, px, py, pz):
     """:func:`diffraction_valid` of one diffraction at ``p`` from ``s`` to ``d`` on the wedge of
     frame row ``w`` (``e, t0, n0, n`` of :class:`WedgeFrame`, one row per wedge), a compiled

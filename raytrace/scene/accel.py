@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..core.jit import carray, helper, kernel
+from ..core.jit import carray, inline, kernel
 from ..core.vec import dot3
 from .elements import Facets, Wedges
 
@@ -51,9 +51,10 @@ def points_in_facets(points: np.ndarray, facet: np.ndarray, facets: Facets) -> n
 
 
 def facet_test_arrays(facets: Facets) -> tuple[np.ndarray, ...]:
-    """What :func:`point_in_facet` takes about the facets, as the kernels take it (cached): the
-    boxes of :func:`facet_boxes`, the rectangles of :func:`_rectangles`, the facets' runs of
-    triangles and the triangles' terms of :func:`_triangle_terms`."""
+    """What :func:`facet_box_test` and :func:`in_triangles` take about the facets, as the
+    kernels take it (cached): the boxes of :func:`facet_boxes`, the rectangles of
+    :func:`_rectangles`, the facets' runs of triangles and the triangles' terms of
+    :func:`_triangle_terms`."""
     cached = facets.cache.get("facet_test_arrays")
     if cached is None:
         lo, hi = facet_boxes(facets)
@@ -65,21 +66,34 @@ def facet_test_arrays(facets: Facets) -> tuple[np.ndarray, ...]:
     return cached
 
 
-@helper
-def point_in_facet(px, py, pz, f, lo, hi, rect, r_lo, r_hi, tri_start, tri_count, corner, v0, v1,
-              d00, d01, d11, den, bary_tol, rect_inside):  # fmt: skip
-    """Whether a point (on facet ``f``'s plane) lies inside the facet (:func:`points_in_facets`;
-    a compiled scalar helper for kernels, with :func:`facet_test_arrays`' arrays):
-    the bounding box first (most candidates fail there), then, for an axis-aligned rectangle,
-    well inside it, then the barycentric test against each of the facet's triangles. Products
-    and sums in the order of the vectorised form it replaced."""
-    if not (lo[f, 0] <= px <= hi[f, 0] and lo[f, 1] <= py <= hi[f, 1]
-            and lo[f, 2] <= pz <= hi[f, 2]):  # fmt: skip
-        return False
-    if (rect[f] and r_lo[f, 0] + rect_inside <= px <= r_hi[f, 0] - rect_inside
-            and r_lo[f, 1] + rect_inside <= py <= r_hi[f, 1] - rect_inside
-            and r_lo[f, 2] + rect_inside <= pz <= r_hi[f, 2] - rect_inside):  # fmt: skip
-        return True
+@inline
+def facet_box_test(px, py, pz, f, lo, hi, rect, r_lo, r_hi, rect_inside):
+    """The quick part of :func:`points_in_facets` for a point on facet ``f``'s plane (a compiled
+    scalar helper for kernels, with :func:`facet_test_arrays`' arrays): 0 outside the facet's
+    bounding box, 1 well inside an axis-aligned rectangular facet, -1 undecided (the caller
+    then calls :func:`in_triangles`).
+
+    Every array is read before the first branch: in an inlined helper, an array read after a
+    branch that merges back (an early return, ``a and b``) or passed on from there costs numba
+    a reference count per call, about ten times the test itself."""
+    l0, l1, l2, h0, h1, h2 = lo[f, 0], lo[f, 1], lo[f, 2], hi[f, 0], hi[f, 1], hi[f, 2]
+    is_rect = rect[f]
+    a0, a1, a2, b0, b1, b2 = r_lo[f, 0], r_lo[f, 1], r_lo[f, 2], r_hi[f, 0], r_hi[f, 1], r_hi[f, 2]
+    if not (l0 <= px <= h0 and l1 <= py <= h1 and l2 <= pz <= h2):
+        return 0
+    if (is_rect and a0 + rect_inside <= px <= b0 - rect_inside
+            and a1 + rect_inside <= py <= b1 - rect_inside
+            and a2 + rect_inside <= pz <= b2 - rect_inside):  # fmt: skip
+        return 1
+    return -1
+
+
+@inline
+def in_triangles(px, py, pz, f, tri_start, tri_count, corner, v0, v1, d00, d01, d11, den,
+                 bary_tol):  # fmt: skip
+    """The barycentric test of :func:`points_in_facets` against each of facet ``f``'s
+    triangles (a compiled scalar helper for kernels, after :func:`facet_box_test` left the
+    point undecided). Products and sums in the order of the vectorised form it replaced."""
     for t in range(tri_start[f], tri_start[f] + tri_count[f]):
         x, y, z = px - corner[t, 0], py - corner[t, 1], pz - corner[t, 2]
         d20 = dot3(x, y, z, v0[t, 0], v0[t, 1], v0[t, 2])
@@ -101,12 +115,17 @@ FACET_TEST_SIG = (
 @kernel(f"b1[::1](f8[:, ::1], i8[::1], {FACET_TEST_SIG})")
 def _points_in(points, facet, lo, hi, rect, r_lo, r_hi, tri_start, tri_count, corner, v0, v1,
                d00, d01, d11, den, bary_tol, rect_inside):  # fmt: skip
-    """:func:`point_in_facet` over n points."""
+    """:func:`points_in_facets` over n points: :func:`facet_box_test`, then
+    :func:`in_triangles` where it is undecided."""
     out = np.empty(len(points), dtype=np.bool_)
     for r in range(len(points)):
-        out[r] = point_in_facet(points[r, 0], points[r, 1], points[r, 2], facet[r], lo, hi, rect,
-                           r_lo, r_hi, tri_start, tri_count, corner, v0, v1, d00, d01, d11, den,
-                           bary_tol, rect_inside)  # fmt: skip
+        px, py, pz, f = points[r, 0], points[r, 1], points[r, 2], facet[r]
+        quick = facet_box_test(px, py, pz, f, lo, hi, rect, r_lo, r_hi, rect_inside)
+        if quick < 0:
+            out[r] = in_triangles(px, py, pz, f, tri_start, tri_count, corner, v0, v1, d00, d01,
+                                  d11, den, bary_tol)  # fmt: skip
+        else:
+            out[r] = quick > 0
     return out
 
 

@@ -33,7 +33,7 @@ import numpy as np
 from ..core.jit import helper, inline, kernel
 from ..core.vec import cross3, dot3
 from ..physics.utd import diffraction_valid1, keller_point
-from ..scene.accel import FACET_TEST_SIG, point_in_facet
+from ..scene.accel import FACET_TEST_SIG, facet_box_test, in_triangles
 
 __all__ = ["PRUNE", "surely_inside", "facet_wedge_pairs", "expand_over_others",
            "reflection_edge_points", "second_order_receivers", "line_span", "edge_distance", "walk_record", "walk_unseen",
@@ -48,14 +48,16 @@ PRUNE = True
 
 @inline
 def _inside(t0, n0, t_start, n_start, cos_n, sin_n, prunable, m2_coef, min_rho2, w, px, py, pz):
-    """One point against one wedge: see :func:`surely_inside`."""
-    if not prunable[w]:
-        return False
+    """One point against one wedge: see :func:`surely_inside`. (Every array is read before the
+    first branch: see :func:`raytrace.scene.accel.facet_box_test`.)"""
+    ok, cn, sn = prunable[w], cos_n[w], sin_n[w]
     x = px * t0[0, w] + py * t0[1, w] + pz * t0[2, w] - t_start[w]
     y = px * n0[0, w] + py * n0[1, w] + pz * n0[2, w] - n_start[w]
+    if not ok:
+        return False
     r2 = x * x + y * y
     m2 = m2_coef * r2
-    side_n = cos_n[w] * y - sin_n[w] * x
+    side_n = cn * y - sn * x
     return r2 > min_rho2 and y < 0 and y * y > m2 and side_n > 0 and side_n * side_n > m2
 
 
@@ -310,7 +312,8 @@ def reflection_edge_points(start, stop, e_idx, f_idx, w_idx, img, t_lo, t_hi, ot
       (:func:`raytrace.physics.utd.keller_point`);
     * that point on the end's reflecting side of the facet's plane;
     * the segment image -> point crossing the plane between its ends (``0 < u < 1``);
-    * the crossing inside the facet (:func:`raytrace.scene.accel.point_in_facet`);
+    * the crossing inside the facet (:func:`raytrace.scene.accel.facet_box_test`,
+      :func:`~raytrace.scene.accel.in_triangles`);
     * a valid diffraction from the image (``before``, RD) or the other end (DR) to the other
       (:func:`raytrace.physics.utd.diffraction_valid1`).
 
@@ -367,8 +370,10 @@ def reflection_edge_points(start, stop, e_idx, f_idx, w_idx, img, t_lo, t_hi, ot
             if not (u > 0 and u < 1):
                 continue
             cx, cy, cz = ix + u * (px - ix), iy + u * (py - iy), iz + u * (pz - iz)
-            if not point_in_facet(cx, cy, cz, f, lo, hi, rect, r_lo, r_hi, tri_start, tri_count,
-                             corner, v0, v1, d00, d01, d11, den, bary_tol, rect_inside):  # fmt: skip
+            quick = facet_box_test(cx, cy, cz, f, lo, hi, rect, r_lo, r_hi, rect_inside)
+            if quick == 0 or (quick < 0 and not in_triangles(
+                    cx, cy, cz, f, tri_start, tri_count, corner, v0, v1, d00, d01, d11, den,
+                    bary_tol)):  # fmt: skip
                 continue
             # the diffraction's source and receiver: the image first for RD, last for DR
             ax, ay, az = (ix, iy, iz) if before else (others[o, 0], others[o, 1], others[o, 2])
