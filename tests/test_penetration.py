@@ -427,8 +427,8 @@ def test_a_hit_on_a_cube_edge_is_booked_on_the_face_met_most_head_on(leaving, st
     def booked(f, p, d):
         """The segment walk's handling of a hit on face f at p (kernels.walk_hits' helpers)."""
         a = p - 3.0 * d
-        *q, _, side, touch = kernels._contact(f, 0, *a, *d, 3.0, *arrays,
-                                              *penetration._convex_plane_arrays(sc), tol)
+        *q, _, side, near = kernels._contact(f, *a, *d, 3.0, *arrays, tol)
+        touch = near and kernels._touches(0, *a, *d, *penetration._convex_plane_arrays(sc), tol)
         return kernels._canonical(f, 0, *q, *d, side, *penetration._object_faces(sc), *arrays,
                                   tol), touch  # fmt: skip
 

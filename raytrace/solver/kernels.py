@@ -10,7 +10,7 @@
   prune: which paths are found is decided by the exact tests after them (Keller's point on the
   edge, point in facet, wedge validity, Embree), and :data:`PRUNE` switches them off to show it.
 * **Penetration** (:func:`line_span`, :func:`edge_distance`, :func:`walk_rays`,
-  :func:`walk_hits`, :func:`walk_record`, :func:`walk_unseen`, :func:`segment_rays`): lines
+  :func:`walk_hits`, :func:`walk_record`, :func:`unseen_entries`, :func:`segment_rays`): lines
   against convex solids, points against triangles, and the segment walk
   (:mod:`raytrace.solver.penetration`): its rays, and a round of its hits one hit at a time
   (the face a hit at an edge is booked on, :func:`_canonical`; touches, :func:`_contact`;
@@ -36,7 +36,7 @@ from ..physics.utd import diffraction_valid1, keller_point
 from ..scene.accel import FACET_TEST_SIG, facet_box_test, in_triangles
 
 __all__ = ["PRUNE", "surely_inside", "facet_wedge_pairs", "expand_over_others",
-           "reflection_edge_points", "second_order_receivers", "line_span", "edge_distance", "walk_record", "walk_unseen",
+           "reflection_edge_points", "second_order_receivers", "line_span", "edge_distance", "walk_record", "unseen_entries",
            "walk_rays", "walk_hits",
            "segment_rays", "track_fields", "interaction_sequences"]
 
@@ -511,15 +511,27 @@ def line_span(normal, offset, count, o, a, d, inset):
 
 @inline
 def _edge_distance(corners, edge_normals, f, px, py, pz):
-    """One point against one triangle: see :func:`edge_distance`."""
+    """One point against one triangle: see :func:`edge_distance`. The three edges are measured
+    before the first comparison (arrays before branches: :func:`raytrace.core.jit.inline`)."""
+    v0 = _edge_side(corners, edge_normals, f, 0, px, py, pz)
+    v1 = _edge_side(corners, edge_normals, f, 1, px, py, pz)
+    v2 = _edge_side(corners, edge_normals, f, 2, px, py, pz)
     worst = -np.inf
-    for i in range(3):
-        v = ((px - corners[f, i, 0]) * edge_normals[f, i, 0]
-             + (py - corners[f, i, 1]) * edge_normals[f, i, 1]) \
-            + (pz - corners[f, i, 2]) * edge_normals[f, i, 2]  # fmt: skip
-        if v > worst or v != v:
-            worst = v
+    if v0 > worst or v0 != v0:
+        worst = v0
+    if v1 > worst or v1 != v1:
+        worst = v1
+    if v2 > worst or v2 != v2:
+        worst = v2
     return worst
+
+
+@inline
+def _edge_side(corners, edge_normals, f, i, px, py, pz):
+    """Signed distance of a point outside edge ``i`` of triangle ``f`` (in its plane)."""
+    return ((px - corners[f, i, 0]) * edge_normals[f, i, 0]
+            + (py - corners[f, i, 1]) * edge_normals[f, i, 1]) \
+        + (pz - corners[f, i, 2]) * edge_normals[f, i, 2]  # fmt: skip
 
 
 @kernel("f8[::1](f8[:, :, ::1], f8[:, :, ::1], i8[::1], f8[:, ::1])")
@@ -535,38 +547,43 @@ def edge_distance(corners, edge_normals, face, point):
 
 
 @inline
-def _contact(f, ob, ax, ay, az, dx, dy, dz, t, face_normal, corners, edge_normals, normal, offset,
-             count, tol):  # fmt: skip
-    """Where a hit on face ``f`` of object ``ob`` (the ray ``a + t d``) lies, and whether it only
-    touches its solid.
+def _contact(f, ax, ay, az, dx, dy, dz, t, face_normal, corners, edge_normals, tol):
+    """Where a hit on face ``f`` (the ray ``a + t d``) lies, and whether it may only touch its
+    solid.
 
     A ray whose line never gets deeper than ``tol`` into a convex closed solid (the chord of its
     line through the solid shrunk by ``tol``, from the facet planes in float64, is empty) only
     touches it: at an edge or a vertex, or grazing along a face. Such a hit is a *touch*, stepped
     over without a crossing; whether Embree reports it at all depends on its BVH, and a reported
     entry (exit) would be paired with an exit (entry) that is never seen, so that the chord would
-    run to the segment's end (start). Tested only where the hit is close enough to the
-    triangle's boundary for that to be possible (closer than ``tol + 2 tol / |cos|``).
+    run to the segment's end (start). It is possible only where the hit is close enough to the
+    triangle's boundary (closer than ``tol + 2 tol / |cos|``): there the caller tests the line
+    against the solid (:func:`_touches`).
 
     Returns
     -------
     px, py, pz : float, the hit point, metres
     edge : float, its signed distance from the triangle's boundary (<= 0 inside), metres
     side : float, the sign of ``d . n`` (entering -1, leaving +1)
-    touch : bool
+    near : bool, close enough to the boundary for a touch
     """
+    nx, ny, nz = face_normal[f, 0], face_normal[f, 1], face_normal[f, 2]
     px = ax + t * dx
     py = ay + t * dy
     pz = az + t * dz
     e = _edge_distance(corners, edge_normals, f, px, py, pz)
-    dn = dot3(face_normal[f, 0], face_normal[f, 1], face_normal[f, 2], dx, dy, dz)
+    dn = dot3(nx, ny, nz, dx, dy, dz)
     cos = abs(dn)
     cos = cos if (cos > 1e-300 or cos != cos) else 1e-300  # numpy's maximum(cos, 1e-300)
-    touch = False
-    if e >= -(tol + 2.0 * tol / cos):
-        cv, lo, hi, par = _span(normal, offset, count, ob, ax, ay, az, dx, dy, dz, tol)
-        touch = cv and (par or hi <= lo)
-    return px, py, pz, e, np.sign(dn), touch
+    return px, py, pz, e, np.sign(dn), e >= -(tol + 2.0 * tol / cos)
+
+
+@helper
+def _touches(ob, ax, ay, az, dx, dy, dz, normal, offset, count, tol):
+    """The line ``a + t d`` only touches convex solid ``ob`` (no span deeper than ``tol``;
+    see :func:`_contact`)."""
+    cv, lo, hi, par = _span(normal, offset, count, ob, ax, ay, az, dx, dy, dz, tol)
+    return cv and (par or hi <= lo)
 
 
 @helper
@@ -624,40 +641,38 @@ def _more_head_on(ax, ay, az, bx, by, bz, dx, dy, dz):
 
 
 @inline
-def _record(r, t_entry, ob, nx, ny, nz, th, d, closed, k, count, exceeded, dist, obj, normal,
-            thick):  # fmt: skip
-    """One penetration of object ``ob`` by segment ``r`` (:meth:`_Walk.record`)."""
-    slot = count[r]
-    if slot >= k:
-        exceeded[r] = True
-    else:
-        dist[r, slot] = t_entry
-        obj[r, slot] = ob
-        normal[r, slot, 0], normal[r, slot, 1], normal[r, slot, 2] = nx, ny, nz
-        chord = th if (th > 0.0 or th != th) else 0.0  # numpy's maximum(th, 0.0)
-        if closed[ob]:
-            chord = chord * abs(dot3(nx, ny, nz, d[r, 0], d[r, 1], d[r, 2]))
-        else:
-            chord = chord * 1.0
-        thick[r, slot] = chord
-    count[r] += 1
+def _slab_thickness(th, closed_ob, nx, ny, nz, dx, dy, dz):
+    """The equivalent slab of a penetration (:meth:`_Walk.record`): a sheet's thickness, or a
+    solid's chord times the cosine of the ray ``d`` on the slab's face ``n``; a negative chord
+    (rounding) counts as 0."""
+    chord = th if (th > 0.0 or th != th) else 0.0  # numpy's maximum(th, 0.0)
+    if closed_ob:
+        return chord * abs(dot3(nx, ny, nz, dx, dy, dz))
+    return chord * 1.0
 
 
-@helper
-def _unseen(r, ob, fx, fy, fz, t_exit, d, closed, k, count, exceeded, dist, obj, normal, thick,
-            t_last, normal_last):  # fmt: skip
-    """Segment ``r``, outside any solid, leaves solid ``ob`` at ``t_exit`` through a face of
-    normal ``f`` without a seen entry (:meth:`_Walk.unseen`)."""
-    px, py, pz = normal_last[r, 0], normal_last[r, 1], normal_last[r, 2]
-    dx, dy, dz = d[r, 0], d[r, 1], d[r, 2]
-    if px == 0.0 and py == 0.0 and pz == 0.0:  # from the segment's start: no entry face
+@inline
+def _store(r, slot, t_entry, ob, nx, ny, nz, slab, dist, obj, normal, thick):
+    """Penetration ``slot`` of segment ``r``, written (straight-line: see :func:`raytrace.core.jit.
+    inline`); the caller checks the slot against the budget and counts it."""
+    dist[r, slot] = t_entry
+    obj[r, slot] = ob
+    normal[r, slot, 0], normal[r, slot, 1], normal[r, slot, 2] = nx, ny, nz
+    thick[r, slot] = slab
+
+
+@inline
+def _unseen_face(qx, qy, qz, fx, fy, fz, dx, dy, dz):
+    """The slab's face normal of a solid left through a face of normal ``f`` without a seen
+    entry (:meth:`_Walk.unseen`): it was entered at the previous boundary, of unit normal ``q``
+    (that plane, turned against the ray ``d``, is the entry face), or the segment starts in it
+    (``q`` zero: the exit face stands in); the more head-on of entry and exit faces."""
+    if qx == 0.0 and qy == 0.0 and qz == 0.0:  # from the segment's start: no entry face
         ex, ey, ez = fx, fy, fz
     else:  # the previous boundary's plane, turned against the ray
-        side = -1.0 if dot3(px, py, pz, dx, dy, dz) > 0 else 1.0
-        ex, ey, ez = side * px, side * py, side * pz
-    nx, ny, nz = _more_head_on(ex, ey, ez, fx, fy, fz, dx, dy, dz)
-    _record(r, t_last[r], ob, nx, ny, nz, t_exit - t_last[r], d, closed, k, count, exceeded,
-            dist, obj, normal, thick)  # fmt: skip
+        side = -1.0 if dot3(qx, qy, qz, dx, dy, dz) > 0 else 1.0
+        ex, ey, ez = side * qx, side * qy, side * qz
+    return _more_head_on(ex, ey, ez, fx, fy, fz, dx, dy, dz)
 
 
 _WALK = (
@@ -667,10 +682,12 @@ _WALK = (
 
 
 @inline
-def _boundary(r, f, ob, th, face_normal, sheet_thickness, d, closed, k, count, exceeded, dist,
-              obj, normal, thick, inside, t_in, normal_in, t_last, normal_last):  # fmt: skip
-    """Segment ``r`` meets face ``f`` of object ``ob`` at ``th``; the walk's state (the arrays
-    after ``sheet_thickness``, :class:`raytrace.solver.penetration._Walk`) is updated in place.
+def _boundary(cur, ob, closed_ob, sheet, th, fx, fy, fz, dx, dy, dz, nix, niy, niz, t_in, qx,
+              qy, qz, t_last):  # fmt: skip
+    """What a segment does at face ``f`` (unit normal ``fx, fy, fz``) of object ``ob``, met at
+    ``th``, being inside solid ``cur`` (-1: none) entered at ``t_in`` through a face of normal
+    ``ni``, the last boundary at ``t_last`` of normal ``q`` (scalars only: see
+    :func:`raytrace.core.jit.inline`; :func:`walk_hits` applies the answer to the walk).
 
     Closed solids face outward, so the hit face's orientation says whether the segment enters or
     leaves (the bookkeeping alone would miss an entry through a face coincident with the
@@ -678,34 +695,37 @@ def _boundary(r, f, ob, th, face_normal, sheet_thickness, d, closed, k, count, e
     sheet is one penetration through its thickness; leaving the solid the segment is inside of
     closes its chord (the more head-on of its entry and exit faces is the slab's); a solid left
     without a seen entry, outside any other, began at the previous boundary or at the segment's
-    start (:func:`_unseen`); entering a solid closes an overlapping one first."""
-    fx, fy, fz = face_normal[f, 0], face_normal[f, 1], face_normal[f, 2]
-    cur = inside[r]
-    dn = dot3(fx, fy, fz, d[r, 0], d[r, 1], d[r, 2])
-    if not closed[ob]:
-        _record(r, th, ob, fx, fy, fz, sheet_thickness[ob], d, closed, k, count, exceeded,
-                dist, obj, normal, thick)  # fmt: skip
+    start (:func:`_unseen_face`); entering a solid closes an overlapping one first.
+
+    Returns
+    -------
+    record : bool, a penetration is booked: of object ``rec_ob`` entered at ``rec_t``, chord (a
+        sheet: thickness) ``rec_th``, slab face normal ``rx, ry, rz``
+    rec_t, rec_ob, rx, ry, rz, rec_th
+    inside : int, the solid the segment is inside of afterwards
+    entered : bool, it entered ``ob`` here (the entry's distance and face are ``th`` and ``f``)
+    """
+    dn = dot3(fx, fy, fz, dx, dy, dz)
+    record, rec_t, rec_ob, rec_th = False, 0.0, -1, 0.0
+    rx, ry, rz = 0.0, 0.0, 0.0
+    inside, entered = cur, False
+    if not closed_ob:
+        record, rec_t, rec_ob, rec_th = True, th, ob, sheet
+        rx, ry, rz = fx, fy, fz
     elif dn > 0 or (dn == 0.0 and cur == ob):  # leaving
         if cur == ob:
-            nx, ny, nz = _more_head_on(normal_in[r, 0], normal_in[r, 1], normal_in[r, 2],
-                                       fx, fy, fz, d[r, 0], d[r, 1], d[r, 2])  # fmt: skip
-            _record(r, t_in[r], ob, nx, ny, nz, th - t_in[r], d, closed, k, count,
-                    exceeded, dist, obj, normal, thick)  # fmt: skip
-            inside[r] = -1
+            rx, ry, rz = _more_head_on(nix, niy, niz, fx, fy, fz, dx, dy, dz)
+            record, rec_t, rec_ob, rec_th = True, t_in, ob, th - t_in
+            inside = -1
         elif cur < 0:
-            _unseen(r, ob, fx, fy, fz, th, d, closed, k, count, exceeded, dist, obj, normal,
-                    thick, t_last, normal_last)  # fmt: skip
+            rx, ry, rz = _unseen_face(qx, qy, qz, fx, fy, fz, dx, dy, dz)
+            record, rec_t, rec_ob, rec_th = True, t_last, ob, th - t_last
     else:  # entering, closing an overlapping solid first
         if cur >= 0:
-            nx, ny, nz = _more_head_on(normal_in[r, 0], normal_in[r, 1], normal_in[r, 2],
-                                       fx, fy, fz, d[r, 0], d[r, 1], d[r, 2])  # fmt: skip
-            _record(r, t_in[r], cur, nx, ny, nz, th - t_in[r], d, closed, k, count,
-                    exceeded, dist, obj, normal, thick)  # fmt: skip
-        inside[r] = ob
-        t_in[r] = th
-        normal_in[r, 0], normal_in[r, 1], normal_in[r, 2] = fx, fy, fz
-    t_last[r] = th
-    normal_last[r, 0], normal_last[r, 1], normal_last[r, 2] = fx, fy, fz
+            rx, ry, rz = _more_head_on(nix, niy, niz, fx, fy, fz, dx, dy, dz)
+            record, rec_t, rec_ob, rec_th = True, t_in, cur, th - t_in
+        inside, entered = ob, True
+    return record, rec_t, rec_ob, rx, ry, rz, rec_th, inside, entered
 
 
 @kernel(f"void(i8[::1], f8[::1], i8[::1], f8[:, ::1], f8[::1], {_WALK})")
@@ -714,19 +734,31 @@ def walk_record(rows, t_entry, o, fn, th, d, closed, k, count, exceeded, dist, o
     """One penetration per row (:meth:`_Walk.record`): object ``o`` entered at ``t_entry``,
     chord (a sheet: thickness) ``th``, the slab's face normal ``fn`` (n, 3)."""
     for i in range(len(rows)):
-        _record(rows[i], t_entry[i], o[i], fn[i, 0], fn[i, 1], fn[i, 2], th[i], d, closed, k,
-                count, exceeded, dist, obj, normal, thick)  # fmt: skip
+        r, ob = rows[i], o[i]
+        slot = count[r]
+        if slot < k:
+            _store(r, slot, t_entry[i], ob, fn[i, 0], fn[i, 1], fn[i, 2],
+                   _slab_thickness(th[i], closed[ob], fn[i, 0], fn[i, 1], fn[i, 2], d[r, 0],
+                                   d[r, 1], d[r, 2]), dist, obj, normal, thick)  # fmt: skip
+        else:
+            exceeded[r] = True
+        count[r] = slot + 1
 
 
-@kernel(f"void(i8[::1], i8[::1], f8[:, ::1], f8[::1], {_WALK})")
-def walk_unseen(rows, o, fn_exit, t_exit, d, closed, k, count, exceeded, dist, obj, normal,
-                thick, inside, t_in, normal_in, t_last, normal_last):  # fmt: skip
-    """Segments ``rows`` leave solids ``o`` at ``t_exit`` through faces of normal ``fn_exit``
-    without a seen entry (:meth:`_Walk.unseen`)."""
-    for i in range(len(rows)):
-        _unseen(rows[i], o[i], fn_exit[i, 0], fn_exit[i, 1], fn_exit[i, 2], t_exit[i], d, closed,
-                k, count, exceeded, dist, obj, normal, thick, t_last, normal_last)  # fmt: skip
-
+@kernel("Tuple((f8[::1], f8[:, ::1]))(i8[::1], f8[:, ::1], f8[:, ::1], f8[::1], f8[:, ::1])")
+def unseen_entries(rows, fn_exit, d, t_last, normal_last):
+    """Where solids left without a seen entry were entered (:meth:`_Walk.unseen`): the
+    segments' last boundaries ``t_last`` (n,) metres, and the slabs' face normals (n, 3)
+    (:func:`_unseen_face`)."""
+    n = len(rows)
+    t_entry, fn = np.empty(n), np.empty((n, 3))
+    for i in range(n):
+        r = rows[i]
+        t_entry[i] = t_last[r]
+        fn[i, 0], fn[i, 1], fn[i, 2] = _unseen_face(
+            normal_last[r, 0], normal_last[r, 1], normal_last[r, 2], fn_exit[i, 0],
+            fn_exit[i, 1], fn_exit[i, 2], d[r, 0], d[r, 1], d[r, 2])  # fmt: skip
+    return t_entry, fn
 
 
 @kernel(
@@ -839,9 +871,9 @@ def walk_hits(rows, th, face, o, a, length, tmax, t, active, crossed, shift, shi
                     shift[r, 0], shift[r, 1], shift[r, 2] = sx, sy, sz
             active[r] = t[r] < tmax[r]
             continue
-        px, py, pz, e, side, touch = _contact(f, ob, ax, ay, az, dx, dy, dz, t_hit, face_normal,
-                                              corners, edge_normals, normal, offset,
-                                              count_planes, tol)  # fmt: skip
+        px, py, pz, e, side, near = _contact(f, ax, ay, az, dx, dy, dz, t_hit, face_normal,
+                                             corners, edge_normals, tol)  # fmt: skip
+        touch = near and _touches(ob, ax, ay, az, dx, dy, dz, normal, offset, count_planes, tol)
         if e >= -tol:
             f = _canonical(f, ob, px, py, pz, dx, dy, dz, side, face_start, face_count,
                            face_normal, corners, edge_normals, tol)  # fmt: skip
@@ -860,8 +892,27 @@ def walk_hits(rows, th, face, o, a, length, tmax, t, active, crossed, shift, shi
                    corners[f, 0, 2] - az) / (dn if ok else 1.0)  # fmt: skip
         if ok and abs(tp - t_hit) <= tol:
             t_hit = tp
-        _boundary(r, f, ob, t_hit, face_normal, sheet_thickness, d, closed, k, count, exceeded,
-                  dist, obj, normal_p, thick, inside, t_in, normal_in, t_last, normal_last)  # fmt: skip
+        # the boundary's bookkeeping (_boundary decides on scalars; the walk's arrays are read
+        # and written here, in the kernel's body)
+        record, rec_t, rec_ob, rnx, rny, rnz, rec_th, now_inside, entered = _boundary(
+            inside[r], ob, closed[ob], sheet_thickness[ob], t_hit, nx, ny, nz, dx, dy, dz,
+            normal_in[r, 0], normal_in[r, 1], normal_in[r, 2], t_in[r], normal_last[r, 0],
+            normal_last[r, 1], normal_last[r, 2], t_last[r])  # fmt: skip
+        if record:
+            slot = count[r]
+            if slot < k:
+                _store(r, slot, rec_t, rec_ob, rnx, rny, rnz,
+                       _slab_thickness(rec_th, closed[rec_ob], rnx, rny, rnz, dx, dy, dz), dist,
+                       obj, normal_p, thick)  # fmt: skip
+            else:
+                exceeded[r] = True
+            count[r] = slot + 1
+        inside[r] = now_inside
+        if entered:
+            t_in[r] = t_hit
+            normal_in[r, 0], normal_in[r, 1], normal_in[r, 2] = nx, ny, nz
+        t_last[r] = t_hit
+        normal_last[r, 0], normal_last[r, 1], normal_last[r, 2] = nx, ny, nz
         t[r] = t_hit + margin
         crossed[r] += 1
         active[r] = t[r] < tmax[r] and not exceeded[r]

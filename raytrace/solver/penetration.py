@@ -123,8 +123,10 @@ class _Walk:
         of normal ``fn_exit`` without a seen entry: it was entered at the previous boundary
         (through a coincident face: that boundary's plane, turned against the ray, is the entry
         face) or the segment starts in it (no entry face: the exit face stands in)."""
-        kernels.walk_unseen(carray(r, np.int64), carray(o, np.int64), carray(fn_exit),
-                            carray(t_exit), *self._state)  # fmt: skip
+        r = carray(r, np.int64)
+        t_entry, fn = kernels.unseen_entries(r, carray(fn_exit), self.d, self.t_last,
+                                             self.normal_last)  # fmt: skip
+        self.record(r, t_entry, o, fn, t_exit - t_entry)
 
     def result(self, a: np.ndarray, tmax: np.ndarray) -> Crossings:
         """The crossings, after closing the chord of segments that end inside a solid."""
