@@ -56,7 +56,7 @@ from scipy.special import wofz
 from ..core.constants import C0
 from ..core.errors import TraceInputError
 from ..core.jit import carray as _c
-from ..core.jit import inline, kernel
+from ..core.jit import helper, inline, kernel
 from ..core.vec import cross as _cross
 from ..core.vec import cross3, dot3
 from ..core.vec import norm as _norm
@@ -452,7 +452,7 @@ def _legs(e, t0, n0, n, w, sx, sy, sz, dx, dy, dz, px, py, pz):
             coz, sin_out, valid)  # fmt: skip
 
 
-@inline
+@helper
 def diffraction_valid1(e, t0, n0, n, w, sx, sy, sz, dx, dy, dz, px, py, pz):
     """:func:`diffraction_valid` of one diffraction at ``p`` from ``s`` to ``d`` on the wedge of
     frame row ``w`` (``e, t0, n0, n`` of :class:`WedgeFrame`, one row per wedge), a compiled

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..core.jit import carray, inline, kernel
+from ..core.jit import carray, helper, inline, kernel
 from ..core.vec import dot3
 from .elements import Facets, Wedges
 
@@ -88,7 +88,7 @@ def facet_box_test(px, py, pz, f, lo, hi, rect, r_lo, r_hi, rect_inside):
     return -1
 
 
-@inline
+@helper
 def in_triangles(px, py, pz, f, tri_start, tri_count, corner, v0, v1, d00, d01, d11, den,
                  bary_tol):  # fmt: skip
     """The barycentric test of :func:`points_in_facets` against each of facet ``f``'s
