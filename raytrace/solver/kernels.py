@@ -9,6 +9,10 @@
   same exact necessary conditions, cheapest first, and stop at the first that fails. They only
   prune: which paths are found is decided by the exact tests after them (Keller's point on the
   edge, point in facet, wedge validity, Embree), and :data:`PRUNE` switches them off to show it.
+* **Mixed candidates** (:func:`reflection_edge_points`): the RD and DR pairs pruned as
+  :func:`expand_over_others` does, then tested exactly one at a time with the physics and
+  scene modules' compiled scalar rules (:func:`raytrace.physics.utd.keller_point`,
+  :func:`raytrace.scene.accel.facet_box_test`, :func:`raytrace.physics.utd.diffraction_valid1`).
 * **Penetration** (:func:`line_span`, :func:`edge_distance`, :func:`walk_rays`,
   :func:`walk_hits`, :func:`walk_record`, :func:`unseen_entries`, :func:`segment_rays`): lines
   against convex solids, points against triangles, and the segment walk
@@ -16,7 +20,12 @@
   (the face a hit at an edge is booked on, :func:`_canonical`; touches, :func:`_contact`;
   the walk past a touched solid, :func:`_off_the_solid`); the rays of the opaque test.
 * **Fields** (:func:`track_fields`): the field vector carried along each path through the
-  coefficients the physics modules computed, per mechanism, for all paths at once.
+  coefficients the physics modules computed, per mechanism, for all paths at once; the paths'
+  interaction sequences (:func:`interaction_sequences`).
+
+Helpers take scalars where they branch (:func:`raytrace.core.jit.inline`: an array live across
+a helper's branch costs numba's reference counts per call), so the walk's bookkeeping is decided
+by :func:`_boundary` on scalars and written by :func:`walk_hits` itself.
 
 The pruning and walk kernels write the numpy expressions they replaced in numpy's order, so the
 traced paths' geometry and penetrations are bitwise those of the numpy form on the machine they
@@ -36,9 +45,9 @@ from ..physics.utd import diffraction_valid1, keller_point
 from ..scene.accel import FACET_TEST_SIG, facet_box_test, in_triangles
 
 __all__ = ["PRUNE", "surely_inside", "facet_wedge_pairs", "expand_over_others",
-           "reflection_edge_points", "second_order_receivers", "line_span", "edge_distance", "walk_record", "unseen_entries",
-           "walk_rays", "walk_hits",
-           "segment_rays", "track_fields", "interaction_sequences"]
+           "reflection_edge_points", "second_order_receivers", "line_span", "edge_distance",
+           "walk_record", "unseen_entries", "walk_rays", "walk_hits", "segment_rays",
+           "track_fields", "interaction_sequences"]
 
 #: The callers pass this as the kernels' ``prune``: False switches their pruning tests off (they
 #: then return every candidate that satisfies the rules, with unbounded spans), so that a trace
