@@ -74,18 +74,23 @@ def test_expand_over_others_equals_the_dense_numpy_expression():
     assert len(q3) == n_q * n_o
 
 
+def _floor_pane_boxes(rng):
+    """A floor slab, a glass pane and three metal boxes at random places on the floor."""
+    objs = [("floor", box((-1, -1, -0.3), (9, 9, 0.0)), "concrete"),
+            ("pane", quad((4.0, 1.0, 0.0), (0.0, 3.0, 0.0), (0.0, 0.0, 2.0)), "glass")]  # fmt: skip
+    for i in range(3):
+        lo = np.append(rng.uniform(0.5, 6.5, 2), 0.0)
+        objs.append((f"b{i}", box(lo, lo + np.append(rng.uniform(0.4, 1.5, 2), 1.5)), "metal"))
+    return make_scene(objs)
+
+
 @pytest.mark.parametrize("seed", [1, 2])
 def test_facet_wedge_spans_hold_every_reachable_point_of_the_edge(seed):
     """Brute force: sample every edge densely; wherever the segment from an end's image in a
     facet to the edge point crosses the facet (the point on the end's side), the triple is
     returned and the point lies in its span."""
     rng = np.random.default_rng(seed)
-    objs = [("floor", box((-1, -1, -0.3), (9, 9, 0.0)), "concrete"),
-            ("pane", quad((4.0, 1.0, 0.0), (0.0, 3.0, 0.0), (0.0, 0.0, 2.0)), "glass")]  # fmt: skip
-    for i in range(3):
-        lo = np.append(rng.uniform(0.5, 6.5, 2), 0.0)
-        objs.append((f"b{i}", box(lo, lo + np.append(rng.uniform(0.4, 1.5, 2), 1.5)), "metal"))
-    sc = make_scene(objs)
+    sc = _floor_pane_boxes(rng)
     ends = np.array([[0.3, 0.4, 2.5], [8.5, 7.7, 1.2]])
     ends = ends[sc.inside_solid(ends) < 0]
     ctx = _ctx(sc, ends, ends)
@@ -133,12 +138,7 @@ def test_reflection_edge_points_equal_the_numpy_tests_of_every_pair(seed):
     facet, a valid diffraction from the image to the receiver), in order; its pruning drops none
     of them."""
     rng = np.random.default_rng(seed)
-    objs = [("floor", box((-1, -1, -0.3), (9, 9, 0.0)), "concrete"),
-            ("pane", quad((4.0, 1.0, 0.0), (0.0, 3.0, 0.0), (0.0, 0.0, 2.0)), "glass")]  # fmt: skip
-    for i in range(3):
-        lo = np.append(rng.uniform(0.5, 6.5, 2), 0.0)
-        objs.append((f"b{i}", box(lo, lo + np.append(rng.uniform(0.4, 1.5, 2), 1.5)), "metal"))
-    sc = make_scene(objs)
+    sc = _floor_pane_boxes(rng)
     tx = np.array([[0.3, 0.4, 2.5], [8.5, 7.7, 1.2]])
     rx = np.column_stack([rng.uniform(-0.5, 8.5, (40, 2)), rng.uniform(0.2, 3.0, 40)])
     tx, rx = tx[sc.inside_solid(tx) < 0], rx[sc.inside_solid(rx) < 0]

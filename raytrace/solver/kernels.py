@@ -251,6 +251,20 @@ def facet_wedge_pairs(f_ok, sgn, h_f, img_c, axis_c, cos_a, sin_a, apex_in,
     return out_f[:m].copy(), out_w[:m].copy(), out_lo[:m].copy(), out_hi[:m].copy()
 
 
+@inline
+def _in_span(tq, rq, lo_q, hi_q, td, rd):
+    """Keller's point of an end at edge coordinate ``tq``, distance ``rq`` from the edge line,
+    and another at ``td``, ``rd`` lies in ``[lo_q, hi_q]``: ``t = tq + (td - tq) rq / (rq + rd)``,
+    the same expression in the same order as numpy. It lies between ``tq`` and ``td`` (up to
+    rounding), so a pair with both beyond the same end of the span, by far more than that
+    rounding, fails without the division (most do)."""
+    slack = 1e-9 * (abs(tq) + abs(td) + 1.0)
+    if max(tq, td) < lo_q - slack or min(tq, td) > hi_q + slack:
+        return False
+    t = tq + (td - tq) * rq / (rq + rd)
+    return t >= lo_q and t <= hi_q
+
+
 @kernel(
     "Tuple((i8[::1], i8[::1]))("
     "f8[::1], f8[::1], f8[::1], f8[::1], i8[::1], f8[:, ::1], f8[:, ::1], b1[:, ::1], i8, i8, b1)"
@@ -260,12 +274,9 @@ def expand_over_others(ts, rho_s, t_lo, t_hi, w_idx, td_w, rho_w, open_w, start,
     triple's span of the edge.
 
     Keller's point of the image (edge coordinate ``ts``, distance ``rho_s`` from the edge line)
-    and the other end (``td_w``, ``rho_w`` (W, O) per wedge) is at ``t = ts + (td - ts) rho_s /
-    (rho_s + rho_d)`` along the edge; it must lie in ``[t_lo, t_hi]``, with the other end not
-    surely inside the wedge (``open_w`` (W, O)). The same expression in the same order as numpy;
-    a pair whose ``ts`` and ``td`` are both beyond the same end of the span (by far more than
-    the rounding of ``t``, which lies between them) is skipped without it. With ``prune``
-    False, every pair is returned.
+    and the other end (``td_w``, ``rho_w`` (W, O) per wedge) must lie in ``[t_lo, t_hi]``
+    (:func:`_in_span`), with the other end not surely inside the wedge (``open_w`` (W, O)).
+    With ``prune`` False, every pair is returned.
 
     Returns
     -------
@@ -281,15 +292,8 @@ def expand_over_others(ts, rho_s, t_lo, t_hi, w_idx, td_w, rho_w, open_w, start,
         w = w_idx[q]
         tq, rq, lo_q, hi_q = ts[q], rho_s[q], t_lo[q], t_hi[q]
         for o in range(n_o):
-            if prune and not open_w[w, o]:
-                continue
-            # t lies between ts and td (up to rounding): most pairs fail without the division
-            td = td_w[w, o]
-            slack = 1e-9 * (abs(tq) + abs(td) + 1.0)
-            if prune and (max(tq, td) < lo_q - slack or min(tq, td) > hi_q + slack):
-                continue
-            t = tq + (td - tq) * rq / (rq + rho_w[w, o])
-            if (t >= lo_q and t <= hi_q) or not prune:
+            if not prune or (open_w[w, o] and _in_span(tq, rq, lo_q, hi_q, td_w[w, o],
+                                                       rho_w[w, o])):  # fmt: skip
                 out_q, out_o = _put(out_q, m, q), _put(out_o, m, o)
                 m += 1
     return out_q[:m].copy(), out_o[:m].copy()
@@ -354,14 +358,8 @@ def reflection_edge_points(start, stop, e_idx, f_idx, w_idx, img, t_lo, t_hi, ot
         sd = side[e_idx[q], f]
         sa = dot3(ix, iy, iz, nx, ny, nz) - off  # the image's signed distance from the plane
         for o in range(n_o):
-            if prune and not open_w[w, o]:
-                continue
-            td = td_w[w, o]
-            slack = 1e-9 * (abs(tq) + abs(td) + 1.0)
-            if prune and (max(tq, td) < lo_q - slack or min(tq, td) > hi_q + slack):
-                continue
-            t = tq + (td - tq) * rq / (rq + rho_w[w, o])
-            if prune and not (t >= lo_q and t <= hi_q):
+            if prune and not (open_w[w, o] and _in_span(tq, rq, lo_q, hi_q, td_w[w, o],
+                                                        rho_w[w, o])):  # fmt: skip
                 continue
             n_pairs += 1
             px, py, pz, _, on_edge = keller_point(
