@@ -183,9 +183,9 @@ def keller_points(
 @inline
 def keller_point(sx, sy, sz, dx, dy, dz, ax, ay, az, bx, by, bz, tol):
     """:func:`keller_points` of one (source, receiver, edge), a compiled scalar helper for
-    kernels: ``px, py, pz, t, on_edge``, the point and ``t`` NaN where degenerate. Sums and products in the order of the vectorised form
-    it replaced (``core.vec.norm``, ``einsum``), so that the solver's kernels, which call it
-    too, find the same points bitwise."""
+    kernels: ``px, py, pz, t, on_edge``, the point and ``t`` NaN where degenerate. Sums and
+    products in the order of the vectorised form it replaced (``core.vec.norm``, ``einsum``), so
+    that the solver's kernels, which call it too, find the same points bitwise."""
     vx, vy, vz = bx - ax, by - ay, bz - az
     length = np.sqrt(vx * vx + vy * vy + vz * vz)
     ex, ey, ez = vx / length, vy / length, vz / length
@@ -203,7 +203,8 @@ def keller_point(sx, sy, sz, dx, dy, dz, ax, ay, az, bx, by, bz, tol):
     return ax + t * ex, ay + t * ey, az + t * ez, t, on_edge
 
 
-@kernel("Tuple((f8[:, ::1], f8[::1], b1[::1]))(f8[:, ::1], f8[:, ::1], f8[:, ::1], f8[:, ::1], f8)")
+@kernel("Tuple((f8[:, ::1], f8[::1], b1[::1]))(f8[:, ::1], f8[:, ::1], f8[:, ::1], f8[:, ::1], "
+        "f8)")
 def _keller(src, dst, a, b, tol):
     """:func:`keller_point` over P rows: ``point (P, 3), t (P,), on_edge (P,)``."""
     p = len(src)
