@@ -384,12 +384,13 @@ def _along_and_off(
     p: np.ndarray, start: np.ndarray, direction: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
     """Position along edge lines (m from ``start``) of the foot of points, and their distance
-    from the lines (m); components first: (3, ...) arrays, broadcasting over the rest (one
-    component at a time: these only prune, within :data:`SPAN_PAD_M`)."""
-    rx, ry, rz = p[0] - start[0], p[1] - start[1], p[2] - start[2]
-    t = rx * direction[0] + ry * direction[1] + rz * direction[2]
-    ox, oy, oz = rx - t * direction[0], ry - t * direction[1], rz - t * direction[2]
-    return t, np.sqrt(ox * ox + oy * oy + oz * oz)
+    from the lines (m) (:func:`raytrace.solver.kernels.along_and_off`, which only prunes, within
+    :data:`SPAN_PAD_M`); components first: (3, ...) arrays, broadcasting over the rest."""
+    shape = np.broadcast_shapes(p.shape, start.shape, direction.shape)
+    rows = [carray(np.moveaxis(np.broadcast_to(x, shape), 0, -1)).reshape(-1, 3)
+            for x in (p, start, direction)]  # fmt: skip
+    t, rho = kernels.along_and_off_rows(*rows)
+    return t.reshape(shape[1:]), rho.reshape(shape[1:])
 
 
 def _two_reflections(ctx: TraceContext) -> list[Paths]:

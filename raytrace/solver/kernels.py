@@ -45,7 +45,7 @@ from ..physics.utd import diffraction_valid1, keller_point
 from ..scene.accel import FACET_TEST_SIG, facet_box_test, in_triangles
 
 __all__ = ["PRUNE", "surely_inside", "facet_wedge_pairs", "expand_over_others",
-           "reflection_edge_points", "second_order_receivers", "line_span", "edge_distance",
+           "reflection_edge_points", "along_and_off_rows", "second_order_receivers", "line_span", "edge_distance",
            "walk_record", "unseen_entries", "walk_rays", "walk_hits", "segment_rays",
            "track_fields", "interaction_sequences"]
 
@@ -252,6 +252,28 @@ def facet_wedge_pairs(f_ok, sgn, h_f, img_c, axis_c, cos_a, sin_a, apex_in,
 
 
 @inline
+def along_and_off(px, py, pz, sx, sy, sz, dx, dy, dz):
+    """Position along an edge line (m from its point ``s``, unit direction ``d``) of the foot of
+    point ``p``, and its distance from the line (m). These only prune, within a pad."""
+    rx, ry, rz = px - sx, py - sy, pz - sz
+    t = rx * dx + ry * dy + rz * dz
+    ox, oy, oz = rx - t * dx, ry - t * dy, rz - t * dz
+    return t, np.sqrt(ox * ox + oy * oy + oz * oz)
+
+
+@kernel("Tuple((f8[::1], f8[::1]))(f8[:, ::1], f8[:, ::1], f8[:, ::1])")
+def along_and_off_rows(p, start, direction):
+    """:func:`along_and_off` over n rows ((n, 3) each): ``t``, ``rho`` (n,) metres."""
+    n = len(p)
+    t, rho = np.empty(n), np.empty(n)
+    for i in range(n):
+        t[i], rho[i] = along_and_off(p[i, 0], p[i, 1], p[i, 2], start[i, 0], start[i, 1],
+                                     start[i, 2], direction[i, 0], direction[i, 1],
+                                     direction[i, 2])  # fmt: skip
+    return t, rho
+
+
+@inline
 def _in_span(tq, rq, lo_q, hi_q, td, rd):
     """Keller's point of an end at edge coordinate ``tq``, distance ``rq`` from the edge line,
     and another at ``td``, ``rd`` lies in ``[lo_q, hi_q]``: ``t = tq + (td - tq) rq / (rq + rd)``,
@@ -331,7 +353,7 @@ def reflection_edge_points(start, stop, e_idx, f_idx, w_idx, img, t_lo, t_hi, ot
       (:func:`raytrace.physics.utd.diffraction_valid1`).
 
     The image's edge coordinate and distance from the edge line (which prune only) are computed
-    here as ``diffraction._along_and_off`` computes them.
+    here (:func:`along_and_off`).
 
     Returns
     -------
@@ -349,10 +371,8 @@ def reflection_edge_points(start, stop, e_idx, f_idx, w_idx, img, t_lo, t_hi, ot
     for q in range(start, stop):
         w, f = w_idx[q], f_idx[q]
         ix, iy, iz = img[q, 0], img[q, 1], img[q, 2]
-        rx, ry, rz = ix - w_start[w, 0], iy - w_start[w, 1], iz - w_start[w, 2]
-        tq = rx * w_dir[w, 0] + ry * w_dir[w, 1] + rz * w_dir[w, 2]
-        ox, oy, oz = rx - tq * w_dir[w, 0], ry - tq * w_dir[w, 1], rz - tq * w_dir[w, 2]
-        rq = np.sqrt(ox * ox + oy * oy + oz * oz)
+        tq, rq = along_and_off(ix, iy, iz, w_start[w, 0], w_start[w, 1], w_start[w, 2],
+                               w_dir[w, 0], w_dir[w, 1], w_dir[w, 2])  # fmt: skip
         lo_q, hi_q = t_lo[q], t_hi[q]
         nx, ny, nz, off = normal[f, 0], normal[f, 1], normal[f, 2], offset[f]
         sd = side[e_idx[q], f]
