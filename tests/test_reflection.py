@@ -52,6 +52,30 @@ def test_cone_reaches_is_conservative():
     assert rejected > 50
 
 
+def test_scalar_beam_sphere_test_equals_beam_reaches():
+    """The compiled form of :func:`beam_reaches` that :func:`second_order_receivers` applies to
+    each second image (the receivers' bounding sphere) decides as numpy does, apex inside and
+    target around the apex included."""
+    from raytrace.solver.kernels import _beam_reaches_sphere
+
+    rng = np.random.default_rng(5)
+    n = 3000
+    apex = rng.uniform(-4, 4, (n, 3))
+    centre = rng.uniform(-4, 4, (n, 3))
+    radius = rng.uniform(0.05, 2.0, n)
+    target = rng.uniform(-6, 6, (n, 3))
+    t_radius = rng.uniform(0.0, 3.0, n)
+    b = refl.beam(apex, centre, radius)
+    want = refl.beam_reaches(b, target, t_radius)
+    got = np.array([
+        _beam_reaches_sphere(*b.apex[i], *b.axis[i], b.cos_a[i], b.sin_a[i], b.apex_inside[i],
+                             *target[i], t_radius[i])
+        for i in range(n)
+    ])  # fmt: skip
+    assert 0.1 < want.mean() < 0.9 and b.apex_inside.any()
+    assert np.array_equal(got, want)
+
+
 def _fresh(facets: Facets) -> Facets:
     return Facets(**facets.arrays())  # the same arrays, an empty cache
 

@@ -434,6 +434,19 @@ _BEAM = "f8[:, ::1], f8[:, ::1], f8[::1], b1[::1]"
 
 
 @inline
+def _beam_reaches_sphere(ax, ay, az, ux, uy, uz, cos_a, sin_a, inside, cx, cy, cz, radius):
+    """:func:`raytrace.solver.reflection.beam_reaches` for one beam and one target sphere, in
+    scalars (a necessary condition)."""
+    vx, vy, vz = cx - ax, cy - ay, cz - az
+    dt = np.sqrt(vx * vx + vy * vy + vz * vz)
+    if inside or dt <= radius:
+        return True
+    cos_ang = (ux * vx + uy * vy + uz * vz) / dt
+    sb = min(radius / dt, 1.0)
+    return cos_ang >= cos_a * np.sqrt(1.0 - sb * sb) - sin_a * sb - 1e-7
+
+
+@inline
 def _in_both_beams(apex2, axis2, cos2, in2, apex1, axis1, cos1, in1, nx, ny, nz, off, rx, q, r):
     """The beam tests of :func:`second_order_receivers` for second image ``q``, receiver ``r``."""
     px, py, pz = rx[r, 0], rx[r, 1], rx[r, 2]
@@ -449,20 +462,23 @@ def _in_both_beams(apex2, axis2, cos2, in2, apex1, axis1, cos1, in1, nx, ny, nz,
 
 @kernel(
     "Tuple((i8[::1], i8[::1]))("
-    f"i8[::1], i1[::1], i1[:, ::1], {_BEAM}, {_BEAM}, f8[:, ::1], f8[::1], f8[:, ::1], b1)"
+    f"i8, i8, i8[::1], i1[::1], i1[:, ::1], {_BEAM}, f8[::1], {_BEAM}, f8[:, ::1], f8[::1], "
+    "f8[:, ::1], f8, f8, f8, f8, b1)"
 )
-def second_order_receivers(f2, s_img, side_rx, apex2, axis2, cos2, in2, apex1, axis1, cos1, in1,
-                           n2, off2, rx, prune):  # fmt: skip
+def second_order_receivers(q0, q1, f2, s_img, side_rx, apex2, axis2, cos2, in2, sin2, apex1,
+                           axis1, cos1, in1, n2, off2, rx, cx, cy, cz, radius, prune):  # fmt: skip
     """The (second image, receiver) pairs of double reflections that pass the receiver tests.
 
-    For second images ``q`` (their second facets ``f2`` (Q,), the first image's side ``s_img``
-    of it) and receivers ``rx`` (R, 3): the receiver is on that side of the second facet
-    (``side_rx`` (R, K)), within the beam from the second image through the second facet's
-    bounding sphere (``apex2``, ``axis2`` (Q, 3), ``cos2``, ``in2`` (Q,)), and its mirror image
-    in the second facet's plane (``n2`` (Q, 3), ``off2`` (Q,)) is within the beam from the first
-    image through the first facet (``apex1``...): unfolded at the second reflection, the path is
-    straight from the first image to that mirror image. The side is the rule; the beams are
-    necessary conditions, not tested with ``prune`` False.
+    For second images ``q0 <= q < q1`` (their second facets ``f2`` (Q,), the first image's side
+    ``s_img`` of it) and receivers ``rx`` (R, 3): the receiver is on that side of the second
+    facet (``side_rx`` (R, K)), within the beam from the second image through the second facet's
+    bounding sphere (``apex2``, ``axis2`` (Q, 3), ``cos2``, ``in2``, ``sin2`` (Q,)), and its mirror
+    image in the second facet's plane (``n2`` (Q, 3), ``off2`` (Q,)) is within the beam from the
+    first image through the first facet (``apex1``...): unfolded at the second reflection, the
+    path is straight from the first image to that mirror image. A second image whose beam cannot
+    reach the receivers' bounding sphere (centre ``cx, cy, cz``, ``radius``, m) is skipped
+    whole. The side is the rule; the beams are necessary conditions, not tested with ``prune``
+    False.
 
     Returns
     -------
@@ -472,7 +488,11 @@ def second_order_receivers(f2, s_img, side_rx, apex2, axis2, cos2, in2, apex1, a
     out_q = np.empty(cap, dtype=np.int64)
     out_r = np.empty(cap, dtype=np.int64)
     m = 0
-    for q in range(len(f2)):
+    for q in range(q0, q1):
+        if prune and not _beam_reaches_sphere(apex2[q, 0], apex2[q, 1], apex2[q, 2], axis2[q, 0],
+                                              axis2[q, 1], axis2[q, 2], cos2[q], sin2[q],
+                                              in2[q], cx, cy, cz, radius):  # fmt: skip
+            continue
         f, s = f2[q], s_img[q]
         nx, ny, nz, off = n2[q, 0], n2[q, 1], n2[q, 2], off2[q]
         for r in range(rx.shape[0]):

@@ -86,28 +86,30 @@ def second_order(ctx: TraceContext) -> list[Paths]:
     rx_radius = float(np.sqrt(((ctx.rx - rx_centre) ** 2).sum(axis=1)).max()) * (1 + 1e-9) + 1e-9
     side_rx, rx = carray(side_rx, np.int8), carray(ctx.rx)
     out: list[Paths] = []
+    # candidates that passed the exact tests, evaluated together (all transmitters' few in one
+    # pass) once there are CHUNK of them and at the end
+    found: list[tuple[np.ndarray, ...]] = []
+
+    def flush() -> None:
+        out.append(evaluate(ctx, candidates(ctx, *(np.concatenate(x) for x in zip(*found)))))
+        found.clear()
+
     for t in range(len(ctx.tx)):
-        side_t, img1, i1, f1a, f2, img2, s_img = _second_images(ctx, t, pairs)
+        side_t, img1, i1, f1a, f2, img2, s_img, receiver_args = _second_images(ctx, t, pairs)
         if len(f1a) == 0:
             continue
-        # only second images whose beam reaches the receivers' bounding sphere
-        near = refl.cone_reaches(img2, centre[f2], radius[f2], rx_centre, rx_radius)
-        i1, f1a, f2, img2, s_img = i1[near], f1a[near], f2[near], img2[near], s_img[near]
         # receivers on the same side of the second facet as the first image, inside the
         # beam from the second image through the second facet; unfolded at the second
         # reflection, the path is straight from the first image to the receiver's mirror image
-        # in the second facet, through the first facet
+        # in the second facet, through the first facet. Second images whose beam misses the
+        # receivers' bounding sphere are skipped whole.
         step = max(1, CHUNK // max(len(ctx.rx), 1))
         for c0 in range(0, len(f1a), step):
-            sl = slice(c0, c0 + step)
-            b2 = refl.beam(img2[sl], centre[f2[sl]], radius[f2[sl]])
-            b1 = refl.beam(img1[i1[sl]], centre[f1a[sl]], radius[f1a[sl]])
             q, r_idx = kernels.second_order_receivers(
-                f2[sl], s_img[sl], side_rx, *_beam_args(b2), *_beam_args(b1),
-                carray(fc.normal[f2[sl]]), carray(fc.offset[f2[sl]]), rx, kernels.PRUNE,
+                c0, min(len(f1a), c0 + step), *receiver_args[:2], side_rx, *receiver_args[2:],
+                rx, *rx_centre, rx_radius, kernels.PRUNE,
             )  # fmt: skip
             ctx.count("candidates_r2", len(q))
-            q = q + c0
             ff1, ff2 = f1a[q], f2[q]
             u2, p2 = refl.segment_plane_point(
                 ctx.rx[r_idx], img2[q], fc.normal[ff2], fc.offset[ff2]
@@ -123,11 +125,13 @@ def second_order(ctx: TraceContext) -> list[Paths]:
             s2 = refl.signed_distance(p2[ok], fc.normal[ff1[ok]], fc.offset[ff1[ok]])
             ok[ok] = np.sign(s2) == side_t[ff1[ok]]
             if ok.any():
-                verts = np.stack([p1[ok], p2[ok]], axis=1)
-                fac = np.stack([ff1[ok], ff2[ok]], axis=1)
-                out.append(
-                    evaluate(ctx, candidates(ctx, np.full(int(ok.sum()), t), r_idx[ok], verts, fac))
-                )
+                found.append((np.full(int(ok.sum()), t), r_idx[ok],
+                              np.stack([p1[ok], p2[ok]], axis=1),
+                              np.stack([ff1[ok], ff2[ok]], axis=1)))  # fmt: skip
+                if sum(len(x[0]) for x in found) >= CHUNK:
+                    flush()
+    if found:
+        flush()
     return out
 
 
@@ -147,6 +151,10 @@ def _second_images(ctx: TraceContext, t: int, pairs: np.ndarray) -> tuple[np.nda
     i1 : (M,) int, rows of ``img1``; f1, f2 : (M,) int, first and second facets
     img2 : (M, 3) float, the second images, metres
     s_img : (M,) int8, the side of the second facet the first image is on
+    receiver_args : tuple, the per-image arguments of
+        :func:`raytrace.solver.kernels.second_order_receivers` (``f2``, ``s_img``, the beams
+        from the second images through the second facets and from the first images through the
+        first facets, the second facets' planes), around ``side_rx``
     """
     fc = ctx.scene.facets
     mask = None if ctx.facet_mask is None else ctx.facet_mask.tobytes()
@@ -172,10 +180,17 @@ def _second_images(ctx: TraceContext, t: int, pairs: np.ndarray) -> tuple[np.nda
     beam = refl.cone_reaches(img1[a], centre[f1[a]], radius[f1[a]], centre[f2], radius[f2])
     a, f2, jc = a[beam], f2[beam], jc[beam]
     img2 = refl.mirror(img1[a], fc.normal[f2], fc.offset[f2])
-    found = (side_t, img1, a, f1[a], f2, img2, side_img[a, jc])
+    s_img = side_img[a, jc]
+    b2 = refl.beam(img2, centre[f2], radius[f2])
+    b1 = refl.beam(img1[a], centre[f1[a]], radius[f1[a]])
+    receiver_args = (f2, s_img, *_beam_args(b2), b2.sin_a, *_beam_args(b1), fc.normal[f2],
+                     fc.offset[f2])  # fmt: skip
+    # own writable copies: the kernel's signature takes writable arrays (it writes none)
+    receiver_args = tuple(np.array(x, order="C", copy=True) for x in receiver_args)
+    found = (side_t, img1, a, f1[a], f2, img2, s_img)
     for x in found:
         x.setflags(write=False)
-    return keep(kept, key, found, SECOND_IMAGES_KEPT)
+    return keep(kept, key, (*found, receiver_args), SECOND_IMAGES_KEPT)
 
 
 def _beam_args(b: refl.Beam) -> tuple[np.ndarray, ...]:
