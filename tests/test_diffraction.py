@@ -948,6 +948,43 @@ def test_face_reflection_matrix_vs_vector_construction() -> None:
     assert np.max(np.abs(got[:, 0, 1])) > 0.05
 
 
+def test_diffraction_matrix_composes_the_faces_matrices() -> None:
+    """The compiled dyadic of :func:`diffraction_matrix` is ``C(D1 + D2) I - C D3 T_n - C D4 T_0``
+    with the faces' matrices of :func:`face_reflection_matrix` (face n at ``-cos beta``), to
+    rounding; normal incidence on a face gives ``diag(-R_TE, -R_TM)`` for it."""
+    rng = np.random.default_rng(23)
+    p = 500
+    src, dst = rng.uniform(-5, 5, (p, 3)), rng.uniform(-5, 5, (p, 3))
+    point = rng.uniform(-1, 1, (p, 3))
+    edge = rng.normal(size=(p, 3))
+    edge /= np.linalg.norm(edge, axis=1, keepdims=True)
+    n0 = np.cross(edge, rng.normal(size=(p, 3)))
+    nn = np.cross(edge, rng.normal(size=(p, 3)))
+    geo = dif.wedge_geometry(src, dst, point, edge, n0 / np.linalg.norm(n0, axis=1)[:, None],
+                             nn / np.linalg.norm(nn, axis=1)[:, None])  # fmt: skip
+    r_0 = tuple(rng.normal(size=p) + 1j * rng.normal(size=p) for _ in range(2))
+    r_n = tuple(rng.normal(size=p) + 1j * rng.normal(size=p) for _ in range(2))
+    k = 2 * np.pi * 3.775e9 / C0
+    ok = geo.valid
+    assert 0.2 < ok.mean() < 1.0
+    got, _ = dif.diffraction_matrix(geo, 3.775e9, r_0=r_0, r_n=r_n)
+    s_in, s_out = geo.s_in[ok], geo.s_out[ok]
+    dist = s_in * s_out * geo.sin_beta0[ok] ** 2 / (s_in + s_out)
+    d12, d3, d4 = dif._utd_terms(geo.n[ok], geo.phi[ok], geo.phi_in[ok], geo.sin_beta0[ok],
+                                 dist, k)  # fmt: skip
+    cos_b = np.einsum("ij,ij->i", geo.s_hat_in[ok], geo.edge_dir[ok])
+    t_0 = dif.face_reflection_matrix(r_0[0][ok], r_0[1][ok], cos_b, geo.psi_0[ok])
+    t_n = dif.face_reflection_matrix(r_n[0][ok], r_n[1][ok], -cos_b, geo.psi_n[ok])
+    want = -d3[:, None, None] * t_n - d4[:, None, None] * t_0 + d12[:, None, None] * np.eye(2)
+    scale = np.abs(want).max(axis=(1, 2))[:, None, None]
+    assert np.max(np.abs(got[ok] - want) / scale) < 1e-14
+    # a face hit at normal incidence (psi = pi/2, normal to the edge): diag(-R_TE, -R_TM)
+    flat = dif.face_reflection_matrix(r_0[0], r_0[1], np.zeros(p), np.full(p, np.pi / 2))
+    np.testing.assert_array_equal(flat[:, 0, 0], -r_0[0])
+    np.testing.assert_array_equal(flat[:, 1, 1], -r_0[1])
+    assert not flat[:, 0, 1].any() and not flat[:, 1, 0].any()
+
+
 def _wedge_frame(n: float):
     """Wedge about the edge e = +z: face 0 along t0 = +x with outward normal n0 = e x t0 = +y,
     face n at the angle n pi from face 0. Returns e, t0, n0, tn, nn."""

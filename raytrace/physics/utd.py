@@ -844,19 +844,57 @@ def face_reflection_matrix(
     incident one
     """
     r_te, r_tm = np.asarray(r_te, dtype=complex), np.asarray(r_tm, dtype=complex)
-    c = np.asarray(cos_beta, dtype=float)
+    c, psi = np.asarray(cos_beta, dtype=float), np.asarray(psi, dtype=float)
+    shape = np.broadcast(r_te, r_tm, c, psi).shape
+    r_te, r_tm, c, psi = (np.broadcast_to(x, shape).reshape(-1) for x in (r_te, r_tm, c, psi))
+    out = _face_matrices(_c(r_te, complex), _c(r_tm, complex), _c(c), _c(np.cos(psi)),
+                         _c(np.sin(psi)))  # fmt: skip
+    return out.reshape(shape + (2, 2))
+
+
+@inline
+def _face_matrix1(r_te, r_tm, c, cp, sp):
+    """:func:`face_reflection_matrix` of one face, from ``cos psi``, ``sin psi``: its entries
+    ``t00, t01, t10, t11`` (complex)."""
     cb2 = c * c
-    cp, sp = np.cos(psi), np.sin(psi)
     m2 = (1.0 - cb2) * cp * cp + cb2
     # normal incidence on the face (m -> 0): R_TM = -R_TE there and T -> diag(-R_TE, -R_TM)
-    tiny = m2 < 1e-24
-    inv = 1.0 / np.where(tiny, 1.0, m2)
+    if m2 < 1e-24:
+        return -r_te, 0j, 0j, -r_tm
+    inv = 1.0 / m2
     cross = c * sp * cp * (r_te + r_tm) * inv
-    out = np.empty(np.broadcast(r_te, r_tm, c, psi).shape + (2, 2), dtype=complex)
-    out[..., 0, 0] = np.where(tiny, -r_te, (-r_te * cp * cp + r_tm * cb2 * sp * sp) * inv)
-    out[..., 1, 1] = np.where(tiny, -r_tm, (r_te * cb2 * sp * sp - r_tm * cp * cp) * inv)
-    out[..., 0, 1] = np.where(tiny, 0.0, -cross)
-    out[..., 1, 0] = np.where(tiny, 0.0, cross)
+    return ((-r_te * cp * cp + r_tm * cb2 * sp * sp) * inv, -cross, cross,
+            (r_te * cb2 * sp * sp - r_tm * cp * cp) * inv)  # fmt: skip
+
+
+@kernel("c16[:, :, ::1](c16[::1], c16[::1], f8[::1], f8[::1], f8[::1])")
+def _face_matrices(r_te, r_tm, c, cp, sp):
+    """:func:`_face_matrix1` over P rows, (P, 2, 2)."""
+    out = np.empty((len(c), 2, 2), dtype=np.complex128)
+    for r in range(len(c)):
+        out[r, 0, 0], out[r, 0, 1], out[r, 1, 0], out[r, 1, 1] = _face_matrix1(
+            r_te[r], r_tm[r], c[r], cp[r], sp[r]
+        )
+    return out
+
+
+@kernel(
+    "c16[:, :, ::1](c16[::1], c16[::1], c16[::1], c16[::1], f8[::1], f8[::1], f8[::1], f8[::1], "
+    "f8[::1], c16[::1], c16[::1], c16[::1])"
+)
+def _dyadic(r0_te, r0_tm, rn_te, rn_tm, cos_b, cp0, sp0, cpn, spn, d12, d3, d4):
+    """``D = C(D1 + D2) I - C D3 T_n - C D4 T_0`` of :func:`diffraction_matrix` over P rows
+    (P, 2, 2): ``T_0`` of face 0 at ``cos_b``, ``T_n`` of face n at ``-cos_b``
+    (:func:`_face_matrix1`, from ``cos psi``, ``sin psi`` of each face)."""
+    out = np.empty((len(cos_b), 2, 2), dtype=np.complex128)
+    for r in range(len(cos_b)):
+        a00, a01, a10, a11 = _face_matrix1(r0_te[r], r0_tm[r], cos_b[r], cp0[r], sp0[r])
+        b00, b01, b10, b11 = _face_matrix1(rn_te[r], rn_tm[r], -cos_b[r], cpn[r], spn[r])
+        x, y = d3[r], d4[r]
+        out[r, 0, 0] = -x * b00 - y * a00 + d12[r]
+        out[r, 0, 1] = -x * b01 - y * a01
+        out[r, 1, 0] = -x * b10 - y * a10
+        out[r, 1, 1] = -x * b11 - y * a11 + d12[r]
     return out
 
 
@@ -940,11 +978,10 @@ def diffraction_matrix(
     )
     # each face's reflection in its own frame (e_f = e for face 0, -e for face n)
     cos_b = np.where(ok, np.einsum("ij,ij->i", g.s_hat_in, g.edge_dir), 0.0)
-    t_0 = face_reflection_matrix(*_reflection_pair(r_0, (p,)), cos_b, g.psi_0)
-    t_n = face_reflection_matrix(*_reflection_pair(r_n, (p,)), -cos_b, g.psi_n)
-    d_mat = -d3[:, None, None] * t_n - d4[:, None, None] * t_0
-    d_mat[:, 0, 0] += d12
-    d_mat[:, 1, 1] += d12
+    faces = [_c(x, complex) for x in (*_reflection_pair(r_0, (p,)), *_reflection_pair(r_n, (p,)))]
+    d_mat = _dyadic(*faces, _c(cos_b), _c(np.cos(g.psi_0)), _c(np.sin(g.psi_0)),
+                    _c(np.cos(g.psi_n)), _c(np.sin(g.psi_n)), _c(d12, complex), _c(d3, complex),
+                    _c(d4, complex))  # fmt: skip
     return d_mat, np.sqrt(s_in / (s_out * (s_in + s_out)))
 
 
