@@ -26,6 +26,7 @@ from raytrace.physics.materials import (
     Material,
     MaterialLibrary,
     fresnel,
+    fresnel_reflection,
     permittivity,
     slab,
     slab_excess_delay,
@@ -231,6 +232,19 @@ def test_fresnel_ignores_sign_of_cos_and_broadcasts():
             single = fresnel(complex(eta[i, 0]), float(cos[j]))
             for arr, val in zip(out, single, strict=True):
                 assert arr[i, j] == val
+
+
+def test_fresnel_reflection_is_fresnels_r_bitwise():
+    """The reflection-only form the tracer uses gives fresnel's r_te, r_tm to the bit, at
+    grazing and normal incidence, for eta = 1 (no interface) and for scalars."""
+    eta = np.array([[4.0], [5.24 - 0.6j], [1.0 + 0j], [1e7 - 1e8j]])  # (4, 1)
+    cos = np.concatenate([[0.0, 1e-9, 1.0, -0.3], np.linspace(0.01, 0.99, 50)])
+    r_te, r_tm, _, _ = fresnel(eta, cos)
+    got_te, got_tm = fresnel_reflection(eta, cos)
+    assert got_te.shape == (4, 54)
+    np.testing.assert_array_equal(got_te, r_te)
+    np.testing.assert_array_equal(got_tm, r_tm)
+    assert fresnel_reflection(4.0, 0.5) == fresnel(4.0, 0.5)[:2]
 
 
 def _field_vectors(eta: complex, theta: float):

@@ -41,6 +41,7 @@ __all__ = [
     "Material",
     "MaterialLibrary",
     "fresnel",
+    "fresnel_reflection",
     "permittivity",
     "slab",
     "slab_excess_delay",
@@ -632,19 +633,35 @@ def fresnel(eta: complex | np.ndarray, cos_theta: float | np.ndarray) -> tuple[A
     r_te, r_tm, t_te, t_tm : complex128 (broadcast shape of the inputs)
     """
     eta_a, c, s = _prepare(eta, cos_theta)
+    r_te, r_tm, d_te, d_tm = _interface_reflection(eta_a, c, s)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t_te = 2.0 * c / d_te
+        t_tm = 2.0 * _sqrt_decaying(eta_a) * c / d_tm
+    # Only eta = 1 at exactly grazing incidence makes a denominator vanish: no interface at all.
+    t_te = np.where(d_te == 0, 1.0, t_te)
+    t_tm = np.where(d_tm == 0, 1.0, t_tm)
+    return _out(r_te), _out(r_tm), _out(t_te), _out(t_tm)
+
+
+def fresnel_reflection(eta: complex | np.ndarray, cos_theta: float | np.ndarray) -> tuple[Any, Any]:
+    """``r_te, r_tm`` of :func:`fresnel` alone (the same arithmetic, without the transmission
+    coefficients and their square root): what a reflection needs."""
+    r_te, r_tm, _, _ = _interface_reflection(*_prepare(eta, cos_theta))
+    return _out(r_te), _out(r_tm)
+
+
+def _interface_reflection(
+    eta_a: np.ndarray, c: np.ndarray, s: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``r_te, r_tm`` of :func:`fresnel` from :func:`_prepare`'s output, and their denominators
+    ``cos + s``, ``eta cos + s``."""
     d_te = c + s
     d_tm = eta_a * c + s
     with np.errstate(divide="ignore", invalid="ignore"):
         r_te = (c - s) / d_te
         r_tm = (eta_a * c - s) / d_tm
-        t_te = 2.0 * c / d_te
-        t_tm = 2.0 * _sqrt_decaying(eta_a) * c / d_tm
     # Only eta = 1 at exactly grazing incidence makes a denominator vanish: no interface at all.
-    r_te = np.where(d_te == 0, 0.0, r_te)
-    t_te = np.where(d_te == 0, 1.0, t_te)
-    r_tm = np.where(d_tm == 0, 0.0, r_tm)
-    t_tm = np.where(d_tm == 0, 1.0, t_tm)
-    return _out(r_te), _out(r_tm), _out(t_te), _out(t_tm)
+    return np.where(d_te == 0, 0.0, r_te), np.where(d_tm == 0, 0.0, r_tm), d_te, d_tm
 
 
 def slab(
