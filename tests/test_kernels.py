@@ -355,8 +355,9 @@ def test_track_fields_applies_the_numpy_interactions_in_order():
 
 
 def test_interaction_sequences_put_each_segments_penetrations_before_its_vertex():
-    """Random counts of penetrations per segment: the sequences are, per path, the penetrations
-    of segment 0, vertex 0, the penetrations of segment 1, ..., padded (written out in Python)."""
+    """Random counts of penetrations per segment: the sequences of the kept paths are, per path,
+    the penetrations of segment 0, vertex 0, the penetrations of segment 1, ..., padded (written
+    out in Python)."""
     rng = np.random.default_rng(7)
     m, k, n_pen, depth = 50, 2, 2, 4
     count = rng.integers(0, n_pen + 1, (m, k + 1))
@@ -366,17 +367,19 @@ def test_interaction_sequences_put_each_segments_penetrations_before_its_vertex(
     kinds = rng.choice(np.array([1, 3], np.int8), (m, k))
     verts = rng.normal(size=(m, k, 3))
     vobj, elem = rng.integers(0, 99, (m, k)), rng.integers(0, 99, (m, k))
+    rows = np.flatnonzero(rng.random(m) < 0.8)  # the kept paths
     inter, pts, objs, elems = kernels.interaction_sequences(count, pen_obj, pen_pts, kinds, verts,
-                                                            vobj, elem, depth, 2)  # fmt: skip
-    for r in range(m):
+                                                            vobj, elem, depth, 2, rows)  # fmt: skip
+    assert len(inter) == len(rows) < m
+    for i, r in enumerate(rows):
         seq = []
         for j in range(k + 1):
             seq += [(2, tuple(pen_pts[r, j, s]), pen_obj[r, j, s], -1) for s in range(count[r, j])]
             if j < k:
                 seq.append((kinds[r, j], tuple(verts[r, j]), vobj[r, j], elem[r, j]))
         n = len(seq)
-        assert inter[r, :n].tolist() == [x[0] for x in seq] and not inter[r, n:].any()
-        np.testing.assert_array_equal(pts[r, :n], [x[1] for x in seq])
-        assert np.isnan(pts[r, n:]).all()
-        assert objs[r, :n].tolist() == [x[2] for x in seq] and (objs[r, n:] == -1).all()
-        assert elems[r, :n].tolist() == [x[3] for x in seq] and (elems[r, n:] == -1).all()
+        assert inter[i, :n].tolist() == [x[0] for x in seq] and not inter[i, n:].any()
+        np.testing.assert_array_equal(pts[i, :n], [x[1] for x in seq])
+        assert np.isnan(pts[i, n:]).all()
+        assert objs[i, :n].tolist() == [x[2] for x in seq] and (objs[i, n:] == -1).all()
+        assert elems[i, :n].tolist() == [x[3] for x in seq] and (elems[i, n:] == -1).all()

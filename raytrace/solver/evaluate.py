@@ -156,15 +156,17 @@ def evaluate(
     if blocked.any():
         ctx.count("paths_blocked_opaque", int(blocked.sum()))
         cand = cand.take(~blocked)
-    cross = None
-    if len(cand):
-        cand, cross = within_penetration_limit(ctx, cand)
     if not len(cand):
         return Paths.empty(ctx.tx, ctx.rx, ctx.f, depth)
+    cross, within = within_penetration_limit(ctx, cand)
+    if not within.any():
+        return Paths.empty(ctx.tx, ctx.rx, ctx.f, depth)
+    # the fields of the few over the limit are computed with the rest and dropped: cheaper than
+    # copying the rest out
     gain, delay_s = path_fields(ctx, cand, cross, diffraction)
-    keep = 20 * np.log10(np.maximum(np.abs(gain), 1e-300)) >= ctx.cfg.min_power_db
-    ctx.count("paths_dropped_no_power", int((~keep).sum()))
-    return assemble(ctx, cand, cross, delay_s, gain).select(keep)
+    powered = 20 * np.log10(np.maximum(np.abs(gain), 1e-300)) >= ctx.cfg.min_power_db
+    ctx.count("paths_dropped_no_power", int((within & ~powered).sum()))
+    return assemble(ctx, cand, cross, delay_s, gain, np.flatnonzero(within & powered))
 
 
 #: Candidates sampled to choose the order in which :func:`blocked_by_opaque` queries the segments.
@@ -217,22 +219,21 @@ def blocked_by_opaque(ctx: TraceContext, cand: Candidates) -> np.ndarray:
     return blocked
 
 
-def within_penetration_limit(ctx: TraceContext, cand: Candidates) -> tuple[Candidates, Crossings]:
-    """The candidates whose segments cross at most ``max_penetrations`` objects in all, and the
-    crossings of their segments (``M' * (k + 1)`` rows, segment-major per path)."""
+def within_penetration_limit(ctx: TraceContext, cand: Candidates) -> tuple[Crossings, np.ndarray]:
+    """The crossings of the candidates' segments (``M * (k + 1)`` rows, segment-major per path)
+    and which candidates cross at most ``max_penetrations`` objects in all ((M,) bool). The
+    others' penetration counts are set to zero, so that their fields can be computed with the
+    rest's (and are dropped)."""
     m, k, kmax = len(cand), cand.depth, ctx.cfg.max_penetrations
     a = cand.chain[:, :-1].reshape(-1, 3)
     b = cand.chain[:, 1:].reshape(-1, 3)
     cross = segment_crossings(ctx.scene, a, b, kmax, cand.ends)
     ctx.count("segments_tested", len(a))
-    n_pen = cross.count.reshape(m, k + 1).sum(axis=1)
-    ok = ~cross.exceeded.reshape(m, k + 1).any(axis=1) & (n_pen <= kmax)
-    if ok.all():
-        return cand, cross
-    sel = np.flatnonzero(ok)
-    seg = (sel[:, None] * (k + 1) + np.arange(k + 1)[None]).reshape(-1)
-    fields_ = cross.__dataclass_fields__
-    return cand.take(sel), Crossings(*(take_rows(getattr(cross, f), seg) for f in fields_))
+    count = cross.count.reshape(m, k + 1)
+    ok = ~cross.exceeded.reshape(m, k + 1).any(axis=1) & (count.sum(axis=1) <= kmax)
+    if not ok.all():
+        count[~ok] = 0
+    return cross, ok
 
 
 def path_fields(
@@ -334,30 +335,35 @@ def assemble(
     cross: Crossings,
     delay_s: np.ndarray,
     gain: np.ndarray,
+    rows: np.ndarray,
 ) -> Paths:
-    """The :class:`Paths` of evaluated candidates, with interaction sequences ordered along the
-    path: the penetrations of segment ``j``, then vertex ``j``."""
+    """The :class:`Paths` of the evaluated candidates ``rows`` (int (N,), in order), with
+    interaction sequences ordered along the path: the penetrations of segment ``j``, then
+    vertex ``j``. Only those rows are copied."""
     m, k = len(cand), cand.depth
     count = cross.count.reshape(m, k + 1)
     n_pen = cross.object.shape[1]
+    rows = carray(rows, np.int64)
     inter, pts, objs, elems = kernels.interaction_sequences(
         carray(count, np.int64), carray(cross.object, np.int64).reshape(m, k + 1, n_pen),
         carray(cross.point).reshape(m, k + 1, n_pen, 3), carray(cand.kinds, np.int8),
         carray(cand.verts), carray(cand.vobj, np.int64), carray(cand.elem, np.int64),
-        k + ctx.cfg.max_penetrations, int(PENETRATION),
+        k + ctx.cfg.max_penetrations, int(PENETRATION), rows,
     )  # fmt: skip
+    t_idx, r_idx = cand.t_idx[rows].astype(np.int64), cand.r_idx[rows].astype(np.int64)
+    kinds = take_rows(cand.kinds, rows)
     return Paths(
         tx=ctx.tx,
         rx=ctx.rx,
         frequency_hz=ctx.f,
-        link=cand.t_idx * len(ctx.rx) + cand.r_idx,
-        tx_index=cand.t_idx.astype(np.int64),
-        rx_index=cand.r_idx.astype(np.int64),
-        delay_s=delay_s,
-        gain=gain,
-        n_reflections=(cand.kinds == REFLECTION).sum(axis=1).astype(np.int16),
-        n_penetrations=count.sum(axis=1).astype(np.int16),
-        n_diffractions=(cand.kinds == DIFFRACTION).sum(axis=1).astype(np.int16),
+        link=t_idx * len(ctx.rx) + r_idx,
+        tx_index=t_idx,
+        rx_index=r_idx,
+        delay_s=delay_s[rows],
+        gain=gain[rows],
+        n_reflections=(kinds == REFLECTION).sum(axis=1).astype(np.int16),
+        n_penetrations=take_rows(count, rows).sum(axis=1).astype(np.int16),
+        n_diffractions=(kinds == DIFFRACTION).sum(axis=1).astype(np.int16),
         interaction=inter,
         points=pts,
         objects=objs,
