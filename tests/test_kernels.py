@@ -218,6 +218,39 @@ def test_line_span_through_a_cube_closed_form():
                                np.array([[1.0, 0, 0]]), 1e-3)[0]  # fmt: skip
 
 
+def test_opaque_blocks_drop_own_objects_and_touches_only():
+    """A ray's opaque hit blocks unless it is the object under either end of the segment or a
+    solid the segment only touches: segments past a cube's face plane, along it and through it,
+    from and to vertices on it, against the rule written out here (line spans in numpy)."""
+    from raytrace.solver import penetration
+
+    sc = make_scene([("cube", box((0, 0, 0), (1, 1, 1)), "metal"),
+                     ("slab", box((3, 0, 0), (4, 1, 1)), "metal")])  # fmt: skip
+    rng = np.random.default_rng(11)
+    m, k = 400, 1
+    chain = rng.uniform(-1, 5, (m, k + 2, 3))
+    chain[: m // 4, :, 1] = 1.0  # in the plane of the cubes' faces y = 1: touches
+    chain[m // 4 : m // 2, 1] = [0.5, 1.0, 0.5]  # a vertex on the cube's top face
+    vobj = np.where(rng.random((m, k)) < 0.5, 0, -1)
+    tol = 1e-4
+    for j in range(k + 1):
+        live = np.flatnonzero(rng.random(m) < 0.9)
+        a, d, length, org, reach = kernels.segment_rays(chain, live, j, 1e-6)
+        hit = sc.first_hit_among(np.ones(2, bool), org, d, reach)
+        got = kernels.opaque_blocks(hit, live, j, vobj, a, d, length,
+                                    *penetration.convex_plane_arrays(sc), tol)  # fmt: skip
+        own = np.zeros(len(live), bool)
+        if j > 0:
+            own |= hit == vobj[live, j - 1]
+        if j < k:
+            own |= hit == vobj[live, j]
+        convex, t_in, t_out, par = penetration._line_span(sc, np.maximum(hit, 0), a, d, tol)
+        touch = convex & (par | (np.minimum(t_out, length) <= np.maximum(t_in, 0.0)))
+        want = (hit >= 0) & ~own & ~touch
+        np.testing.assert_array_equal(got, want)
+        assert want.any() and (own & (hit >= 0)).any() and (touch & (hit >= 0)).any()
+
+
 def test_edge_distance_against_the_triangle_closed_form():
     """The distance outside a right triangle's edges, and minus the distance to the nearest
     edge inside it; broadcasting over faces and points."""

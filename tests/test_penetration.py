@@ -389,7 +389,7 @@ def test_off_the_solid_closed_form():
     # the walk's own compiled helper, called directly
     *shift, t_end = kernels._off_the_solid(face, 0, -1.0, 0.0, 0.5, 1.0, 0.0, 0.0,
                                            penetration._face_normals(sc),
-                                           *penetration._convex_plane_arrays(sc), tol)  # fmt: skip
+                                           *penetration.convex_plane_arrays(sc), tol)  # fmt: skip
     np.testing.assert_allclose(shift, [0.0, -2 * tol, 0.0], atol=1e-15)
     np.testing.assert_allclose(t_end, 3.0 + tol, rtol=1e-12)
 
@@ -428,7 +428,7 @@ def test_a_hit_on_a_cube_edge_is_booked_on_the_face_met_most_head_on(leaving, st
         """The segment walk's handling of a hit on face f at p (kernels.walk_hits' helpers)."""
         a = p - 3.0 * d
         *q, _, side, near = kernels._contact(f, *a, *d, 3.0, *arrays, tol)
-        touch = near and kernels._touches(0, *a, *d, *penetration._convex_plane_arrays(sc), tol)
+        touch = near and kernels._touches(0, *a, *d, *penetration.convex_plane_arrays(sc), tol)
         return kernels._canonical(f, 0, *q, *d, side, *penetration._object_faces(sc), *arrays,
                                   tol), touch  # fmt: skip
 

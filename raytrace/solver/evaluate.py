@@ -34,7 +34,7 @@ from ..physics.materials import slab, slab_group_delay
 from . import kernels
 from .context import TraceContext
 from .paths import DIFFRACTION, PENETRATION, REFLECTION, Paths
-from .penetration import CONTACT_TOL_MARGINS, Crossings, segment_crossings, touches
+from .penetration import CONTACT_TOL_MARGINS, Crossings, convex_plane_arrays, segment_crossings
 
 
 class DiffractionOperator(NamedTuple):
@@ -179,13 +179,14 @@ def blocked_by_opaque(ctx: TraceContext, cand: Candidates) -> np.ndarray:
     Conservative: a segment whose first opaque hit is the object under one of its own ends (a ray
     grazing the face of the object it diffracts on, within float32 noise), or a solid it only
     touches (:func:`~raytrace.solver.penetration.touches`), is left to
-    :func:`segment_crossings`, which records exactly what it crosses.
+    :func:`segment_crossings`, which records exactly what it crosses
+    (:func:`raytrace.solver.kernels.opaque_blocks`).
     """
     m = len(cand)
     if not ctx.opaque.any() or m == 0:
         return np.zeros(m, dtype=bool)
     chain, margin = carray(cand.chain), ctx.scene.margin
-    k = cand.depth
+    vobj, planes = carray(cand.vobj, np.int64), convex_plane_arrays(ctx.scene)
     blocked = np.zeros(m, dtype=bool)
     # one segment at a time, the longest on the whole first (the likeliest to be blocked): the
     # other segments of a blocked candidate need no query (each ray's answer is its own, so the
@@ -198,22 +199,13 @@ def blocked_by_opaque(ctx: TraceContext, cand: Candidates) -> np.ndarray:
             break
         a, d, length, org, reach = kernels.segment_rays(chain, live, int(j), margin)
         hit = ctx.scene.first_hit_among(ctx.opaque, org, d, reach)
-        b = hit >= 0
-        # a hit on the object under either end of the segment is the vertex's own (left to
-        # segment_crossings, which records exactly what it crosses)
-        if j > 0:
-            b &= hit != cand.vobj[live, j - 1]
-        if j < k:
-            b &= hit != cand.vobj[live, j]
-        if b.any():
-            # a segment that only touches an opaque solid (lying in the plane of its face, or
-            # leaving a vertex at a neighbour's corner, which Embree reports in one direction
-            # and not in the other) is not blocked by it: left to segment_crossings, which steps
-            # past touches and records real crossings
-            sel = np.flatnonzero(b)
-            touch = touches(ctx.scene, hit[sel], take_rows(a, sel), take_rows(d, sel),
-                            CONTACT_TOL_MARGINS * margin, length[sel])  # fmt: skip
-            b[sel[touch]] = False
+        # a hit on the object under either end of the segment is the vertex's own, and a
+        # segment that only touches an opaque solid (lying in the plane of its face, or leaving
+        # a vertex at a neighbour's corner, which Embree reports in one direction and not in the
+        # other) is not blocked by it: both left to segment_crossings, which steps past touches
+        # and records real crossings
+        b = kernels.opaque_blocks(hit, live, int(j), vobj, a, d, length, *planes,
+                                  CONTACT_TOL_MARGINS * margin)  # fmt: skip
         blocked[live[np.flatnonzero(b)]] = True
         live = live[np.flatnonzero(~b)]
     return blocked

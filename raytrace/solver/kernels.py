@@ -46,6 +46,7 @@ from ..scene.accel import FACET_TEST_SIG, facet_box_test, in_triangles
 
 __all__ = ["PRUNE", "surely_inside", "facet_wedge_pairs", "expand_over_others",
            "reflection_edge_points", "along_and_off_rows", "second_order_receivers", "line_span", "edge_distance",
+           "opaque_blocks", "touch_rows",
            "walk_record", "unseen_entries", "walk_rays", "walk_hits", "segment_rays",
            "track_fields", "interaction_sequences"]
 
@@ -634,6 +635,30 @@ def _touches(ob, ax, ay, az, dx, dy, dz, normal, offset, count, tol):
 
 
 @helper
+def _touches_segment(ob, ax, ay, az, dx, dy, dz, t_max, normal, offset, count, tol):
+    """:func:`_touches` for the segment ``0 <= t <= t_max`` of the line only."""
+    cv, lo, hi, par = _span(normal, offset, count, ob, ax, ay, az, dx, dy, dz, tol)
+    return cv and (par or min(hi, t_max) <= max(lo, 0.0))
+
+
+@kernel("b1[::1](i8[::1], f8[:, ::1], f8[:, ::1], f8[::1], b1, f8[:, :, ::1], f8[:, ::1], "
+        "i8[::1], f8)")  # fmt: skip
+def touch_rows(o, a, d, t_max, segment, normal, offset, count, tol):
+    """(n,) bool, :func:`_touches` of the lines ``a + t d`` (n, 3) and solids ``o`` (n,), or with
+    ``segment`` :func:`_touches_segment` of their segments up to ``t_max`` (n,) metres (planes
+    as in :func:`line_span`; False for objects without planes)."""
+    out = np.empty(len(o), dtype=np.bool_)
+    for i in range(len(o)):
+        if segment:
+            out[i] = _touches_segment(o[i], a[i, 0], a[i, 1], a[i, 2], d[i, 0], d[i, 1], d[i, 2],
+                                      t_max[i], normal, offset, count, tol)  # fmt: skip
+        else:
+            out[i] = _touches(o[i], a[i, 0], a[i, 1], a[i, 2], d[i, 0], d[i, 1], d[i, 2], normal,
+                              offset, count, tol)  # fmt: skip
+    return out
+
+
+@helper
 def _canonical(f, ob, px, py, pz, dx, dy, dz, side, face_start, face_count, face_normal, corners,
                edge_normals, tol):  # fmt: skip
     """The face a hit at ``p`` on face ``f`` of object ``ob`` (ray direction ``d``, ``side`` the
@@ -999,6 +1024,29 @@ def segment_rays(chain, live, j, margin):
         org[i, 0], org[i, 1], org[i, 2] = ax + margin * dx, ay + margin * dy, az + margin * dz
         reach[i] = ln - 2 * margin
     return a, d, length, org, reach
+
+
+@kernel(
+    "b1[::1](i8[::1], i8[::1], i8, i8[:, ::1], f8[:, ::1], f8[:, ::1], f8[::1], f8[:, :, ::1], "
+    "f8[:, ::1], i8[::1], f8)"
+)
+def opaque_blocks(hit, live, j, vobj, a, d, length, normal, offset, count, tol):
+    """Which of the rays of :func:`segment_rays` (segment ``j`` of the chains ``live``) are
+    blocked by their first opaque hit ``hit`` (n,) (-1: none): not when it is the object under
+    either end of the segment (``vobj`` (M, k): the vertex's own, within float32 noise), nor
+    when the segment ``a + t d``, ``0 <= t <= length``, only touches that convex solid (no span
+    deeper than ``tol``; planes as in :func:`line_span`), which Embree reports in one direction
+    and not in the other: both are left to the segment walk, which records exactly what a
+    segment crosses."""
+    k = vobj.shape[1]
+    out = np.zeros(len(hit), dtype=np.bool_)
+    for i in range(len(hit)):
+        ob, c = hit[i], live[i]
+        if ob < 0 or (j > 0 and ob == vobj[c, j - 1]) or (j < k and ob == vobj[c, j]):
+            continue
+        out[i] = not _touches_segment(ob, a[i, 0], a[i, 1], a[i, 2], d[i, 0], d[i, 1], d[i, 2],
+                                      length[i], normal, offset, count, tol)  # fmt: skip
+    return out
 
 
 # -- fields: the field vector along each path (raytrace.solver.evaluate.path_fields) -------------

@@ -181,11 +181,11 @@ def _line_span(
     parallel to a plane and beyond it (no span). Objects are taken by their number of planes
     (the first ``count`` slots are theirs): most are boxes, and padding every row to the largest
     solid's planes would triple the work."""
-    return kernels.line_span(*_convex_plane_arrays(scene), carray(o, np.int64), carray(a),
+    return kernels.line_span(*convex_plane_arrays(scene), carray(o, np.int64), carray(a),
                              carray(d), float(inset))  # fmt: skip
 
 
-def _convex_plane_arrays(scene: Scene) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def convex_plane_arrays(scene: Scene) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`_convex_planes` as the kernels take them: normals (O, K, 3), offsets (O, K) and
     each object's number of planes (O,) (cached)."""
     cache = scene.__dict__.get("_convex_plane_arrays")
@@ -226,11 +226,11 @@ def touches(
     """(n,) bool: the line ``a + t d`` never gets deeper than ``tol`` into object ``o``, a convex
     closed solid (False for other objects); with ``t_max`` (n,) metres, only its segment
     ``0 <= t <= t_max`` is asked about."""
-    convex, t_in, t_out, parallel_out = _line_span(scene, o, a, d, tol)
-    if t_max is not None:
-        t_in = np.maximum(t_in, 0.0)
-        t_out = np.minimum(t_out, np.asarray(t_max, dtype=float))
-    return convex & (parallel_out | (t_out <= t_in))
+    o = carray(o, np.int64)
+    segment = t_max is not None
+    t_max = carray(np.broadcast_to(np.inf if t_max is None else t_max, o.shape))
+    return kernels.touch_rows(o, carray(a), carray(d), t_max, segment,
+                              *convex_plane_arrays(scene), float(tol))  # fmt: skip
 
 
 def _edge_planes(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
@@ -323,7 +323,7 @@ def segment_crossings(
     shift_end = np.full(n, -np.inf)
     a, length, tmax = carray(a), carray(length), carray(tmax)
     end_objects = carray(end_objects, np.int64)
-    scene_arrays = (*_edge_planes(scene), *_convex_plane_arrays(scene), *_object_faces(scene),
+    scene_arrays = (*_edge_planes(scene), *convex_plane_arrays(scene), *_object_faces(scene),
                     _face_normals(scene), walk.sheet_thickness)  # fmt: skip
     for _ in range(limit + FREE_STEPS):
         # one round: the next hit of every segment still walking (kernels.walk_hits says what
