@@ -416,3 +416,17 @@ def test_interaction_sequences_put_each_segments_penetrations_before_its_vertex(
         assert np.isnan(pts[i, n:]).all()
         assert objs[i, :n].tolist() == [x[2] for x in seq] and (objs[i, n:] == -1).all()
         assert elems[i, :n].tolist() == [x[3] for x in seq] and (elems[i, n:] == -1).all()
+
+
+def test_entry_points_are_a_plus_t_d_and_nan_in_empty_slots():
+    """The crossings' entry points: ``a + t d`` to the bit of the numpy expression, NaN where a
+    slot has no penetration (``t`` infinite)."""
+    rng = np.random.default_rng(2)
+    n = 500
+    a, d = rng.normal(size=(n, 3)), rng.normal(size=(n, 3))
+    dist = rng.uniform(0, 9, (n, 2))
+    dist[rng.random((n, 2)) < 0.3] = np.inf
+    want = a[:, None, :] + np.where(np.isfinite(dist), dist, np.nan)[:, :, None] * d[:, None, :]
+    got = kernels.entry_points(a, d, dist)
+    np.testing.assert_array_equal(got, want)
+    assert np.isnan(got[np.isinf(dist)]).all() and np.isfinite(got[np.isfinite(dist)]).all()

@@ -46,7 +46,7 @@ from ..scene.accel import FACET_TEST_SIG, facet_box_test, in_triangles
 
 __all__ = ["PRUNE", "surely_inside", "facet_wedge_pairs", "expand_over_others",
            "reflection_edge_points", "along_and_off_rows", "second_order_receivers", "line_span", "edge_distance",
-           "opaque_blocks", "touch_rows",
+           "opaque_blocks", "touch_rows", "entry_points",
            "walk_record", "unseen_entries", "walk_rays", "walk_hits", "segment_rays",
            "track_fields", "interaction_sequences"]
 
@@ -1046,6 +1046,25 @@ def opaque_blocks(hit, live, j, vobj, a, d, length, normal, offset, count, tol):
             continue
         out[i] = not _touches_segment(ob, a[i, 0], a[i, 1], a[i, 2], d[i, 0], d[i, 1], d[i, 2],
                                       length[i], normal, offset, count, tol)  # fmt: skip
+    return out
+
+
+@kernel("f8[:, :, ::1](f8[:, ::1], f8[:, ::1], f8[:, ::1])")
+def entry_points(a, d, dist):
+    """The points ``a + t d`` (n, K, 3) at the distances ``dist`` (n, K) along the segments from
+    ``a`` (n, 3) in the unit directions ``d`` (n, 3), metres; NaN where ``dist`` is not finite
+    (a slot without a penetration)."""
+    n, kk = dist.shape
+    out = np.empty((n, kk, 3))
+    for r in range(n):
+        for s in range(kk):
+            t = dist[r, s]
+            if np.isfinite(t):
+                out[r, s, 0] = a[r, 0] + t * d[r, 0]
+                out[r, s, 1] = a[r, 1] + t * d[r, 1]
+                out[r, s, 2] = a[r, 2] + t * d[r, 2]
+            else:
+                out[r, s, 0], out[r, s, 1], out[r, s, 2] = np.nan, np.nan, np.nan
     return out
 
 

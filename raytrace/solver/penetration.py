@@ -32,6 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..core.jit import carray
+from ..core.vec import norm
 from ..scene.model import Scene
 from . import kernels
 
@@ -89,7 +90,7 @@ class _Walk:
         n, kk = len(d), max(k, 1)
         self.scene, self.d, self.k = scene, carray(d), k
         self.closed = carray(scene.object_closed, bool)
-        self.sheet_thickness = carray(scene.material_thickness()[scene.object_material])
+        self.sheet_thickness = _sheet_thickness(scene)
         self.count = np.zeros(n, dtype=np.int64)
         self.exceeded = np.zeros(n, dtype=bool)
         self.dist = np.full((n, kk), np.inf)
@@ -135,10 +136,7 @@ class _Walk:
             r = np.flatnonzero(m)
             self.record(r, self.t_in[r], self.inside[r], self.normal_in[r], tmax[r] - self.t_in[r])
         dist, k = self.dist, self.k
-        point = (
-            a[:, None, :]
-            + np.where(np.isfinite(dist), dist, np.nan)[:, :, None] * self.d[:, None, :]
-        )
+        point = kernels.entry_points(a, self.d, dist)
         arrays = [dist, point, self.obj, self.normal, self.thick]
         if k == 0:
             arrays = [x[:, :0] for x in arrays]
@@ -193,6 +191,16 @@ def convex_plane_arrays(scene: Scene) -> tuple[np.ndarray, np.ndarray, np.ndarra
         normal, offset, valid = _convex_planes(scene)
         cache = (normal, offset, valid.sum(axis=1).astype(np.int64))
         scene.__dict__["_convex_plane_arrays"] = cache
+    return cache
+
+
+def _sheet_thickness(scene: Scene) -> np.ndarray:
+    """Each object's material thickness (O,), metres, the slab of an open sheet, as the kernels
+    take it (cached)."""
+    cache = scene.__dict__.get("_sheet_thickness_c")
+    if cache is None:
+        cache = carray(scene.material_thickness()[scene.object_material])
+        scene.__dict__["_sheet_thickness_c"] = cache
     return cache
 
 
@@ -301,7 +309,7 @@ def segment_crossings(
     k = max(int(max_crossings), 0)
     margin = scene.margin
     v = b - a
-    length = np.linalg.norm(v, axis=1)
+    length = norm(v)
     d = np.divide(v, length[:, None], out=np.zeros_like(v), where=length[:, None] > 0)
     tmax = length - margin
     walk = _Walk(scene, d, k)
