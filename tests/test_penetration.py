@@ -446,3 +446,60 @@ def test_a_hit_on_a_cube_edge_is_booked_on_the_face_met_most_head_on(leaving, st
     mid = np.array([0.5, 0.37, 1.0])
     top = int(_faces_containing(sc, mid)[0])
     assert booked(top, mid, d) == (top, False)
+
+
+def test_end_probes_keep_every_segment_that_may_end_in_a_closed_solid():
+    """The prefilter of the end probes (kernels.end_probes) against the rule written out in
+    numpy: it returns only segments that left a solid last and end outside any, with the middle
+    of their last stretch; and among those, every one whose middle is in a closed solid (more
+    than the tolerance inside a convex one, anywhere in an L-shaped one, which is not convex),
+    ends in the scene's corner cells or outside the grid."""
+    import trimesh
+
+    from raytrace.solver import kernels, penetration
+
+    # an L-shaped prism, 2 m high: caps fanned from the corner (5, 0), which sees every vertex
+    ring = np.array([(5, 0), (8, 0), (8, 1), (6, 1), (6, 3), (5, 3)], float)
+    verts = np.vstack([np.c_[ring, np.zeros(6)], np.c_[ring, np.full(6, 2.0)]])
+    faces = [(0, j + 1, j) for j in range(1, 5)] + [(6, 6 + j, 7 + j) for j in range(1, 5)]
+    faces += [f for i in range(6) for f in ((i, (i + 1) % 6, (i + 1) % 6 + 6),
+                                             (i, (i + 1) % 6 + 6, i + 6))]  # fmt: skip
+    ell = trimesh.Trimesh(verts, faces, process=False)
+    assert ell.is_watertight and ell.volume > 0
+    sc = make_scene([("a", box((0, 0, 0), (1, 1, 1)), "wood"),
+                     ("b", box((2, 0.5, 0), (4, 2.5, 0.5)), "wood"),
+                     ("ell", ell, "wood"),
+                     ("sheet", quad((0, 4, 0), (8, 0, 0), (0, 0, 2)), "glass")])  # fmt: skip
+    assert not sc.convex_objects()[2] and sc.object_closed[2]
+    rng = np.random.default_rng(4)
+    n = 20_000
+    d = rng.normal(size=(n, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    tmax = rng.uniform(0, 6, n)
+    t_last = np.where(rng.random(n) < 0.8, rng.uniform(0, 6, n), 0.0)
+    # the middles of the last stretches spread over the scene and beyond its grid
+    around = rng.uniform([-1, -1, -0.5], [9, 5, 2.5], (n, 3))
+    a = around - (0.5 * (t_last + tmax))[:, None] * d
+    normal_last = rng.normal(size=(n, 3))
+    inside = np.where(rng.random(n) < 0.1, 0, -1)
+    exceeded = rng.random(n) < 0.05
+    tol = 1e-4
+    rows, q = kernels.end_probes(exceeded, inside, t_last, normal_last, d, tmax, a,
+                                 *penetration._closed_solid_grid(sc),
+                                 *penetration.convex_plane_arrays(sc), tol)  # fmt: skip
+    want = np.flatnonzero(~exceeded & (inside < 0) & (t_last > 0) & (t_last < tmax)
+                          & (np.einsum("ij,ij->i", normal_last, d) > 0))  # fmt: skip
+    mid = a[want] + (0.5 * (t_last[want] + tmax[want]))[:, None] * d[want]
+    assert np.isin(rows, want).all() and np.all(np.diff(rows) > 0)
+    np.testing.assert_array_equal(q, mid[np.searchsorted(want, rows)])
+    # every middle in a closed solid is kept: in a box by more than tol, in the L at all
+    normal, offset, valid = penetration._convex_planes(sc)
+    in_box = np.zeros(len(want), bool)
+    for o in (0, 1):
+        depth = mid @ normal[o][valid[o]].T - offset[o][valid[o]]
+        in_box |= (depth < -tol).all(axis=1)
+    in_ell = sc.inside_solid(mid) == 2
+    must = in_box | in_ell
+    assert must.sum() > 100 and in_ell.sum() > 20
+    assert np.isin(want[must], rows).all()
+    assert len(rows) < 0.5 * len(want)  # and it does prune

@@ -46,7 +46,7 @@ from ..scene.accel import FACET_TEST_SIG, facet_box_test, in_triangles
 
 __all__ = ["PRUNE", "surely_inside", "facet_wedge_pairs", "expand_over_others",
            "reflection_edge_points", "along_and_off_rows", "second_order_receivers", "line_span", "edge_distance",
-           "opaque_blocks", "touch_rows", "entry_points",
+           "opaque_blocks", "touch_rows", "entry_points", "end_probes",
            "walk_record", "unseen_entries", "walk_rays", "walk_hits", "segment_rays",
            "track_fields", "interaction_sequences"]
 
@@ -1066,6 +1066,66 @@ def entry_points(a, d, dist):
             else:
                 out[r, s, 0], out[r, s, 1], out[r, s, 2] = np.nan, np.nan, np.nan
     return out
+
+
+@kernel(
+    "Tuple((i8[::1], f8[:, ::1]))(b1[::1], i8[::1], f8[::1], f8[:, ::1], f8[:, ::1], f8[::1], "
+    "f8[:, ::1], f8, f8, f8, i8, i8, i8[::1], i8[::1], f8[:, ::1], f8[:, ::1], f8[:, :, ::1], "
+    "f8[:, ::1], i8[::1], f8)"
+)
+def end_probes(exceeded, inside, t_last, normal_last, d, tmax, a, x0, y0, cell, nx, ny, start,
+               items, lo, hi, normal, offset, count, tol):  # fmt: skip
+    """The segments of a walk (:class:`raytrace.solver.penetration._Walk` arrays) that left a
+    solid last (``normal_last . d > 0``), end outside any and may end in a closed solid entered
+    unseen, and the middle ``q`` of their last stretch (``a + (t_last + tmax) / 2 d``), metres:
+    :func:`raytrace.solver.penetration._left_at_the_end` probes these.
+
+    "May": ``q`` is more than ``tol`` behind every plane of a convex closed solid (planes as in
+    :func:`line_span`, with a slack of 1e-9 m for the order of the sums) or within the bounding
+    box ``lo``, ``hi`` (O, 3) of another closed solid; the probe's answer can only be a solid
+    ``q`` is in, so the others need none. The closed solids come by cell of a grid over the
+    footprint (origin ``x0, y0``, ``cell`` m, ``nx`` by ``ny`` cells, each cell's ``items``
+    from ``start``: :func:`raytrace.solver.penetration._closed_solid_grid`).
+
+    Returns
+    -------
+    rows : (N,) int, increasing; q : (N, 3) float, metres
+    """
+    n = len(exceeded)
+    rows = np.empty(n, dtype=np.int64)
+    q = np.empty((n, 3))
+    m = 0
+    for r in range(n):
+        if exceeded[r] or inside[r] >= 0 or not (t_last[r] > 0 and t_last[r] < tmax[r]):
+            continue
+        if not dot3(normal_last[r, 0], normal_last[r, 1], normal_last[r, 2], d[r, 0], d[r, 1],
+                    d[r, 2]) > 0:  # fmt: skip
+            continue
+        h = 0.5 * (t_last[r] + tmax[r])
+        px, py, pz = a[r, 0] + h * d[r, 0], a[r, 1] + h * d[r, 1], a[r, 2] + h * d[r, 2]
+        ix = min(max(int(np.floor((px - x0) / cell)), 0), nx - 1)
+        iy = min(max(int(np.floor((py - y0) / cell)), 0), ny - 1)
+        c = ix * ny + iy
+        found = False
+        for s in range(start[c], start[c + 1]):
+            ob = items[s]
+            if (px < lo[ob, 0] - tol or px > hi[ob, 0] + tol or py < lo[ob, 1] - tol
+                    or py > hi[ob, 1] + tol or pz < lo[ob, 2] - tol or pz > hi[ob, 2] + tol):  # fmt: skip
+                continue
+            found = True  # (a closed solid without planes: inside its box)
+            for k in range(count[ob]):
+                depth = (normal[ob, k, 0] * px + normal[ob, k, 1] * py + normal[ob, k, 2] * pz
+                         - offset[ob, k])  # fmt: skip
+                if depth >= -tol + 1e-9:
+                    found = False
+                    break
+            if found:
+                break
+        if found:
+            rows[m] = r
+            q[m, 0], q[m, 1], q[m, 2] = px, py, pz
+            m += 1
+    return rows[:m].copy(), q[:m].copy()
 
 
 # -- fields: the field vector along each path (raytrace.solver.evaluate.path_fields) -------------

@@ -194,6 +194,43 @@ def convex_plane_arrays(scene: Scene) -> tuple[np.ndarray, np.ndarray, np.ndarra
     return cache
 
 
+#: Cells of :func:`_closed_solid_grid` along the longer side of the scene's footprint.
+GRID_CELLS = 64
+
+
+def _closed_solid_grid(scene: Scene) -> tuple:
+    """The closed solids by cell of a grid over the scene's footprint (x, y), as
+    :func:`raytrace.solver.kernels.maybe_in_closed` takes it: origin ``x0, y0``, cell size, the
+    number of cells ``nx, ny``, each cell's first item (nx ny + 1,) and the items (the solids
+    whose bounding box meets the cell, grown by a margin), and every object's bounding box
+    ``lo, hi`` (O, 3), metres. Cached."""
+    cache = scene.__dict__.get("_closed_solid_grid")
+    if cache is not None:
+        return cache
+    n_obj = len(scene.objects)
+    lo, hi = np.full((n_obj, 3), np.inf), np.full((n_obj, 3), -np.inf)
+    for i, obj in enumerate(scene.objects):
+        v = scene.vertices[scene.faces[obj.face_start : obj.face_start + obj.face_count]]
+        if v.size:
+            lo[i], hi[i] = v.reshape(-1, 3).min(axis=0), v.reshape(-1, 3).max(axis=0)
+    pad = 10 * scene.margin
+    b_lo, b_hi = scene.bounds
+    cell = max(float((b_hi[:2] - b_lo[:2]).max()) / GRID_CELLS, 1e-3)
+    nx, ny = (int(np.ceil((b_hi[i] - b_lo[i]) / cell)) + 1 for i in range(2))
+    cells: list[list[int]] = [[] for _ in range(nx * ny)]
+    for o in np.flatnonzero(scene.object_closed & np.isfinite(lo[:, 0])):
+        i0, j0 = np.floor((lo[o, :2] - pad - b_lo[:2]) / cell).astype(int)
+        i1, j1 = np.floor((hi[o, :2] + pad - b_lo[:2]) / cell).astype(int)
+        for i in range(max(i0, 0), min(i1, nx - 1) + 1):
+            for j in range(max(j0, 0), min(j1, ny - 1) + 1):
+                cells[i * ny + j].append(int(o))
+    start = np.concatenate([[0], np.cumsum([len(c) for c in cells])]).astype(np.int64)
+    items = np.array([o for c in cells for o in c], dtype=np.int64)
+    cache = (float(b_lo[0]), float(b_lo[1]), cell, nx, ny, start, items, carray(lo), carray(hi))
+    scene.__dict__["_closed_solid_grid"] = cache
+    return cache
+
+
 def _sheet_thickness(scene: Scene) -> np.ndarray:
     """Each object's material thickness (O,), metres, the slab of an open sheet, as the kernels
     take it (cached)."""
@@ -364,17 +401,15 @@ def _left_at_the_end(scene: Scene, walk: _Walk, a: np.ndarray, tmax: np.ndarray)
     depended on which coincident face Embree reported first. For every segment that left a
     solid last and ends outside any, a probe ray from the middle of its last stretch (in
     ``PROBE_DIRECTION``) finds the solid that point is in: its first hit leaves a closed solid
-    (for a convex one, the point is also more than a contact tolerance inside its planes)."""
-    rows = np.flatnonzero(
-        ~walk.exceeded
-        & (walk.inside < 0)
-        & (walk.t_last > 0)
-        & (np.einsum("ij,ij->i", walk.normal_last, walk.d) > 0)
-        & (walk.t_last < tmax)
-    )
+    (for a convex one, the point is also more than a contact tolerance inside its planes). Only
+    a point that may be in a closed solid is probed (:func:`kernels.end_probes`, from the
+    solids by grid cell): the others cannot pass that test."""
+    tol = CONTACT_TOL_MARGINS * scene.margin
+    rows, q = kernels.end_probes(walk.exceeded, walk.inside, walk.t_last, walk.normal_last,
+                                 walk.d, carray(tmax), carray(a), *_closed_solid_grid(scene),
+                                 *convex_plane_arrays(scene), tol)  # fmt: skip
     if not len(rows):
         return
-    q = a[rows] + (0.5 * (walk.t_last[rows] + tmax[rows]))[:, None] * walk.d[rows]
     probe = np.broadcast_to(PROBE_DIRECTION, q.shape)
     _, face, o = scene.intersect(q, probe, np.inf)
     ok = o >= 0
@@ -382,7 +417,6 @@ def _left_at_the_end(scene: Scene, walk: _Walk, a: np.ndarray, tmax: np.ndarray)
     fn = scene.face_normal[np.maximum(face, 0)]
     ok &= np.einsum("ij,ij->i", fn, probe) > 0
     if ok.any():
-        tol = CONTACT_TOL_MARGINS * scene.margin
         normal, offset, valid = _convex_planes(scene)
         k = np.flatnonzero(ok)
         depth = np.einsum("mkj,mj->mk", normal[o[k]], q[k]) - offset[o[k]]
