@@ -235,8 +235,8 @@ def test_opaque_blocks_drop_own_objects_and_touches_only():
     tol = 1e-4
     for j in range(k + 1):
         live = np.flatnonzero(rng.random(m) < 0.9)
-        a, d, length, org, reach = kernels.segment_rays(chain, live, j, 1e-6)
-        hit = sc.first_hit_among(np.ones(2, bool), org, d, reach)
+        a, d, length, org, d32, reach = kernels.segment_rays(chain, live, j, 1e-6)
+        hit = sc.first_hit_among(np.ones(2, bool), org, d32, reach)
         got = kernels.opaque_blocks(hit, live, j, vobj, a, d, length,
                                     *penetration.convex_plane_arrays(sc), tol)  # fmt: skip
         own = np.zeros(len(live), bool)

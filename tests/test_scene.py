@@ -296,6 +296,10 @@ def test_first_hit_among_a_subset_of_objects():
     np.testing.assert_array_equal(sc.first_hit_among([False, False], o, d, length), [-1, -1, -1])
     with pytest.raises(SceneError, match="one flag per object"):
         sc.first_hit_among([True], o, d, length)
+    # with some rays of no length (they hit nothing; the others are asked)
+    np.testing.assert_array_equal(
+        sc.first_hit_among([True, True], o, d, np.array([10.0, 0.0, 4.0])), [0, -1, 0]
+    )
     # the cached subset scenes (native Embree objects) are left out of a pickled scene's state
     assert "_subset_embree" in sc.__dict__
     assert "_subset_embree" not in sc.__getstate__()
@@ -412,3 +416,25 @@ def test_sheets_meeting_in_an_l_keep_one_outer_corner():
     q = np.array([0.0, 0.0, 1.0])
     valid = [bool(wedge_geometry(p, p, q, *args).valid[0]) for p in pts]
     assert valid == [False, True, True, True]
+
+
+def test_hit_records_read_embree_answers_as_the_numpy_rule():
+    """Embree's geomID, primID, tfar to (distance, face, object): inf, -1, -1 for a miss, the
+    object's first face plus primID for a hit; a subset scene's geomID to its member object."""
+    from raytrace.scene import accel
+
+    rng = np.random.default_rng(9)
+    n = 300
+    geom = rng.integers(-1, 5, n).astype(np.int32)
+    prim = np.where(geom >= 0, rng.integers(0, 12, n), -1).astype(np.int32)
+    tfar = rng.uniform(0, 50, n).astype(np.float32)
+    face_start = np.array([0, 12, 24, 30, 42], dtype=np.int64)
+    t, face, obj = accel.hit_records(geom, prim, tfar, face_start)
+    hit = geom >= 0
+    np.testing.assert_array_equal(t, np.where(hit, tfar.astype(float), np.inf))
+    np.testing.assert_array_equal(face, np.where(hit, face_start[np.maximum(geom, 0)] + prim, -1))
+    np.testing.assert_array_equal(obj, np.where(hit, geom, -1))
+    members = np.array([3, 7, 8, 11, 20], dtype=np.int64)
+    np.testing.assert_array_equal(accel.subset_hits(geom, members),
+                                  np.where(hit, members[np.maximum(geom, 0)], -1))  # fmt: skip
+

@@ -310,3 +310,32 @@ def wedge_groups(w: Wedges) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndar
         x.setflags(write=False)
     w.cache["groups"] = out
     return out
+
+
+# -- Embree's answers, read in one pass (raytrace.scene.model.Scene) -----------------------------
+@kernel("Tuple((f8[::1], i8[::1], i8[::1]))(i4[::1], i4[::1], f4[::1], i8[::1])")
+def hit_records(geom, prim, tfar, face_start):
+    """The first hits of n rays from Embree's ``geomID``, ``primID`` (-1: none) and ``tfar``
+    (n,): distance (inf for none), global face (``face_start`` (O,) of each object, + primID)
+    and object (-1 for none) (:meth:`raytrace.scene.model.Scene.intersect`)."""
+    n = len(geom)
+    t = np.empty(n)
+    face = np.empty(n, dtype=np.int64)
+    obj = np.empty(n, dtype=np.int64)
+    for i in range(n):
+        g = geom[i]
+        if g >= 0:
+            t[i], face[i], obj[i] = tfar[i], face_start[g] + prim[i], g
+        else:
+            t[i], face[i], obj[i] = np.inf, -1, -1
+    return t, face, obj
+
+
+@kernel("i8[::1](i4[::1], i8[::1])")
+def subset_hits(geom, members):
+    """The objects ``members[geomID]`` of n rays' first hits in a subset's Embree scene, -1 for
+    none (:meth:`raytrace.scene.model.Scene.first_hit_among`)."""
+    out = np.empty(len(geom), dtype=np.int64)
+    for i in range(len(geom)):
+        out[i] = members[geom[i]] if geom[i] >= 0 else -1
+    return out

@@ -409,6 +409,15 @@ class Scene:
             lambda: np.array([o.face_start for o in self.objects], dtype=np.int64),
         )
 
+    @property
+    def _face_start_c(self) -> np.ndarray:
+        """:attr:`object_face_start` as the kernels take it (writable, cached)."""
+        cached = self.__dict__.get("_face_start_kernel")
+        if cached is None or len(cached) != len(self.objects):
+            cached = np.array(self.object_face_start, dtype=np.int64)
+            self.__dict__["_face_start_kernel"] = cached
+        return cached
+
     def material_thickness(self) -> np.ndarray:
         """(n_materials,) float, slab thickness (m) of each used material, for open sheets."""
         return np.array([self.materials[m].thickness_m for m in self.material_names], dtype=float)
@@ -631,8 +640,10 @@ class Scene:
             query="INTERSECT",
             output=1,
         )
-        geom = np.asarray(res["geomID"], dtype=np.int64)
-        out[ok] = np.where(geom >= 0, members[np.maximum(geom, 0)], -1)
+        hit = accel.subset_hits(res["geomID"], members)
+        if ok.all():
+            return hit
+        out[ok] = hit
         return out
 
     def intersect(
@@ -653,21 +664,19 @@ class Scene:
         obj : (n,) int, object index (-1 where nothing is hit)
         """
         n = len(origins)
-        dist = np.broadcast_to(np.asarray(max_dist, dtype=float), (n,))
-        dist = np.where(np.isfinite(dist), dist, 1e30).astype(np.float32)
+        dist = np.asarray(max_dist)
+        if dist.dtype != np.float32 or dist.shape != (n,):  # (the walk's reach is float32)
+            dist = np.broadcast_to(np.asarray(max_dist, dtype=float), (n,))
+        dist = np.where(np.isfinite(dist), dist, 1e30).astype(np.float32, copy=False)
         res = self._embree.run(
             np.asarray(origins, dtype=np.float32),
             np.asarray(directions, dtype=np.float32),
-            dists=dist.copy(),
+            dists=dist,
             query="INTERSECT",
             output=1,
         )
-        obj = np.asarray(res["geomID"], dtype=np.int64)
-        prim = np.asarray(res["primID"], dtype=np.int64)
-        hit = obj >= 0
-        t = np.where(hit, np.asarray(res["tfar"], dtype=np.float64), np.inf)
-        face = np.where(hit, self.object_face_start[np.maximum(obj, 0)] + prim, -1)
-        return t, face, np.where(hit, obj, -1)
+        return accel.hit_records(res["geomID"], res["primID"], res["tfar"],
+                                 self._face_start_c)  # fmt: skip
 
     def convex_objects(self) -> np.ndarray:
         """(O,) bool: closed solids that are convex (every vertex on or behind every facet plane

@@ -197,8 +197,8 @@ def blocked_by_opaque(ctx: TraceContext, cand: Candidates) -> np.ndarray:
     for j in np.argsort(-total, kind="stable"):
         if len(live) == 0:
             break
-        a, d, length, org, reach = kernels.segment_rays(chain, live, int(j), margin)
-        hit = ctx.scene.first_hit_among(ctx.opaque, org, d, reach)
+        a, d, length, org, d32, reach = kernels.segment_rays(chain, live, int(j), margin)
+        hit = ctx.scene.first_hit_among(ctx.opaque, org, d32, reach)
         # a hit on the object under either end of the segment is the vertex's own, and a
         # segment that only touches an opaque solid (lying in the plane of its face, or leaving
         # a vertex at a neighbour's corner, which Embree reports in one direction and not in the

@@ -994,21 +994,22 @@ def walk_hits(rows, th, face, o, a, length, tmax, t, active, crossed, shift, shi
 
 
 @kernel(
-    "Tuple((f8[:, ::1], f8[:, ::1], f8[::1], f8[:, ::1], f8[::1]))("
+    "Tuple((f8[:, ::1], f8[:, ::1], f8[::1], f4[:, ::1], f4[:, ::1], f4[::1]))("
     "f8[:, :, ::1], i8[::1], i8, f8)"
 )
 def segment_rays(chain, live, j, margin):
     """The rays of segment ``j`` of the chains ``live`` (chain (M, k + 2, 3), metres), as
     :func:`raytrace.solver.evaluate.blocked_by_opaque` asks Embree about them: the start ``a``
-    (n, 3), unit direction ``d`` (n, 3; zero for a segment of zero length), length (n,), and
-    the ray shortened by ``margin`` at both ends: origin ``a + margin d`` (n, 3) and reach
-    ``length - 2 margin`` (n,), metres."""
+    (n, 3), unit direction ``d`` (n, 3; zero for a segment of zero length), length (n,), and,
+    in float32 as Embree takes them, the ray shortened by ``margin`` at both ends: origin
+    ``a + margin d`` (n, 3), direction and reach ``length - 2 margin`` (n,), metres."""
     n = len(live)
     a = np.empty((n, 3))
     d = np.empty((n, 3))
     length = np.empty(n)
-    org = np.empty((n, 3))
-    reach = np.empty(n)
+    org = np.empty((n, 3), dtype=np.float32)
+    d32 = np.empty((n, 3), dtype=np.float32)
+    reach = np.empty(n, dtype=np.float32)
     for i in range(n):
         c = live[i]
         ax, ay, az = chain[c, j, 0], chain[c, j, 1], chain[c, j, 2]
@@ -1020,10 +1021,11 @@ def segment_rays(chain, live, j, margin):
             dx, dy, dz = 0.0, 0.0, 0.0
         a[i, 0], a[i, 1], a[i, 2] = ax, ay, az
         d[i, 0], d[i, 1], d[i, 2] = dx, dy, dz
+        d32[i, 0], d32[i, 1], d32[i, 2] = dx, dy, dz
         length[i] = ln
         org[i, 0], org[i, 1], org[i, 2] = ax + margin * dx, ay + margin * dy, az + margin * dz
         reach[i] = ln - 2 * margin
-    return a, d, length, org, reach
+    return a, d, length, org, d32, reach
 
 
 @kernel(
