@@ -221,10 +221,10 @@ def within_penetration_limit(ctx: TraceContext, cand: Candidates) -> tuple[Cross
     b = cand.chain[:, 1:].reshape(-1, 3)
     cross = segment_crossings(ctx.scene, a, b, kmax, cand.ends)
     ctx.count("segments_tested", len(a))
-    count = cross.count.reshape(m, k + 1)
-    ok = ~cross.exceeded.reshape(m, k + 1).any(axis=1) & (count.sum(axis=1) <= kmax)
+    ok = ~cross.exceeded.reshape(m, k + 1).any(axis=1)
+    ok &= cross.count.reshape(m, k + 1).sum(axis=1) <= kmax
     if not ok.all():
-        count[~ok] = 0
+        cross.count[np.repeat(~ok, k + 1)] = 0
     return cross, ok
 
 

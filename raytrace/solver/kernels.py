@@ -13,12 +13,16 @@
   :func:`expand_over_others` does, then tested exactly one at a time with the physics and
   scene modules' compiled scalar rules (:func:`raytrace.physics.utd.keller_point`,
   :func:`raytrace.scene.accel.facet_box_test`, :func:`raytrace.physics.utd.diffraction_valid1`).
-* **Penetration** (:func:`line_span`, :func:`edge_distance`, :func:`walk_rays`,
-  :func:`walk_hits`, :func:`walk_record`, :func:`unseen_entries`, :func:`segment_rays`): lines
-  against convex solids, points against triangles, and the segment walk
-  (:mod:`raytrace.solver.penetration`): its rays, and a round of its hits one hit at a time
-  (the face a hit at an edge is booked on, :func:`_canonical`; touches, :func:`_contact`;
-  the walk past a touched solid, :func:`_off_the_solid`); the rays of the opaque test.
+* **Penetration** (:func:`line_span`, :func:`touch_rows`, :func:`edge_distance`,
+  :func:`walk_rays`, :func:`walk_hits`, :func:`walk_record`, :func:`unseen_entries`,
+  :func:`entry_points`, :func:`end_probes`): lines against convex solids, points against
+  triangles, and the segment walk (:mod:`raytrace.solver.penetration`): its rays, a round of
+  its hits one hit at a time (the face a hit at an edge is booked on, :func:`_canonical`;
+  touches, :func:`_contact`; the walk past a touched solid, :func:`_off_the_solid`), the
+  crossings' entry points and the segments whose end may lie in a closed solid entered unseen.
+* **Opaque test** (:func:`segment_rays`, :func:`opaque_blocks`): the rays of one segment of
+  every candidate, and which first opaque hits block (not the segment's own vertex objects, not
+  a solid it only touches).
 * **Fields** (:func:`track_fields`): the field vector carried along each path through the
   coefficients the physics modules computed, per mechanism, for all paths at once; the paths'
   interaction sequences (:func:`interaction_sequences`).

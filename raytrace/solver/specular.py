@@ -75,13 +75,13 @@ def first_order(ctx: TraceContext) -> list[Paths]:
 def second_order(ctx: TraceContext) -> list[Paths]:
     """Double reflections: images of images over the facet pairs that can exchange a reflection
     (:func:`raytrace.scene.accel.facing_pairs`), pruned by beams through the facets' bounding
-    spheres, one transmitter at a time."""
+    spheres, one transmitter at a time (the transmitter's side kept on the scene), the candidates
+    of all transmitters evaluated together."""
     fc = ctx.scene.facets
     pairs = accel.facing_pairs(fc)
     if ctx.facet_mask is not None:
         pairs = pairs & (ctx.facet_mask[:, None] | ctx.facet_mask[None, :])
     side_rx = refl.reflecting_side(fc, ctx.rx)  # (R, K)
-    centre, radius = accel.facet_spheres(fc)
     rx_centre = 0.5 * (ctx.rx.min(axis=0) + ctx.rx.max(axis=0))
     rx_radius = float(np.sqrt(((ctx.rx - rx_centre) ** 2).sum(axis=1)).max()) * (1 + 1e-9) + 1e-9
     side_rx, rx = carray(side_rx, np.int8), carray(ctx.rx)
