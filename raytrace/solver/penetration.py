@@ -200,7 +200,7 @@ GRID_CELLS = 64
 
 def _closed_solid_grid(scene: Scene) -> tuple:
     """The closed solids by cell of a grid over the scene's footprint (x, y), as
-    :func:`raytrace.solver.kernels.maybe_in_closed` takes it: origin ``x0, y0``, cell size, the
+    :func:`raytrace.solver.kernels.end_probes` takes it: origin ``x0, y0``, cell size, the
     number of cells ``nx, ny``, each cell's first item (nx ny + 1,) and the items (the solids
     whose bounding box meets the cell, grown by a margin), and every object's bounding box
     ``lo, hi`` (O, 3), metres. Cached."""
