@@ -53,10 +53,11 @@ def test_cone_reaches_is_conservative():
 
 
 def test_scalar_beam_sphere_test_equals_beam_reaches():
-    """The compiled form of :func:`beam_reaches` that :func:`second_order_receivers` applies to
-    each second image (the receivers' bounding sphere) decides as numpy does, apex inside and
-    target around the apex included."""
-    from raytrace.solver.kernels import _beam_reaches_sphere
+    """The compiled form of :func:`beam_reaches` (multiplied out by the distance) that
+    ``facet_wedge_pairs`` applies to groups and edges and ``second_order_receivers`` to each
+    second image (the receivers' bounding sphere) decides as numpy does, apex inside and target
+    around the apex included."""
+    from raytrace.solver.kernels import _beam_reaches
 
     rng = np.random.default_rng(5)
     n = 3000
@@ -68,8 +69,8 @@ def test_scalar_beam_sphere_test_equals_beam_reaches():
     b = refl.beam(apex, centre, radius)
     want = refl.beam_reaches(b, target, t_radius)
     got = np.array([
-        _beam_reaches_sphere(*b.apex[i], *b.axis[i], b.cos_a[i], b.sin_a[i], b.apex_inside[i],
-                             *target[i], t_radius[i])
+        _beam_reaches(*b.apex[i], *b.axis[i], b.cos_a[i], b.sin_a[i], b.apex_inside[i],
+                      *target[i], t_radius[i])
         for i in range(n)
     ])  # fmt: skip
     assert 0.1 < want.mean() < 0.9 and b.apex_inside.any()

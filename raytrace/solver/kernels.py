@@ -439,19 +439,6 @@ _BEAM = "f8[:, ::1], f8[:, ::1], f8[::1], b1[::1]"
 
 
 @inline
-def _beam_reaches_sphere(ax, ay, az, ux, uy, uz, cos_a, sin_a, inside, cx, cy, cz, radius):
-    """:func:`raytrace.solver.reflection.beam_reaches` for one beam and one target sphere, in
-    scalars (a necessary condition)."""
-    vx, vy, vz = cx - ax, cy - ay, cz - az
-    dt = np.sqrt(vx * vx + vy * vy + vz * vz)
-    if inside or dt <= radius:
-        return True
-    cos_ang = (ux * vx + uy * vy + uz * vz) / dt
-    sb = min(radius / dt, 1.0)
-    return cos_ang >= cos_a * np.sqrt(1.0 - sb * sb) - sin_a * sb - 1e-7
-
-
-@inline
 def _in_both_beams(apex2, axis2, cos2, in2, apex1, axis1, cos1, in1, nx, ny, nz, off, rx, q, r):
     """The beam tests of :func:`second_order_receivers` for second image ``q``, receiver ``r``."""
     px, py, pz = rx[r, 0], rx[r, 1], rx[r, 2]
@@ -494,9 +481,9 @@ def second_order_receivers(q0, q1, f2, s_img, side_rx, apex2, axis2, cos2, in2, 
     out_r = np.empty(cap, dtype=np.int64)
     m = 0
     for q in range(q0, q1):
-        if prune and not _beam_reaches_sphere(apex2[q, 0], apex2[q, 1], apex2[q, 2], axis2[q, 0],
-                                              axis2[q, 1], axis2[q, 2], cos2[q], sin2[q],
-                                              in2[q], cx, cy, cz, radius):  # fmt: skip
+        if prune and not _beam_reaches(apex2[q, 0], apex2[q, 1], apex2[q, 2], axis2[q, 0],
+                                       axis2[q, 1], axis2[q, 2], cos2[q], sin2[q], in2[q], cx,
+                                       cy, cz, radius):  # fmt: skip
             continue
         f, s = f2[q], s_img[q]
         nx, ny, nz, off = n2[q, 0], n2[q, 1], n2[q, 2], off2[q]
