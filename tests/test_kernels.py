@@ -338,53 +338,92 @@ def _te_tm(e, k_in, k_out, normal, c_te, c_tm):
     return (c_te * es)[:, None] * s + (c_tm * ep)[:, None] * p_out
 
 
-def test_track_fields_applies_the_numpy_interactions_in_order():
-    """Two segments with a penetration each and a reflection or a diffraction between them:
-    the compiled loop gives what the TE/TM basis (written out here) and
-    ``utd.diffracted_field`` give applied one after the other, to rounding."""
-    from raytrace.physics import utd
+def test_path_gains_apply_the_numpy_interactions_in_order():
+    """Two segments with a penetration each and a reflection (off a solid's face or an open
+    sheet) or a diffraction between them: the compiled loop gives what the ITU-R P.2040
+    coefficients of ``materials``, the TE/TM basis (written out here) and
+    ``utd.diffracted_field`` give applied one after the other, to rounding; the delay is the
+    unfolded length over c plus the slabs' group delays."""
+    from raytrace.core.constants import C0
+    from raytrace.physics import materials, utd
     from raytrace.solver.evaluate import vertical_pol
     from raytrace.solver.paths import DIFFRACTION, REFLECTION
 
     rng = np.random.default_rng(3)
-    m = 400
+    m, f = 400, 3.775e9
+    k0, wavelength = 2 * np.pi * f / C0, C0 / f
     pts = rng.uniform(-5, 5, (m, 3, 3))
     dirs = _unit(pts[:, 1:] - pts[:, :-1])  # (m, 2, 3)
+    seg_len = np.linalg.norm(pts[:, 1:] - pts[:, :-1], axis=2)
+    total = seg_len.sum(axis=1)
+    # three materials: a lossy dielectric, a low-loss one and a metal-like one
+    eta = np.array([5.3 - 0.3j, 2.5 - 0.01j, 1.0 - 1e6j])
+    slope = np.array([0.1 - 0.05j, 0.0j, -0.2 + 0.4j])
+    thickness = np.array([0.2, 0.03, 0.002])
+    obj_material = np.array([0, 1, 2, 0, 1])
+    pen_obj = rng.integers(0, 2, (m, 2, 1)) * 3 + rng.integers(0, 2, (m, 2, 1))  # objects 0, 1, 3, 4
+    pen_th = rng.uniform(0.01, 0.3, (m, 2, 1))
     pen_n = _unit(rng.normal(size=(m, 2, 1, 3)))
-    pen_c = rng.normal(size=(m, 2, 1, 2)) + 1j * rng.normal(size=(m, 2, 1, 2))
-    normal = _unit(rng.normal(size=(m, 1, 3)))
-    r_c = rng.normal(size=(m, 1, 2)) + 1j * rng.normal(size=(m, 1, 2))
+    # one facet per path: its normal, material, and whether it is an open sheet
+    f_normal = _unit(rng.normal(size=(m, 3)))
+    f_material = rng.integers(0, 3, m)
+    f_sheet = rng.uniform(size=m) < 0.5
     # a wedge per path: edge through the middle vertex, normals perpendicular to it
     edge = _unit(rng.normal(size=(m, 3)))
     n0 = _unit(np.cross(edge, rng.normal(size=(m, 3))))
     nn = _unit(np.cross(edge, rng.normal(size=(m, 3))))
     geo = utd.wedge_geometry(pts[:, 0], pts[:, 2], pts[:, 1], edge, n0, nn)
-    d_mat, spreading = utd.diffraction_matrix(geo, 3.775e9)
+    d_mat, spreading = utd.diffraction_matrix(geo, f)
     e_start, e_rx = vertical_pol(dirs[:, 0]), vertical_pol(dirs[:, 1])
     assert 0.2 < geo.valid.mean() < 1.0  # some diffractions are not valid (ends in the wedge)
+
+    def pen(e, j):
+        mat = obj_material[pen_obj[:, j, 0]]
+        cos = np.abs((pen_n[:, j, 0] * dirs[:, j]).sum(axis=1))
+        _, _, t_te, t_tm = materials.slab(eta[mat], cos, pen_th[:, j, 0], f)
+        delay = materials.slab_group_delay(eta[mat], cos, pen_th[:, j, 0], slope[mat])
+        return _te_tm(e, dirs[:, j], dirs[:, j], pen_n[:, j, 0], t_te, t_tm), delay
+
+    amp_scale = np.exp(1j * rng.uniform(0, 2 * np.pi, m)) * rng.uniform(0.5, 2, m)
     for kind in (REFLECTION, DIFFRACTION):
         kinds = np.full((m, 1), kind, np.int8)
         basis = np.stack([geo.beta_hat_in, geo.phi_hat_in, geo.beta_hat_out, geo.phi_hat_out], 1)
-        got = kernels.track_fields(
-            e_start.astype(complex), np.ascontiguousarray(dirs), np.ones((m, 2), np.int64), pen_n,
-            np.ascontiguousarray(pen_c[..., 0]), np.ascontiguousarray(pen_c[..., 1]), kinds,
-            normal, np.ascontiguousarray(r_c[..., 0]), np.ascontiguousarray(r_c[..., 1]),
-            np.ascontiguousarray(d_mat[:, None]), np.ascontiguousarray(basis[:, None]),
+        gain, delay = kernels.path_gains(
+            np.ascontiguousarray(pts), kinds, np.arange(m).reshape(m, 1), np.ones((m, 2), np.int64),
+            pen_n, pen_obj, pen_th, obj_material, eta, slope, thickness, f_normal, f_material,
+            f_sheet, np.ascontiguousarray(d_mat[:, None]), np.ascontiguousarray(basis[:, None]),
             np.ascontiguousarray(spreading[:, None]), np.ascontiguousarray(geo.valid[:, None]),
-            e_rx, int(REFLECTION), int(DIFFRACTION),
+            amp_scale, f, k0, wavelength, True, int(REFLECTION), int(DIFFRACTION),
         )  # fmt: skip
-        e = _te_tm(e_start.astype(complex), dirs[:, 0], dirs[:, 0], pen_n[:, 0, 0],
-                   pen_c[:, 0, 0, 0], pen_c[:, 0, 0, 1])  # fmt: skip
+        e, tau0 = pen(e_start.astype(complex), 0)
         if kind == REFLECTION:
-            e = _te_tm(e, dirs[:, 0], dirs[:, 1], normal[:, 0], r_c[:, 0, 0], r_c[:, 0, 1])
+            cos = np.abs((f_normal * dirs[:, 0]).sum(axis=1))
+            r_te, r_tm, _, _ = materials.fresnel(eta[f_material], cos)
+            s_te, s_tm, _, _ = materials.slab(eta[f_material], cos, thickness[f_material], f)
+            r_te, r_tm = np.where(f_sheet, s_te, r_te), np.where(f_sheet, s_tm, r_tm)
+            e = _te_tm(e, dirs[:, 0], dirs[:, 1], f_normal, r_te, r_tm)
+            spread = wavelength / (4 * np.pi * total)
         else:
-            e = utd.diffracted_field(geo, e, 3.775e9, phase=False).field
-        e = _te_tm(e, dirs[:, 1], dirs[:, 1], pen_n[:, 1, 0], pen_c[:, 1, 0, 0],
-                   pen_c[:, 1, 0, 1])  # fmt: skip
-        want = np.einsum("ij,ij->i", e, e_rx)
-        np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-14 * np.abs(want).max())
+            e = utd.diffracted_field(geo, e, f, phase=False).field
+            spread = 1.0
+        e, tau1 = pen(e, 1)
+        want = spread * amp_scale * np.exp(-1j * k0 * total) * np.einsum("ij,ij->i", e, e_rx)
+        np.testing.assert_allclose(gain, want, rtol=1e-12, atol=1e-14 * np.abs(want).max())
+        np.testing.assert_allclose(delay, total / C0 + tau0 + tau1, rtol=1e-15, atol=0)
+        assert np.all(delay > total / C0)  # the slabs delay the path
         if kind == DIFFRACTION:
-            assert np.all(got[~geo.valid] == 0) and np.all(got[geo.valid] != 0)
+            assert np.all(gain[~geo.valid] == 0) and np.all(gain[geo.valid] != 0)
+        else:
+            assert 0.3 < f_sheet.mean() < 0.7 and np.all(gain != 0)
+    # without slab_delay: free-space delays
+    _, delay = kernels.path_gains(
+        np.ascontiguousarray(pts), kinds, np.arange(m).reshape(m, 1), np.ones((m, 2), np.int64),
+        pen_n, pen_obj, pen_th, obj_material, eta, slope, thickness, f_normal, f_material,
+        f_sheet, np.ascontiguousarray(d_mat[:, None]), np.ascontiguousarray(basis[:, None]),
+        np.ascontiguousarray(spreading[:, None]), np.ascontiguousarray(geo.valid[:, None]),
+        amp_scale, f, k0, wavelength, False, int(REFLECTION), int(DIFFRACTION),
+    )  # fmt: skip
+    np.testing.assert_array_equal(delay, total / C0)
 
 
 def test_interaction_sequences_put_each_segments_penetrations_before_its_vertex():

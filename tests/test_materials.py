@@ -25,6 +25,7 @@ from raytrace.physics.materials import (
     ExtrapolationWarning,
     Material,
     MaterialLibrary,
+    face_reflection,
     fresnel,
     fresnel_reflection,
     permittivity,
@@ -245,6 +246,34 @@ def test_fresnel_reflection_is_fresnels_r_bitwise():
     np.testing.assert_array_equal(got_te, r_te)
     np.testing.assert_array_equal(got_tm, r_tm)
     assert fresnel_reflection(4.0, 0.5) == fresnel(4.0, 0.5)[:2]
+
+
+def test_face_reflection_is_fresnel_on_solids_and_the_slab_on_sheets_bitwise():
+    """The tracer's per-face coefficients (material indices into tables): a solid's face is
+    fresnel's interface, an open sheet the slab of its material's thickness, to the bit; the
+    written-out interface formula agrees to rounding."""
+    eta = np.array([4.0 + 0j, 5.24 - 0.6j, 1.0 + 0j, 1e7 - 1e8j])
+    thick = np.array([0.1, 0.25, 0.01, 0.002])
+    rng = np.random.default_rng(5)
+    n = 400
+    mat = rng.integers(0, 4, n)
+    cos = np.concatenate([[0.0, 1e-9, 1.0, -0.3, 1.2], rng.uniform(-1, 1, n - 5)])
+    sheet = rng.uniform(size=n) < 0.5
+    got_te, got_tm = face_reflection(eta, thick, mat, cos, sheet, F_C)
+    f_te, f_tm, _, _ = fresnel(eta[mat], cos)
+    s_te, s_tm, _, _ = slab(eta[mat], cos, thick[mat], F_C)
+    np.testing.assert_array_equal(got_te, np.where(sheet, s_te, f_te))
+    np.testing.assert_array_equal(got_tm, np.where(sheet, s_tm, f_tm))
+    # fresnel against its formula in numpy (branch Im(s) <= 0), away from eta = 1 at grazing
+    c = np.minimum(np.abs(cos), 1.0)
+    s = np.sqrt(eta[mat] - (1 - c**2))
+    s = np.where(s.imag > 0, -s, s)
+    ok = np.abs(c + s) > 1e-6
+    np.testing.assert_allclose(f_te[ok], ((c - s) / (c + s))[ok], rtol=1e-14, atol=1e-15)
+    e_c = eta[mat] * c
+    np.testing.assert_allclose(f_tm[ok], ((e_c - s) / (e_c + s))[ok], rtol=1e-14, atol=1e-15)
+    # NaN in, NaN out (not a clipped cosine)
+    assert np.isnan(fresnel(4.0, np.nan)[0])
 
 
 def _field_vectors(eta: complex, theta: float):

@@ -33,6 +33,7 @@ from raytrace.core.constants import C0, EPS0
 
 from ..core.errors import MaterialError
 from ..core.fileio import read_yaml
+from ..core.jit import carray, inline, kernel
 
 __all__ = [
     "DEFAULT_USER_THICKNESS_M",
@@ -41,6 +42,7 @@ __all__ = [
     "Material",
     "MaterialLibrary",
     "fresnel",
+    "face_reflection",
     "fresnel_reflection",
     "permittivity",
     "slab",
@@ -583,25 +585,157 @@ def permittivity(
 # ---------------------------------------------------------------------------------------------------
 # Fresnel and slab coefficients
 # ---------------------------------------------------------------------------------------------------
-def _sqrt_decaying(z: np.ndarray) -> np.ndarray:
+# The coefficients are computed one row at a time by compiled scalar helpers (numba,
+# :mod:`raytrace.core.jit`): the tracer's kernels call them for every reflection, wedge face and
+# penetration of a path, and the array functions below run them over their broadcast inputs, so
+# that there is one implementation of each formula.
+@inline
+def _clipped_cos(c):
+    """``|cos theta|`` clipped to 1 (a NaN stays NaN, as with ``np.minimum``)."""
+    c = abs(c)
+    return 1.0 if c > 1.0 else c
+
+
+@inline
+def _sqrt_decaying(z):
     """Complex square root on the branch ``Im <= 0`` (decaying ``exp(-j k0 s z)``, e^{j w t})."""
     s = np.sqrt(z)
-    return np.where(s.imag > 0, -s, s)
+    return -s if s.imag > 0 else s
 
 
-def _prepare(eta: Any, cos_theta: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Broadcast ``eta`` and ``|cos theta|`` (clipped to 1) and return ``s = sqrt(eta - sin^2)``."""
-    eta_a = np.asarray(eta, dtype=complex)
-    # The angle is taken to the normal *line*: the orientation of the normal does not matter.
-    c = np.minimum(np.abs(np.asarray(cos_theta, dtype=float)), 1.0)
-    eta_a, c = np.broadcast_arrays(eta_a, c)
-    s = _sqrt_decaying(eta_a - (1.0 - c * c))
-    return eta_a, c, s
+@inline
+def interface1(eta, c):
+    """``r_te, r_tm`` of :func:`fresnel` of one row at ``c = |cos theta|`` (clipped to 1), and
+    ``s``, ``cos + s``, ``eta cos + s`` (a compiled scalar helper for kernels). Only ``eta = 1``
+    at exactly grazing incidence makes a denominator vanish: no interface at all, ``r = 0``."""
+    s = _sqrt_decaying(eta - (1.0 - c * c))
+    d_te = c + s
+    d_tm = eta * c + s
+    r_te = (c - s) / d_te if d_te != 0 else 0j
+    r_tm = (eta * c - s) / d_tm if d_tm != 0 else 0j
+    return r_te, r_tm, s, d_te, d_tm
+
+
+@inline
+def _expm1(z):
+    """``exp(z) - 1`` of a complex ``z``, accurate for small ``|z|`` (numpy's formula)."""
+    a = np.sin(0.5 * z.imag)
+    return complex(np.expm1(z.real) * np.cos(z.imag) - 2.0 * a * a, np.exp(z.real) * np.sin(z.imag))
+
+
+@inline
+def _slab_pair(n, k, s, u, phase):
+    """``R, T`` of :func:`slab` from ``N``, ``K`` of one polarisation (its docstring)."""
+    den = k + n * n * u
+    if den == 0:  # only without an interface (eta = 1 at grazing incidence)
+        return 0j, phase
+    inv = 1.0 / den
+    # N (N + 2 s) = N D: D = cos + s = N + 2 s (TE), D = eta cos + s = N + 2 s (TM)
+    return n * (n + 2.0 * s) * u * inv, k * phase * inv
+
+
+@inline
+def slab1(eta, c, d, f, p2040):
+    """``R_te, R_tm, T_te, T_tm`` of :func:`slab` of one row at ``c = |cos theta|`` (clipped to
+    1), thickness ``d`` (m), frequency ``f`` (Hz), ``T``'s phase reference P.2040's where
+    ``p2040`` (a compiled scalar helper for kernels)."""
+    if d == 0.0:
+        return 0j, 0j, 1.0 + 0j, 1.0 + 0j
+    s = _sqrt_decaying(eta - (1.0 - c * c))
+    k0d = 2.0 * np.pi * f * d / C0
+    q = k0d * s
+    u = -_expm1(-2j * q)  # 1 - e^{-j2q}, accurate for a thin slab
+    if p2040:
+        phase = np.exp(-1j * q)
+    else:
+        # e^{-jq} e^{+j k0 d cos}: Im(s - cos) = Im(s) <= 0, so this never grows
+        phase = np.exp(-1j * k0d * (s - c))
+    r_te, t_te = _slab_pair(c - s, 4.0 * c * s, s, u, phase)
+    r_tm, t_tm = _slab_pair(eta * c - s, 4.0 * eta * c * s, s, u, phase)
+    return r_te, r_tm, t_te, t_tm
+
+
+@inline
+def group_delay1(eta, c, d, slope):
+    """:func:`slab_group_delay` of one row at ``c = |cos theta|`` (clipped to 1), seconds (a
+    compiled scalar helper for kernels)."""
+    s = np.sqrt(eta - (1.0 - c * c))  # principal branch: Re(s) >= 0, Im(s) <= 0 for Im(eta) <= 0
+    sl = slope / (2.0 * s) if s != 0 else 0j
+    return d * ((s + sl).real - c) / C0
+
+
+@inline
+def reflection1(eta, c, two_sided, d, f):
+    """``r_te, r_tm`` of a face at ``c = |cos theta|`` (clipped to 1): a closed solid's face is
+    a half-space interface (:func:`interface1`), an open sheet (``two_sided``) a slab of
+    thickness ``d`` (:func:`slab1`)."""
+    if two_sided:
+        r_te, r_tm, _, _ = slab1(eta, c, d, f, False)
+        return r_te, r_tm
+    r_te, r_tm, _, _, _ = interface1(eta, c)
+    return r_te, r_tm
+
+
+_C16 = "c16[::1]"
+
+
+@kernel(f"Tuple(({_C16}, {_C16}, {_C16}, {_C16}))(c16[::1], f8[::1], b1)")
+def _fresnel_rows(eta, cos, transmission):
+    """:func:`fresnel` over n rows (``t_te``, ``t_tm`` left zero unless ``transmission``)."""
+    n = len(cos)
+    r_te, r_tm = np.empty(n, np.complex128), np.empty(n, np.complex128)
+    t_te, t_tm = np.zeros(n, np.complex128), np.zeros(n, np.complex128)
+    for i in range(n):
+        e, c = eta[i], _clipped_cos(cos[i])
+        r_te[i], r_tm[i], _, d_te, d_tm = interface1(e, c)
+        if transmission:
+            t_te[i] = 2.0 * c / d_te if d_te != 0 else 1.0 + 0j
+            t_tm[i] = 2.0 * _sqrt_decaying(e) * c / d_tm if d_tm != 0 else 1.0 + 0j
+    return r_te, r_tm, t_te, t_tm
+
+
+@kernel(f"Tuple(({_C16}, {_C16}, {_C16}, {_C16}))(c16[::1], f8[::1], f8[::1], f8[::1], b1)")
+def _slab_rows(eta, cos, d, f, p2040):
+    """:func:`slab` over n rows."""
+    n = len(cos)
+    r_te, r_tm = np.empty(n, np.complex128), np.empty(n, np.complex128)
+    t_te, t_tm = np.empty(n, np.complex128), np.empty(n, np.complex128)
+    for i in range(n):
+        r_te[i], r_tm[i], t_te[i], t_tm[i] = slab1(eta[i], _clipped_cos(cos[i]), d[i], f[i],
+                                                   p2040)  # fmt: skip
+    return r_te, r_tm, t_te, t_tm
+
+
+@kernel("f8[::1](c16[::1], f8[::1], f8[::1], c16[::1])")
+def _group_delay_rows(eta, cos, d, slope):
+    """:func:`slab_group_delay` over n rows."""
+    out = np.empty(len(cos))
+    for i in range(len(cos)):
+        out[i] = group_delay1(eta[i], _clipped_cos(cos[i]), d[i], slope[i])
+    return out
+
+
+@kernel(f"Tuple(({_C16}, {_C16}))(c16[::1], f8[::1], i8[::1], f8[::1], b1[::1], f8)")
+def _face_rows(eta, thickness, mat, cos, two_sided, f):
+    """:func:`face_reflection` over n rows."""
+    n = len(cos)
+    r_te, r_tm = np.empty(n, np.complex128), np.empty(n, np.complex128)
+    for i in range(n):
+        m = mat[i]
+        r_te[i], r_tm[i] = reflection1(eta[m], _clipped_cos(cos[i]), two_sided[i], thickness[m],
+                                       f)  # fmt: skip
+    return r_te, r_tm
 
 
 def _out(x: np.ndarray) -> Any:
     """0-d arrays to numpy scalars, arrays unchanged."""
     return x[()] if x.ndim == 0 else x
+
+
+def _rows_of(*arrays: Any) -> tuple[tuple[int, ...], list[np.ndarray]]:
+    """The broadcast shape of ``arrays`` and each broadcast to it, flat and contiguous."""
+    b = np.broadcast_arrays(*arrays)
+    return b[0].shape, [np.ascontiguousarray(x.reshape(-1)) for x in b]
 
 
 def fresnel(eta: complex | np.ndarray, cos_theta: float | np.ndarray) -> tuple[Any, Any, Any, Any]:
@@ -632,36 +766,45 @@ def fresnel(eta: complex | np.ndarray, cos_theta: float | np.ndarray) -> tuple[A
     -------
     r_te, r_tm, t_te, t_tm : complex128 (broadcast shape of the inputs)
     """
-    eta_a, c, s = _prepare(eta, cos_theta)
-    r_te, r_tm, d_te, d_tm = _interface_reflection(eta_a, c, s)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t_te = 2.0 * c / d_te
-        t_tm = 2.0 * _sqrt_decaying(eta_a) * c / d_tm
-    # Only eta = 1 at exactly grazing incidence makes a denominator vanish: no interface at all.
-    t_te = np.where(d_te == 0, 1.0, t_te)
-    t_tm = np.where(d_tm == 0, 1.0, t_tm)
-    return _out(r_te), _out(r_tm), _out(t_te), _out(t_tm)
+    shape, (e, c) = _rows_of(np.asarray(eta, dtype=complex), np.asarray(cos_theta, dtype=float))
+    return tuple(_out(x.reshape(shape)) for x in _fresnel_rows(e, c, True))
 
 
 def fresnel_reflection(eta: complex | np.ndarray, cos_theta: float | np.ndarray) -> tuple[Any, Any]:
     """``r_te, r_tm`` of :func:`fresnel` alone (the same arithmetic, without the transmission
     coefficients and their square root): what a reflection needs."""
-    r_te, r_tm, _, _ = _interface_reflection(*_prepare(eta, cos_theta))
-    return _out(r_te), _out(r_tm)
+    shape, (e, c) = _rows_of(np.asarray(eta, dtype=complex), np.asarray(cos_theta, dtype=float))
+    r_te, r_tm, _, _ = _fresnel_rows(e, c, False)
+    return _out(r_te.reshape(shape)), _out(r_tm.reshape(shape))
 
 
-def _interface_reflection(
-    eta_a: np.ndarray, c: np.ndarray, s: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """``r_te, r_tm`` of :func:`fresnel` from :func:`_prepare`'s output, and their denominators
-    ``cos + s``, ``eta cos + s``."""
-    d_te = c + s
-    d_tm = eta_a * c + s
-    with np.errstate(divide="ignore", invalid="ignore"):
-        r_te = (c - s) / d_te
-        r_tm = (eta_a * c - s) / d_tm
-    # Only eta = 1 at exactly grazing incidence makes a denominator vanish: no interface at all.
-    return np.where(d_te == 0, 0.0, r_te), np.where(d_tm == 0, 0.0, r_tm), d_te, d_tm
+def face_reflection(
+    eta: np.ndarray,
+    thickness_m: np.ndarray,
+    material: np.ndarray,
+    cos_theta: np.ndarray,
+    two_sided: np.ndarray,
+    frequency_hz: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """TE/TM reflection coefficients of faces: a closed solid's face is a half-space interface
+    (:func:`fresnel`), an open sheet a slab of its material's thickness (:func:`slab`,
+    ITU-R P.2040-3 section 2.2.2.2).
+
+    Parameters
+    ----------
+    eta : (n_materials,) complex, relative permittivity of each material
+    thickness_m : (n_materials,) float, m, slab thickness of each material
+    material : (n,) int, the material of each face
+    cos_theta : (n,) float, cosine of the incidence angle (sign ignored, clipped to 1)
+    two_sided : (n,) bool, the face is an open sheet's
+    frequency_hz : float, Hz
+
+    Returns
+    -------
+    r_te, r_tm : (n,) complex128
+    """
+    return _face_rows(carray(eta, complex), carray(thickness_m), carray(material, np.int64),
+                      carray(cos_theta), carray(two_sided, bool), float(frequency_hz))  # fmt: skip
 
 
 def slab(
@@ -727,40 +870,10 @@ def slab(
         raise MaterialError("slab thickness must be finite and >= 0 m")
     if np.any(~np.isfinite(f) | (f <= 0)):
         raise MaterialError("slab frequency must be finite and > 0 Hz")
-    eta_a, c, s = _prepare(eta, cos_theta)
-    eta_a, c, s, d, f = np.broadcast_arrays(eta_a, c, s, d, f)
-    k0d = 2.0 * np.pi * f * d / C0
-    q = k0d * s
-    u = -np.expm1(-2j * q)  # 1 - e^{-j2q}, accurate for a thin slab
-    if reference == "p2040":
-        phase = np.exp(-1j * q)
-    else:
-        # e^{-jq} e^{+j k0 d cos}: Im(s - cos) = Im(s) <= 0, so this never grows.
-        phase = np.exp(-1j * k0d * (s - c))
-    zero = d == 0
-    any_zero = bool(np.any(zero))
-    out = []
-    for n_, k_ in ((c - s, 4.0 * c * s), (eta_a * c - s, 4.0 * eta_a * c * s)):
-        den = k_ + n_ * n_ * u
-        degenerate = den == 0
-        any_degenerate = bool(np.any(degenerate))
-        if any_degenerate:
-            # Only without an interface (eta = 1 at grazing incidence), or for d = 0 there.
-            den = np.where(degenerate, 1.0, den)
-        inv = 1.0 / den
-        # N (N + 2 s) = N D: D = cos + s = N + 2 s (TE), D = eta cos + s = N + 2 s (TM).
-        r = n_ * (n_ + 2.0 * s) * u * inv
-        t = k_ * phase * inv
-        if any_degenerate:
-            r = np.where(degenerate, 0.0, r)
-            t = np.where(degenerate, phase, t)
-        if any_zero:
-            r = np.where(zero, 0.0, r)
-            t = np.where(zero, 1.0, t)
-        out.append(_out(np.asarray(r, dtype=complex)))
-        out.append(_out(np.asarray(t, dtype=complex)))
-    r_te, t_te, r_tm, t_tm = out
-    return r_te, r_tm, t_te, t_tm
+    shape, (e, c, dd, ff) = _rows_of(np.asarray(eta, dtype=complex),
+                                     np.asarray(cos_theta, dtype=float), d, f)  # fmt: skip
+    out = _slab_rows(e, c, dd, ff, reference == "p2040")
+    return tuple(_out(x.reshape(shape)) for x in out)
 
 
 def slab_group_delay(
@@ -795,12 +908,11 @@ def slab_group_delay(
     -------
     tau : float or (...) float64, seconds (>= 0 for the building materials of P.2040)
     """
-    e = np.asarray(eta, dtype=complex)
-    c = np.minimum(np.abs(np.asarray(cos_theta, dtype=float)), 1.0)
-    s = np.sqrt(e - (1.0 - c * c))  # principal branch: Re(s) >= 0, Im(s) <= 0 for Im(eta) <= 0
-    with np.errstate(divide="ignore", invalid="ignore"):
-        slope = np.where(s != 0, np.asarray(eta_slope, dtype=complex) / (2.0 * s), 0.0)
-    return _out(np.asarray(thickness_m, dtype=float) * (np.real(s + slope) - c) / C0)
+    shape, (e, c, d, s) = _rows_of(
+        np.asarray(eta, dtype=complex), np.asarray(cos_theta, dtype=float),
+        np.asarray(thickness_m, dtype=float), np.asarray(eta_slope, dtype=complex),
+    )
+    return _out(_group_delay_rows(e, c, d, s).reshape(shape))
 
 
 def slab_excess_delay(

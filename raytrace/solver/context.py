@@ -19,7 +19,7 @@ import numpy as np
 
 from ..core.constants import C0
 from ..core.errors import TraceInputError
-from ..physics.materials import fresnel_reflection, slab
+from ..physics.materials import face_reflection, slab
 from ..scene.model import Scene
 from .config import MIN_POWER_DB, TraceConfig
 
@@ -134,18 +134,7 @@ class TraceContext:
     ) -> tuple[np.ndarray, np.ndarray]:
         """TE/TM reflection coefficients: a closed solid's face is a half-space interface
         (Fresnel); an open sheet is a slab of its material's thickness (ITU-R P.2040 sec. 3)."""
-        eta = self.eta[mat]
-        if not two_sided.any():  # (most calls: faces of solids only)
-            r_te, r_tm = fresnel_reflection(eta, cos_i)
-            return np.asarray(r_te, dtype=complex), np.asarray(r_tm, dtype=complex)
-        r_te = np.empty(np.shape(cos_i), dtype=complex)
-        r_tm = np.empty(np.shape(cos_i), dtype=complex)
-        one = ~two_sided
-        r_te[one], r_tm[one] = fresnel_reflection(eta[one], cos_i[one])
-        r_te[two_sided], r_tm[two_sided], _, _ = slab(
-            eta[two_sided], cos_i[two_sided], self.thickness[mat[two_sided]], self.f
-        )
-        return r_te, r_tm
+        return face_reflection(self.eta, self.thickness, mat, cos_i, two_sided, self.f)
 
 
 def opaque_objects(

@@ -26,11 +26,9 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..core.constants import C0
 from ..core.jit import carray
 from ..core.vec import index, norm
 from ..core.vec import rows as take_rows
-from ..physics.materials import slab, slab_group_delay
 from . import kernels
 from .context import TraceContext
 from .paths import DIFFRACTION, PENETRATION, REFLECTION, Paths
@@ -239,8 +237,9 @@ def path_fields(
     The field vector starts vertically polarised, goes through each segment's penetrations (slab
     transmission, ITU-R P.2040 sec. 3) and each vertex's reflection (Fresnel or slab) or
     diffraction (``diffraction`` model), and is projected on the receive antenna. The
-    coefficients are computed per mechanism for every path at once; the compiled loop
-    :func:`raytrace.solver.kernels.track_fields` applies them path by path.
+    diffraction operators are computed per vertex position for every path at once; the
+    compiled loop :func:`raytrace.solver.kernels.path_gains` computes the other coefficients
+    and applies them all, path by path.
 
     Returns
     -------
@@ -248,57 +247,23 @@ def path_fields(
     delay_s : (M,) float, seconds: unfolded length over c, plus the slabs' group delays
     """
     m, k = len(cand), cand.depth
-    seg = cand.chain[:, 1:] - cand.chain[:, :-1]  # (m, k+1, 3)
-    seg_len = norm(seg)
-    dirs = seg / np.maximum(seg_len, 1e-300)[:, :, None]
-    total = seg_len.sum(axis=1)
-    count = cross.count.reshape(m, k + 1)
     n_pen = cross.object.shape[1]
-    # penetrations (slab transmission), every slot of every segment at once
-    pen_normal = cross.normal.reshape(m, k + 1, n_pen, 3)
-    pen_te = np.zeros((m, k + 1, n_pen), dtype=complex)
-    pen_tm = np.zeros((m, k + 1, n_pen), dtype=complex)
-    extra_delay = np.zeros(m)  # group delay of the penetrated slabs, s
-    slot = np.flatnonzero(count[:, :, None] > np.arange(n_pen))  # flat over (m, k+1, n_pen)
-    if len(slot):
-        path, j = np.divmod(slot // n_pen, k + 1)
-        nrm = take_rows(pen_normal.reshape(-1, 3), slot)
-        mat = ctx.obj_material[cross.object.reshape(-1)[slot]]
-        cos_i = np.abs(np.einsum("ij,ij->i", nrm, dirs[path, j]))
-        th = cross.thickness.reshape(-1)[slot]
-        _, _, t_te, t_tm = slab(ctx.eta[mat], cos_i, th, ctx.f)
-        pen_te.reshape(-1)[slot], pen_tm.reshape(-1)[slot] = t_te, t_tm
-        if ctx.cfg.slab_delay:
-            # summed per path in segment and slot order, as the field meets them
-            delay = slab_group_delay(ctx.eta[mat], cos_i, th, ctx.eta_slope[mat])
-            extra_delay = np.bincount(path, weights=delay, minlength=m)
-    # reflections, every vertex at once
-    fc = ctx.scene.facets
-    normal = np.zeros((m, k, 3))
-    r_te = np.zeros((m, k), dtype=complex)
-    r_tm = np.zeros((m, k), dtype=complex)
-    vert = np.flatnonzero(cand.kinds == REFLECTION)  # flat over (m, k)
-    if len(vert):
-        path, j = np.divmod(vert, k)
-        fidx = cand.elem.reshape(-1)[vert]
-        nrm = take_rows(fc.normal, fidx)
-        cos_i = np.abs(np.einsum("ij,ij->i", nrm, dirs[path, j]))
-        normal.reshape(-1, 3)[vert] = nrm
-        r_te.reshape(-1)[vert], r_tm.reshape(-1)[vert] = ctx.reflection_coefficients(
-            fc.material[fidx], cos_i, fc.two_sided[fidx]
-        )
-    # diffractions, every vertex of one position in the chain at once
+    # diffractions, every vertex of one position in the chain at once (the operators of the
+    # diffraction model); the compiled loop computes the other coefficients path by path
     d_matrix = np.zeros((m, k, 2, 2), dtype=complex)
     d_basis = np.zeros((m, k, 4, 3))
     d_amp = np.zeros((m, k))
     d_valid = np.zeros((m, k), dtype=bool)
     amp_scale = np.ones(m, dtype=complex)  # extra scalar factors (diffraction spreading)
+    seg_len = None
     for j in range(k):
         is_d = np.flatnonzero(cand.kinds[:, j] == DIFFRACTION)
         if not len(is_d):
             continue
         if diffraction is None:
             raise RuntimeError("diffraction vertex without a diffraction model")
+        if seg_len is None:
+            seg_len = norm(cand.chain[:, 1:] - cand.chain[:, :-1])  # (m, k+1)
         op = diffraction(cand.elem[is_d, j], take_rows(cand.chain, is_d), j + 1,
                          take_rows(seg_len, is_d))  # fmt: skip
         d_matrix[is_d, j] = op.d_matrix
@@ -308,17 +273,19 @@ def path_fields(
         d_amp[is_d, j] = op.spreading
         d_valid[is_d, j] = op.valid
         amp_scale[is_d] *= op.scale
-    proj = kernels.track_fields(
-        carray(vertical_pol(dirs[:, 0]), complex), carray(dirs), carray(count, np.int64),
-        carray(pen_normal), pen_te, pen_tm, carray(cand.kinds, np.int8), normal, r_te, r_tm,
-        d_matrix, d_basis, d_amp, d_valid, carray(vertical_pol(dirs[:, -1])), int(REFLECTION),
-        int(DIFFRACTION),
+    fc = ctx.scene.facets
+    sheet = fc.two_sided
+    return kernels.path_gains(
+        carray(cand.chain), carray(cand.kinds, np.int8), carray(cand.elem, np.int64),
+        carray(cross.count, np.int64).reshape(m, k + 1),
+        carray(cross.normal).reshape(m, k + 1, n_pen, 3),
+        carray(cross.object, np.int64).reshape(m, k + 1, n_pen),
+        carray(cross.thickness).reshape(m, k + 1, n_pen), carray(ctx.obj_material, np.int64),
+        carray(ctx.eta, complex), carray(ctx.eta_slope, complex), carray(ctx.thickness),
+        carray(fc.normal), carray(fc.material, np.int64), carray(sheet, bool), d_matrix, d_basis,
+        d_amp, d_valid, amp_scale, float(ctx.f), float(ctx.k0), float(ctx.wavelength),
+        bool(ctx.cfg.slab_delay), int(REFLECTION), int(DIFFRACTION),
     )  # fmt: skip
-    has_d = (cand.kinds == DIFFRACTION).any(axis=1)
-    # free-space spreading over the unfolded length (diffracted paths carry their own)
-    spread = np.where(has_d, 1.0, ctx.wavelength / (4 * np.pi * total))
-    gain = spread * amp_scale * np.exp(-1j * ctx.k0 * total) * proj
-    return gain, total / C0 + extra_delay
 
 
 def assemble(

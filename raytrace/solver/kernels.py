@@ -23,8 +23,9 @@
 * **Opaque test** (:func:`segment_rays`, :func:`opaque_blocks`): the rays of one segment of
   every candidate, and which first opaque hits block (not the segment's own vertex objects, not
   a solid it only touches).
-* **Fields** (:func:`track_fields`): the field vector carried along each path through the
-  coefficients the physics modules computed, per mechanism, for all paths at once; the paths'
+* **Fields** (:func:`path_gains`): the field vector carried along each path, with the ITU-R
+  P.2040 coefficients of its penetrations and reflections computed on the way by the physics
+  module's scalar helpers and the diffraction operators computed beforehand; the paths'
   interaction sequences (:func:`interaction_sequences`).
 
 Helpers take scalars where they branch (:func:`raytrace.core.jit.inline`: an array live across
@@ -34,17 +35,21 @@ by :func:`_boundary` on scalars and written by :func:`walk_hits` itself.
 The pruning and walk kernels write the numpy expressions they replaced in numpy's order, so the
 traced paths' geometry and penetrations are bitwise those of the numpy form on the machine they
 were checked on (``tools/trace_identity.py``), the choice of the canonical face included
-(whose numpy form took its dot products from BLAS). :func:`track_fields` differs from its numpy
+(whose numpy form took its dot products from BLAS). :func:`path_gains` differs from the numpy
 form in the last bits only (numpy's complex products use fused multiply-adds on CPUs with
-AVX-512; numba rounds each product and sum as written), about 1e-13 relative on the gains.
+AVX-512, its complex square roots and divisions are not numba's; numba rounds each product and
+sum as written), about 1e-13 relative on the gains; the delays of paths without penetrations
+are bitwise the same.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from ..core.constants import C0
 from ..core.jit import helper, inline, kernel
 from ..core.vec import cross3, dot3
+from ..physics.materials import group_delay1, reflection1, slab1
 from ..physics.utd import diffraction_valid1, keller_point
 from ..scene.accel import FACET_TEST_SIG, facet_box_test, in_triangles
 
@@ -52,7 +57,7 @@ __all__ = ["PRUNE", "surely_inside", "facet_wedge_pairs", "expand_over_others",
            "reflection_edge_points", "along_and_off_rows", "second_order_receivers", "line_span", "edge_distance",
            "opaque_blocks", "touch_rows", "entry_points", "end_probes",
            "walk_record", "unseen_entries", "walk_rays", "walk_hits", "segment_rays",
-           "track_fields", "interaction_sequences"]
+           "path_gains", "interaction_sequences"]
 
 #: The callers pass this as the kernels' ``prune``: False switches their pruning tests off (they
 #: then return every candidate that satisfies the rules, with unbounded spans), so that a trace
@@ -1145,58 +1150,114 @@ def _te_tm(e0, e1, e2, kx, ky, kz, ox, oy, oz, nx, ny, nz, c_te, c_tm):
     return a * sx + b * qx, a * sy + b * qy, a * sz + b * qz
 
 
-@kernel(
-    "c16[::1](c16[:, ::1], f8[:, :, ::1], i8[:, ::1], f8[:, :, :, ::1], c16[:, :, ::1], "
-    "c16[:, :, ::1], i1[:, ::1], f8[:, :, ::1], c16[:, ::1], c16[:, ::1], c16[:, :, :, ::1], "
-    "f8[:, :, :, ::1], f8[:, ::1], b1[:, ::1], f8[:, ::1], i8, i8)"
-)
-def track_fields(e_start, dirs, count, pen_normal, pen_te, pen_tm, kinds, normal, r_te, r_tm,
-                 d_matrix, d_basis, d_amp, d_valid, e_rx, reflection, diffraction):  # fmt: skip
-    """The field vector of M paths with ``k`` vertices carried from the transmitter to the
-    receiver, projected on the receiving antenna's polarisation.
+@inline
+def _vertical_pol(dx, dy, dz):
+    """:func:`raytrace.solver.evaluate.vertical_pol` of one direction: z made perpendicular to
+    the ray (x for a vertical ray), unit."""
+    vx, vy, vz = 0.0 - dz * dx, 0.0 - dz * dy, 1.0 - dz * dz
+    n = np.sqrt(vx * vx + vy * vy + vz * vz)
+    if n < 1e-9:
+        vx, vy, vz = 1.0 - dx * dx, 0.0 - dx * dy, 0.0 - dx * dz
+        n = np.sqrt(vx * vx + vy * vy + vz * vz)
+    return vx / n, vy / n, vz / n
 
-    Along segment ``j``: its penetrations (slab TE/TM coefficients on the slab face's plane of
-    incidence); then vertex ``j``: a reflection (TE/TM coefficients on the facet's plane) or a
-    diffraction (``[E_beta0, E_phi] = -D [E . beta0'_hat, E . phi'_hat] A``, zero where the
-    diffraction is not valid). The coefficients are computed beforehand, per mechanism, by the
-    physics modules; this only applies them (:func:`_te_tm`; a diffraction in
-    :func:`raytrace.physics.utd.diffracted_field`'s order of operations).
+
+@inline
+def _clipped_cos(c):
+    """``|c|`` clipped to 1, as the ITU-R P.2040 coefficients take the incidence cosine."""
+    c = abs(c)
+    return 1.0 if c > 1.0 else c
+
+
+@kernel(
+    "Tuple((c16[::1], f8[::1]))(f8[:, :, ::1], i1[:, ::1], i8[:, ::1], i8[:, ::1], "
+    "f8[:, :, :, ::1], i8[:, :, ::1], f8[:, :, ::1], i8[::1], c16[::1], c16[::1], f8[::1], "
+    "f8[:, ::1], i8[::1], b1[::1], c16[:, :, :, ::1], f8[:, :, :, ::1], f8[:, ::1], b1[:, ::1], "
+    "c16[::1], f8, f8, f8, b1, i8, i8)"
+)
+def path_gains(chain, kinds, elem, count, pen_normal, pen_obj, pen_thickness, obj_material, eta,
+               eta_slope, thickness, f_normal, f_material, f_two_sided, d_matrix, d_basis, d_amp,
+               d_valid, amp_scale, f, k0, wavelength, slab_delay, reflection, diffraction):  # fmt: skip
+    """Complex gain and delay of M paths with ``k`` vertices: the field vector carried from the
+    transmitter to the receiver and projected on the receiving antenna's polarisation.
+
+    The field starts vertically polarised (:func:`_vertical_pol`). Along segment ``j``: its
+    penetrations (the slab's TE/TM transmission on the slab face's plane of incidence, ITU-R
+    P.2040 sec. 2.2.2.2, :func:`raytrace.physics.materials.slab1`; its group delay added to the
+    delay when ``slab_delay``, :func:`~raytrace.physics.materials.group_delay1`); then vertex
+    ``j``: a reflection (:func:`~raytrace.physics.materials.reflection1` on the facet's plane:
+    Fresnel for a solid's face, a slab for an open sheet's) or a diffraction (``[E_beta0, E_phi]
+    = -D [E . beta0'_hat, E . phi'_hat] A``, zero where not valid, in
+    :func:`raytrace.physics.utd.diffracted_field`'s order of operations). The TE/TM basis is
+    :func:`_te_tm`'s. A path without a diffraction spreads as ``lambda / (4 pi d)`` over its
+    unfolded length ``d``; a diffracted one carries its spreading in ``d_amp`` and
+    ``amp_scale``.
 
     Parameters
     ----------
-    e_start : (M, 3) complex, the transmitted field's direction (unit, vertical polarisation)
-    dirs : (M, k + 1, 3) float, unit directions of the segments
-    count : (M, k + 1) int, penetrations per segment; pen_normal : (M, k + 1, K, 3) float, their
-        slab faces' unit normals; pen_te, pen_tm : (M, k + 1, K) complex, their coefficients
-    kinds : (M, k) int8, vertex codes (``reflection``, ``diffraction``)
-    normal : (M, k, 3) float, a reflection's facet normal; r_te, r_tm : (M, k) complex
+    chain : (M, k + 2, 3) float, m, the transmitter, the vertices and the receiver
+    kinds : (M, k) int8, vertex codes (``reflection``, ``diffraction``); elem : (M, k) int, a
+        reflection's facet
+    count : (M, k + 1) int, penetrations per segment; pen_normal : (M, k + 1, K, 3) float,
+        their slab faces' unit normals; pen_obj : (M, k + 1, K) int, their objects;
+        pen_thickness : (M, k + 1, K) float, m, their slab thickness
+    obj_material : (O,) int; eta, eta_slope : (n_materials,) complex, the relative
+        permittivity and ``f d eta / d f``; thickness : (n_materials,) float, m, an open
+        sheet's thickness
+    f_normal : (F, 3) float, f_material : (F,) int, f_two_sided : (F,) bool, of the facets
     d_matrix : (M, k, 2, 2) complex, sqrt(m), a diffraction's dyadic coefficient; d_basis :
         (M, k, 4, 3) float, its ``beta0'_hat, phi'_hat, beta0_hat, phi_hat``; d_amp : (M, k)
         float, its spreading factor; d_valid : (M, k) bool
-    e_rx : (M, 3) float, the receiving antenna's polarisation (unit)
-    reflection, diffraction : int, the codes in ``kinds``
+    amp_scale : (M,) complex, an extra factor of the whole path (diffraction's incident leg)
+    f, k0, wavelength : Hz, rad/m, m
+    slab_delay : bool; reflection, diffraction : int, the codes in ``kinds``
 
     Returns
     -------
-    (M,) complex, ``e . e_rx`` at the receiver
+    gain : (M,) complex, ``e . e_rx`` times the path's spreading and phase ``exp(-j k0 d)``
+    delay : (M,) float, s, ``d / c`` plus the slabs' group delays
     """
-    m, k = dirs.shape[0], dirs.shape[1] - 1
-    out = np.empty(m, dtype=np.complex128)
+    m, k = kinds.shape[0], kinds.shape[1]
+    gain = np.empty(m, dtype=np.complex128)
+    delay = np.empty(m)
+    dirs = np.empty((k + 1, 3))
     for r in range(m):
-        e0, e1, e2 = e_start[r, 0], e_start[r, 1], e_start[r, 2]
+        total = 0.0
         for j in range(k + 1):
-            dx, dy, dz = dirs[r, j, 0], dirs[r, j, 1], dirs[r, j, 2]
+            vx = chain[r, j + 1, 0] - chain[r, j, 0]
+            vy = chain[r, j + 1, 1] - chain[r, j, 1]
+            vz = chain[r, j + 1, 2] - chain[r, j, 2]
+            ln = np.sqrt(vx * vx + vy * vy + vz * vz)
+            total = ln if j == 0 else total + ln
+            dn = ln if ln > 1e-300 else 1e-300
+            dirs[j, 0], dirs[j, 1], dirs[j, 2] = vx / dn, vy / dn, vz / dn
+        px, py, pz = _vertical_pol(dirs[0, 0], dirs[0, 1], dirs[0, 2])
+        e0, e1, e2 = px + 0j, py + 0j, pz + 0j
+        extra = 0.0
+        has_d = False
+        for j in range(k + 1):
+            dx, dy, dz = dirs[j, 0], dirs[j, 1], dirs[j, 2]
             for s in range(count[r, j]):
-                e0, e1, e2 = _te_tm(e0, e1, e2, dx, dy, dz, dx, dy, dz, pen_normal[r, j, s, 0],
-                                    pen_normal[r, j, s, 1], pen_normal[r, j, s, 2],
-                                    pen_te[r, j, s], pen_tm[r, j, s])  # fmt: skip
+                nx, ny, nz = pen_normal[r, j, s, 0], pen_normal[r, j, s, 1], pen_normal[r, j, s, 2]
+                mat = obj_material[pen_obj[r, j, s]]
+                th = pen_thickness[r, j, s]
+                c = _clipped_cos(dot3(nx, ny, nz, dx, dy, dz))
+                _, _, t_te, t_tm = slab1(eta[mat], c, th, f, False)
+                if slab_delay:
+                    extra += group_delay1(eta[mat], c, th, eta_slope[mat])
+                e0, e1, e2 = _te_tm(e0, e1, e2, dx, dy, dz, dx, dy, dz, nx, ny, nz, t_te, t_tm)
             if j == k:
                 break
             if kinds[r, j] == reflection:
-                e0, e1, e2 = _te_tm(e0, e1, e2, dx, dy, dz, dirs[r, j + 1, 0],
-                                    dirs[r, j + 1, 1], dirs[r, j + 1, 2], normal[r, j, 0],
-                                    normal[r, j, 1], normal[r, j, 2], r_te[r, j], r_tm[r, j])  # fmt: skip
+                fi = elem[r, j]
+                nx, ny, nz = f_normal[fi, 0], f_normal[fi, 1], f_normal[fi, 2]
+                mat = f_material[fi]
+                c = _clipped_cos(dot3(nx, ny, nz, dx, dy, dz))
+                r_te, r_tm = reflection1(eta[mat], c, f_two_sided[fi], thickness[mat], f)
+                e0, e1, e2 = _te_tm(e0, e1, e2, dx, dy, dz, dirs[j + 1, 0], dirs[j + 1, 1],
+                                    dirs[j + 1, 2], nx, ny, nz, r_te, r_tm)  # fmt: skip
             elif kinds[r, j] == diffraction:
+                has_d = True
                 if not d_valid[r, j]:
                     e0, e1, e2 = 0j, 0j, 0j
                     continue
@@ -1210,8 +1271,13 @@ def track_fields(e_start, dirs, count, pen_normal, pen_te, pen_tm, kinds, normal
                 e0 = (o0 * b[2, 0] + o1 * b[3, 0]) * amp
                 e1 = (o0 * b[2, 1] + o1 * b[3, 1]) * amp
                 e2 = (o0 * b[2, 2] + o1 * b[3, 2]) * amp
-        out[r] = (e0 * e_rx[r, 0] + e1 * e_rx[r, 1]) + e2 * e_rx[r, 2]
-    return out
+        qx, qy, qz = _vertical_pol(dirs[k, 0], dirs[k, 1], dirs[k, 2])
+        proj = (e0 * qx + e1 * qy) + e2 * qz
+        # free-space spreading over the unfolded length (diffracted paths carry their own)
+        spread = 1.0 if has_d else wavelength / (4 * np.pi * total)
+        gain[r] = spread * amp_scale[r] * np.exp(-1j * k0 * total) * proj
+        delay[r] = total / C0 + extra
+    return gain, delay
 
 
 @kernel(
