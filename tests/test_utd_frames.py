@@ -91,3 +91,71 @@ def test_compiled_geometry_against_the_vectorised_formulas() -> None:
     np.testing.assert_allclose(g.psi_n[v], psi_n[v], atol=1e-12)
     np.testing.assert_allclose(g.cos_theta_0[v], (sin_b * np.abs(np.sin(g.psi_0)))[v], atol=1e-13)
     np.testing.assert_array_equal(g.lit_n, npi - g.phi_in <= np.pi)
+
+
+def _reflect(p: np.ndarray, normal: np.ndarray, offset: np.ndarray) -> np.ndarray:
+    """Mirror points in planes ``normal . x = offset`` (unit normals)."""
+    return p - 2.0 * ((p * normal).sum(axis=1) - offset)[:, None] * normal
+
+
+def test_chain_diffraction_unfolds_the_reflections_and_matches_the_public_chain() -> None:
+    """RD and DR chains (a reflection on a random plane before or after the edge): the
+    compiled diffraction of the chain equals the public functions applied to the source or
+    receiver mirrored in the plane (built independently here): ``framed_wedge_geometry``, the
+    faces' coefficients (``fresnel`` for a solid's face, ``slab`` for an open sheet's) at
+    ``cos_theta_0/n`` and ``diffraction_matrix``, to rounding (the chain's angles are computed
+    without arctan2 and the wedge terms with one sine less)."""
+    from raytrace.physics import materials
+
+    rng = np.random.default_rng(21)
+    n_w, p, f_hz = 25, 3000, 3.775e9
+    e, n0, nn, face0 = _random_wedges(rng, n_w)
+    frames = utd.wedge_frames(e, n0, nn, face0)
+    start = rng.normal(size=(n_w, 3))
+    wedge = rng.integers(0, n_w, p)
+    # a plane per chain, and a diffraction point on its wedge's edge line
+    normal = rng.normal(size=(p, 3))
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    offset = rng.normal(size=p) * 3
+    point = start[wedge] + rng.uniform(-3, 3, p)[:, None] * e[wedge]
+    far = rng.normal(size=(p, 3)) * 8  # the other end
+    img = rng.normal(size=(p, 3)) * 8  # the unfolded end beyond the plane
+    # the reflection point: where the straight unfolded leg img -> point crosses the plane
+    t = (offset - (img * normal).sum(axis=1)) / ((point - img) * normal).sum(axis=1)
+    refl = img + t[:, None] * (point - img)
+    ok = (t > 0.05) & (t < 0.95)
+    wedge, normal, offset, point, far, img, refl = (x[ok] for x in (wedge, normal, offset,
+                                                                    point, far, img, refl))  # fmt: skip
+    end = _reflect(img, normal, offset)  # the real end, on the other side of the plane
+    eta = np.array([5.3 - 0.4j, 1e6 - 1e7j, 2.1 - 0.02j])
+    thick = np.array([0.2, 0.002, 0.05])
+    material = rng.integers(0, 3, len(wedge))
+    sheet = rng.random(len(wedge)) < 0.4
+    for before in (True, False):  # RD: tx -> refl -> point -> rx; DR: tx -> point -> refl -> rx
+        if before:
+            chain = np.stack([end, refl, point, far], axis=1)
+            j, src, dst = 2, img, far
+        else:
+            chain = np.stack([far, point, refl, end], axis=1)
+            j, src, dst = 1, far, img
+        seg_len = np.linalg.norm(chain[:, 1:] - chain[:, :-1], axis=2)
+        got = utd.chain_diffraction(frames, wedge, chain, j, seg_len, f_hz, eta, thick, material,
+                                    sheet)  # fmt: skip
+        geo = utd.framed_wedge_geometry(frames.take(wedge), src, dst, point)
+        faces = []
+        for cos in (geo.cos_theta_0, geo.cos_theta_n):
+            r_te, r_tm, _, _ = materials.fresnel(eta[material], cos)
+            s_te, s_tm, _, _ = materials.slab(eta[material], cos, thick[material], f_hz)
+            faces.append((np.where(sheet, s_te, r_te), np.where(sheet, s_tm, r_tm)))
+        d_mat, spreading = utd.diffraction_matrix(geo, f_hz, r_0=faces[0], r_n=faces[1])
+        v = geo.valid
+        assert 0.2 < v.mean() < 0.95  # valid and invalid diffractions are both exercised
+        np.testing.assert_array_equal(got.valid, v)
+        scale = np.abs(d_mat[v]).max(axis=(1, 2))[:, None, None]
+        err = np.abs(got.d_matrix[v] - d_mat[v]) / scale
+        assert err.max() < 1e-12, err.max()
+        np.testing.assert_allclose(got.spreading[v], spreading[v], rtol=1e-13)
+        basis = np.stack([geo.beta_hat_in, geo.phi_hat_in, geo.beta_hat_out, geo.phi_hat_out], 1)
+        np.testing.assert_allclose(got.basis[v], basis[v], rtol=0, atol=1e-12)
+        # the incident leg along the chain is the distance from the unfolded source
+        np.testing.assert_allclose(got.s_in, np.linalg.norm(point - src, axis=1), rtol=1e-12)

@@ -61,6 +61,7 @@ from ..core.vec import cross as _cross
 from ..core.vec import cross3, dot3
 from ..core.vec import norm as _norm
 from ..core.vec import rows as _rows
+from .materials import reflection1
 
 __all__ = [
     "KellerPoints",
@@ -80,6 +81,8 @@ __all__ = [
     "utd_coefficients",
     "face_reflection_matrix",
     "diffraction_matrix",
+    "ChainDiffraction",
+    "chain_diffraction",
     "diffracted_field",
     "knife_edge_loss_db",
     "fresnel_kirchhoff_v",
@@ -468,6 +471,19 @@ def _face_rule(a_in, a_out, s_in, s_out):
     return np.arctan2(height, s_in * np.cos(a_in) - s_out * np.cos(a_out))
 
 
+@inline
+def _face_rule_cs(a_in, a_out, s_in, s_out):
+    """``cos psi, sin psi`` of :func:`_face_rule`'s angle ``psi``, without the angle: the
+    reflection point's base and height over their hypotenuse (``sin psi >= 0``); ``(1, 0)``
+    where both vanish, as ``atan2(0, 0) = 0``."""
+    height = s_out * abs(np.sin(a_out)) + s_in * abs(np.sin(a_in))
+    base = s_in * np.cos(a_in) - s_out * np.cos(a_out)
+    h = np.sqrt(height * height + base * base)
+    if h == 0.0:
+        return 1.0, 0.0
+    return base / h, height / h
+
+
 @kernel("f8[::1](f8[::1], f8[::1], f8[::1], f8[::1])")
 def _face_rules(a_in, a_out, s_in, s_out):
     """:func:`_face_rule` over P rows (:func:`face_rule_angle`)."""
@@ -661,9 +677,14 @@ def _transition_over_sqrt(x: np.ndarray) -> np.ndarray:
         out[large] = _g_series(_c(flat[large]))
     near = np.flatnonzero(~large)
     if len(near):
-        u = np.sqrt(flat[near])
-        out[near] = np.sqrt(np.pi) * np.exp(0.25j * np.pi) * wofz(u * np.exp(0.75j * np.pi))
+        out[near] = _g_faddeeva(flat[near])
     return out.reshape(x.shape)
+
+
+def _g_faddeeva(x: np.ndarray) -> np.ndarray:
+    """``G(x)`` of :func:`_transition_over_sqrt` from the Faddeeva function, (n,) -> (n,)."""
+    u = np.sqrt(x)
+    return np.sqrt(np.pi) * np.exp(0.25j * np.pi) * wofz(u * np.exp(0.75j * np.pi))
 
 
 def transition_function(x: float | np.ndarray) -> np.ndarray:
@@ -687,13 +708,6 @@ def transition_function(x: float | np.ndarray) -> np.ndarray:
 
 
 @inline
-def _sinc(x):
-    """numpy's ``sinc``: ``sin(pi x) / (pi x)``, with ``x = 1e-20`` standing in for 0."""
-    y = np.pi * (x if x != 0.0 else 1.0e-20)
-    return np.sin(y) / y
-
-
-@inline
 def _wedge_factor(beta, sign, n, kl):
     """``cot((pi + sign beta) / 2n) F(kL a^sign(beta))`` in a form finite at the boundaries,
     as ``(x, f)`` with the term ``= f G(x)`` (``G`` = :func:`_transition_over_sqrt`).
@@ -702,16 +716,20 @@ def _wedge_factor(beta, sign, n, kl):
     sign = +1, ``-N^-`` for sign = -1) and ``eps = pi + sign beta - 2 pi n N`` in ``[-n pi, n pi]``,
     exactly ``cot((pi + sign beta)/2n) = cot(eps/2n)`` and ``a^sign(beta) = 2 sin^2(eps/2)``, so
     the term is ``cot(eps/2n) sqrt(x) G(x)``, ``x = 2 kL sin^2(eps/2)``, ``G = F / sqrt(x)``, and
-    ``cot(eps/2n) |sin(eps/2)| = sgn(eps) n cos(eps/2n) sinc(eps/2pi) / sinc(eps/(2 pi n))``,
-    so ``f = sgn(eps) n cos(eps/2n) sinc(eps/2pi) / sinc(eps/(2 pi n)) sqrt(2 kL)``.
-    Its limit for eps -> 0 is ``n sqrt(2 pi kL) sgn(eps) exp(j pi/4)`` (KP's boundary value); the
-    jump of sgn(eps) is the one that cancels the jump of the geometrical-optics field.
+    ``cot(eps/2n) |sin(eps/2)| = sgn(eps) sin(eps/2) cos(eps/2n) / sin(eps/2n)`` (``sin(eps/2)``
+    has the sign of ``eps`` for ``|eps| <= 2 pi``), so
+    ``f = sgn(eps) sin(eps/2) cos(eps/2n) / sin(eps/2n) sqrt(2 kL)``; the ratio of the two sines
+    is well conditioned and tends to ``n`` as eps -> 0 (``n`` at eps = 0). The term's limit for
+    eps -> 0 is ``n sqrt(2 pi kL) sgn(eps) exp(j pi/4)`` (KP's boundary value); the jump of
+    sgn(eps) is the one that cancels the jump of the geometrical-optics field.
     """
     big_n = np.rint((sign * beta + np.pi) / (_TWO_PI * n))
     eps = np.pi + sign * beta - _TWO_PI * n * big_n
     s = np.sin(0.5 * eps)
     x = 2.0 * kl * (s * s)
-    ratio = n * np.cos(eps / (2.0 * n)) * _sinc(eps / _TWO_PI) / _sinc(eps / (_TWO_PI * n))
+    a = eps / (2.0 * n)
+    sa = np.sin(a)
+    ratio = s * np.cos(a) / sa if sa != 0.0 else n
     return x, np.sign(eps) * ratio * np.sqrt(2.0 * kl)
 
 
@@ -896,6 +914,194 @@ def _dyadic(r0_te, r0_tm, rn_te, rn_tm, cos_b, cp0, sp0, cpn, spn, d12, d3, d4):
         out[r, 1, 0] = -x * b10 - y * a10
         out[r, 1, 1] = -x * b11 - y * a11 + d12[r]
     return out
+
+
+# -- 3b. the diffractions of unfolded paths, compiled end to end ----------------------------------
+#: ``-exp(-j pi / 4)``, the numerator of KP's ``C`` (:func:`_utd_terms`).
+_C_NUMERATOR = complex(-np.exp(-0.25j * np.pi))
+
+_F8, _F8_2 = "f8[::1]", "f8[:, ::1]"
+
+
+@kernel(
+    f"Tuple(({_F8_2}, {_F8_2}, c16[:, ::1], i8[::1], f8[:, :, ::1], c16[::1], {_F8_2}, {_F8}, "
+    f"b1[::1], {_F8}))({_F8_2}, {_F8_2}, {_F8_2}, {_F8}, i8[::1], f8[:, :, ::1], i8, {_F8_2}, f8)"
+)
+def _chain_geometry(e, t0, n0, n, wedge, chain, j, seg_len, k):
+    """The geometry of the diffraction at vertex ``j`` of P unfolded chains, and what the UTD
+    coefficient needs of it (:func:`chain_diffraction`): the wedge factors ``x, f`` (P, 4) of
+    :func:`_wedge_factors`, ``G(x)`` (P, 4) where ``x >= X_SERIES`` (:func:`_g_large`) and the
+    flat indices of the others (for the Faddeeva function), the ray-fixed basis (P, 4, 3), KP's
+    ``C`` (P,), per row ``cos_b``,
+    ``cos psi_0``, ``sin psi_0``, ``cos psi_n``, ``sin psi_n``, ``cos_theta_0``,
+    ``cos_theta_n`` (P, 7), the spreading ``A`` (P,), the validity and the incident leg's
+    unfolded length ``s'`` along the path (P,).
+
+    The unfolded source and receiver are recovered from the chain as
+    :func:`raytrace.solver.diffraction.field_model` did in numpy (the path is straight on either
+    side of the edge once unfolded), and each quantity is computed as :func:`_geometry` and
+    :func:`diffraction_matrix` compute it, in the same order."""
+    p = len(wedge)
+    x, f = np.empty((p, 4)), np.empty((p, 4))
+    g = np.empty((p, 4), dtype=np.complex128)
+    near = np.empty(4 * p, dtype=np.int64)
+    n_near = 0
+    basis = np.empty((p, 4, 3))
+    c = np.empty(p, dtype=np.complex128)
+    reals = np.empty((p, 7))
+    spreading, s_path = np.empty(p), np.empty(p)
+    valid = np.empty(p, dtype=np.bool_)
+    sq = np.sqrt(_TWO_PI * k)
+    for r in range(p):
+        w = wedge[r]
+        s_in = seg_len[r, 0]
+        for i in range(1, j):
+            s_in += seg_len[r, i]
+        s_out = seg_len[r, j]
+        for i in range(j + 1, seg_len.shape[1]):
+            s_out += seg_len[r, i]
+        px, py, pz = chain[r, j, 0], chain[r, j, 1], chain[r, j, 2]
+        ax, ay, az = px - chain[r, j - 1, 0], py - chain[r, j - 1, 1], pz - chain[r, j - 1, 2]
+        na = np.sqrt(ax * ax + ay * ay + az * az)
+        ax, ay, az = ax / na, ay / na, az / na
+        bx, by, bz = chain[r, j + 1, 0] - px, chain[r, j + 1, 1] - py, chain[r, j + 1, 2] - pz
+        nb = np.sqrt(bx * bx + by * by + bz * bz)
+        bx, by, bz = bx / nb, by / nb, bz / nb
+        (ix, iy, iz, si, ox, oy, oz, so, pin, pout, cix, ciy, ciz, sin_in, cox, coy, coz,
+         sin_out, ok) = _legs(e, t0, n0, n, w, px - s_in * ax, py - s_in * ay, pz - s_in * az,
+                              px + s_out * bx, py + s_out * by, pz + s_out * bz, px, py, pz)  # fmt: skip
+        # KP's ray-fixed unit vectors (as _geometry)
+        hx, hy, hz = -cix / sin_in, -ciy / sin_in, -ciz / sin_in
+        basis[r, 1, 0], basis[r, 1, 1], basis[r, 1, 2] = hx, hy, hz
+        basis[r, 0, 0], basis[r, 0, 1], basis[r, 0, 2] = cross3(ix, iy, iz, hx, hy, hz)
+        hx, hy, hz = cox / sin_out, coy / sin_out, coz / sin_out
+        basis[r, 3, 0], basis[r, 3, 1], basis[r, 3, 2] = hx, hy, hz
+        basis[r, 2, 0], basis[r, 2, 1], basis[r, 2, 2] = cross3(ox, oy, oz, hx, hy, hz)
+        npi = n[w] * np.pi
+        cp0, sp0 = _face_rule_cs(pin, pout, si, so)
+        cpn, spn = _face_rule_cs(npi - pin, npi - pout, si, so)
+        reals[r, 1], reals[r, 2], reals[r, 3], reals[r, 4] = cp0, sp0, cpn, spn
+        reals[r, 5], reals[r, 6] = sin_in * sp0, sin_in * spn
+        # diffraction_matrix: an invalid row gets harmless stand-ins
+        g_in, g_out, sin_b = (si, so, sin_in) if ok else (1.0, 1.0, 1.0)
+        nw, ph, ph_in = (n[w], pout, pin) if ok else (2.0, 0.0, 0.0)
+        dist = g_in * g_out * (sin_b * sin_b) / (g_in + g_out)
+        kl = k * dist
+        b_m, b_p = ph - ph_in, ph + ph_in
+        x[r, 0], f[r, 0] = _wedge_factor(b_m, 1.0, nw, kl)
+        x[r, 1], f[r, 1] = _wedge_factor(b_m, -1.0, nw, kl)
+        x[r, 2], f[r, 2] = _wedge_factor(b_p, 1.0, nw, kl)
+        x[r, 3], f[r, 3] = _wedge_factor(b_p, -1.0, nw, kl)
+        for q in range(4):
+            if x[r, q] >= X_SERIES:
+                g[r, q] = _g_large(x[r, q])
+            else:
+                near[n_near] = 4 * r + q
+                n_near += 1
+        c[r] = _C_NUMERATOR / (2.0 * nw * sq * sin_b)
+        reals[r, 0] = dot3(ix, iy, iz, e[w, 0], e[w, 1], e[w, 2]) if ok else 0.0
+        spreading[r] = np.sqrt(g_in / (g_out * (g_in + g_out)))
+        valid[r] = ok
+        s_path[r] = s_in
+    return x, f, g, near[:n_near].copy(), basis, c, reals, spreading, valid, s_path
+
+
+@kernel(
+    "c16[:, :, ::1](f8[:, ::1], c16[:, ::1], c16[::1], f8[:, ::1], c16[::1], f8[::1], i8[::1], "
+    "b1[::1], f8)"
+)
+def _chain_dyadic(f, g, c, reals, eta, thickness, material, two_sided, freq):
+    """``D = C(D1 + D2) I - C D3 T_n - C D4 T_0`` (:func:`_dyadic`) of P diffractions from
+    :func:`_chain_geometry`'s output and ``G(x)`` (P, 4), with each face's ITU-R P.2040
+    reflection (:func:`raytrace.physics.materials.reflection1`: Fresnel for a solid's face, a
+    slab for an open sheet's) at its incidence cosine."""
+    out = np.empty((len(c), 2, 2), dtype=np.complex128)
+    for r in range(len(c)):
+        m = material[r]
+        ct0, ctn = reals[r, 5], reals[r, 6]
+        r0_te, r0_tm = reflection1(eta[m], 1.0 if ct0 > 1.0 else ct0, two_sided[r], thickness[m],
+                                   freq)  # fmt: skip
+        rn_te, rn_tm = reflection1(eta[m], 1.0 if ctn > 1.0 else ctn, two_sided[r], thickness[m],
+                                   freq)  # fmt: skip
+        cr = c[r]
+        d12 = cr * (f[r, 0] * g[r, 0] + f[r, 1] * g[r, 1])
+        d3, d4 = cr * (f[r, 2] * g[r, 2]), cr * (f[r, 3] * g[r, 3])
+        a00, a01, a10, a11 = _face_matrix1(r0_te, r0_tm, reals[r, 0], reals[r, 1], reals[r, 2])
+        b00, b01, b10, b11 = _face_matrix1(rn_te, rn_tm, -reals[r, 0], reals[r, 3], reals[r, 4])
+        out[r, 0, 0] = -d3 * b00 - d4 * a00 + d12
+        out[r, 0, 1] = -d3 * b01 - d4 * a01
+        out[r, 1, 0] = -d3 * b10 - d4 * a10
+        out[r, 1, 1] = -d3 * b11 - d4 * a11 + d12
+    return out
+
+
+class ChainDiffraction(NamedTuple):
+    """The diffractions of unfolded paths (:func:`chain_diffraction`), P rows.
+
+    Attributes
+    ----------
+    d_matrix : (P, 2, 2) complex128, sqrt(metres), the dyadic coefficient (rows ``beta0_hat``,
+        ``phi_hat`` of the diffracted ray, columns ``beta0'_hat``, ``phi'_hat`` of the incident
+        one), as :func:`diffraction_matrix`
+    basis : (P, 4, 3) float, ``beta0'_hat, phi'_hat, beta0_hat, phi_hat``
+    spreading : (P,) float, 1/sqrt(metres), ``A = sqrt(s' / (s (s' + s)))`` (1 where not valid)
+    valid : (P,) bool, as :attr:`WedgeGeometry.valid`
+    s_in : (P,) float, metres, the unfolded incident leg ``s'`` along the path
+    """
+
+    d_matrix: np.ndarray
+    basis: np.ndarray
+    spreading: np.ndarray
+    valid: np.ndarray
+    s_in: np.ndarray
+
+
+def chain_diffraction(
+    frame: WedgeFrame,
+    wedge: np.ndarray,
+    chain: np.ndarray,
+    j: int,
+    seg_len: np.ndarray,
+    frequency_hz: float,
+    eta: np.ndarray,
+    thickness_m: np.ndarray,
+    material: np.ndarray,
+    two_sided: np.ndarray,
+) -> ChainDiffraction:
+    """The UTD diffraction at vertex ``j`` of P unfolded vertex chains (a tracer's paths), in
+    two compiled passes around the Faddeeva function: :func:`framed_wedge_geometry` and
+    :func:`diffraction_matrix` with the faces' ITU-R P.2040 reflection coefficients at
+    :attr:`WedgeGeometry.cos_theta_0` / ``cos_theta_n``, for the source and receiver unfolded
+    along the chain (the path is straight on either side of the edge once unfolded: the source
+    at ``s'`` = the length of the chain up to the edge, back along the incident segment).
+
+    Parameters
+    ----------
+    frame : WedgeFrame, one row per wedge of the scene (:func:`wedge_frames`)
+    wedge : (P,) int, the wedge of each diffraction
+    chain : (P, k + 2, 3) float, metres, the transmitter, the vertices and the receiver
+    j : int, 1..k, the vertex of the diffraction in the chain
+    seg_len : (P, k + 1) float, metres, the chain's segment lengths
+    frequency_hz : float
+    eta : (n_materials,) complex, thickness_m : (n_materials,) float, m: the materials' relative
+        permittivity and open-sheet thickness
+    material : (P,) int, the wedge's material; two_sided : (P,) bool, the wedge is an open
+        sheet's (its faces reflect as slabs)
+
+    Returns
+    -------
+    ChainDiffraction
+    """
+    k = _TWO_PI * float(frequency_hz) / C0
+    e, t0, n0, _, n = frame
+    x, f, g, near, basis, c, reals, spreading, valid, s_in = _chain_geometry(
+        _c(e), _c(t0), _c(n0), _c(n), _c(wedge, np.int64), _c(chain), int(j), _c(seg_len), k
+    )
+    if len(near):  # G(x) of the terms near a boundary: one Faddeeva call for all
+        g.reshape(-1)[near] = _g_faddeeva(x.reshape(-1)[near])
+    d_mat = _chain_dyadic(f, g, c, reals, _c(eta, complex), _c(thickness_m),
+                          _c(material, np.int64), _c(two_sided, bool), float(frequency_hz))  # fmt: skip
+    return ChainDiffraction(d_mat, basis, spreading, valid, s_in)
 
 
 # -- 4. the diffracted field ----------------------------------------------------------------------

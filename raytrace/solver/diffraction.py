@@ -29,9 +29,8 @@ from ..core.vec import norm
 from ..core.vec import rows as take_rows
 from ..physics.utd import (
     KELLER_TOL_M,
-    diffraction_matrix,
+    chain_diffraction,
     diffraction_valid,
-    framed_wedge_geometry,
     keller_points,
     wedge_frames,
 )
@@ -70,35 +69,21 @@ def stages(ctx: TraceContext) -> list[tuple[str, Callable[[], list[Paths]]]]:
 
 
 def field_model(ctx: TraceContext) -> DiffractionModel:
-    """The callback the tracer's back end applies at a diffraction vertex.
-
-    The unfolded source and receiver (images, for mixed paths) are recovered from the chain: the
-    unfolded path is straight on either side of the edge.
-    """
+    """The callback the tracer's back end applies at a diffraction vertex
+    (:func:`raytrace.physics.utd.chain_diffraction`: the unfolded source and receiver, images
+    for mixed paths, are recovered from the chain, straight on either side of the edge once
+    unfolded; the faces reflect as the materials' interfaces, or slabs for open sheets)."""
     w = ctx.scene.wedges
     frame = _wedge_frame(ctx).utd
 
     def apply(wedge, chain, j, seg_len):
-        point = chain[:, j]
-        s_in = seg_len[:, :j].sum(axis=1)
-        s_out = seg_len[:, j:].sum(axis=1)
-        d_in = point - chain[:, j - 1]
-        d_in /= norm(d_in)[:, None]
-        d_out = chain[:, j + 1] - point
-        d_out /= norm(d_out)[:, None]
-        src = point - s_in[:, None] * d_in
-        dst = point + s_out[:, None] * d_out
-        geo = framed_wedge_geometry(frame.take(wedge), src, dst, point)
-        mat = w.material[wedge]
         two = ~ctx.obj_closed[w.object[wedge]]
-        r0 = ctx.reflection_coefficients(mat, geo.cos_theta_0, two)
-        rn = ctx.reflection_coefficients(mat, geo.cos_theta_n, two)
-        d_mat, spreading = diffraction_matrix(geo, ctx.f, r_0=r0, r_n=rn)
+        dif = chain_diffraction(frame, wedge, chain, j, seg_len, ctx.f, ctx.eta, ctx.thickness,
+                                w.material[wedge], two)  # fmt: skip
         # incident spreading of the unfolded incident leg; the phase of the whole path is applied
         # by the back end
-        scale = np.where(geo.valid, ctx.wavelength / (4 * np.pi * s_in), 0.0)
-        return DiffractionOperator(d_mat, geo.beta_hat_in, geo.phi_hat_in, geo.beta_hat_out,
-                                   geo.phi_hat_out, spreading, geo.valid, scale)  # fmt: skip
+        scale = np.where(dif.valid, ctx.wavelength / (4 * np.pi * dif.s_in), 0.0)
+        return DiffractionOperator(dif.d_matrix, dif.basis, dif.spreading, dif.valid, scale)
 
     return apply
 

@@ -44,18 +44,15 @@ class DiffractionOperator(NamedTuple):
     ----------
     d_matrix : (n, 2, 2) complex, sqrt(metres), the dyadic coefficient ``D``
         (:func:`raytrace.physics.utd.diffraction_matrix`)
-    beta_hat_in, phi_hat_in, beta_hat_out, phi_hat_out : (n, 3) float, the ray-fixed unit
-        vectors of the incident and diffracted rays
+    basis : (n, 4, 3) float, the ray-fixed unit vectors ``beta0'_hat, phi'_hat`` of the
+        incident ray and ``beta0_hat, phi_hat`` of the diffracted one
     spreading : (n,) float, 1/sqrt(metres), ``A``
     valid : (n,) bool
     scale : (n,) float, the extra factor (the incident leg's spreading, 1/metres)
     """
 
     d_matrix: np.ndarray
-    beta_hat_in: np.ndarray
-    phi_hat_in: np.ndarray
-    beta_hat_out: np.ndarray
-    phi_hat_out: np.ndarray
+    basis: np.ndarray
     spreading: np.ndarray
     valid: np.ndarray
     scale: np.ndarray
@@ -267,9 +264,7 @@ def path_fields(
         op = diffraction(cand.elem[is_d, j], take_rows(cand.chain, is_d), j + 1,
                          take_rows(seg_len, is_d))  # fmt: skip
         d_matrix[is_d, j] = op.d_matrix
-        d_basis[is_d, j] = np.stack(
-            [op.beta_hat_in, op.phi_hat_in, op.beta_hat_out, op.phi_hat_out], axis=1
-        )
+        d_basis[is_d, j] = op.basis
         d_amp[is_d, j] = op.spreading
         d_valid[is_d, j] = op.valid
         amp_scale[is_d] *= op.scale
