@@ -88,15 +88,22 @@ def test_guided_chunks_cover_the_receivers_in_order_and_shrink():
         assert [r for c in chunks for r in c] == list(range(n_rx))
         sizes = [len(c) for c in chunks]
         least = min(max(1, MIN_CHUNK_LINKS // n_tx), -(-n_rx // lanes))
+        if len(sizes) <= lanes:  # a small trace: larger chunks last (the calling process's)
+            sizes = sizes[::-1]
         assert all(a >= b for a, b in zip(sizes, sizes[1:]))  # they only shrink
         # the first is a full chunk, or 1/(2 lanes) of the receivers when that is less
         assert sizes[0] == min(n_rx, 256 // n_tx, max(least, -(-n_rx // (2 * lanes))))
         assert max(sizes) * n_tx <= 256
         assert all(k >= least for k in sizes[:-1])  # none below the floor but the remainder
         assert sizes[-1] <= least or len(sizes) == 1  # the last ones are small
-    # a trace smaller than one chunk still gives every lane a share (the hall on 2 lanes)
-    assert [len(c) for c in receiver_chunks(4, 23, None, 2)] == [12, 11]
+    # a trace smaller than one chunk still gives every lane a share (the hall on 2 lanes), the
+    # larger one to the calling process, which takes the last chunk
+    assert [len(c) for c in receiver_chunks(4, 23, None, 2)] == [11, 12]
+    assert [len(c) for c in receiver_chunks(4, 25, None, 4)] == [4, 7, 7, 7]
     assert [len(c) for c in receiver_chunks(4, 3, None, 8)] == [1, 1, 1]
+    # a larger trace keeps its guided order (the small chunks last)
+    sizes = [len(c) for c in receiver_chunks(4, 429, None, 2)]
+    assert len(sizes) > 2 and sizes == sorted(sizes, reverse=True)
     # one lane, or a given chunk size: fixed chunks as before
     assert receiver_chunks(4, 10, None, 1) == receiver_chunks(4, 10)
     assert receiver_chunks(4, 10, 12, 8) == receiver_chunks(4, 10, 12)
@@ -107,6 +114,32 @@ def _pid(scene, item):
 
     time.sleep(0.05)
     return item, os.getpid(), parallel.in_job()
+
+
+def test_a_small_map_leaves_the_last_item_to_the_calling_process(scene_links, monkeypatch):
+    """No more items than lanes: the calling process takes the last item (receiver_chunks puts
+    the larger chunk there; a worker also sends its paths back), a worker the first, whether
+    the feeder thread has handed out the first item when the caller looks or not (it is made
+    late here, then left alone)."""
+    if cpu_count() < 2:
+        pytest.skip("needs two cores")
+    import time
+
+    sc = scene_links[0]
+    run = parallel._Feeder._run
+
+    def late(self):
+        time.sleep(0.3)
+        run(self)
+
+    for slow in (True, False):
+        with monkeypatch.context() as mp:
+            if slow:
+                mp.setattr(parallel._Feeder, "_run", late)
+            with ScenePool(sc, 2) as pool:
+                out = list(pool.map(_pid, range(2)))
+        assert [i for i, _, _ in out] == [0, 1]
+        assert out[1][1] == os.getpid() and out[0][1] != os.getpid()
 
 
 def test_pool_is_kept_for_the_same_scene_and_renewed_for_another(scene_links):

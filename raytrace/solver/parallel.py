@@ -171,17 +171,24 @@ def receiver_chunks(
     With ``chunk_links=None`` and several ``lanes``, the chunks are guided: each takes at most
     ``1 / (2 lanes)`` of the receivers still left (at least :data:`MIN_CHUNK_LINKS` links, or
     ``1 / lanes`` of all the receivers when that is less, so that a small trace still gives every
-    lane a share: the hall's 23 receivers on 2 lanes are 12 + 11, not 16 + 7), so the last chunks
-    are small and the lanes finish together. The chunks never change what is traced.
+    lane a share: the hall's 23 receivers on 2 lanes are 11 + 12, not 7 + 16), so the last chunks
+    are small and the lanes finish together. A trace of no more chunks than lanes has its larger
+    chunks last: the first go to the worker processes, which also send their paths back, the
+    last to the calling process (:meth:`ScenePool.map`). The chunks never change what is traced.
     """
     per = max(1, int(chunk_links or CHUNK_LINKS) // max(n_tx, 1))
     if chunk_links is not None or lanes <= 1:
         return [range(r0, min(n_rx, r0 + per)) for r0 in range(0, n_rx, per)]
     least = min(max(1, MIN_CHUNK_LINKS // max(n_tx, 1)), -(-n_rx // lanes))
-    out, r0 = [], 0
+    sizes, r0 = [], 0
     while r0 < n_rx:
         left = n_rx - r0
-        size = min(per, left, max(least, -(-left // (2 * lanes))))
+        sizes.append(min(per, left, max(least, -(-left // (2 * lanes)))))
+        r0 += sizes[-1]
+    if len(sizes) <= lanes:
+        sizes.reverse()
+    out, r0 = [], 0
+    for size in sizes:
         out.append(range(r0, r0 + size))
         r0 += size
     return out
@@ -490,10 +497,12 @@ class _Feeder:
                 self._cond.wait_for(lambda: i in self._futures)
             return self._futures.get(i)
 
-    def take_next(self) -> int | None:
-        """The next item no worker has been given (None: there is none left)."""
+    def take_next(self, last: bool = False) -> int | None:
+        """The next item no worker has been given, or the last one (None: there is none left)."""
         with self._cond:
-            return self._left.popleft() if self._left else None
+            if not self._left:
+                return None
+            return self._left.pop() if last else self._left.popleft()
 
     def stop(self) -> None:
         """Hand out nothing more (items already with the workers run to their end)."""
@@ -538,7 +547,8 @@ class ScenePool:
         All lanes take the items in order from one queue: a feeder thread hands the next one to
         a worker as soon as it is free, and this process takes the next one whenever the result
         it must yield next is not there yet (it traces while the workers start, and the small
-        guided chunks at the end go to whichever lane is free). Raises :class:`WorkerCrashError` if
+        guided chunks at the end go to whichever lane is free). With no more items than lanes,
+        this process takes the last item only. Raises :class:`WorkerCrashError` if
         a worker process dies; an exception raised by ``fn`` is raised as it is.
         """
         items = list(items)
@@ -553,13 +563,18 @@ class ScenePool:
             return
         feed = _Feeder(self._pool, fn, items, self.workers)
         done: dict[int, Any] = {}
+        # no more items than lanes (a small trace): this process takes the last one and leaves
+        # the others to the workers, whatever the feeder has handed out yet (receiver_chunks
+        # puts the larger chunks last: a worker also sends its paths back)
+        last = len(items) <= self.workers
         try:
             for i in range(len(items)):
                 while i not in done:
                     fut = feed.future(i)
                     if fut is not None and fut.done():
                         break
-                    j = feed.take_next()  # the next result is not there: work meanwhile
+                    # the next result is not there: work meanwhile
+                    j = None if last and done else feed.take_next(last)
                     if j is None:
                         fut = feed.future(i, wait=True)
                         break
