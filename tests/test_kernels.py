@@ -469,3 +469,42 @@ def test_entry_points_are_a_plus_t_d_and_nan_in_empty_slots():
     got = kernels.entry_points(a, d, dist)
     np.testing.assert_array_equal(got, want)
     assert np.isnan(got[np.isinf(dist)]).all() and np.isfinite(got[np.isfinite(dist)]).all()
+
+
+def test_mixed_candidates_are_the_stage_arrays_built_in_numpy():
+    """RD and DR candidates from reflection_edge_points' output: the compiled pass gives the
+    arrays ``evaluate.candidates`` builds from the stacked vertices (written out here), to the
+    bit."""
+    from types import SimpleNamespace
+
+    from raytrace.solver.evaluate import candidates
+    from raytrace.solver.paths import DIFFRACTION, REFLECTION
+
+    rng = np.random.default_rng(11)
+    n_t, n_r, n_f, n_w, n_q, m = 3, 7, 40, 30, 50, 300
+    tx, rx = rng.normal(size=(n_t, 3)), rng.normal(size=(n_r, 3))
+    f_obj, w_obj = rng.integers(0, 9, n_f), rng.integers(0, 9, n_w)
+    f_idx, w_idx = rng.integers(0, n_f, n_q), rng.integers(0, n_w, n_q)
+    q = np.sort(rng.integers(0, n_q, m))
+    pts = rng.normal(size=(m, 6))
+    ctx = SimpleNamespace(tx=tx, rx=rx, scene=SimpleNamespace(facets=SimpleNamespace(object=f_obj)),
+                          wedge_object=lambda i: w_obj[np.clip(i, 0, n_w - 1)])  # fmt: skip
+    for before in (True, False):
+        e_idx = rng.integers(0, n_t if before else n_r, n_q)
+        o_idx = rng.integers(0, n_r if before else n_t, m)
+        got = kernels.mixed_candidates(q, o_idx, pts, e_idx, f_idx, w_idx, tx, rx, f_obj, w_obj,
+                                       before, REFLECTION, DIFFRACTION)  # fmt: skip
+        if before:  # tx -> reflection -> diffraction -> rx
+            t_idx, r_idx = e_idx[q], o_idx
+            verts = np.stack([pts[:, 3:], pts[:, :3]], axis=1)
+            elem = np.stack([f_idx[q], w_idx[q]], axis=1)
+            kinds = np.array([[REFLECTION, DIFFRACTION]], np.int8)
+        else:  # tx -> diffraction -> reflection -> rx
+            t_idx, r_idx = o_idx, e_idx[q]
+            verts = pts.reshape(-1, 2, 3)
+            elem = np.stack([w_idx[q], f_idx[q]], axis=1)
+            kinds = np.array([[DIFFRACTION, REFLECTION]], np.int8)
+        want = candidates(ctx, t_idx, r_idx, verts, elem, np.repeat(kinds, m, axis=0))
+        for name, g in zip(("t_idx", "r_idx", "verts", "elem", "kinds", "chain", "vobj"), got):
+            w = getattr(want, name)
+            assert g.shape == w.shape and np.array_equal(g, w), (before, name)

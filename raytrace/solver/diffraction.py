@@ -38,7 +38,7 @@ from ..scene import accel
 from . import kernels
 from . import reflection as refl
 from .context import TraceContext
-from .evaluate import DiffractionModel, DiffractionOperator, candidates, evaluate
+from .evaluate import Candidates, DiffractionModel, DiffractionOperator, candidates, evaluate
 from .paths import DIFFRACTION, REFLECTION, Paths
 
 #: Work is split into chunks of about this many candidates.
@@ -339,6 +339,9 @@ def _one_reflection(ctx: TraceContext, before: bool) -> list[Paths]:
     triples = (carray(e_idx, np.int64), carray(f_idx, np.int64), carray(w_idx, np.int64),
                carray(img), carray(t_lo), carray(t_hi))  # fmt: skip
     out = []
+    tx, rx = carray(ctx.tx), carray(ctx.rx)
+    facet_obj = carray(fc.object, np.int64)
+    wedge_obj = carray(w.object if len(w) else np.zeros(0), np.int64)
     n_o = len(others)
     step = max(1, CHUNK // max(n_o, 1))
     for c0 in range(0, len(e_idx), step):
@@ -350,17 +353,9 @@ def _one_reflection(ctx: TraceContext, before: bool) -> list[Paths]:
         ctx.count("candidates_rd" if before else "candidates_dr", n_pairs)
         if not len(q):
             continue
-        if before:
-            t_idx, r_idx = e_idx[q], o_idx
-            verts = np.stack([pts[:, 3:], pts[:, :3]], axis=1)
-            fac = np.stack([f_idx[q], w_idx[q]], axis=1)
-            kinds = np.array([[REFLECTION, DIFFRACTION]], np.int8)
-        else:
-            t_idx, r_idx = o_idx, e_idx[q]
-            verts = pts.reshape(-1, 2, 3)  # (diffraction point, reflection point)
-            fac = np.stack([w_idx[q], f_idx[q]], axis=1)
-            kinds = np.array([[DIFFRACTION, REFLECTION]], np.int8)
-        cand = candidates(ctx, t_idx, r_idx, verts, fac, kinds=np.repeat(kinds, len(q), axis=0))
+        cand = Candidates(*kernels.mixed_candidates(q, o_idx, pts, *triples[:3], tx, rx,
+                                                     facet_obj, wedge_obj, before,
+                                                     REFLECTION, DIFFRACTION))  # fmt: skip
         out.append(evaluate(ctx, cand, diffraction=field_model(ctx)))
     return out
 

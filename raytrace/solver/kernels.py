@@ -57,7 +57,7 @@ __all__ = ["PRUNE", "surely_inside", "facet_wedge_pairs", "expand_over_others",
            "reflection_edge_points", "along_and_off_rows", "second_order_receivers", "line_span", "edge_distance",
            "opaque_blocks", "touch_rows", "entry_points", "end_probes",
            "walk_record", "unseen_entries", "walk_rays", "walk_hits", "segment_rays",
-           "path_gains", "interaction_sequences"]
+           "path_gains", "interaction_sequences", "mixed_candidates"]
 
 #: The callers pass this as the kernels' ``prune``: False switches their pruning tests off (they
 #: then return every candidate that satisfies the rules, with unbounded spans), so that a trace
@@ -427,6 +427,43 @@ def reflection_edge_points(start, stop, e_idx, f_idx, w_idx, img, t_lo, t_hi, ot
             out_p[m, 3], out_p[m, 4], out_p[m, 5] = cx, cy, cz
             m += 1
     return out_q[:m].copy(), out_o[:m].copy(), out_p[:m].copy(), n_pairs
+
+
+@kernel(
+    "Tuple((i8[::1], i8[::1], f8[:, :, ::1], i8[:, ::1], i1[:, ::1], f8[:, :, ::1], i8[:, ::1]))("
+    "i8[::1], i8[::1], f8[:, ::1], i8[::1], i8[::1], i8[::1], f8[:, ::1], f8[:, ::1], i8[::1], "
+    "i8[::1], b1, i1, i1)"
+)
+def mixed_candidates(q, o_idx, points, e_idx, f_idx, w_idx, tx, rx, facet_object, wedge_object,
+                     before, reflection, diffraction):  # fmt: skip
+    """The arrays of :class:`raytrace.solver.evaluate.Candidates` of RD (``before``) or DR
+    candidates from :func:`reflection_edge_points`' output (triples ``q``, other ends ``o_idx``,
+    diffraction and reflection points (M, 6)) and the triples (end, facet, wedge), in one pass:
+    ``t_idx, r_idx`` (M,), ``verts`` (M, 2, 3) in path order, ``elem`` (M, 2) (facet of the
+    reflection, wedge of the diffraction), ``kinds`` (M, 2), ``chain`` (M, 4, 3) (transmitter,
+    vertices, receiver) and ``vobj`` (M, 2) (the object under each vertex)."""
+    m = len(q)
+    t_out, r_out = np.empty(m, dtype=np.int64), np.empty(m, dtype=np.int64)
+    verts, chain = np.empty((m, 2, 3)), np.empty((m, 4, 3))
+    elem, vobj = np.empty((m, 2), dtype=np.int64), np.empty((m, 2), dtype=np.int64)
+    kinds = np.empty((m, 2), dtype=np.int8)
+    r_v, d_v = (0, 1) if before else (1, 0)  # the reflection's and the diffraction's vertex
+    for i in range(m):
+        t = q[i]
+        e, o, f, w = e_idx[t], o_idx[i], f_idx[t], w_idx[t]
+        ti, ri = (e, o) if before else (o, e)
+        t_out[i], r_out[i] = ti, ri
+        for c in range(3):
+            verts[i, d_v, c] = points[i, c]
+            verts[i, r_v, c] = points[i, 3 + c]
+            chain[i, 0, c] = tx[ti, c]
+            chain[i, 1 + d_v, c] = points[i, c]
+            chain[i, 1 + r_v, c] = points[i, 3 + c]
+            chain[i, 3, c] = rx[ri, c]
+        elem[i, r_v], elem[i, d_v] = f, w
+        kinds[i, r_v], kinds[i, d_v] = reflection, diffraction
+        vobj[i, r_v], vobj[i, d_v] = facet_object[f], wedge_object[w]
+    return t_out, r_out, verts, elem, kinds, chain, vobj
 
 
 @inline
