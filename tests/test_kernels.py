@@ -373,7 +373,7 @@ def test_path_gains_apply_the_numpy_interactions_in_order():
     n0 = _unit(np.cross(edge, rng.normal(size=(m, 3))))
     nn = _unit(np.cross(edge, rng.normal(size=(m, 3))))
     geo = utd.wedge_geometry(pts[:, 0], pts[:, 2], pts[:, 1], edge, n0, nn)
-    d_mat, spreading = utd.diffraction_matrix(geo, f)
+    d_mat_all, spread_all = utd.diffraction_matrix(geo, f)
     e_start, e_rx = vertical_pol(dirs[:, 0]), vertical_pol(dirs[:, 1])
     assert 0.2 < geo.valid.mean() < 1.0  # some diffractions are not valid (ends in the wedge)
 
@@ -385,15 +385,19 @@ def test_path_gains_apply_the_numpy_interactions_in_order():
         return _te_tm(e, dirs[:, j], dirs[:, j], pen_n[:, j, 0], t_te, t_tm), delay
 
     amp_scale = np.exp(1j * rng.uniform(0, 2 * np.pi, m)) * rng.uniform(0.5, 2, m)
+    basis = np.stack([geo.beta_hat_in, geo.phi_hat_in, geo.beta_hat_out, geo.phi_hat_out], 1)
     for kind in (REFLECTION, DIFFRACTION):
         kinds = np.full((m, 1), kind, np.int8)
-        basis = np.stack([geo.beta_hat_in, geo.phi_hat_in, geo.beta_hat_out, geo.phi_hat_out], 1)
+        # each diffraction's row in the operator arrays: reversed, so that a wrong row shows
+        slot = np.full((m, 1), -1) if kind == REFLECTION else np.arange(m - 1, -1, -1).reshape(m, 1)
+        d_rows = np.arange(m)[::-1]
+        d_mat, basis_d = np.ascontiguousarray(d_mat_all[d_rows]), np.ascontiguousarray(basis[d_rows])
+        spreading, valid = np.ascontiguousarray(spread_all[d_rows]), geo.valid[d_rows].copy()
         gain, delay = kernels.path_gains(
             np.ascontiguousarray(pts), kinds, np.arange(m).reshape(m, 1), np.ones((m, 2), np.int64),
             pen_n, pen_obj, pen_th, obj_material, eta, slope, thickness, f_normal, f_material,
-            f_sheet, np.ascontiguousarray(d_mat[:, None]), np.ascontiguousarray(basis[:, None]),
-            np.ascontiguousarray(spreading[:, None]), np.ascontiguousarray(geo.valid[:, None]),
-            amp_scale, f, k0, wavelength, True, int(REFLECTION), int(DIFFRACTION),
+            f_sheet, slot, d_mat, basis_d, spreading, valid, amp_scale, f, k0, wavelength, True,
+            int(REFLECTION), int(DIFFRACTION),
         )  # fmt: skip
         e, tau0 = pen(e_start.astype(complex), 0)
         if kind == REFLECTION:
@@ -419,9 +423,8 @@ def test_path_gains_apply_the_numpy_interactions_in_order():
     _, delay = kernels.path_gains(
         np.ascontiguousarray(pts), kinds, np.arange(m).reshape(m, 1), np.ones((m, 2), np.int64),
         pen_n, pen_obj, pen_th, obj_material, eta, slope, thickness, f_normal, f_material,
-        f_sheet, np.ascontiguousarray(d_mat[:, None]), np.ascontiguousarray(basis[:, None]),
-        np.ascontiguousarray(spreading[:, None]), np.ascontiguousarray(geo.valid[:, None]),
-        amp_scale, f, k0, wavelength, False, int(REFLECTION), int(DIFFRACTION),
+        f_sheet, slot, d_mat, basis_d, spreading, valid, amp_scale, f, k0, wavelength, False,
+        int(REFLECTION), int(DIFFRACTION),
     )  # fmt: skip
     np.testing.assert_array_equal(delay, total / C0)
 

@@ -246,12 +246,11 @@ def path_fields(
     m, k = len(cand), cand.depth
     n_pen = cross.object.shape[1]
     # diffractions, every vertex of one position in the chain at once (the operators of the
-    # diffraction model); the compiled loop computes the other coefficients path by path
-    d_matrix = np.zeros((m, k, 2, 2), dtype=complex)
-    d_basis = np.zeros((m, k, 4, 3))
-    d_amp = np.zeros((m, k))
-    d_valid = np.zeros((m, k), dtype=bool)
+    # diffraction model, one row per diffraction, found by d_slot); the compiled loop computes
+    # the other coefficients path by path
+    d_slot = np.full((m, k), -1, dtype=np.int64)
     amp_scale = np.ones(m, dtype=complex)  # extra scalar factors (diffraction spreading)
+    ops: list[DiffractionOperator] = []
     seg_len = None
     for j in range(k):
         is_d = np.flatnonzero(cand.kinds[:, j] == DIFFRACTION)
@@ -263,11 +262,17 @@ def path_fields(
             seg_len = norm(cand.chain[:, 1:] - cand.chain[:, :-1])  # (m, k+1)
         op = diffraction(cand.elem[is_d, j], take_rows(cand.chain, is_d), j + 1,
                          take_rows(seg_len, is_d))  # fmt: skip
-        d_matrix[is_d, j] = op.d_matrix
-        d_basis[is_d, j] = op.basis
-        d_amp[is_d, j] = op.spreading
-        d_valid[is_d, j] = op.valid
+        d_slot[is_d, j] = sum(len(o.valid) for o in ops) + np.arange(len(is_d))
         amp_scale[is_d] *= op.scale
+        ops.append(op)
+    if len(ops) == 1:
+        d_matrix, d_basis, d_amp, d_valid = ops[0][:4]
+    else:  # (several diffraction positions, or none)
+        d_matrix, d_basis, d_amp, d_valid = (
+            np.concatenate([o[i] for o in ops]) if ops else np.zeros((0, *tail), dtype=dt)
+            for i, tail, dt in ((0, (2, 2), complex), (1, (4, 3), float), (2, (), float),
+                                (3, (), bool))
+        )  # fmt: skip
     fc = ctx.scene.facets
     sheet = fc.two_sided
     return kernels.path_gains(
@@ -277,8 +282,9 @@ def path_fields(
         carray(cross.object, np.int64).reshape(m, k + 1, n_pen),
         carray(cross.thickness).reshape(m, k + 1, n_pen), carray(ctx.obj_material, np.int64),
         carray(ctx.eta, complex), carray(ctx.eta_slope, complex), carray(ctx.thickness),
-        carray(fc.normal), carray(fc.material, np.int64), carray(sheet, bool), d_matrix, d_basis,
-        d_amp, d_valid, amp_scale, float(ctx.f), float(ctx.k0), float(ctx.wavelength),
+        carray(fc.normal), carray(fc.material, np.int64), carray(sheet, bool), d_slot,
+        carray(d_matrix, complex), carray(d_basis), carray(d_amp), carray(d_valid, bool),
+        amp_scale, float(ctx.f), float(ctx.k0), float(ctx.wavelength),
         bool(ctx.cfg.slab_delay), int(REFLECTION), int(DIFFRACTION),
     )  # fmt: skip
 

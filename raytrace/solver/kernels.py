@@ -1209,12 +1209,13 @@ def _clipped_cos(c):
 @kernel(
     "Tuple((c16[::1], f8[::1]))(f8[:, :, ::1], i1[:, ::1], i8[:, ::1], i8[:, ::1], "
     "f8[:, :, :, ::1], i8[:, :, ::1], f8[:, :, ::1], i8[::1], c16[::1], c16[::1], f8[::1], "
-    "f8[:, ::1], i8[::1], b1[::1], c16[:, :, :, ::1], f8[:, :, :, ::1], f8[:, ::1], b1[:, ::1], "
+    "f8[:, ::1], i8[::1], b1[::1], i8[:, ::1], c16[:, :, ::1], f8[:, :, ::1], f8[::1], b1[::1], "
     "c16[::1], f8, f8, f8, b1, i8, i8)"
 )
 def path_gains(chain, kinds, elem, count, pen_normal, pen_obj, pen_thickness, obj_material, eta,
-               eta_slope, thickness, f_normal, f_material, f_two_sided, d_matrix, d_basis, d_amp,
-               d_valid, amp_scale, f, k0, wavelength, slab_delay, reflection, diffraction):  # fmt: skip
+               eta_slope, thickness, f_normal, f_material, f_two_sided, d_slot, d_matrix, d_basis,
+               d_amp, d_valid, amp_scale, f, k0, wavelength, slab_delay, reflection,
+               diffraction):  # fmt: skip
     """Complex gain and delay of M paths with ``k`` vertices: the field vector carried from the
     transmitter to the receiver and projected on the receiving antenna's polarisation.
 
@@ -1242,9 +1243,10 @@ def path_gains(chain, kinds, elem, count, pen_normal, pen_obj, pen_thickness, ob
         permittivity and ``f d eta / d f``; thickness : (n_materials,) float, m, an open
         sheet's thickness
     f_normal : (F, 3) float, f_material : (F,) int, f_two_sided : (F,) bool, of the facets
-    d_matrix : (M, k, 2, 2) complex, sqrt(m), a diffraction's dyadic coefficient; d_basis :
-        (M, k, 4, 3) float, its ``beta0'_hat, phi'_hat, beta0_hat, phi_hat``; d_amp : (M, k)
-        float, its spreading factor; d_valid : (M, k) bool
+    d_slot : (M, k) int, a diffraction vertex's row in the next four (-1 elsewhere)
+    d_matrix : (D, 2, 2) complex, sqrt(m), a diffraction's dyadic coefficient; d_basis :
+        (D, 4, 3) float, its ``beta0'_hat, phi'_hat, beta0_hat, phi_hat``; d_amp : (D,)
+        float, its spreading factor; d_valid : (D,) bool
     amp_scale : (M,) complex, an extra factor of the whole path (diffraction's incident leg)
     f, k0, wavelength : Hz, rad/m, m
     slab_delay : bool; reflection, diffraction : int, the codes in ``kinds``
@@ -1295,16 +1297,17 @@ def path_gains(chain, kinds, elem, count, pen_normal, pen_obj, pen_thickness, ob
                                     dirs[j + 1, 2], nx, ny, nz, r_te, r_tm)  # fmt: skip
             elif kinds[r, j] == diffraction:
                 has_d = True
-                if not d_valid[r, j]:
+                q = d_slot[r, j]
+                if not d_valid[q]:
                     e0, e1, e2 = 0j, 0j, 0j
                     continue
-                b = d_basis[r, j]
+                b = d_basis[q]
                 c0 = (e0 * b[0, 0] + e1 * b[0, 1]) + e2 * b[0, 2]
                 c1 = (e0 * b[1, 0] + e1 * b[1, 1]) + e2 * b[1, 2]
-                d = d_matrix[r, j]
+                d = d_matrix[q]
                 o0 = -(d[0, 0] * c0 + d[0, 1] * c1)
                 o1 = -(d[1, 0] * c0 + d[1, 1] * c1)
-                amp = d_amp[r, j]
+                amp = d_amp[q]
                 e0 = (o0 * b[2, 0] + o1 * b[3, 0]) * amp
                 e1 = (o0 * b[2, 1] + o1 * b[3, 1]) * amp
                 e2 = (o0 * b[2, 2] + o1 * b[3, 2]) * amp
