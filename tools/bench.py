@@ -27,6 +27,9 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from raytrace import TraceConfig, load_scene, trace  # noqa: E402
+from raytrace.cli.harness import OneLineParser, run_tool  # noqa: E402
+from raytrace.core.errors import HallrayError  # noqa: E402
+from raytrace.scene.metadata import SceneMetadata  # noqa: E402
 
 
 def _best_of(fn, repeat):
@@ -42,9 +45,8 @@ def bench_trace(scene_name: str, repeat: int) -> dict:
     t0 = time.perf_counter()
     scene = load_scene(scene_name)
     load_s = time.perf_counter() - t0
-    meta = scene.metadata.get("hallray", {})
-    tx = np.array([b["xyz"] for b in meta["base_stations"]], float)
-    rx = np.array([p["xyz"] for p in meta["points"]], float)
+    inp = SceneMetadata.from_scene(scene, require=True)  # one-line SceneError if it has none
+    tx, rx = inp.bs_xyz, inp.point_xyz
     n_links = len(tx) * len(rx)
     configs = {
         "los_only": TraceConfig(max_reflections=0, max_penetrations=0, max_diffractions=0),
@@ -109,12 +111,11 @@ def bench_snapshots(scene_name: str, n: int) -> dict:
     from raytrace.solver.incremental import SnapshotTracer
 
     scene = load_scene(scene_name)
-    meta = scene.metadata.get("hallray", {})
     routes = routes_from_metadata(scene.metadata)
     if not routes or n <= 0:
         return {}
-    tx = np.array([b["xyz"] for b in meta["base_stations"]], float)
-    rx = np.array([p["xyz"] for p in meta["points"]], float)
+    inp = SceneMetadata.from_scene(scene, require=True)
+    tx, rx = inp.bs_xyz, inp.point_xyz
     freqs = [get_band(b).center_frequency_hz for b in ("c-band", "mmwave")]
     st = SnapshotTracer(scene, tx, rx, routes, freqs, threads=1)
     times = np.linspace(0.0, 60.0, n, endpoint=False) + 0.37
@@ -242,7 +243,6 @@ def _amdahl(serial_fraction: float, n: int = AMDAHL_CORES) -> float:
 def bench_scaling(scene_name: str, repeat: int, grid_step: float) -> dict:
     """Links/s and paths/s at 1, 2 and all cores on the hall's links and on a grid over its
     floor (all mechanisms, depth 2), the parallel efficiency, and the serial fraction."""
-    from raytrace.scene.metadata import SceneMetadata
     from raytrace.solver.parallel import cpu_count
     from raytrace.studies.accuracy_map import MapSettings, make_grid
 
@@ -326,8 +326,8 @@ def bench_positioning(n_epochs: int) -> dict:
         return {"error": f"{type(exc).__name__}: {exc}"}
 
 
-def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def parser() -> argparse.ArgumentParser:
+    ap = OneLineParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scene", default="hall")
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument(
@@ -340,10 +340,29 @@ def main() -> int:
         help="forklift snapshots for the incremental-retrace benchmark (0: skip)",
     )
     ap.add_argument("--grid-step", type=float, default=2.0, help="grid of the scaling runs, m")
-    ap.add_argument("--no-scaling", action="store_true", help="skip the scaling over cores")
-    ap.add_argument("--only-scaling", action="store_true", help="only the scaling over cores")
+    scaling = ap.add_mutually_exclusive_group()
+    scaling.add_argument("--no-scaling", action="store_true", help="skip the scaling over cores")
+    scaling.add_argument("--only-scaling", action="store_true", help="only the scaling over cores")
     ap.add_argument("--json", action="store_true")
-    args = ap.parse_args()
+    return ap
+
+
+def check_args(args: argparse.Namespace) -> None:
+    """Refuse meaningless settings before any work (a one-line :class:`HallrayError`)."""
+    if args.repeat < 1:
+        raise HallrayError(f"--repeat must be >= 1, got {args.repeat}")
+    if args.epochs < 1:
+        raise HallrayError(f"--epochs must be >= 1, got {args.epochs}")
+    if args.snapshots < 0:
+        raise HallrayError(f"--snapshots must be >= 0 (0: skip), got {args.snapshots}")
+    if not (np.isfinite(args.grid_step) and args.grid_step > 0):
+        raise HallrayError(
+            f"--grid-step must be a positive number of metres, got {args.grid_step:g}"
+        )
+
+
+def _main(args: argparse.Namespace) -> int:
+    check_args(args)
     if args.only_scaling:
         sc = bench_scaling(args.scene, args.repeat, args.grid_step)
         if args.json:
@@ -406,6 +425,10 @@ def main() -> int:
         for k, v in pos.items():
             print(f"  {k}: {v:.1f}" if v < 100 else f"  {k}: {v:.0f}")
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    return run_tool(_main, parser(), argv)
 
 
 if __name__ == "__main__":

@@ -33,6 +33,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from positioning import C0, METHODS, error_2d, locate, summarize  # noqa: E402
+from positioning.command import OneLineParser, run_command  # noqa: E402
+from positioning.errors import PositioningError  # noqa: E402
 
 BS = np.array([[0.0, 0.0, 4.0], [29.0, 0.0, 4.0], [29.0, 25.0, 4.0], [0.0, 25.0, 4.0]])
 
@@ -167,10 +169,19 @@ def run(n_epochs: int = 20000, seed: int = 0, clock=time.perf_counter) -> dict[s
     return out
 
 
-if __name__ == "__main__":
-    cpu = "--cpu-time" in sys.argv
-    args = [a for a in sys.argv[1:] if a != "--cpu-time"]
-    n = int(args[0]) if args else 20000
+def parser() -> OneLineParser:
+    p = OneLineParser(description=__doc__.splitlines()[0])
+    p.add_argument("n_epochs", nargs="?", type=int, default=20000,
+                   help="epochs of the speed runs [20000]")  # fmt: skip
+    p.add_argument("--cpu-time", action="store_true",
+                   help="fixes per CPU second instead of per wall-clock second")  # fmt: skip
+    return p
+
+
+def _main(args) -> int:
+    if args.n_epochs < 1:
+        raise PositioningError(f"n_epochs must be >= 1, got {args.n_epochs}")
+    n, cpu = args.n_epochs, args.cpu_time
     unit = "fixes per CPU second" if cpu else "fixes/s"
     print(f"speed, {n} epochs, 4 base stations, 2D:")
     for name, rate in run(n, clock=time.process_time if cpu else time.perf_counter).items():
@@ -183,3 +194,12 @@ if __name__ == "__main__":
             print(f"accuracy, {n_bs} base stations, sigma {sigma} m, one +5 m NLoS per epoch:")
             for name, (mean, p90) in compare(n_bs=n_bs, sigma_m=sigma).items():
                 print(f"  {name:<12} mean {mean:6.2f} m   p90 {p90:6.2f} m")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    return run_command(_main, parser(), argv)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

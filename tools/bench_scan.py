@@ -22,14 +22,26 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from raytrace.cli.harness import OneLineParser, run_tool  # noqa: E402
+from raytrace.core.errors import HallrayError  # noqa: E402
+
+#: Fewest points asked for: fewer may leave the simulated scan empty. The reconstruction needs
+#: far more (20000 are too few: scan-to-scene finds no plane and says so in one line).
+MIN_POINTS = 1000
 
 CHILD = """
 import json, resource, sys, time, tracemalloc
 sys.path.insert(0, {root!r})
+from raytrace.core.errors import HallrayError
 from raytrace.halls.scan import ScanOptions, scan_to_scene
 tracemalloc.start()
 t0 = time.perf_counter()
-s = scan_to_scene({cloud!r}, {out!r}, ScanOptions())
+try:
+    s = scan_to_scene({cloud!r}, {out!r}, ScanOptions())
+except HallrayError as exc:  # a cloud it cannot reconstruct: one line, as the parent prints it
+    sys.exit(f"error: {{exc}}")
 wall = time.perf_counter() - t0
 _, py_peak = tracemalloc.get_traced_memory()
 rss_kib = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
@@ -39,18 +51,25 @@ print(json.dumps({{"summary": s, "wall_s": wall, "peak_rss_mib": rss_kib / 1024,
 """
 
 
-def main(argv: list[str] | None = None) -> int:
-    sys.path.insert(0, str(ROOT))
+def parser() -> argparse.ArgumentParser:
+    p = OneLineParser(description=__doc__.splitlines()[0])
+    p.add_argument("--points", type=int, default=1_000_000, help="points in the cloud [1e6]")
+    p.add_argument("--seed", type=int, default=11)
+    p.add_argument("--json", action="store_true")
+    return p
+
+
+def _main(args: argparse.Namespace) -> int:
+    if args.points < MIN_POINTS:
+        raise HallrayError(f"--points must be >= {MIN_POINTS}, got {args.points}")
+    try:
+        import open3d as o3d
+    except ImportError:
+        raise HallrayError("bench_scan.py needs open3d (pip install '.[scan]')") from None
     import numpy as np
 
     from raytrace.halls.scan import simulate_scan
     from raytrace.scene.io import load_scene
-
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--points", type=int, default=1_000_000, help="points in the cloud [1e6]")
-    p.add_argument("--seed", type=int, default=11)
-    p.add_argument("--json", action="store_true")
-    args = p.parse_args(argv)
 
     hall = load_scene("hall")
     t0 = time.perf_counter()
@@ -63,8 +82,6 @@ def main(argv: list[str] | None = None) -> int:
     pts = pts[np.random.default_rng(args.seed).permutation(len(pts))[: args.points]]
     t_sim = time.perf_counter() - t0
     with tempfile.TemporaryDirectory() as tmp:
-        import open3d as o3d
-
         cloud = str(Path(tmp) / "hall.ply")
         o3d.io.write_point_cloud(cloud, o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts)))
         code = CHILD.format(root=str(ROOT), cloud=cloud, out=str(Path(tmp) / "hall.glb"))
@@ -72,8 +89,8 @@ def main(argv: list[str] | None = None) -> int:
             [sys.executable, "-c", code], capture_output=True, text=True, check=False
         )
     if res.returncode:
-        print(res.stderr, file=sys.stderr)
-        return res.returncode
+        sys.stderr.write(res.stderr)  # the child's one-line error, or its traceback (a bug)
+        return 2 if res.stderr.startswith("error: ") else res.returncode
     r = json.loads(res.stdout.strip().splitlines()[-1])
     r["points"] = len(pts)
     r["simulate_s"] = round(t_sim, 2)
@@ -96,6 +113,10 @@ def main(argv: list[str] | None = None) -> int:
         f"p95 {s['residual_p95_m'] * 100:.1f} cm"
     )
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    return run_tool(_main, parser(), argv)
 
 
 if __name__ == "__main__":

@@ -25,7 +25,9 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from positioning import api  # noqa: E402
+from positioning.command import OneLineParser, run_command  # noqa: E402
 from positioning.dataset import load_dataset  # noqa: E402
+from positioning.errors import PositioningError  # noqa: E402
 from positioning.metrics import error_2d  # noqa: E402
 from positioning.report import dataset_problem  # noqa: E402
 from positioning.twin import load  # noqa: E402
@@ -33,21 +35,48 @@ from positioning.twin import load  # noqa: E402
 SETUPS = "static-c-band,static-mmwave,semi-dynamic-c-band,semi-dynamic-mmwave"
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def _steps(text: str) -> list[float]:
+    """``--steps``: comma-separated raster spacings, m, each finite and >= 0 (argparse type)."""
+    try:
+        steps = [float(x) for x in text.split(",")]
+    except ValueError:
+        steps = []
+    if not steps or not all(np.isfinite(steps)) or min(steps) < 0:
+        raise argparse.ArgumentTypeError(
+            f"expected raster spacings >= 0 m, comma-separated (e.g. 0.05,0), got {text!r}"
+        )
+    return steps
+
+
+def parser() -> argparse.ArgumentParser:
+    ap = OneLineParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", required=True, help="folder of the datasets (one per setup)")
     ap.add_argument("--maps", required=True, help="folder with <band>/map.npz")
     ap.add_argument("--setups", default=SETUPS)
-    ap.add_argument("--steps", default="0.05", help="raster spacings, m, comma-separated")
-    a = ap.parse_args(argv)
+    ap.add_argument("--steps", type=_steps, default="0.05",
+                    help="raster spacings, m, comma-separated")  # fmt: skip
+    return ap
+
+
+def _band(setup: str) -> str:
+    return "c-band" if setup.endswith("c-band") else "mmwave"
+
+
+def _main(a: argparse.Namespace) -> int:
+    setups = a.setups.split(",")
+    for setup in setups:  # every input there before any work
+        if not (Path(a.data) / setup).is_dir():
+            raise PositioningError(f"{Path(a.data) / setup}: dataset directory not found")
+        if not (Path(a.maps) / _band(setup) / "map.npz").is_file():
+            raise PositioningError(f"{Path(a.maps) / _band(setup) / 'map.npz'}: no such map file")
     print("| setup | resynth_step | p90 / mean, m | cold, fixes per CPU s | warm |")
     print("|---|---|---|---|---|")
-    for setup in a.setups.split(","):
-        band = "c-band" if setup.endswith("c-band") else "mmwave"
+    for setup in setups:
+        band = _band(setup)
         ds = load_dataset(Path(a.data) / setup)
         prob = dataset_problem(ds)
         mp = str(Path(a.maps) / band / "map.npz")
-        for step in (float(x) for x in a.steps.split(",")):
+        for step in a.steps:
             p = api.resolve_params("twin", {"map": mp, "resynth_step": step}, prob.n_bs)
             load(mp)[1].rasters.clear()
             rate = []
@@ -62,6 +91,10 @@ def main(argv: list[str] | None = None) -> int:
             print(f"| {setup} | {step:g} | {np.percentile(e, 90):.2f} / {e.mean():.3f} | "
                   f"{rate[0]:.0f} | {warm} |", flush=True)  # fmt: skip
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    return run_command(_main, parser(), argv)
 
 
 if __name__ == "__main__":

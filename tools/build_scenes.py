@@ -22,6 +22,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from raytrace.cli.harness import OneLineParser, run_tool  # noqa: E402
+from raytrace.core.errors import SceneError  # noqa: E402
 from raytrace.core.fileio import write_atomic  # noqa: E402
 from raytrace.halls.spec import (  # noqa: E402
     SCHEMA_VERSION,
@@ -170,7 +172,7 @@ def updated_hall_yaml() -> str:
         done.add(m.group(2))
     missing = sorted(set(table) - done)
     if missing:
-        raise SystemExit(f"error: points not written as one-line flow mappings: {missing}")
+        raise SceneError(f"{HALL_YAML}: points not written as one-line flow mappings: {missing}")
     return "".join(lines)
 
 
@@ -185,14 +187,16 @@ def _write_all(outputs: dict[Path, Callable[[], bytes]]) -> None:
             print(f"unchanged {path.relative_to(ROOT)}")
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+def parser() -> argparse.ArgumentParser:
+    parser = OneLineParser(description=__doc__.split("\n\n")[0])
     group = parser.add_mutually_exclusive_group()
     group.add_argument("--check", action="store_true", help="fail if a committed file is stale")
     group.add_argument("--update-notes", action="store_true", help="rewrite LoS notes in hall.yaml")
     group.add_argument("--los-table", action="store_true", help="print the LoS table (markdown)")
-    args = parser.parse_args(argv)
+    return parser
 
+
+def _main(args: argparse.Namespace) -> int:
     if args.los_table:
         print(los_markdown(load_hall_spec(HALL_YAML)), end="")
         return 0
@@ -213,6 +217,10 @@ def main(argv: list[str] | None = None) -> int:
         return 1 if stale else 0
     _write_all(outputs)
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    return run_tool(_main, parser(), argv)
 
 
 if __name__ == "__main__":

@@ -36,6 +36,9 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from positioning.fingerprint import FingerprintMap, write_map  # noqa: E402
+from positioning.output import check_output  # noqa: E402
+from raytrace.cli.harness import OneLineParser, run_tool  # noqa: E402
+from raytrace.core.errors import HallrayError  # noqa: E402
 from raytrace.emulation.bands import get_band  # noqa: E402
 from raytrace.emulation.dataset import DatasetConfig, service_area  # noqa: E402
 from raytrace.scene.io import load_scene  # noqa: E402
@@ -85,7 +88,7 @@ def perturb(scene, shift: tuple[float, float] | None, material: str | None):
     rebind = dict([material.split("=", 1)]) if material else {}
     unknown = set(rebind) - set(scene.object_names)
     if unknown:
-        raise SystemExit(f"error: no object {sorted(unknown)[0]!r} in the scene")
+        raise HallrayError(f"--material: no object {sorted(unknown)[0]!r} in the scene")
     meshes = []
     for o in scene.objects:
         f = scene.faces[o.face_start : o.face_start + o.face_count]
@@ -98,8 +101,27 @@ def perturb(scene, shift: tuple[float, float] | None, material: str | None):
     return Scene.from_meshes(meshes, scene.materials, scene.metadata, scene.source + " (perturbed)")
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def _shift(text: str) -> tuple[float, float]:
+    """``--shift DX,DY`` in metres -> two finite floats (argparse type)."""
+    try:
+        dx, dy = (float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected DX,DY in metres, got {text!r}") from None
+    if not (np.isfinite(dx) and np.isfinite(dy)):
+        raise argparse.ArgumentTypeError(f"expected finite DX,DY in metres, got {text!r}")
+    return dx, dy
+
+
+def _rebinding(text: str) -> str:
+    """``--material OBJECT=MATERIAL`` (argparse type: checks the form, returns it as is)."""
+    obj, sep, material = text.partition("=")
+    if not (sep and obj and material):
+        raise argparse.ArgumentTypeError(f"expected OBJECT=MATERIAL, got {text!r}")
+    return text
+
+
+def parser() -> argparse.ArgumentParser:
+    ap = OneLineParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scene", default="hall")
     ap.add_argument("--band", default="c-band")
     ap.add_argument("--step", type=float, default=0.5)
@@ -114,18 +136,41 @@ def main(argv: list[str] | None = None) -> int:
         metavar="R",
         help="only cells within R m of a test point (a cheaper map for robustness runs)",
     )
-    ap.add_argument("--shift", default=None, help="DX,DY: shift every obstacle (wrong map)")
-    ap.add_argument("--material", default=None, help="OBJECT=MATERIAL (wrong map)")
+    ap.add_argument("--shift", type=_shift, default=None,
+                    help="DX,DY: shift every obstacle (wrong map)")  # fmt: skip
+    ap.add_argument("--material", type=_rebinding, default=None,
+                    help="OBJECT=MATERIAL (wrong map)")  # fmt: skip
     ap.add_argument("--paths", type=int, default=16, metavar="K",
                     help="strongest paths stored per cell and BS (schema v2; 0: v1 map)")
     ap.add_argument("-o", "--output", required=True)
-    a = ap.parse_args(argv)
+    return ap
+
+
+def check_args(a: argparse.Namespace) -> None:
+    """Refuse meaningless settings and an unwritable output before any work."""
+    if not (np.isfinite(a.step) and a.step > 0):
+        raise HallrayError(f"--step must be a positive number of metres, got {a.step:g}")
+    if not (np.isfinite(a.min_dist) and a.min_dist >= 0):
+        raise HallrayError(f"--min-dist must be >= 0 m, got {a.min_dist:g}")
+    if not np.isfinite(a.height):
+        raise HallrayError(f"--height must be a finite number of metres, got {a.height:g}")
+    if not (np.isfinite(a.near_points) and a.near_points >= 0):
+        raise HallrayError(f"--near-points must be >= 0 m (0: every cell), got {a.near_points:g}")
+    for name, v, lo in (("--draws", a.draws, 1), ("--limit", a.limit, 0), ("--paths", a.paths, 0)):
+        if v < lo:
+            raise HallrayError(f"{name} must be >= {lo}, got {v}")
+    get_band(a.band)  # one line naming the known bands
+    check_output(a.output, what="-o")
+
+
+def _main(a: argparse.Namespace) -> int:
+    check_args(a)
     scene = load_scene(a.scene)
     md = SceneMetadata.from_scene(scene, require=True)
     area = service_area(scene, md.block)
     poly = np.asarray(area["polygon"], dtype=float)
     cells, worst = grid_cells(poly, md.point_xyz[:, :2], a.step, a.min_dist, a.height)
-    shift = tuple(float(v) for v in a.shift.split(",")) if a.shift else None
+    shift = a.shift
     traced_scene = perturb(scene, shift, a.material)
     # a device cannot be inside a cabinet: no cell there (in the map's own scene)
     cells = cells[traced_scene.inside_solid(cells) < 0]
@@ -188,6 +233,10 @@ def main(argv: list[str] | None = None) -> int:
         f"trace {t_trace:.1f} s, total {time.perf_counter() - t0:.1f} s"
     )
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    return run_tool(_main, parser(), argv)
 
 
 if __name__ == "__main__":

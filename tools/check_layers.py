@@ -19,10 +19,21 @@ Usage: ``python tools/check_layers.py [ROOT]`` (default: the checkout this file 
 
 from __future__ import annotations
 
+import argparse
 import ast
 import sys
 from collections import defaultdict
 from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+# the tools' harness (one-line errors, exit status 2 on bad input): standard library only
+from positioning.command import OneLineParser, run_command  # noqa: E402
+
+
+class LayerCheckError(Exception):
+    """Bad input to this tool (a ROOT that is not a checkout): one line, exit status 2."""
+
 
 #: Subpackage -> the subpackages of raytrace it may import (itself included).
 LAYERS: dict[str, set[str]] = {
@@ -206,8 +217,18 @@ def check(root: Path) -> list[str]:
     return problems
 
 
-def main(argv: list[str]) -> int:
-    root = Path(argv[1]) if len(argv) > 1 else Path(__file__).resolve().parents[1]
+def parser() -> argparse.ArgumentParser:
+    p = OneLineParser(description=__doc__.splitlines()[0])
+    p.add_argument("root", nargs="?", type=Path, default=Path(__file__).resolve().parents[1],
+                   help="the checkout to check (default: the one this file is in)")  # fmt: skip
+    return p
+
+
+def _main(args: argparse.Namespace) -> int:
+    root = args.root
+    missing = [pkg for pkg in ("raytrace", "positioning") if not (root / pkg).is_dir()]
+    if missing:
+        raise LayerCheckError(f"{root}: no {' or '.join(missing)} package in it (not a checkout)")
     problems = check(root)
     for p in problems:
         print(p)
@@ -218,5 +239,9 @@ def main(argv: list[str]) -> int:
     return 0
 
 
+def main(argv: list[str] | None = None) -> int:
+    return run_command(_main, parser(), argv, user_errors=(LayerCheckError,))
+
+
 if __name__ == "__main__":
-    raise SystemExit(main(sys.argv))
+    raise SystemExit(main())

@@ -17,43 +17,51 @@ the physics (docs/tracing.md, "Penetration"; docs/diffraction.md, (D8a)).
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from raytrace import TraceConfig, load_scene, trace  # noqa: E402
+from raytrace.cli.harness import OneLineParser, run_tool  # noqa: E402
 from raytrace.core.errors import HallrayError  # noqa: E402
 from raytrace.emulation.bands import get_band  # noqa: E402
 from raytrace.scene.metadata import SceneMetadata  # noqa: E402
 from raytrace.studies.reciprocity import compare_reverse, format_table  # noqa: E402
 
 
-def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def parser() -> argparse.ArgumentParser:
+    ap = OneLineParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scene", default="hall")
     ap.add_argument("--band", default="c-band")
     ap.add_argument("--max-reflections", type=int, default=2)
     ap.add_argument("--max-penetrations", type=int, default=2)
     ap.add_argument("--max-diffractions", type=int, default=1)
     ap.add_argument("--tol-db", type=float, default=1e-6, help="gain difference counted, dB")
-    args = ap.parse_args()
-    try:
-        scene = load_scene(args.scene)
-        inp = SceneMetadata.from_scene(scene, require=True)
-        f = get_band(args.band).center_frequency_hz
-        cfg = TraceConfig(max_reflections=args.max_reflections,
-                          max_penetrations=args.max_penetrations,
-                          max_diffractions=args.max_diffractions)  # fmt: skip
-        fwd = trace(scene, inp.bs_xyz, inp.point_xyz, f, cfg)
-        rev = trace(scene, inp.point_xyz, inp.bs_xyz, f, cfg)
-    except HallrayError as exc:  # a bad scene, band or limit: one line, no traceback
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+    return ap
+
+
+def _main(args: argparse.Namespace) -> int:
+    # a bad band, limit or tolerance before the scene is read: one line, no traceback
+    if not (math.isfinite(args.tol_db) and args.tol_db >= 0):
+        raise HallrayError(f"--tol-db must be a number of dB >= 0, got {args.tol_db:g}")
+    f = get_band(args.band).center_frequency_hz
+    cfg = TraceConfig(max_reflections=args.max_reflections,
+                      max_penetrations=args.max_penetrations,
+                      max_diffractions=args.max_diffractions)  # fmt: skip
+    scene = load_scene(args.scene)
+    inp = SceneMetadata.from_scene(scene, require=True)
+    fwd = trace(scene, inp.bs_xyz, inp.point_xyz, f, cfg)
+    rev = trace(scene, inp.point_xyz, inp.bs_xyz, f, cfg)
     rows = compare_reverse(fwd, rev, args.tol_db)
     print(f"{args.scene}, {args.band}: {fwd.n_paths} paths one way, {rev.n_paths} the other")
     print(format_table(rows))
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    return run_tool(_main, parser(), argv)
 
 
 if __name__ == "__main__":

@@ -53,6 +53,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from raytrace import TraceConfig, load_scene, trace  # noqa: E402
+from raytrace.cli.harness import OneLineParser, run_tool  # noqa: E402
 from raytrace.core.constants import C0  # noqa: E402
 from raytrace.core.errors import HallrayError  # noqa: E402
 from raytrace.physics.materials import fresnel, permittivity, slab  # noqa: E402
@@ -65,6 +66,12 @@ from raytrace.physics.utd import (  # noqa: E402
 )
 
 DEFAULT_SIONNA_PYTHON = "/tmp/sionna-venv/bin/python"
+
+
+class SionnaError(HallrayError):
+    """No Sionna RT to run, or it failed or answered something unexpected (one line, exit 2)."""
+
+
 #: Paths of the two tools are the same path when their vertices agree to this (m); Sionna works
 #: in float32 (about 1e-6 m at 20 m).
 MATCH_TOL_M = 5e-3
@@ -340,7 +347,7 @@ def run_sionna(python: str, jobs: list[dict], frequency_hz: float, samples: int,
         last = lines[-1] if lines else f"exit code {proc.returncode}"
         hint = (" (drjit needs libLLVM >= 16: apt-get install libllvm19)"
                 if "Cannot select" in (proc.stderr or "") else "")
-        raise SystemExit(f"compare_sionna: Sionna RT failed: {last[:300]}{hint}")
+        raise SionnaError(f"Sionna RT failed: {last[:300]}{hint}")
     with np.load(out) as z:
         return {k: z[k] for k in z.files}, seconds
 
@@ -368,7 +375,7 @@ def sionna_table(res: dict[str, np.ndarray], key: str, frequency_hz: float) -> P
     kinds = {0: "LoS", 1: "R", 8: "D"}
     t = typ[r, p]
     if np.any(~np.isin(t, list(kinds))):
-        raise SystemExit(f"compare_sionna: unexpected Sionna interaction types {set(t.tolist())}")
+        raise SionnaError(f"unexpected Sionna interaction types {set(t.tolist())}")
     # Sionna's a excludes the propagation phase; the channel is a exp(-j 2 pi f tau)
     g = a[r, p] * np.exp(-2j * np.pi * frequency_hz * tau[r, p].astype(float))
     v = vert[r, p].astype(float)
@@ -949,8 +956,8 @@ def table_truth(results: list[SweepResult]) -> str:
 # =================================================================================================
 # command line
 # =================================================================================================
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(
+def parser() -> argparse.ArgumentParser:
+    ap = OneLineParser(
         description="Compare hallray with Sionna RT path by path on canonical wedges (issue 17).")
     ap.add_argument("--sionna-python", default=os.environ.get("SIONNA_PYTHON", DEFAULT_SIONNA_PYTHON),
                     help="python of the venv with sionna-rt (default $SIONNA_PYTHON or "
@@ -974,24 +981,31 @@ def main(argv: list[str] | None = None) -> int:
                     help="skip the checks of the exact solution (Helmholtz residual etc.)")
     ap.add_argument("--out", type=Path, default=None,
                     help="folder for report.md, results.npz and the exported scenes")
-    a = ap.parse_args(argv)
+    return ap
 
+
+def _main(a: argparse.Namespace) -> int:
     if not Path(a.sionna_python).is_file():
-        raise SystemExit(f"compare_sionna: no Sionna RT python at {a.sionna_python} (create the venv: "
-                         "python3 -m venv /tmp/sionna-venv && /tmp/sionna-venv/bin/pip install "
-                         "sionna-rt, or pass --sionna-python)")
+        raise SionnaError(f"no Sionna RT python at {a.sionna_python} (create the venv: "
+                          "python3 -m venv /tmp/sionna-venv && /tmp/sionna-venv/bin/pip install "
+                          "sionna-rt, or pass --sionna-python)")
     if not (np.isfinite(a.frequency_hz) and a.frequency_hz > 0):
-        raise SystemExit("compare_sionna: --frequency-hz must be positive")
+        raise HallrayError("--frequency-hz must be positive")
     if a.n_arc < 3 or not (0 < a.delta_rad < 0.01):
-        raise SystemExit("compare_sionna: --n-arc must be >= 3 and 0 < --delta-rad < 0.01")
+        raise HallrayError("--n-arc must be >= 3 and 0 < --delta-rad < 0.01")
     if not (a.solid_thickness_m > 0):
-        raise SystemExit("compare_sionna: --solid-thickness-m must be positive")
+        raise HallrayError("--solid-thickness-m must be positive")
+    if not np.isfinite(a.elevation_m):
+        raise HallrayError("--elevation-m must be a finite number of metres")
+    if a.samples < 1:
+        raise HallrayError("--samples must be >= 1")
+    if a.out is not None and a.out.exists() and not a.out.is_dir():
+        raise HallrayError(f"--out {a.out} exists and is not a folder")
     scenes = build_scenes(a.n_arc, a.delta_rad, a.elevation_m, a.solid_thickness_m)
     names = list(scenes) if a.scenes == "all" else [x.strip() for x in a.scenes.split(",")]
     unknown = [x for x in names if x not in scenes]
     if unknown:
-        raise SystemExit(f"compare_sionna: unknown scene(s) {', '.join(unknown)} "
-                         f"(known: {', '.join(scenes)})")
+        raise HallrayError(f"unknown scene(s) {', '.join(unknown)} (known: {', '.join(scenes)})")
 
     with tempfile.TemporaryDirectory(prefix="compare_sionna_") as tmp:
         work = Path(tmp)
@@ -1008,7 +1022,7 @@ def main(argv: list[str] | None = None) -> int:
         try:
             loaded = {nm: load_scene(xmls[nm]) for nm in names}
         except HallrayError as exc:
-            raise SystemExit(f"compare_sionna: hallray: {exc}") from None
+            raise HallrayError(f"hallray: {exc}") from None
     versions = json.loads(str(sres["versions"]))
 
     results: list[SweepResult] = []
@@ -1027,8 +1041,10 @@ def main(argv: list[str] | None = None) -> int:
                 h = hallray_table(paths)
                 s = sionna_table(sres, f"{nm}|{i}", a.frequency_hz)
                 results.append(analyse(c, sw, h, s, a.frequency_hz, scene))
+        except SionnaError:
+            raise
         except HallrayError as exc:
-            raise SystemExit(f"compare_sionna: hallray: {exc}") from None
+            raise HallrayError(f"hallray: {exc}") from None
     a_seconds = time.perf_counter() - t0 - h_seconds
     k = 2 * np.pi * a.frequency_hz / C0
     checks = {} if a.no_checks else check_exact(k)
@@ -1089,6 +1105,10 @@ def main(argv: list[str] | None = None) -> int:
         os.replace(tmp_npz, a.out / "results.npz")
         (a.out / "report.md").write_text(report)
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    return run_tool(_main, parser(), argv)
 
 
 if __name__ == "__main__":

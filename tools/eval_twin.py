@@ -24,7 +24,9 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from positioning.command import OneLineParser, run_command  # noqa: E402
 from positioning.dataset import load_dataset  # noqa: E402
+from positioning.errors import PositioningError  # noqa: E402
 from positioning.fingerprint import read_map, write_map  # noqa: E402
 from positioning.fixes import Status  # noqa: E402
 from positioning.metrics import error_2d  # noqa: E402
@@ -56,8 +58,16 @@ def near_points(fmap, radius: float, data: Path, band: str, folder: Path):
     return sub, write_map(folder / f"near-{band}.npz", sub)
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def _key_value(text: str) -> tuple[str, str]:
+    """``--twin-param KEY=VALUE`` -> (KEY, VALUE) (argparse type)."""
+    key, sep, value = text.partition("=")
+    if not (sep and key):
+        raise argparse.ArgumentTypeError(f"expected KEY=VALUE, got {text!r}")
+    return key, value
+
+
+def parser() -> argparse.ArgumentParser:
+    ap = OneLineParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", default="/work/data/first-lobe")
     ap.add_argument("--maps", required=True)
     ap.add_argument("--prefix", default="hall", help="map file prefix (hall, shift, wall)")
@@ -73,13 +83,36 @@ def main(argv: list[str] | None = None) -> int:
     )
     ap.add_argument(
         "--twin-param",
+        type=_key_value,
         action="append",
         default=[],
         metavar="KEY=VALUE",
         help="twin parameter, e.g. bias=cell (the v1 refinement on a v2 map) or paths=16",
     )
-    a = ap.parse_args(argv)
-    twin_params = dict(kv.split("=", 1) for kv in a.twin_param)
+    return ap
+
+
+def check_inputs(a: argparse.Namespace) -> None:
+    """Refuse a meaningless setting or a missing map or dataset before any work."""
+    if not (np.isfinite(a.near_points) and a.near_points >= 0):
+        raise PositioningError(
+            f"--near-points must be >= 0 m (0: every cell), got {a.near_points:g}"
+        )
+    scenarios = a.scenarios.split(",") + (["static"] if a.near_points > 0 else [])
+    for band in a.bands.split(","):
+        mp = Path(a.maps) / f"{a.prefix}-{band}.npz"
+        if not mp.is_file():
+            raise PositioningError(f"{mp}: no such map file")
+        for sc in scenarios:
+            if not (Path(a.data) / f"{sc}-{band}").is_dir():
+                raise PositioningError(
+                    f"{Path(a.data) / f'{sc}-{band}'}: dataset directory not found"
+                )
+
+
+def _main(a: argparse.Namespace) -> int:
+    check_inputs(a)
+    twin_params = dict(a.twin_param)
     tmp = tempfile.TemporaryDirectory()
     single, tracked, points = [], [], []
     for band in a.bands.split(","):
@@ -115,6 +148,7 @@ def main(argv: list[str] | None = None) -> int:
                 e = error_2d(tw.xyz, ds.true_xyz)
                 med = [np.median(e[ds.point == n]) for n in names]
                 points.append((band, names, d, med))
+    tmp.cleanup()  # the reduced maps of --near-points, all read by now
     print(f"map prefix {a.prefix!r}: p90 / mean of the 2D error, metres\n")
     print("| setup | band | irls | nlos-aware | twin | twin/irls p90 | twin/best map-free p90 |"
           " twin map mismatch | fixes outside hall | time (all 6 methods) |")  # fmt: skip
@@ -129,6 +163,10 @@ def main(argv: list[str] | None = None) -> int:
         print(" ".join(f"{n} {x:.2f}/{m:.2f}" for n, x, m in zip(names, d, med, strict=True)))
         print(f"nearest-cell distance: min {d.min():.3f} m, max {d.max():.3f} m")
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    return run_command(_main, parser(), argv)
 
 
 if __name__ == "__main__":

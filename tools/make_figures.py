@@ -18,17 +18,23 @@ import tempfile
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from raytrace.cli.harness import OneLineParser, run_tool  # noqa: E402
+
 LINKS = ["BS1,P07", "BS3,P23", "BS2,P06"]
 
 
-def main(argv: list[str] | None = None) -> int:
-    sys.path.insert(0, str(ROOT))
-    from raytrace.cli.render_scene import render_scene_main
-
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def parser() -> argparse.ArgumentParser:
+    p = OneLineParser(description=__doc__.splitlines()[0])
     p.add_argument("--out-dir", default=str(ROOT / "docs"), help="where to write [docs/]")
     p.add_argument("--scan", action="store_true", help="also the reconstructed-scan figure")
-    args = p.parse_args(argv)
+    return p
+
+
+def _main(args: argparse.Namespace) -> int:
+    from raytrace.cli.render_scene import render_scene_main
+
     out = Path(args.out_dir)
     link_args = [a for link in LINKS for a in ("--link", link)]
     code = render_scene_main(
@@ -57,6 +63,10 @@ def main(argv: list[str] | None = None) -> int:
             [str(glb), "-o", str(out / "hall_scan.png"), "--title", title, *link_args]
         )
     return code
+
+
+def main(argv: list[str] | None = None) -> int:
+    return run_tool(_main, parser(), argv)
 
 
 if __name__ == "__main__":

@@ -53,6 +53,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from raytrace.cli.harness import OneLineParser, run_tool  # noqa: E402
+from raytrace.core.errors import HallrayError  # noqa: E402
 from raytrace.emulation.bands import get_band  # noqa: E402
 from raytrace.emulation.dataset import DatasetConfig, service_area  # noqa: E402
 from raytrace.emulation.receivers import Receiver  # noqa: E402
@@ -219,10 +221,23 @@ def decompose(paths: Paths, n_points: int, nearest: np.ndarray, disp: np.ndarray
     return common, vis
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def _counts(text: str) -> list[int]:
+    """``--k``: comma-separated path counts >= 0 (argparse type)."""
+    try:
+        ks = [int(v) for v in text.split(",")]
+    except ValueError:
+        ks = []
+    if not ks or min(ks) < 0:
+        raise argparse.ArgumentTypeError(
+            f"expected path counts >= 0, comma-separated, got {text!r}"
+        )
+    return ks
+
+
+def parser() -> argparse.ArgumentParser:
+    ap = OneLineParser(description=__doc__.splitlines()[0])
     ap.add_argument("--bands", default="c-band,mmwave")
-    ap.add_argument("--k", default="0,16", help="paths kept per link (0: all)")
+    ap.add_argument("--k", type=_counts, default="0,16", help="paths kept per link (0: all)")
     ap.add_argument("--cache", default="/tmp/oracle_twin")
     ap.add_argument("--half", type=float, default=0.5, help="search half-width, m")
     ap.add_argument("--grid", type=float, default=0.025, help="search step, m")
@@ -231,7 +246,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--fd-gradient", action="store_true",
                     help="add the finite-difference delay gradient beyond the geometry")
     ap.add_argument("--no-search", action="store_true", help="only (a)")
-    a = ap.parse_args(argv)  # fmt: skip
+    return ap
+
+
+def _main(a: argparse.Namespace) -> int:
+    for band_name in a.bands.split(","):
+        get_band(band_name)  # an unknown band before any work: one line naming the known ones
+    for name, v in (("--half", a.half), ("--grid", a.grid)):
+        if not (np.isfinite(v) and v > 0):
+            raise HallrayError(f"{name} must be a positive number of metres, got {v:g}")
     scene = load_scene("hall")
     md = SceneMetadata.from_scene(scene, require=True)
     poly = np.asarray(service_area(scene, md.block)["polygon"], dtype=float)
@@ -291,7 +314,7 @@ def main(argv: list[str] | None = None) -> int:
         common, vis = decompose(paths, P, nearest, disp, rx, f, radius, u, extra)
         print(f"  (a) {band_name} decomposition (K=all): common paths {_stats(common)} m; "
               f"visibility {_stats(vis)} m")  # fmt: skip
-        for k in [int(v) for v in a.k.split(",")]:
+        for k in a.k:
             rs = Resynth(paths, strongest(paths, k), P, rx, f, radius, u, extra)
             e = C0 * (rs.toa(nearest, disp) - truth)
             print(f"  (a) {band_name} resynth K={k or 'all':>3}: |range err| {_stats(e)} m; about "
@@ -319,6 +342,10 @@ def main(argv: list[str] | None = None) -> int:
                       + " ".join(f"{md.point_names[w]}:{ev[w]:.2f}" for w in worst)
                       + f"  ({time.perf_counter() - t0:.0f} s)")  # fmt: skip
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    return run_tool(_main, parser(), argv)
 
 
 if __name__ == "__main__":

@@ -25,9 +25,12 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import trimesh  # noqa: E402
 
+from positioning.output import check_output  # noqa: E402
+from raytrace.cli.harness import OneLineParser, run_tool  # noqa: E402
 from raytrace.core.errors import HallrayError  # noqa: E402
 from raytrace.core.fileio import write_atomic  # noqa: E402
 from raytrace.halls.spec import load_hall_spec, plot_top_view  # noqa: E402
+from raytrace.scene.metadata import SceneMetadata  # noqa: E402
 
 #: Area names drawn on the reference hall's plan (x, y in m).
 REFERENCE_LABELS = {
@@ -52,23 +55,34 @@ REFERENCE_LABELS = {
 }
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+def parser() -> argparse.ArgumentParser:
+    parser = OneLineParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("hall", nargs="?", default=str(ROOT / "scenes" / "hall.yaml"))
     parser.add_argument("-o", "--output", default=str(ROOT / "docs" / "hall_top.png"))
     parser.add_argument("--dpi", type=int, default=150)
     parser.add_argument("--labels", action="store_true", help="write object names on the plan")
-    args = parser.parse_args(argv)
+    return parser
+
+
+def _main(args: argparse.Namespace) -> int:
+    if not 20 <= args.dpi <= 1200:  # as render-scene
+        raise HallrayError(f"--dpi must be 20..1200, got {args.dpi}")
+    check_output(args.output, inputs=[args.hall], what="-o")
     try:
         if args.hall.lower().endswith(".glb"):
+            if not Path(args.hall).is_file():
+                raise HallrayError(f"cannot read {args.hall}: not found")
             source = trimesh.load(args.hall, file_type="glb")
             if "hallray" not in source.metadata:
                 raise HallrayError(f"{args.hall} has no hallray metadata")
+            if SceneMetadata.from_metadata(source.metadata).hall_size is None:
+                raise HallrayError(f"{args.hall} is not a hall: no hall size in its metadata")
         else:
             source = load_hall_spec(args.hall)
-    except (HallrayError, OSError, ValueError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+    except HallrayError:
+        raise
+    except ValueError as exc:  # a file trimesh cannot read
+        raise HallrayError(f"{args.hall}: {exc}") from None
     meta = source.metadata["hallray"] if isinstance(source, trimesh.Scene) else None
     name = (meta or {}).get("name") if meta else source.name
     fig, ax = plt.subplots(figsize=(9.0, 8.4), layout="constrained")
@@ -99,6 +113,10 @@ def main(argv: list[str] | None = None) -> int:
     write_atomic(args.output, buf.getvalue())
     print(f"wrote {args.output}")
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    return run_tool(_main, parser(), argv)
 
 
 if __name__ == "__main__":

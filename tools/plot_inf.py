@@ -24,8 +24,16 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from raytrace.cli.harness import OneLineParser, run_tool  # noqa: E402
+from raytrace.core.errors import HallrayError  # noqa: E402
 from raytrace.core.fileio import write_atomic  # noqa: E402
-from raytrace.halls.inf import PROFILES, generate_hall, los_check, split_spec  # noqa: E402
+from raytrace.halls.inf import (  # noqa: E402
+    PROFILES,
+    generate_hall,
+    los_check,
+    parse_size,
+    split_spec,
+)
 from raytrace.halls.spec import parse_hall_spec, plot_top_view  # noqa: E402
 
 
@@ -91,17 +99,33 @@ def los_figure(size: str, seeds: int, path: Path) -> None:
     _save(fig, path)
 
 
-def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def parser() -> argparse.ArgumentParser:
+    ap = OneLineParser(description=__doc__.splitlines()[0])
     ap.add_argument("--size", default="120x60x10", help="hall of the LoS check [120x60x10]")
     ap.add_argument("--halls-size", default="42x46x8.8", help="hall of the top views [42x46x8.8]")
     ap.add_argument("--seeds", type=int, default=5)
     ap.add_argument("--out", default=str(ROOT / "docs"))
-    args = ap.parse_args()
+    return ap
+
+
+def _main(args: argparse.Namespace) -> int:
+    for name, size in (("--size", args.size), ("--halls-size", args.halls_size)):
+        try:  # a bad size or number of seeds before any work: one line
+            parse_size(size)
+        except HallrayError as exc:
+            raise HallrayError(f"{name}: {exc}") from None
+    if args.seeds < 1:
+        raise HallrayError(f"--seeds must be >= 1, got {args.seeds}")
     out = Path(args.out)
+    if not out.is_dir():
+        raise HallrayError(f"--out {out} is not an existing directory")
     halls_figure(args.halls_size, 0, out / "inf_halls.png")
     los_figure(args.size, args.seeds, out / "inf_los_check.png")
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    return run_tool(_main, parser(), argv)
 
 
 if __name__ == "__main__":

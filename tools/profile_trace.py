@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import cProfile
+import math
 import pstats
 import sys
 import time
@@ -23,6 +24,8 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from raytrace import TraceConfig, load_scene, trace  # noqa: E402
+from raytrace.cli.harness import OneLineParser, run_tool  # noqa: E402
+from raytrace.core.errors import HallrayError  # noqa: E402
 from raytrace.scene.metadata import SceneMetadata  # noqa: E402
 from raytrace.solver.parallel import receiver_chunks  # noqa: E402
 
@@ -39,12 +42,21 @@ def _module(file: str) -> str:
     return file
 
 
-def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def parser() -> argparse.ArgumentParser:
+    ap = OneLineParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scene", default="hall")
     ap.add_argument("--grid-step", type=float, default=None)
     ap.add_argument("--top", type=int, default=25)
-    args = ap.parse_args()
+    return ap
+
+
+def _main(args: argparse.Namespace) -> int:
+    if args.grid_step is not None and not (math.isfinite(args.grid_step) and args.grid_step > 0):
+        raise HallrayError(
+            f"--grid-step must be a positive number of metres, got {args.grid_step:g}"
+        )
+    if args.top < 1:
+        raise HallrayError(f"--top must be >= 1, got {args.top}")
     scene = load_scene(args.scene)
     inp = SceneMetadata.from_scene(scene, require=True)
     rx = inp.point_xyz
@@ -87,6 +99,10 @@ def main() -> int:
     for v, name in sorted(rows, reverse=True)[: args.top]:
         print(f"  {v:7.3f}  {name}")
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    return run_tool(_main, parser(), argv)
 
 
 if __name__ == "__main__":

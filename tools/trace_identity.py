@@ -21,7 +21,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from positioning.output import check_output  # noqa: E402
 from raytrace import TraceConfig, load_scene, trace  # noqa: E402
+from raytrace.cli.harness import OneLineParser, run_tool  # noqa: E402
+from raytrace.core.errors import HallrayError  # noqa: E402
 from raytrace.scene.metadata import SceneMetadata  # noqa: E402
 
 FIELDS = ("link", "tx_index", "rx_index", "n_reflections", "n_penetrations", "n_diffractions",
@@ -71,18 +74,39 @@ def _rel(a: np.ndarray, b: np.ndarray) -> float:
     return float((d / np.where(s > 0, s, 1.0)).max()) if d.size else 0.0
 
 
-def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def load_reference(path: str) -> dict[str, dict[str, np.ndarray]]:
+    """The cases saved by ``save``; a missing file is an OSError, anything else one line."""
+    with open(path, "rb") as fh:
+        try:
+            ref = pickle.load(fh)
+        except Exception as exc:  # not a pickle, truncated, classes that no longer exist, ...
+            raise HallrayError(
+                f"{path}: not a reference saved by trace_identity.py ({exc})"
+            ) from None
+    if not (isinstance(ref, dict) and all(isinstance(r, dict) and set(FIELDS) <= set(r)
+                                          for r in ref.values())):  # fmt: skip
+        raise HallrayError(f"{path}: not a reference saved by trace_identity.py")
+    return ref
+
+
+def parser() -> argparse.ArgumentParser:
+    ap = OneLineParser(description=__doc__.splitlines()[0])
     ap.add_argument("mode", choices=("save", "check"))
     ap.add_argument("ref")
-    args = ap.parse_args()
+    return ap
+
+
+def _main(args: argparse.Namespace) -> int:
+    # the reference (to read, or where to write it) before the minute of tracing
+    if args.mode == "save":
+        check_output(args.ref, what="save")
+    else:
+        ref = load_reference(args.ref)
     got = cases()
     if args.mode == "save":
         with open(args.ref, "wb") as fh:
             pickle.dump(got, fh)
         return 0
-    with open(args.ref, "rb") as fh:
-        ref = pickle.load(fh)
     bad = 0
     for name, r in ref.items():
         if name not in got:
@@ -107,6 +131,10 @@ def main() -> int:
         print(f"{name}: {len(r['link'])} paths, {status}")
         bad += worst > 1e-12
     return 1 if bad else 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    return run_tool(_main, parser(), argv)
 
 
 if __name__ == "__main__":

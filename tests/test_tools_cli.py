@@ -1,0 +1,115 @@
+"""The maintainers' scripts in tools/ on bad input: one line ``error: ...`` on stderr, exit status
+2, no traceback, nothing written, and before any real work (each run is mostly interpreter and
+import time).
+
+The scripts are run as subprocesses, as a maintainer runs them (``python tools/NAME.py ...`` from
+the checkout), all at once on a thread pool to keep the file short.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+#: Seconds a run may take before it counts as having started real work (a run that fails as it
+#: should takes a second or two).
+TIMEOUT_S = 60
+
+#: case -> (script, arguments, a fragment of the expected message). ``{tmp}`` in an argument is
+#: an empty folder of the case's own, which must still be empty afterwards.
+CASES: dict[str, tuple[str, list[str], str]] = {
+    "bench-negative-grid-step": ("bench.py", ["--grid-step", "-1", "--only-scaling"], "--grid-step"),
+    "bench-zero-grid-step": ("bench.py", ["--grid-step", "0", "--only-scaling"], "--grid-step"),
+    "bench-zero-repeat": ("bench.py", ["--repeat", "0", "--only-scaling"], "--repeat"),
+    "bench-zero-epochs": ("bench.py", ["--epochs", "0", "--no-scaling"], "--epochs"),
+    "bench_positioning-not-an-integer": ("bench_positioning.py", ["abc"], "invalid int value"),
+    "bench_positioning-zero-epochs": ("bench_positioning.py", ["0"], "n_epochs"),
+    "bench_scan-zero-points": ("bench_scan.py", ["--points", "0"], "--points"),
+    "bench_twin-missing-dataset": (
+        "bench_twin.py", ["--data", "{tmp}/no", "--maps", "{tmp}/no"], "dataset directory not found"
+    ),
+    "bench_twin-bad-steps": (
+        "bench_twin.py", ["--data", "{tmp}", "--maps", "{tmp}", "--steps", "0.05,abc"], "--steps"
+    ),
+    "build_scenes-exclusive-options": ("build_scenes.py", ["--check", "--los-table"], "not allowed"),
+    "build_twin_map-unknown-scene": (
+        "build_twin_map.py", ["--scene", "no_such_scene.glb", "-o", "{tmp}/map.npz"],
+        "scene file not found",
+    ),
+    "build_twin_map-bad-shift": (
+        "build_twin_map.py", ["--shift", "abc", "-o", "{tmp}/map.npz"], "--shift"
+    ),
+    "check_layers-missing-root": ("check_layers.py", ["{tmp}/no"], "no raytrace"),
+    "check_reciprocity-not-an-integer": (
+        "check_reciprocity.py", ["--max-reflections", "two"], "--max-reflections"
+    ),
+    "check_reciprocity-negative-tolerance": ("check_reciprocity.py", ["--tol-db", "-1"], "--tol-db"),
+    "compare_sionna-no-sionna": (
+        "compare_sionna.py", ["--sionna-python", "{tmp}/no/python"], "no Sionna RT python"
+    ),
+    "eval_twin-missing-map": (
+        "eval_twin.py", ["--maps", "{tmp}/no", "--data", "{tmp}/no"], "no such map file"
+    ),
+    "eval_twin-bad-twin-param": ("eval_twin.py", ["--maps", "{tmp}", "--twin-param", "bias"], "KEY=VALUE"),
+    "make_figures-unknown-option": ("make_figures.py", ["--no-such-option"], "unrecognized"),
+    "oracle_twin_resynth-unknown-band": (
+        "oracle_twin_resynth.py", ["--bands", "nosuch", "--cache", "{tmp}/cache"], "unknown band"
+    ),
+    "plot_hall-zero-dpi": ("plot_hall.py", ["--dpi", "0", "-o", "{tmp}/hall.png"], "--dpi"),
+    "plot_hall-missing-output-directory": (
+        "plot_hall.py", ["-o", "{tmp}/no/hall.png"], "does not exist"
+    ),
+    "plot_inf-bad-size": ("plot_inf.py", ["--size", "abc", "--out", "{tmp}"], "bad size"),
+    "profile_trace-unknown-scene": ("profile_trace.py", ["--scene", "nosuch"], "scene file not found"),
+    "profile_trace-negative-grid-step": ("profile_trace.py", ["--grid-step", "-1"], "--grid-step"),
+    "trace_identity-missing-reference": (
+        "trace_identity.py", ["check", "{tmp}/no/ref.pkl"], "No such file or directory"
+    ),
+    "trace_identity-missing-output-directory": (
+        "trace_identity.py", ["save", "{tmp}/no/ref.pkl"], "does not exist"
+    ),
+}  # fmt: skip
+
+
+def _run(script: str, args: list[str], tmp: Path) -> subprocess.CompletedProcess:
+    argv = [a.replace("{tmp}", str(tmp)) for a in args]
+    return subprocess.run(
+        [sys.executable, str(Path("tools") / script), *argv],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=TIMEOUT_S,
+        stdin=subprocess.DEVNULL,
+    )
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory):
+    """case -> (future of its CompletedProcess, its folder); every case started at once."""
+    workers = min(len(CASES), 2 * (os.cpu_count() or 2))
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        out = {}
+        for case, (script, args, _) in CASES.items():
+            tmp = tmp_path_factory.mktemp(case)
+            out[case] = (pool.submit(_run, script, args, tmp), tmp)
+        yield out
+
+
+@pytest.mark.parametrize("case", list(CASES))
+def test_bad_input_gives_one_line(runs, case):
+    future, tmp = runs[case]
+    proc = future.result()
+    script, _, message = CASES[case]
+    assert "Traceback" not in proc.stderr, proc.stderr
+    assert proc.returncode == 2, (proc.returncode, proc.stderr)
+    lines = proc.stderr.splitlines()
+    assert len(lines) == 1 and proc.stderr.endswith("\n"), proc.stderr
+    assert lines[0].startswith("error: "), proc.stderr
+    assert message in lines[0], proc.stderr
+    assert not any(tmp.iterdir()), f"{script} wrote {sorted(tmp.iterdir())} on bad input"
