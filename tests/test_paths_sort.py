@@ -7,14 +7,16 @@ import numpy as np
 from raytrace.solver.paths import Paths
 
 
-def _random_paths(rng: np.random.Generator, n: int, depth: int, tied: bool) -> Paths:
+def _random_paths(
+    rng: np.random.Generator, n: int, depth: int, tied: bool, n_links: int = 4
+) -> Paths:
     # tied: few distinct delays (and signed zeros), so many paths of a link share one
     delay = rng.choice([1e-8, 2e-8, -0.0, 0.0, 3e-8, np.nan], n) if tied else rng.random(n)
     return Paths(
         tx=np.zeros((1, 3)),
         rx=np.ones((4, 3)),
         frequency_hz=1e9,
-        link=rng.integers(0, 4, n),
+        link=rng.integers(0, n_links, n),
         tx_index=np.zeros(n, np.int64),
         rx_index=np.zeros(n, np.int64),
         delay_s=delay,
@@ -31,11 +33,13 @@ def _random_paths(rng: np.random.Generator, n: int, depth: int, tied: bool) -> P
 
 def test_sorted_is_the_full_lexsort() -> None:
     rng = np.random.default_rng(14)
-    for trial in range(206):
-        # a few large sets too: the delay sort is not stable there (and need not be)
+    for trial in range(210):
+        # a few large sets too: the delay sort is not stable there (and need not be); and link
+        # indices beyond 16 bits (sorted otherwise than the radix sort of 16-bit keys)
         n = int(rng.integers(0, 60)) if trial < 200 else int(rng.integers(5_000, 20_000))
+        n_links = 4 if trial < 206 else [65_536, 65_537, 200_000, 2][trial - 206]
         depth = int(rng.integers(1, 4))
-        p = _random_paths(rng, n, depth, tied=bool(trial % 2))
+        p = _random_paths(rng, n, depth, tied=bool(trial % 2), n_links=n_links)
         cols = range(depth - 1, -1, -1)
         keys = [p.elements[:, i] for i in cols] + [p.objects[:, i] for i in cols]
         keys += [p.interaction[:, i].astype(np.int64) for i in cols]

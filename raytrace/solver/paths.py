@@ -198,7 +198,10 @@ class Paths:
         # by delay (any sort: the order within equal delays is settled below), then stably by
         # link: as np.lexsort((delay, link)) up to that order, at a third of its cost
         order = np.argsort(self.delay_s)
-        order = order[np.argsort(self.link[order], kind="stable")]
+        link = self.link[order]
+        if len(link) and 0 <= link.min() and link.max() <= np.iinfo(np.uint16).max:
+            link = link.astype(np.uint16)  # numpy sorts 16-bit keys stably by radix: 8x faster
+        order = order[np.argsort(link, kind="stable")]
         # the other keys only order paths of one link with equal delays (rare): sort those
         # runs by every key (a stable sort of their rows in original order, as one lexsort of
         # everything would), whatever order the sort above left them in
