@@ -393,12 +393,12 @@ def test_path_gains_apply_the_numpy_interactions_in_order():
         d_rows = np.arange(m)[::-1]
         d_mat, basis_d = np.ascontiguousarray(d_mat_all[d_rows]), np.ascontiguousarray(basis[d_rows])
         spreading, valid = np.ascontiguousarray(spread_all[d_rows]), geo.valid[d_rows].copy()
-        gain, delay = kernels.path_gains(
-            np.ascontiguousarray(pts), kinds, np.arange(m).reshape(m, 1), np.ones((m, 2), np.int64),
-            pen_n, pen_obj, pen_th, obj_material, eta, slope, thickness, f_normal, f_material,
-            f_sheet, slot, d_mat, basis_d, spreading, valid, amp_scale, f, k0, wavelength, True,
-            int(REFLECTION), int(DIFFRACTION),
-        )  # fmt: skip
+        args = (np.ascontiguousarray(pts), kinds, np.arange(m).reshape(m, 1),
+                np.ones((m, 2), np.int64), pen_n, pen_obj, pen_th, obj_material, eta, slope,
+                thickness, f_normal, f_material, f_sheet, slot, d_mat, basis_d, spreading, valid,
+                amp_scale, f, k0, wavelength)  # fmt: skip
+        codes = (int(REFLECTION), int(DIFFRACTION))
+        gain, delay = kernels.path_gains(*args, True, *codes)  # slab_delay on
         e, tau0 = pen(e_start.astype(complex), 0)
         if kind == REFLECTION:
             cos = np.abs((f_normal * dirs[:, 0]).sum(axis=1))
@@ -419,14 +419,8 @@ def test_path_gains_apply_the_numpy_interactions_in_order():
             assert np.all(gain[~geo.valid] == 0) and np.all(gain[geo.valid] != 0)
         else:
             assert 0.3 < f_sheet.mean() < 0.7 and np.all(gain != 0)
-    # without slab_delay: free-space delays
-    _, delay = kernels.path_gains(
-        np.ascontiguousarray(pts), kinds, np.arange(m).reshape(m, 1), np.ones((m, 2), np.int64),
-        pen_n, pen_obj, pen_th, obj_material, eta, slope, thickness, f_normal, f_material,
-        f_sheet, slot, d_mat, basis_d, spreading, valid, amp_scale, f, k0, wavelength, False,
-        int(REFLECTION), int(DIFFRACTION),
-    )  # fmt: skip
-    np.testing.assert_array_equal(delay, total / C0)
+        # without slab_delay: free-space delays
+        np.testing.assert_array_equal(kernels.path_gains(*args, False, *codes)[1], total / C0)
 
 
 def test_interaction_sequences_put_each_segments_penetrations_before_its_vertex():
