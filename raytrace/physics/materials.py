@@ -590,8 +590,10 @@ def permittivity(
 # penetration of a path, and the array functions below run them over their broadcast inputs, so
 # that there is one implementation of each formula.
 @inline
-def _clipped_cos(c):
-    """``|cos theta|`` clipped to 1 (a NaN stays NaN, as with ``np.minimum``)."""
+def clipped_cos1(c):
+    """``|cos theta|`` clipped to 1, as every coefficient here takes the incidence cosine (the
+    angle to the normal *line*; a NaN stays NaN, as with ``np.minimum``): a compiled scalar
+    helper for kernels."""
     c = abs(c)
     return 1.0 if c > 1.0 else c
 
@@ -686,7 +688,7 @@ def _fresnel_rows(eta, cos, transmission):
     r_te, r_tm = np.empty(n, np.complex128), np.empty(n, np.complex128)
     t_te, t_tm = np.zeros(n, np.complex128), np.zeros(n, np.complex128)
     for i in range(n):
-        e, c = eta[i], _clipped_cos(cos[i])
+        e, c = eta[i], clipped_cos1(cos[i])
         r_te[i], r_tm[i], _, d_te, d_tm = interface1(e, c)
         if transmission:
             t_te[i] = 2.0 * c / d_te if d_te != 0 else 1.0 + 0j
@@ -701,7 +703,7 @@ def _slab_rows(eta, cos, d, f, p2040):
     r_te, r_tm = np.empty(n, np.complex128), np.empty(n, np.complex128)
     t_te, t_tm = np.empty(n, np.complex128), np.empty(n, np.complex128)
     for i in range(n):
-        r_te[i], r_tm[i], t_te[i], t_tm[i] = slab1(eta[i], _clipped_cos(cos[i]), d[i], f[i],
+        r_te[i], r_tm[i], t_te[i], t_tm[i] = slab1(eta[i], clipped_cos1(cos[i]), d[i], f[i],
                                                    p2040)  # fmt: skip
     return r_te, r_tm, t_te, t_tm
 
@@ -711,7 +713,7 @@ def _group_delay_rows(eta, cos, d, slope):
     """:func:`slab_group_delay` over n rows."""
     out = np.empty(len(cos))
     for i in range(len(cos)):
-        out[i] = group_delay1(eta[i], _clipped_cos(cos[i]), d[i], slope[i])
+        out[i] = group_delay1(eta[i], clipped_cos1(cos[i]), d[i], slope[i])
     return out
 
 
@@ -722,7 +724,7 @@ def _face_rows(eta, thickness, mat, cos, two_sided, f):
     r_te, r_tm = np.empty(n, np.complex128), np.empty(n, np.complex128)
     for i in range(n):
         m = mat[i]
-        r_te[i], r_tm[i] = reflection1(eta[m], _clipped_cos(cos[i]), two_sided[i], thickness[m],
+        r_te[i], r_tm[i] = reflection1(eta[m], clipped_cos1(cos[i]), two_sided[i], thickness[m],
                                        f)  # fmt: skip
     return r_te, r_tm
 

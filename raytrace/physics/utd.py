@@ -61,7 +61,7 @@ from ..core.vec import cross as _cross
 from ..core.vec import cross3, dot3
 from ..core.vec import norm as _norm
 from ..core.vec import rows as _rows
-from .materials import reflection1
+from .materials import clipped_cos1, reflection1
 
 __all__ = [
     "KellerPoints",
@@ -1019,10 +1019,8 @@ def _chain_dyadic(f, g, c, reals, eta, thickness, material, two_sided, freq):
     for r in range(len(c)):
         m = material[r]
         ct0, ctn = reals[r, 5], reals[r, 6]
-        r0_te, r0_tm = reflection1(eta[m], 1.0 if ct0 > 1.0 else ct0, two_sided[r], thickness[m],
-                                   freq)  # fmt: skip
-        rn_te, rn_tm = reflection1(eta[m], 1.0 if ctn > 1.0 else ctn, two_sided[r], thickness[m],
-                                   freq)  # fmt: skip
+        r0_te, r0_tm = reflection1(eta[m], clipped_cos1(ct0), two_sided[r], thickness[m], freq)
+        rn_te, rn_tm = reflection1(eta[m], clipped_cos1(ctn), two_sided[r], thickness[m], freq)
         cr = c[r]
         d12 = cr * (f[r, 0] * g[r, 0] + f[r, 1] * g[r, 1])
         d3, d4 = cr * (f[r, 2] * g[r, 2]), cr * (f[r, 3] * g[r, 3])

@@ -49,7 +49,7 @@ import numpy as np
 from ..core.constants import C0
 from ..core.jit import helper, inline, kernel
 from ..core.vec import cross3, dot3
-from ..physics.materials import group_delay1, reflection1, slab1
+from ..physics.materials import clipped_cos1, group_delay1, reflection1, slab1
 from ..physics.utd import diffraction_valid1, keller_point
 from ..scene.accel import FACET_TEST_SIG, facet_box_test, in_triangles
 
@@ -1199,13 +1199,6 @@ def _vertical_pol(dx, dy, dz):
     return vx / n, vy / n, vz / n
 
 
-@inline
-def _clipped_cos(c):
-    """``|c|`` clipped to 1, as the ITU-R P.2040 coefficients take the incidence cosine."""
-    c = abs(c)
-    return 1.0 if c > 1.0 else c
-
-
 @kernel(
     "Tuple((c16[::1], f8[::1]))(f8[:, :, ::1], i1[:, ::1], i8[:, ::1], i8[:, ::1], "
     "f8[:, :, :, ::1], i8[:, :, ::1], f8[:, :, ::1], i8[::1], c16[::1], c16[::1], f8[::1], "
@@ -1280,7 +1273,7 @@ def path_gains(chain, kinds, elem, count, pen_normal, pen_obj, pen_thickness, ob
                 nx, ny, nz = pen_normal[r, j, s, 0], pen_normal[r, j, s, 1], pen_normal[r, j, s, 2]
                 mat = obj_material[pen_obj[r, j, s]]
                 th = pen_thickness[r, j, s]
-                c = _clipped_cos(dot3(nx, ny, nz, dx, dy, dz))
+                c = clipped_cos1(dot3(nx, ny, nz, dx, dy, dz))
                 _, _, t_te, t_tm = slab1(eta[mat], c, th, f, False)
                 if slab_delay:
                     extra += group_delay1(eta[mat], c, th, eta_slope[mat])
@@ -1291,7 +1284,7 @@ def path_gains(chain, kinds, elem, count, pen_normal, pen_obj, pen_thickness, ob
                 fi = elem[r, j]
                 nx, ny, nz = f_normal[fi, 0], f_normal[fi, 1], f_normal[fi, 2]
                 mat = f_material[fi]
-                c = _clipped_cos(dot3(nx, ny, nz, dx, dy, dz))
+                c = clipped_cos1(dot3(nx, ny, nz, dx, dy, dz))
                 r_te, r_tm = reflection1(eta[mat], c, f_two_sided[fi], thickness[mat], f)
                 e0, e1, e2 = _te_tm(e0, e1, e2, dx, dy, dz, dirs[j + 1, 0], dirs[j + 1, 1],
                                     dirs[j + 1, 2], nx, ny, nz, r_te, r_tm)  # fmt: skip
