@@ -19,7 +19,7 @@ import numpy as np
 
 from ..core.constants import C0
 from ..core.errors import TraceInputError
-from ..physics.materials import face_reflection, slab
+from ..physics.materials import slab
 from ..scene.model import Scene
 from .config import MIN_POWER_DB, TraceConfig
 
@@ -128,13 +128,6 @@ class TraceContext:
         if len(w) == 0:
             return np.full(idx.shape, -1)
         return w.object[np.clip(idx, 0, len(w) - 1)]
-
-    def reflection_coefficients(
-        self, mat: np.ndarray, cos_i: np.ndarray, two_sided: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """TE/TM reflection coefficients: a closed solid's face is a half-space interface
-        (Fresnel); an open sheet is a slab of its material's thickness (ITU-R P.2040 sec. 3)."""
-        return face_reflection(self.eta, self.thickness, mat, cos_i, two_sided, self.f)
 
 
 def opaque_objects(
