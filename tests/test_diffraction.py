@@ -407,6 +407,32 @@ def test_boundary_limit_value_and_jump() -> None:
     assert all(np.isfinite(m) for m in mid)
 
 
+def test_wedge_factor_is_cot_times_the_sine_everywhere() -> None:
+    """The finite form of the wedge factor (D9): ``f = cot(eps/2n) |sin(eps/2)| sqrt(2kL)``
+    against the cotangent written out (away from eps = 0), the sinc form near 0, and
+    ``n sqrt(2kL)`` times ``sgn(eps)`` at eps -> 0: exactly 0 at eps = 0, finite for eps down to
+    the smallest normal numbers, over the whole range ``[-n pi, n pi]``."""
+    from raytrace.physics.utd import _wedge_factors
+
+    for n in (1.5, 1.9, 2.0):
+        eps = np.concatenate([np.linspace(-n * np.pi, n * np.pi, 2001),
+                              [1e-3, -1e-7, 1e-12, 1e-300, -1e-300, 5e-324, 0.0]])  # fmt: skip
+        kl = np.full(len(eps), 50.0)
+        beta = np.pi - eps  # the a^- term with N = 0: eps = pi - beta
+        x, f = _wedge_factors(np.full(len(eps), n), beta, np.zeros(len(eps)), kl)
+        got = f[:, 1]
+        assert np.all(np.isfinite(got)) and np.all(np.isfinite(x[:, 1]))
+        e = np.pi - beta  # eps as the kernel computes it
+        far = np.abs(e) > 1e-3
+        want = np.abs(np.sin(e[far] / 2)) / np.tan(e[far] / (2 * n))
+        np.testing.assert_allclose(got[far], want * np.sqrt(2 * 50.0), rtol=1e-12, atol=1e-12)
+        near = ~far & (e != 0)
+        sinc = n * np.cos(e[near] / (2 * n)) * np.sinc(e[near] / (2 * np.pi))
+        sinc /= np.sinc(e[near] / (2 * np.pi * n))
+        np.testing.assert_allclose(got[near], np.sign(e[near]) * sinc * np.sqrt(100.0), rtol=1e-14)
+        assert np.all(got[e == 0] == 0)
+
+
 def test_luebbers_pec_limit_equals_kp() -> None:
     rng = np.random.default_rng(5)
     p = 200
