@@ -505,3 +505,50 @@ def test_mixed_candidates_are_the_stage_arrays_built_in_numpy():
         for name, g in zip(("t_idx", "r_idx", "verts", "elem", "kinds", "chain", "vobj"), got):
             w = getattr(want, name)
             assert g.shape == w.shape and np.array_equal(g, w), (before, name)
+
+
+def test_second_order_candidates_exact_tests_are_the_numpy_ones():
+    """Double reflections in the hall from one transmitter to its points: the pairs the compiled
+    exact tests keep, and their reflection points, are those of the numpy tests (written out
+    here: the segment receiver -> second image through the second facet, from there to the first
+    image through the first facet, the second point on the transmitter's side of the first
+    facet) applied to the pairs that pass the receiver tests, to the bit."""
+    from raytrace import load_scene
+    from raytrace.scene.metadata import SceneMetadata
+    from raytrace.solver import specular
+    from raytrace.solver.context import TraceContext
+
+    scene = load_scene("hall")
+    inp = SceneMetadata.from_scene(scene, require=True)
+    ctx = TraceContext(scene, inp.bs_xyz, inp.point_xyz, 3.775e9, TraceConfig())
+    fc = scene.facets
+    side_t, img1, i1, f1, f2, img2, _, receiver_args, exact_args = specular._second_images(
+        ctx, 1, accel.facing_pairs(fc)
+    )
+    side_rx = carray(refl.reflecting_side(fc, ctx.rx), np.int8)
+    centre = 0.5 * (ctx.rx.min(axis=0) + ctx.rx.max(axis=0))
+    radius = float(np.linalg.norm(ctx.rx - centre, axis=1).max()) * 1.01
+    tests = (*accel.facet_test_arrays(fc), accel.BARY_TOL, accel.RECT_INSIDE_M)
+
+    def run(exact):
+        return kernels.second_order_candidates(
+            0, len(f1), *receiver_args[:2], side_rx, *receiver_args[2:], carray(ctx.rx),
+            *centre, radius, True, *exact_args[:4], carray(fc.normal), carray(fc.offset),
+            exact_args[4], *tests, exact,
+        )  # fmt: skip
+
+    q, r, _, n_pairs = run(False)
+    assert n_pairs == len(q) > 1000
+    u2, p2 = refl.segment_plane_point(ctx.rx[r], img2[q], fc.normal[f2[q]], fc.offset[f2[q]])
+    ok = (u2 > 0) & (u2 < 1)
+    ok[ok] = accel.points_in_facets(p2[ok], f2[q][ok], fc)
+    u1, p1 = refl.segment_plane_point(p2, img1[i1[q]], fc.normal[f1[q]], fc.offset[f1[q]])
+    ok &= (u1 > 0) & (u1 < 1)
+    ok[ok] = accel.points_in_facets(p1[ok], f1[q][ok], fc)
+    s2 = refl.signed_distance(p2, fc.normal[f1[q]], fc.offset[f1[q]])
+    ok &= np.sign(s2) == side_t[f1[q]]
+    got_q, got_r, pts, got_pairs = run(True)
+    assert got_pairs == n_pairs and 0 < len(got_q) < 0.5 * len(q)  # the tests do reject
+    np.testing.assert_array_equal(got_q, q[ok])
+    np.testing.assert_array_equal(got_r, r[ok])
+    np.testing.assert_array_equal(pts, np.concatenate([p1[ok], p2[ok]], axis=1))

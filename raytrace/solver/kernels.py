@@ -1,7 +1,7 @@
 """Compiled loops of the tracer (numba, options in :mod:`raytrace.core.jit`).
 
 * **Pruning** (:func:`facet_wedge_pairs`, :func:`expand_over_others`,
-  :func:`second_order_receivers`, :func:`surely_inside`). The mixed stages (RD, DR, RDR) look
+  :func:`second_order_candidates`, :func:`surely_inside`). The mixed stages (RD, DR, RDR) look
   for (end point, facet, wedge) triples where a reflection in the facet can reach the edge, then
   expand each triple over the other ends; double reflections test second images against the
   receivers. In numpy these steps built dense (object, facet), (edge, facet), (triple, other
@@ -54,7 +54,7 @@ from ..physics.utd import diffraction_valid1, keller_point
 from ..scene.accel import FACET_TEST_SIG, facet_box_test, in_triangles
 
 __all__ = ["PRUNE", "surely_inside", "facet_wedge_pairs", "expand_over_others",
-           "reflection_edge_points", "along_and_off_rows", "second_order_receivers", "line_span", "edge_distance",
+           "reflection_edge_points", "along_and_off_rows", "second_order_candidates", "line_span", "edge_distance",
            "opaque_blocks", "touch_rows", "entry_points", "end_probes",
            "walk_record", "unseen_entries", "walk_rays", "walk_hits", "segment_rays",
            "path_gains", "interaction_sequences", "mixed_candidates"]
@@ -482,7 +482,7 @@ _BEAM = "f8[:, ::1], f8[:, ::1], f8[::1], b1[::1]"
 
 @inline
 def _in_both_beams(apex2, axis2, cos2, in2, apex1, axis1, cos1, in1, nx, ny, nz, off, rx, q, r):
-    """The beam tests of :func:`second_order_receivers` for second image ``q``, receiver ``r``."""
+    """The beam tests of :func:`second_order_candidates` for second image ``q``, receiver ``r``."""
     px, py, pz = rx[r, 0], rx[r, 1], rx[r, 2]
     if not _point_in_beam(apex2[q, 0], apex2[q, 1], apex2[q, 2], axis2[q, 0], axis2[q, 1],
                           axis2[q, 2], cos2[q], in2[q], px, py, pz):  # fmt: skip
@@ -494,14 +494,30 @@ def _in_both_beams(apex2, axis2, cos2, in2, apex1, axis1, cos1, in1, nx, ny, nz,
                           axis1[q, 2], cos1[q], in1[q], mx, my, mz)  # fmt: skip
 
 
+@inline
+def _plane_crossing(ax, ay, az, bx, by, bz, nx, ny, nz, off):
+    """:func:`raytrace.solver.reflection.segment_plane_point` of one segment ``a -> b`` and
+    plane (the same arithmetic): ``u`` (NaN where the segment is parallel) and the point."""
+    sa = dot3(ax, ay, az, nx, ny, nz) - off
+    sb = dot3(bx, by, bz, nx, ny, nz) - off
+    den = sa - sb
+    u = sa / den if abs(den) > 0 else np.nan
+    return u, ax + u * (bx - ax), ay + u * (by - ay), az + u * (bz - az)
+
+
 @kernel(
-    "Tuple((i8[::1], i8[::1]))("
+    "Tuple((i8[::1], i8[::1], f8[:, ::1], i8))("
     f"i8, i8, i8[::1], i1[::1], i1[:, ::1], {_BEAM}, f8[::1], {_BEAM}, f8[:, ::1], f8[::1], "
-    "f8[:, ::1], f8, f8, f8, f8, b1)"
+    "f8[:, ::1], f8, f8, f8, f8, b1, f8[:, ::1], i8[::1], i8[::1], f8[:, ::1], f8[:, ::1], "
+    f"f8[::1], i1[::1], {FACET_TEST_SIG}, b1)"
 )
-def second_order_receivers(q0, q1, f2, s_img, side_rx, apex2, axis2, cos2, in2, sin2, apex1,
-                           axis1, cos1, in1, n2, off2, rx, cx, cy, cz, radius, prune):  # fmt: skip
-    """The (second image, receiver) pairs of double reflections that pass the receiver tests.
+def second_order_candidates(q0, q1, f2, s_img, side_rx, apex2, axis2, cos2, in2, sin2, apex1,
+                            axis1, cos1, in1, n2, off2, rx, cx, cy, cz, radius, prune, img1, i1,
+                            f1, img2, normal, offset, side_t, lo, hi, rect, r_lo, r_hi,
+                            tri_start, tri_count, corner, v0, v1, d00, d01, d11, den, bary_tol,
+                            rect_inside, exact):  # fmt: skip
+    """The (second image, receiver) pairs of double reflections: the receiver tests, then the
+    exact tests of the reflection points.
 
     For second images ``q0 <= q < q1`` (their second facets ``f2`` (Q,), the first image's side
     ``s_img`` of it) and receivers ``rx`` (R, 3): the receiver is on that side of the second
@@ -514,21 +530,37 @@ def second_order_receivers(q0, q1, f2, s_img, side_rx, apex2, axis2, cos2, in2, 
     whole. The side is the rule; the beams are necessary conditions, not tested with ``prune``
     False.
 
+    With ``exact``, the pairs must also pass the tests of
+    :func:`raytrace.solver.specular.second_order` in its arithmetic
+    (:func:`_plane_crossing`, :func:`raytrace.scene.accel.points_in_facets`' helpers): the
+    segment receiver -> second image (``img2`` (Q, 3)) crosses the second facet's plane between
+    its ends, inside the facet; the segment from there to the first image (``img1[i1[q]]``)
+    crosses the first facet (``f1`` (Q,); planes ``normal``, ``offset`` (K,)) likewise; and the
+    second reflection point is on the transmitter's reflecting side of the first facet
+    (``side_t`` (K,)).
+
     Returns
     -------
     q, r : (M,) int, in (q, r) order
+    points : (M, 6) float, metres: the first reflection point, then the second (with
+        ``exact``; not written otherwise)
+    n_pairs : int, the pairs that passed the receiver tests (the exact tests' candidates)
     """
     cap = 1024
     out_q = np.empty(cap, dtype=np.int64)
     out_r = np.empty(cap, dtype=np.int64)
-    m = 0
+    out_p = np.empty((cap, 6))
+    m, n_pairs = 0, 0
     for q in range(q0, q1):
         if prune and not _beam_reaches(apex2[q, 0], apex2[q, 1], apex2[q, 2], axis2[q, 0],
                                        axis2[q, 1], axis2[q, 2], cos2[q], sin2[q], in2[q], cx,
                                        cy, cz, radius):  # fmt: skip
             continue
-        f, s = f2[q], s_img[q]
+        f, s, g = f2[q], s_img[q], f1[q]
         nx, ny, nz, off = n2[q, 0], n2[q, 1], n2[q, 2], off2[q]
+        jx, jy, jz = img1[i1[q], 0], img1[i1[q], 1], img1[i1[q], 2]
+        kx, ky, kz = img2[q, 0], img2[q, 1], img2[q, 2]
+        gx, gy, gz, g_off, g_side = normal[g, 0], normal[g, 1], normal[g, 2], offset[g], side_t[g]
         for r in range(rx.shape[0]):
             # the rule, not a pruning: the receiver strictly on the reflecting side
             if side_rx[r, f] != s:
@@ -536,9 +568,40 @@ def second_order_receivers(q0, q1, f2, s_img, side_rx, apex2, axis2, cos2, in2, 
             if prune and not _in_both_beams(apex2, axis2, cos2, in2, apex1, axis1, cos1, in1,
                                             nx, ny, nz, off, rx, q, r):  # fmt: skip
                 continue
+            n_pairs += 1
+            if exact:
+                u2, px, py, pz = _plane_crossing(rx[r, 0], rx[r, 1], rx[r, 2], kx, ky, kz,
+                                                 normal[f, 0], normal[f, 1], normal[f, 2],
+                                                 offset[f])  # fmt: skip
+                if not (u2 > 0 and u2 < 1):
+                    continue
+                quick = facet_box_test(px, py, pz, f, lo, hi, rect, r_lo, r_hi, rect_inside)
+                if quick == 0 or (quick < 0 and not in_triangles(
+                        px, py, pz, f, tri_start, tri_count, corner, v0, v1, d00, d01, d11, den,
+                        bary_tol)):  # fmt: skip
+                    continue
+                u1, ox, oy, oz = _plane_crossing(px, py, pz, jx, jy, jz, gx, gy, gz, g_off)
+                if not (u1 > 0 and u1 < 1):
+                    continue
+                quick = facet_box_test(ox, oy, oz, g, lo, hi, rect, r_lo, r_hi, rect_inside)
+                if quick == 0 or (quick < 0 and not in_triangles(
+                        ox, oy, oz, g, tri_start, tri_count, corner, v0, v1, d00, d01, d11, den,
+                        bary_tol)):  # fmt: skip
+                    continue
+                # the second reflection point on the transmitter's side of the first facet
+                s2 = dot3(px, py, pz, gx, gy, gz) - g_off
+                if not ((s2 > 0 and g_side > 0) or (s2 < 0 and g_side < 0)
+                        or (s2 == 0 and g_side == 0)):  # fmt: skip
+                    continue  # np.sign(s2) != side (NaN: never equal)
+                if m == len(out_q):
+                    grown = np.empty((2 * m, 6))
+                    grown[:m] = out_p
+                    out_p = grown
+                out_p[m, 0], out_p[m, 1], out_p[m, 2] = ox, oy, oz
+                out_p[m, 3], out_p[m, 4], out_p[m, 5] = px, py, pz
             out_q, out_r = _put(out_q, m, q), _put(out_r, m, r)
             m += 1
-    return out_q[:m].copy(), out_r[:m].copy()
+    return out_q[:m].copy(), out_r[:m].copy(), out_p[:m].copy(), n_pairs
 
 
 # -- penetration: lines against convex solids, points against triangles -------------------------

@@ -85,6 +85,8 @@ def second_order(ctx: TraceContext) -> list[Paths]:
     rx_centre = 0.5 * (ctx.rx.min(axis=0) + ctx.rx.max(axis=0))
     rx_radius = float(np.sqrt(((ctx.rx - rx_centre) ** 2).sum(axis=1)).max()) * (1 + 1e-9) + 1e-9
     side_rx, rx = carray(side_rx, np.int8), carray(ctx.rx)
+    normal, offset = carray(fc.normal), carray(fc.offset)
+    facet_tests = (*accel.facet_test_arrays(fc), accel.BARY_TOL, accel.RECT_INSIDE_M)
     out: list[Paths] = []
     # candidates that passed the exact tests, evaluated together (all transmitters' few in one
     # pass) once there are CHUNK of them and at the end
@@ -95,7 +97,7 @@ def second_order(ctx: TraceContext) -> list[Paths]:
         found.clear()
 
     for t in range(len(ctx.tx)):
-        side_t, img1, i1, f1a, f2, img2, s_img, receiver_args = _second_images(ctx, t, pairs)
+        _, _, _, f1a, f2, _, _, receiver_args, exact_args = _second_images(ctx, t, pairs)
         if len(f1a) == 0:
             continue
         # receivers on the same side of the second facet as the first image, inside the
@@ -103,31 +105,21 @@ def second_order(ctx: TraceContext) -> list[Paths]:
         # reflection, the path is straight from the first image to the receiver's mirror image
         # in the second facet, through the first facet. Second images whose beam misses the
         # receivers' bounding sphere are skipped whole.
+        # the exact tests follow in the same pass: the segment receiver -> second image
+        # crosses the second facet, the segment from there to the first image crosses the
+        # first facet, and the second reflection point is on the transmitter's side of the
+        # first facet (kernels.second_order_candidates)
         step = max(1, CHUNK // max(len(ctx.rx), 1))
         for c0 in range(0, len(f1a), step):
-            q, r_idx = kernels.second_order_receivers(
+            q, r_idx, pts, n_pairs = kernels.second_order_candidates(
                 c0, min(len(f1a), c0 + step), *receiver_args[:2], side_rx, *receiver_args[2:],
-                rx, *rx_centre, rx_radius, kernels.PRUNE,
+                rx, *rx_centre, rx_radius, kernels.PRUNE, *exact_args[:4], normal, offset,
+                exact_args[4], *facet_tests, True,
             )  # fmt: skip
-            ctx.count("candidates_r2", len(q))
-            ff1, ff2 = f1a[q], f2[q]
-            u2, p2 = refl.segment_plane_point(
-                ctx.rx[r_idx], img2[q], fc.normal[ff2], fc.offset[ff2]
-            )
-            ok = (u2 > 0) & (u2 < 1)
-            ok[ok] = accel.points_in_facets(p2[ok], ff2[ok], fc)
-            q, r_idx, ff1, ff2, p2 = q[ok], r_idx[ok], ff1[ok], ff2[ok], p2[ok]
-            u1, p1 = refl.segment_plane_point(p2, img1[i1[q]], fc.normal[ff1], fc.offset[ff1])
-            ok = (u1 > 0) & (u1 < 1)
-            ok[ok] = accel.points_in_facets(p1[ok], ff1[ok], fc)
-            # the second reflection point must be on the side of the first facet that the
-            # transmitter is on
-            s2 = refl.signed_distance(p2[ok], fc.normal[ff1[ok]], fc.offset[ff1[ok]])
-            ok[ok] = np.sign(s2) == side_t[ff1[ok]]
-            if ok.any():
-                found.append((np.full(int(ok.sum()), t), r_idx[ok],
-                              np.stack([p1[ok], p2[ok]], axis=1),
-                              np.stack([ff1[ok], ff2[ok]], axis=1)))  # fmt: skip
+            ctx.count("candidates_r2", n_pairs)
+            if len(q):
+                found.append((np.full(len(q), t), r_idx, pts.reshape(-1, 2, 3),
+                              np.stack([f1a[q], f2[q]], axis=1)))  # fmt: skip
                 if sum(len(x[0]) for x in found) >= CHUNK:
                     flush()
     if found:
@@ -152,9 +144,11 @@ def _second_images(ctx: TraceContext, t: int, pairs: np.ndarray) -> tuple[np.nda
     img2 : (M, 3) float, the second images, metres
     s_img : (M,) int8, the side of the second facet the first image is on
     receiver_args : tuple, the per-image arguments of
-        :func:`raytrace.solver.kernels.second_order_receivers` (``f2``, ``s_img``, the beams
+        :func:`raytrace.solver.kernels.second_order_candidates` (``f2``, ``s_img``, the beams
         from the second images through the second facets and from the first images through the
         first facets, the second facets' planes), around ``side_rx``
+    exact_args : tuple, the arguments of its exact tests (``img1``, ``i1``, ``f1``, ``img2``,
+        ``side_t``, writable copies)
     """
     fc = ctx.scene.facets
     mask = None if ctx.facet_mask is None else ctx.facet_mask.tobytes()
@@ -188,11 +182,13 @@ def _second_images(ctx: TraceContext, t: int, pairs: np.ndarray) -> tuple[np.nda
     # own writable copies: the kernel's signature takes writable arrays (it writes none)
     receiver_args = tuple(np.array(x, order="C", copy=True) for x in receiver_args)
     found = (side_t, img1, a, f1[a], f2, img2, s_img)
+    # and for its exact tests: the images, which first image and first facet, the side
+    exact_args = tuple(np.array(x, order="C", copy=True) for x in (img1, a, f1[a], img2, side_t))
     for x in found:
         x.setflags(write=False)
-    return keep(kept, key, (*found, receiver_args), SECOND_IMAGES_KEPT)
+    return keep(kept, key, (*found, receiver_args, exact_args), SECOND_IMAGES_KEPT)
 
 
 def _beam_args(b: refl.Beam) -> tuple[np.ndarray, ...]:
-    """A beam as :func:`raytrace.solver.kernels.second_order_receivers` takes it."""
+    """A beam as :func:`raytrace.solver.kernels.second_order_candidates` takes it."""
     return carray(b.apex), carray(b.axis), carray(b.cos_a), carray(b.apex_inside, bool)
