@@ -570,6 +570,9 @@ def second_order_candidates(q0, q1, f2, s_img, side_rx, apex2, axis2, cos2, in2,
                 continue
             n_pairs += 1
             if exact:
+                # each crossing inside its facet written out (as in reflection_edge_points): a
+                # helper holding the facet arrays across its branches would cost numba's
+                # reference counts per call (core.jit.inline)
                 u2, px, py, pz = _plane_crossing(rx[r, 0], rx[r, 1], rx[r, 2], kx, ky, kz,
                                                  normal[f, 0], normal[f, 1], normal[f, 2],
                                                  offset[f])  # fmt: skip
