@@ -274,6 +274,13 @@ def test_face_reflection_is_fresnel_on_solids_and_the_slab_on_sheets_bitwise():
     np.testing.assert_allclose(f_tm[ok], ((e_c - s) / (e_c + s))[ok], rtol=1e-14, atol=1e-15)
     # NaN in, NaN out (not a clipped cosine)
     assert np.isnan(fresnel(4.0, np.nan)[0])
+    # an index outside the tables, or tables that do not match: one-line errors
+    with pytest.raises(MaterialError, match="material indices"):
+        face_reflection(eta, thick, np.array([4]), cos[:1], sheet[:1], F_C)
+    with pytest.raises(MaterialError, match="thicknesses"):
+        face_reflection(eta, thick[:2], mat, cos, sheet, F_C)
+    with pytest.raises(MaterialError, match="one value per face"):
+        face_reflection(eta, thick, mat, cos[:3], sheet, F_C)
 
 
 def _field_vectors(eta: complex, theta: float):

@@ -159,3 +159,31 @@ def test_chain_diffraction_unfolds_the_reflections_and_matches_the_public_chain(
         np.testing.assert_allclose(got.basis[v], basis[v], rtol=0, atol=1e-12)
         # the incident leg along the chain is the distance from the unfolded source
         np.testing.assert_allclose(got.s_in, np.linalg.norm(point - src, axis=1), rtol=1e-12)
+
+
+def test_chain_diffraction_rejects_bad_input() -> None:
+    """One-line errors, not an out-of-bounds read in the compiled passes."""
+    import pytest
+
+    from raytrace.core.errors import TraceInputError
+
+    rng = np.random.default_rng(2)
+    e, n0, nn, face0 = _random_wedges(rng, 3)
+    frames = utd.wedge_frames(e, n0, nn, face0)
+    chain = rng.normal(size=(4, 3, 3))
+    seg = np.linalg.norm(chain[:, 1:] - chain[:, :-1], axis=2)
+    eta, thick = np.array([4.0 + 0j]), np.array([0.1])
+    ok = dict(frequency_hz=3.775e9, eta=eta, thickness_m=thick, material=np.zeros(4, int),
+              two_sided=np.zeros(4, bool))  # fmt: skip
+    assert utd.chain_diffraction(frames, np.arange(4) % 3, chain, 1, seg, **ok).d_matrix.shape == (4, 2, 2)
+    bad = [
+        ((frames, np.array([0, 1, 2, 3]), chain, 1, seg), {}, "wedge indices"),
+        ((frames, np.zeros(4, int), chain, 2, seg), {}, "vertex of the chain"),
+        ((frames, np.zeros(4, int), chain, 1, seg[:, :1]), {}, "seg_len"),
+        ((frames, np.zeros(3, int), chain, 1, seg), {}, "chain must have shape"),
+        ((frames, np.zeros(4, int), chain, 1, seg), {"material": np.ones(4, int)}, "material"),
+        ((frames, np.zeros(4, int), chain, 1, seg), {"frequency_hz": 0.0}, "frequency_hz"),
+    ]
+    for args, change, match in bad:
+        with pytest.raises(TraceInputError, match=match):
+            utd.chain_diffraction(*args, **{**ok, **change})

@@ -804,9 +804,23 @@ def face_reflection(
     Returns
     -------
     r_te, r_tm : (n,) complex128
+
+    Raises
+    ------
+    MaterialError
+        Tables of different lengths, a material index outside them, per-face arrays of
+        different lengths.
     """
-    return _face_rows(carray(eta, complex), carray(thickness_m), carray(material, np.int64),
-                      carray(cos_theta), carray(two_sided, bool), float(frequency_hz))  # fmt: skip
+    eta, thickness = carray(eta, complex).reshape(-1), carray(thickness_m).reshape(-1)
+    material = carray(material, np.int64).reshape(-1)
+    cos, sheet = carray(cos_theta).reshape(-1), carray(two_sided, bool).reshape(-1)
+    if len(eta) != len(thickness):
+        raise MaterialError(f"{len(eta)} permittivities but {len(thickness)} thicknesses")
+    if not len(material) == len(cos) == len(sheet):
+        raise MaterialError("material, cos_theta and two_sided need one value per face")
+    if len(material) and (material.min() < 0 or material.max() >= len(eta)):
+        raise MaterialError(f"material indices must be in 0..{len(eta) - 1}")
+    return _face_rows(eta, thickness, material, cos, sheet, float(frequency_hz))
 
 
 def slab(

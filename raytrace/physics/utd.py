@@ -1089,7 +1089,30 @@ def chain_diffraction(
     Returns
     -------
     ChainDiffraction
+
+    Raises
+    ------
+    TraceInputError
+        Shapes that do not match, ``j`` not a vertex of the chain, a wedge or material index
+        out of range, a frequency that is not positive.
     """
+    if not (np.isscalar(frequency_hz) and np.isfinite(frequency_hz) and frequency_hz > 0):
+        raise TraceInputError(f"frequency_hz must be a positive number, got {frequency_hz!r}")
+    chain, seg_len = np.asarray(chain, dtype=float), np.asarray(seg_len, dtype=float)
+    wedge, material = np.asarray(wedge).reshape(-1), np.asarray(material).reshape(-1)
+    p = len(wedge)
+    if chain.ndim != 3 or chain.shape[0] != p or chain.shape[2] != 3:
+        raise TraceInputError(f"chain must have shape ({p}, k + 2, 3), got {chain.shape}")
+    if seg_len.shape != (p, chain.shape[1] - 1):
+        raise TraceInputError(f"seg_len must have shape ({p}, {chain.shape[1] - 1}), got {seg_len.shape}")
+    if not 1 <= int(j) <= chain.shape[1] - 2:
+        raise TraceInputError(f"j must be a vertex of the chain (1..{chain.shape[1] - 2}), got {j}")
+    if len(material) != p or np.shape(two_sided) != (p,):
+        raise TraceInputError("material and two_sided need one value per diffraction")
+    if p and (wedge.min() < 0 or wedge.max() >= len(frame.n)):
+        raise TraceInputError(f"wedge indices must be in 0..{len(frame.n) - 1}")
+    if p and (material.min() < 0 or material.max() >= len(eta) or len(eta) != len(thickness_m)):
+        raise TraceInputError(f"material indices must be in 0..{len(eta) - 1} (one thickness each)")
     k = _TWO_PI * float(frequency_hz) / C0
     e, t0, n0, _, n = frame
     x, f, g, near, basis, c, reals, spreading, valid, s_in = _chain_geometry(
