@@ -338,6 +338,15 @@ def _te_tm(e, k_in, k_out, normal, c_te, c_tm):
     return (c_te * es)[:, None] * s + (c_tm * ep)[:, None] * p_out
 
 
+def vertical_pol(direction):
+    """Reference: a vertical antenna's field for rays along ``direction`` (n, 3), z made
+    perpendicular to the ray (x for a vertical ray), unit."""
+    v = np.array([0.0, 0.0, 1.0]) - direction[:, 2:3] * direction
+    vertical = np.linalg.norm(v, axis=1) < 1e-9
+    v[vertical] = np.array([1.0, 0.0, 0.0]) - direction[vertical, 0:1] * direction[vertical]
+    return v / np.linalg.norm(v, axis=1)[:, None]
+
+
 def test_path_gains_apply_the_numpy_interactions_in_order():
     """Two segments with a penetration each and a reflection (off a solid's face or an open
     sheet) or a diffraction between them: the compiled loop gives what the ITU-R P.2040
@@ -346,7 +355,6 @@ def test_path_gains_apply_the_numpy_interactions_in_order():
     unfolded length over c plus the slabs' group delays."""
     from raytrace.core.constants import C0
     from raytrace.physics import materials, utd
-    from raytrace.solver.evaluate import vertical_pol
     from raytrace.solver.paths import DIFFRACTION, REFLECTION
 
     rng = np.random.default_rng(3)

@@ -329,18 +329,3 @@ def assemble(
         objects=objs,
         elements=elems,
     )
-
-
-def vertical_pol(direction: np.ndarray) -> np.ndarray:
-    """Unit vector of a vertically polarised antenna's field for a ray along ``direction``:
-    z made perpendicular to the ray (x for a vertical ray)."""
-    z = np.array([0.0, 0.0, 1.0])
-    v = z[None, :] - direction[:, 2:3] * direction
-    n = norm(v)
-    vertical = n < 1e-9
-    if vertical.any():
-        x = np.array([1.0, 0.0, 0.0])
-        v[vertical] = x - direction[vertical, 0:1] * direction[vertical]
-        n[vertical] = norm(v[vertical])
-    return v / n[:, None]
-

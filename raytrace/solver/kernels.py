@@ -1255,8 +1255,8 @@ def _te_tm(e0, e1, e2, kx, ky, kz, ox, oy, oz, nx, ny, nz, c_te, c_tm):
 
 @inline
 def _vertical_pol(dx, dy, dz):
-    """:func:`raytrace.solver.evaluate.vertical_pol` of one direction: z made perpendicular to
-    the ray (x for a vertical ray), unit."""
+    """The field of a vertically polarised antenna for a ray along ``d`` (unit): z made
+    perpendicular to the ray (x for a vertical ray), unit."""
     vx, vy, vz = 0.0 - dz * dx, 0.0 - dz * dy, 1.0 - dz * dz
     n = np.sqrt(vx * vx + vy * vy + vz * vz)
     if n < 1e-9:
