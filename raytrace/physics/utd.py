@@ -456,6 +456,19 @@ def _legs(e, t0, n0, n, w, sx, sy, sz, dx, dy, dz, px, py, pz):
             coz, sin_out, valid)  # fmt: skip
 
 
+@inline
+def _ray_fixed(ix, iy, iz, cix, ciy, ciz, sin_in, ox, oy, oz, cox, coy, coz, sin_out):
+    """KP's ray-fixed unit vectors of one diffraction from :func:`_legs`' unit legs and
+    ``e x s``: ``phi'_hat = -(e x s') / |e x s'|``, ``beta0'_hat = s' x phi'_hat``,
+    ``phi_hat = (e x s) / |e x s|``, ``beta0_hat = s x phi_hat``, as the twelve components of
+    ``beta0'_hat, phi'_hat, beta0_hat, phi_hat``."""
+    hx, hy, hz = -cix / sin_in, -ciy / sin_in, -ciz / sin_in
+    bx, by, bz = cross3(ix, iy, iz, hx, hy, hz)
+    gx, gy, gz = cox / sin_out, coy / sin_out, coz / sin_out
+    ax, ay, az = cross3(ox, oy, oz, gx, gy, gz)
+    return bx, by, bz, hx, hy, hz, ax, ay, az, gx, gy, gz
+
+
 @helper
 def diffraction_valid1(e, t0, n0, n, w, sx, sy, sz, dx, dy, dz, px, py, pz):
     """:func:`diffraction_valid` of one diffraction at ``p`` from ``s`` to ``d`` on the wedge of
@@ -532,15 +545,11 @@ def _geometry(e, t0, n0, n, src, dst, point):
         s_hat_in[r, 0], s_hat_in[r, 1], s_hat_in[r, 2], s_in[r] = ix, iy, iz, si
         s_hat_out[r, 0], s_hat_out[r, 1], s_hat_out[r, 2], s_out[r] = ox, oy, oz, so
         phi_in[r], phi[r], sin_beta0[r], valid[r] = pin, pout, sin_in, ok
-        # KP's ray-fixed unit vectors: phi'_hat = -(e x s') / |e x s'|, phi_hat = (e x s) / |.|,
-        # beta0_hat = s x phi_hat
-        hx, hy, hz = -cix / sin_in, -ciy / sin_in, -ciz / sin_in
-        phi_hat_in[r, 0], phi_hat_in[r, 1], phi_hat_in[r, 2] = hx, hy, hz
-        beta_hat_in[r, 0], beta_hat_in[r, 1], beta_hat_in[r, 2] = cross3(ix, iy, iz, hx, hy, hz)
-        hx, hy, hz = cox / sin_out, coy / sin_out, coz / sin_out
-        phi_hat_out[r, 0], phi_hat_out[r, 1], phi_hat_out[r, 2] = hx, hy, hz
-        beta_hat_out[r, 0], beta_hat_out[r, 1], beta_hat_out[r, 2] = cross3(ox, oy, oz, hx, hy,
-                                                                              hz)  # fmt: skip
+        (beta_hat_in[r, 0], beta_hat_in[r, 1], beta_hat_in[r, 2], phi_hat_in[r, 0],
+         phi_hat_in[r, 1], phi_hat_in[r, 2], beta_hat_out[r, 0], beta_hat_out[r, 1],
+         beta_hat_out[r, 2], phi_hat_out[r, 0], phi_hat_out[r, 1],
+         phi_hat_out[r, 2]) = _ray_fixed(ix, iy, iz, cix, ciy, ciz, sin_in, ox, oy, oz, cox, coy,
+                                         coz, sin_out)  # fmt: skip
         npi = n[r] * np.pi
         lit_0[r] = pin <= np.pi
         lit_n[r] = npi - pin <= np.pi
@@ -733,6 +742,18 @@ def _wedge_factor(beta, sign, n, kl):
     return x, np.sign(eps) * ratio * np.sqrt(2.0 * kl)
 
 
+@inline
+def _four_factors(n, phi, phi_in, kl):
+    """:func:`_wedge_factor`'s ``(x, f)`` of ``D1``, ``D2`` (``beta = phi - phi'``, sign +1, -1)
+    and ``D3``, ``D4`` (``beta = phi + phi'``) of one diffraction, flat."""
+    b_m, b_p = phi - phi_in, phi + phi_in
+    x1, f1 = _wedge_factor(b_m, 1.0, n, kl)
+    x2, f2 = _wedge_factor(b_m, -1.0, n, kl)
+    x3, f3 = _wedge_factor(b_p, 1.0, n, kl)
+    x4, f4 = _wedge_factor(b_p, -1.0, n, kl)
+    return x1, f1, x2, f2, x3, f3, x4, f4
+
+
 @kernel("Tuple((f8[:, ::1], f8[:, ::1]))(f8[::1], f8[::1], f8[::1], f8[::1])")
 def _wedge_factors(n, phi, phi_in, kl):
     """:func:`_wedge_factor` of the four terms of P diffractions, (P, 4) each: ``D1``, ``D2``
@@ -740,11 +761,8 @@ def _wedge_factors(n, phi, phi_in, kl):
     p = len(n)
     x, f = np.empty((p, 4)), np.empty((p, 4))
     for r in range(p):
-        b_m, b_p = phi[r] - phi_in[r], phi[r] + phi_in[r]
-        x[r, 0], f[r, 0] = _wedge_factor(b_m, 1.0, n[r], kl[r])
-        x[r, 1], f[r, 1] = _wedge_factor(b_m, -1.0, n[r], kl[r])
-        x[r, 2], f[r, 2] = _wedge_factor(b_p, 1.0, n[r], kl[r])
-        x[r, 3], f[r, 3] = _wedge_factor(b_p, -1.0, n[r], kl[r])
+        (x[r, 0], f[r, 0], x[r, 1], f[r, 1], x[r, 2], f[r, 2], x[r, 3],
+         f[r, 3]) = _four_factors(n[r], phi[r], phi_in[r], kl[r])  # fmt: skip
     return x, f
 
 
@@ -760,6 +778,10 @@ def _reflection_pair(
     )
 
 
+#: ``-exp(-j pi / 4)``, the numerator of KP's ``C`` (:func:`_utd_terms`).
+_C_NUMERATOR = complex(-np.exp(-0.25j * np.pi))
+
+
 def _utd_terms(n, phi, phi_in, sin_beta0, distance_m, wavenumber):
     """``C (D1 + D2)``, ``C D3``, ``C D4`` of (D7) (broadcast, complex): the polarisation-free
     parts of the KP coefficient, before the face reflection coefficients multiply D3 and D4."""
@@ -770,7 +792,7 @@ def _utd_terms(n, phi, phi_in, sin_beta0, distance_m, wavenumber):
     kl = k * dist
     x, f = _wedge_factors(*(_c(v.reshape(-1)) for v in (n, phi, phi_in, kl)))
     w = f * _transition_over_sqrt(x)  # the four terms, one Faddeeva call for all
-    c = -np.exp(-0.25j * np.pi) / (2.0 * n * np.sqrt(_TWO_PI * k) * sin_beta0)
+    c = _C_NUMERATOR / (2.0 * n * np.sqrt(_TWO_PI * k) * sin_beta0)
     d12 = c * (w[:, 0] + w[:, 1]).reshape(shape)
     return d12, c * w[:, 2].reshape(shape), c * w[:, 3].reshape(shape)
 
@@ -896,6 +918,15 @@ def _face_matrices(r_te, r_tm, c, cp, sp):
     return out
 
 
+@inline
+def _dyadic1(r0_te, r0_tm, rn_te, rn_tm, cos_b, cp0, sp0, cpn, spn, d12, d3, d4):
+    """The entries ``d00, d01, d10, d11`` of :func:`_dyadic`'s ``D`` of one diffraction."""
+    a00, a01, a10, a11 = _face_matrix1(r0_te, r0_tm, cos_b, cp0, sp0)
+    b00, b01, b10, b11 = _face_matrix1(rn_te, rn_tm, -cos_b, cpn, spn)
+    return (-d3 * b00 - d4 * a00 + d12, -d3 * b01 - d4 * a01, -d3 * b10 - d4 * a10,
+            -d3 * b11 - d4 * a11 + d12)  # fmt: skip
+
+
 @kernel(
     "c16[:, :, ::1](c16[::1], c16[::1], c16[::1], c16[::1], f8[::1], f8[::1], f8[::1], f8[::1], "
     "f8[::1], c16[::1], c16[::1], c16[::1])"
@@ -906,20 +937,14 @@ def _dyadic(r0_te, r0_tm, rn_te, rn_tm, cos_b, cp0, sp0, cpn, spn, d12, d3, d4):
     (:func:`_face_matrix1`, from ``cos psi``, ``sin psi`` of each face)."""
     out = np.empty((len(cos_b), 2, 2), dtype=np.complex128)
     for r in range(len(cos_b)):
-        a00, a01, a10, a11 = _face_matrix1(r0_te[r], r0_tm[r], cos_b[r], cp0[r], sp0[r])
-        b00, b01, b10, b11 = _face_matrix1(rn_te[r], rn_tm[r], -cos_b[r], cpn[r], spn[r])
-        x, y = d3[r], d4[r]
-        out[r, 0, 0] = -x * b00 - y * a00 + d12[r]
-        out[r, 0, 1] = -x * b01 - y * a01
-        out[r, 1, 0] = -x * b10 - y * a10
-        out[r, 1, 1] = -x * b11 - y * a11 + d12[r]
+        out[r, 0, 0], out[r, 0, 1], out[r, 1, 0], out[r, 1, 1] = _dyadic1(
+            r0_te[r], r0_tm[r], rn_te[r], rn_tm[r], cos_b[r], cp0[r], sp0[r], cpn[r], spn[r],
+            d12[r], d3[r], d4[r],
+        )
     return out
 
 
 # -- 3b. the diffractions of unfolded paths, compiled end to end ----------------------------------
-#: ``-exp(-j pi / 4)``, the numerator of KP's ``C`` (:func:`_utd_terms`).
-_C_NUMERATOR = complex(-np.exp(-0.25j * np.pi))
-
 _F8, _F8_2 = "f8[::1]", "f8[:, ::1]"
 
 
@@ -970,13 +995,10 @@ def _chain_geometry(e, t0, n0, n, wedge, chain, j, seg_len, k):
         (ix, iy, iz, si, ox, oy, oz, so, pin, pout, cix, ciy, ciz, sin_in, cox, coy, coz,
          sin_out, ok) = _legs(e, t0, n0, n, w, px - s_in * ax, py - s_in * ay, pz - s_in * az,
                               px + s_out * bx, py + s_out * by, pz + s_out * bz, px, py, pz)  # fmt: skip
-        # KP's ray-fixed unit vectors (as _geometry)
-        hx, hy, hz = -cix / sin_in, -ciy / sin_in, -ciz / sin_in
-        basis[r, 1, 0], basis[r, 1, 1], basis[r, 1, 2] = hx, hy, hz
-        basis[r, 0, 0], basis[r, 0, 1], basis[r, 0, 2] = cross3(ix, iy, iz, hx, hy, hz)
-        hx, hy, hz = cox / sin_out, coy / sin_out, coz / sin_out
-        basis[r, 3, 0], basis[r, 3, 1], basis[r, 3, 2] = hx, hy, hz
-        basis[r, 2, 0], basis[r, 2, 1], basis[r, 2, 2] = cross3(ox, oy, oz, hx, hy, hz)
+        (basis[r, 0, 0], basis[r, 0, 1], basis[r, 0, 2], basis[r, 1, 0], basis[r, 1, 1],
+         basis[r, 1, 2], basis[r, 2, 0], basis[r, 2, 1], basis[r, 2, 2], basis[r, 3, 0],
+         basis[r, 3, 1], basis[r, 3, 2]) = _ray_fixed(ix, iy, iz, cix, ciy, ciz, sin_in, ox, oy, oz,
+                                                      cox, coy, coz, sin_out)  # fmt: skip
         npi = n[w] * np.pi
         cp0, sp0 = _face_rule_cs(pin, pout, si, so)
         cpn, spn = _face_rule_cs(npi - pin, npi - pout, si, so)
@@ -986,12 +1008,8 @@ def _chain_geometry(e, t0, n0, n, wedge, chain, j, seg_len, k):
         g_in, g_out, sin_b = (si, so, sin_in) if ok else (1.0, 1.0, 1.0)
         nw, ph, ph_in = (n[w], pout, pin) if ok else (2.0, 0.0, 0.0)
         dist = g_in * g_out * (sin_b * sin_b) / (g_in + g_out)
-        kl = k * dist
-        b_m, b_p = ph - ph_in, ph + ph_in
-        x[r, 0], f[r, 0] = _wedge_factor(b_m, 1.0, nw, kl)
-        x[r, 1], f[r, 1] = _wedge_factor(b_m, -1.0, nw, kl)
-        x[r, 2], f[r, 2] = _wedge_factor(b_p, 1.0, nw, kl)
-        x[r, 3], f[r, 3] = _wedge_factor(b_p, -1.0, nw, kl)
+        (x[r, 0], f[r, 0], x[r, 1], f[r, 1], x[r, 2], f[r, 2], x[r, 3],
+         f[r, 3]) = _four_factors(nw, ph, ph_in, k * dist)  # fmt: skip
         for q in range(4):
             if x[r, q] >= X_SERIES:
                 g[r, q] = _g_large(x[r, q])
@@ -1024,12 +1042,10 @@ def _chain_dyadic(f, g, c, reals, eta, thickness, material, two_sided, freq):
         cr = c[r]
         d12 = cr * (f[r, 0] * g[r, 0] + f[r, 1] * g[r, 1])
         d3, d4 = cr * (f[r, 2] * g[r, 2]), cr * (f[r, 3] * g[r, 3])
-        a00, a01, a10, a11 = _face_matrix1(r0_te, r0_tm, reals[r, 0], reals[r, 1], reals[r, 2])
-        b00, b01, b10, b11 = _face_matrix1(rn_te, rn_tm, -reals[r, 0], reals[r, 3], reals[r, 4])
-        out[r, 0, 0] = -d3 * b00 - d4 * a00 + d12
-        out[r, 0, 1] = -d3 * b01 - d4 * a01
-        out[r, 1, 0] = -d3 * b10 - d4 * a10
-        out[r, 1, 1] = -d3 * b11 - d4 * a11 + d12
+        out[r, 0, 0], out[r, 0, 1], out[r, 1, 0], out[r, 1, 1] = _dyadic1(
+            r0_te, r0_tm, rn_te, rn_tm, reals[r, 0], reals[r, 1], reals[r, 2], reals[r, 3],
+            reals[r, 4], d12, d3, d4,
+        )
     return out
 
 
