@@ -235,6 +235,41 @@ def test_the_auto_rule_by_links_and_cores(monkeypatch):
     assert parallel.auto_in_process(10**6)
 
 
+def test_cores_are_those_the_process_may_use(monkeypatch):
+    """A process restricted to one core (taskset, a container's cpuset) counts one, not the
+    machine's cores; without an affinity call, the machine's."""
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {3}, raising=False)
+    monkeypatch.setattr(os, "cpu_count", lambda: 64)
+    assert cpu_count() == 1
+
+    def unsupported(pid):
+        raise OSError("no affinity here")
+
+    monkeypatch.setattr(os, "sched_getaffinity", unsupported, raising=False)
+    assert cpu_count() == 64
+
+
+def test_stage_threads_follow_the_usable_cores(scene_links, monkeypatch):
+    """A trace's stages run on one thread where the process may use one core (more threads would
+    only contend for the GIL), and on threads where it may use several: the same paths."""
+    sc, tx, rx, cfg = scene_links
+    started = []
+
+    class Counting(tracer.ThreadPoolExecutor):
+        def __init__(self, max_workers=None, **kw):
+            started.append(max_workers)
+            super().__init__(max_workers=max_workers, **kw)
+
+    monkeypatch.setattr(tracer, "ThreadPoolExecutor", Counting)
+    monkeypatch.setattr(tracer, "cpu_count", lambda: 1)
+    one = trace(sc, tx, rx[:3], F_C, cfg, workers=1)
+    assert started == []
+    monkeypatch.setattr(tracer, "cpu_count", lambda: 2)
+    two = trace(sc, tx, rx[:3], F_C, cfg, workers=1)
+    assert started == [2]
+    _same(one, two)
+
+
 def test_a_running_pool_takes_small_traces(scene_links, monkeypatch):
     if cpu_count() < 2:
         pytest.skip("needs two cores")

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import os
 import sys
 import time
 from collections.abc import Sequence
@@ -66,8 +65,8 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--workers",
         type=int,
-        default=os.cpu_count() or 1,
-        help="processes for the snapshots [all cores]",
+        default=None,
+        help="processes for the snapshots [all cores this process may use]",
     )
     p.add_argument(
         "--map-step",
@@ -96,6 +95,12 @@ def _main(args: argparse.Namespace) -> int:
     if receiver not in TOA_METHODS:
         raise HallrayError(f"unknown receiver {receiver!r}; use one of {', '.join(TOA_METHODS)}")
     receivers = list(dict.fromkeys([receiver, IDEAL_RECEIVER]))
+    if args.workers is None:
+        from ..solver.parallel import cpu_count
+
+        args.workers = cpu_count()
+    if args.workers < 1:
+        raise HallrayError(f"--workers must be at least 1, got {args.workers}")
     if not (math.isfinite(args.map_step) and args.map_step >= 0):
         raise HallrayError(f"--map-step must be a number of metres >= 0, got {args.map_step!r}")
     if args.map_step > 0:  # a grid step it refuses is refused before any work

@@ -19,7 +19,6 @@ not depend on the number of threads.
 
 from __future__ import annotations
 
-import os
 import warnings
 from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
@@ -34,7 +33,14 @@ from . import diffraction, specular
 from .config import MIN_POWER_DB, TraceConfig
 from .context import TraceContext, opaque_objects
 from .evaluate import candidates, evaluate
-from .parallel import ScenePool, auto_in_process, from_main, receiver_chunks, resolve_workers
+from .parallel import (
+    ScenePool,
+    auto_in_process,
+    cpu_count,
+    from_main,
+    receiver_chunks,
+    resolve_workers,
+)
 from .paths import DIFFRACTION, Paths
 
 __all__ = [
@@ -202,8 +208,8 @@ def join_chunks(parts: list[Paths], n_tx: int) -> Paths:
     bounds = [np.searchsorted(p.tx_index, np.arange(n_tx + 1)) for p in parts]
     pieces = [p.select(slice(b[t], b[t + 1])) for t in range(n_tx) for p, b in zip(parts, bounds)]
     n = sum(p.n_paths for p in parts)
-    # a large join copies on all cores (it is the serial step after the pool's work)
-    threads = min(os.cpu_count() or 1, 8) if n >= JOIN_THREADS_PATHS else 1
+    # a large join copies on all cores it may use (it is the serial step after the pool's work)
+    threads = min(cpu_count(), 8) if n >= JOIN_THREADS_PATHS else 1
     return Paths.concatenate(pieces, threads=threads)
 
 
@@ -366,7 +372,9 @@ def _run_stages(
         elif callable(progress):
             progress(1)
 
-    n_threads = (os.cpu_count() or 1) if threads is None else max(1, int(threads))
+    # the cores this process may use (its affinity: taskset, a container's cpuset), not the
+    # machine's: more threads than cores only contend for the GIL
+    n_threads = cpu_count() if threads is None else max(1, int(threads))
     results: list[list[Paths]] = []
     try:
         if n_threads == 1 or len(stages) <= 1:

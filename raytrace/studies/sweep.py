@@ -870,12 +870,12 @@ def _execute_local(
         return
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
-    from ..solver.parallel import process_context
+    from ..solver.parallel import cpu_count, process_context
 
     # forks of the preloaded fork server, never of this process: Embree's threads (alive here once
     # it has traced anything) do not survive a fork, and a child's first scene build could wait
     # for them forever (raytrace.solver.parallel)
-    workers = min(workers, len(tasks), os.cpu_count() or 1)  # never more than cores or cells
+    workers = min(workers, len(tasks), cpu_count())  # never more than usable cores or cells
     pool = ProcessPoolExecutor(max_workers=workers, mp_context=process_context((__name__,)))
     futures: dict[Any, dict[str, Any]] = {}
     seen: set[Any] = set()
@@ -1106,7 +1106,9 @@ def run_sweep(
     # connect before writing anything: an unreachable scheduler leaves no output behind
     dask_client = _connect_dask(scheduler) if scheduler is not None and todo else None
     out.mkdir(exist_ok=True)
-    n_workers = workers if workers is not None else (os.cpu_count() or 1)
+    from ..solver.parallel import cpu_count
+
+    n_workers = workers if workers is not None else cpu_count()
     mode = "dask" if scheduler is not None else ("local" if n_workers <= 1 else f"pool:{n_workers}")
     tasks = [c.task() for c in todo]
     bar = None
