@@ -164,7 +164,7 @@ def trace(
         these objects (no line of sight). With :func:`reevaluate`, this is how a snapshot with
         moving objects is traced without retracing the static scene.
     threads : int, optional, threads for the independent stages of one trace in this process
-        (default: all cores)
+        (default: as many as the cores this process may use, its CPU affinity)
     opaque : (O,) bool, optional, objects that block: a path through one is dropped before the
         crossing analysis (default :func:`opaque_objects` at this frequency and power cut; give
         the objects opaque at every band when tracing geometry once for several bands with

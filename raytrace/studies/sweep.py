@@ -1084,7 +1084,8 @@ def run_sweep(
     config : SweepConfig, a config file or a mapping
     out_dir : output directory (default: the config's ``output``, else ``<config stem>-sweep``
         beside the config file, else ``sweep-<name>``)
-    workers : processes of the local pool (default: all cores; 1 = in this process)
+    workers : processes of the local pool (default: the cores this process may use; 1 = in
+        this process)
     scheduler : Dask scheduler address (``tcp://host:8786``) or a ``distributed.Client``; when
         given, cells run on that cluster and ``workers`` is ignored
     progress : True for a tqdm bar on stderr, or a callable ``(done, total)``
