@@ -130,6 +130,32 @@ def test_facet_wedge_spans_hold_every_reachable_point_of_the_edge(seed):
     assert len(e_idx) < 0.5 * (side != 0).sum() * len(w)
 
 
+def test_pair_buffers_grow_and_keep_every_end_in_order(monkeypatch):
+    """Several ends' triples gathered in one set of buffers: with buffers of one row that double
+    again and again, the triples are those of each end alone, in end order, and the kept ends
+    (transmitters) give the same triples as the gathered ones."""
+    rng = np.random.default_rng(5)
+    sc = _floor_pane_boxes(rng)
+    ends = np.column_stack([rng.uniform(0.0, 8.0, (12, 2)), rng.uniform(0.3, 3.0, 12)])
+    ends = ends[sc.inside_solid(ends) < 0]
+    ctx = _ctx(sc, ends, ends)
+    whole = diffraction._facet_wedge_pairs(ctx, ends)
+    assert len(whole[0]) > 200 and np.all(np.diff(whole[0]) >= 0)
+    monkeypatch.setattr(diffraction, "PAIRS_PER_END", 1)
+    grown = diffraction._facet_wedge_pairs(ctx, ends)
+    for a, b in zip(whole, grown):
+        np.testing.assert_array_equal(a, b)
+    for e in range(len(ends)):
+        alone = diffraction._facet_wedge_pairs(ctx, ends[e : e + 1])
+        mine = whole[0] == e
+        for a, b in zip(whole[1:], alone[1:]):
+            np.testing.assert_array_equal(a[mine], b)
+    sc.wedges.cache.pop("end_pairs", None)
+    kept = diffraction._facet_wedge_pairs(ctx, ends, keep=True)  # one end at a time, grown too
+    for a, b in zip(whole, kept):
+        np.testing.assert_array_equal(a, b)
+
+
 @pytest.mark.parametrize("seed", [3, 4])
 def test_reflection_edge_points_equal_the_numpy_tests_of_every_pair(seed):
     """RD candidates: the kernel's pairs, diffraction points and reflection points are those of

@@ -269,33 +269,53 @@ def _facet_wedge_pairs(
         g_chosen = np.ones(len(geo.g_start), dtype=bool)
     fixed = (*geo.facets[:2], f_chosen, *geo.facets[2:], *geo.groups, g_chosen, *geo.wedges,
              *_wedge_frame(ctx).kernel_args, accel.PLANE_TOL_M, SPAN_PAD_M, kernels.PRUNE)  # fmt: skip
-    kept = ctx.scene.wedges.cache.setdefault("end_pairs", {}) if keep else None
+    if not keep:
+        # every end's triples written into one set of buffers, in end order
+        out = _pair_buffers(PAIRS_PER_END * max(len(ends), 1))
+        for e in range(len(ends)):
+            out = _end_pairs(fc, geo, fixed, ends[e], side[e], e, out)
+        m = out[-1]
+        return tuple(x[:m] for x in out[:-1])
+    kept = ctx.scene.wedges.cache.setdefault("end_pairs", {})
     mask = (None if ctx.facet_mask is None or mixed_rdr
             else (ctx.facet_mask.tobytes(), ctx.wedge_mask.tobytes()))  # fmt: skip
     outs = []
     for e in range(len(ends)):
         key = (ends[e].tobytes(), side[e].tobytes(), mask, kernels.PRUNE, float(ctx.scene.margin))
-        found = None if kept is None else kept.get(key)
+        found = kept.get(key)
         if found is None:
-            found = _end_pairs(fc, geo, fixed, ends[e], side[e])
-            if kept is not None:
-                keep_bounded(kept, key, found, END_PAIRS_KEPT)
+            *arrays, m = _end_pairs(fc, geo, fixed, ends[e], side[e], 0,
+                                    _pair_buffers(PAIRS_PER_END))  # fmt: skip
+            found = tuple(x[:m].copy() for x in arrays[1:])
+            for x in found:
+                x.setflags(write=False)
+            keep_bounded(kept, key, found, END_PAIRS_KEPT)
         if len(found[0]):
             outs.append((np.full(len(found[0]), e), *found))
     if not outs:
-        z = np.zeros(0, np.int64)
-        return z, z, z, np.zeros((0, 3)), np.zeros(0), np.zeros(0)
+        return tuple(x[:0] for x in _pair_buffers(0)[:-1])
     return tuple(np.concatenate(x) for x in zip(*outs))
 
 
 #: End points (transmitters) whose (facet, wedge) triples are kept per scene: a grid is traced
 #: in chunks of receivers against the same few transmitters.
 END_PAIRS_KEPT = 16
+#: Rows of the triples' buffers per end point to start with (they double when full; an end of
+#: the hall has about 7 000 triples).
+PAIRS_PER_END = 8192
 
 
-def _end_pairs(fc, geo: _PairGeometry, fixed: tuple, end: np.ndarray, side_e: np.ndarray):
-    """One end point's triples (:func:`_facet_wedge_pairs`): ``f_idx, w_idx, image, t_lo,
-    t_hi`` (read-only)."""
+def _pair_buffers(n: int) -> tuple:
+    """Empty output buffers of :func:`raytrace.solver.kernels.facet_wedge_pairs` for ``n``
+    triples (end, facet, wedge, image, span lo, hi), and 0 rows written."""
+    i = lambda: np.empty(n, dtype=np.int64)  # noqa: E731
+    return i(), i(), i(), np.empty((n, 3)), np.empty(n), np.empty(n), 0
+
+
+def _end_pairs(fc, geo: _PairGeometry, fixed: tuple, end: np.ndarray, side_e: np.ndarray,
+               e: int, out: tuple) -> tuple:  # fmt: skip
+    """End point ``e``'s triples (:func:`_facet_wedge_pairs`) written after the rows already in
+    the buffers ``out`` (:func:`_pair_buffers`); returns the buffers and their rows."""
     f_ok = np.flatnonzero(side_e != 0)
     sgn = side_e[f_ok].astype(float)
     nrm, off = fc.normal[f_ok], fc.offset[f_ok]
@@ -304,14 +324,10 @@ def _end_pairs(fc, geo: _PairGeometry, fixed: tuple, end: np.ndarray, side_e: np
     # the beam from the image through each facet's bounding sphere
     f_beam = refl.beam(img_f, geo.f_centre[f_ok], geo.f_radius[f_ok])
     c = np.ascontiguousarray
-    fj, wi, t_lo, t_hi = kernels.facet_wedge_pairs(
+    return kernels.facet_wedge_pairs(
         f_ok, sgn, h_f, c(img_f.T), c(f_beam.axis.T), f_beam.cos_a, f_beam.sin_a,
-        f_beam.apex_inside, *fixed,
+        f_beam.apex_inside, *fixed, e, *out,
     )  # fmt: skip
-    found = (f_ok[fj], wi, take_rows(img_f, fj), t_lo, t_hi)
-    for x in found:
-        x.setflags(write=False)
-    return found
 
 
 def _one_reflection(ctx: TraceContext, before: bool) -> list[Paths]:

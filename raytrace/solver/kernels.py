@@ -130,8 +130,9 @@ def _put(buf, m, value):
     return buf
 
 
+_PAIRS_OUT = "i8[::1], i8[::1], i8[::1], f8[:, ::1], f8[::1], f8[::1]"
 _PAIRS_SIG = (
-    "Tuple((i8[::1], i8[::1], f8[::1], f8[::1]))("
+    f"Tuple(({_PAIRS_OUT}, i8))("
     # per facet of the end (F,): indices, side sign, end's distance from the plane, image
     # components (3, F), beam axis components (3, F), cos, sin of its half-angle, apex inside
     "i8[::1], f8[::1], f8[::1], f8[:, ::1], f8[:, ::1], f8[::1], f8[::1], b1[::1], "
@@ -141,8 +142,20 @@ _PAIRS_SIG = (
     "i8[::1], i8[::1], i8[::1], f8[:, ::1], f8[::1], b1[::1], "
     # wedges (W,): start, end, middle (W, 3), half-length, length
     "f8[:, ::1], f8[:, ::1], f8[:, ::1], f8[::1], f8[::1], "
-    f"{_FRAME}, f8, f8, b1)"
+    # the end's index, the output buffers (end, facet, wedge, image (n, 3), span lo, hi) and
+    # the rows already in them
+    f"{_FRAME}, f8, f8, b1, i8, {_PAIRS_OUT}, i8)"
 )
+
+
+@helper
+def _grown_pairs(out_e, out_f, out_w, out_img, out_lo, out_hi):
+    """:func:`facet_wedge_pairs`' output buffers, twice as long, with their rows copied."""
+    n = len(out_e)
+    e2, f2, w2 = np.empty(2 * n, np.int64), np.empty(2 * n, np.int64), np.empty(2 * n, np.int64)
+    img2, lo2, hi2 = np.empty((2 * n, 3)), np.empty(2 * n), np.empty(2 * n)
+    e2[:n], f2[:n], w2[:n], img2[:n], lo2[:n], hi2[:n] = out_e, out_f, out_w, out_img, out_lo, out_hi
+    return e2, f2, w2, img2, lo2, hi2
 
 
 @kernel(_PAIRS_SIG)
@@ -151,9 +164,11 @@ def facet_wedge_pairs(f_ok, sgn, h_f, img_c, axis_c, cos_a, sin_a, apex_in,
                       g_order, g_start, g_count, g_centre, g_radius, g_chosen,
                       w_start, w_end, w_mid, w_half, w_length,
                       t0, n0, t_start, n_start, cos_n, sin_n, prunable, m2_coef, min_rho2,
-                      eps, pad, prune):  # fmt: skip
+                      eps, pad, prune, e, out_e, out_f, out_w, out_img, out_lo, out_hi, m):  # fmt: skip
     """The (facet, wedge) pairs of one end point where a reflection in the facet can reach
-    the edge, and the part of the edge it can reach.
+    the edge, and the part of the edge it can reach, written after the ``m`` rows already in
+    the output buffers (several ends' triples are gathered in one set of buffers, with no
+    concatenation).
 
     Exact necessary conditions, cheapest first, for every group of wedges (one object's) and
     facet of the end's reflecting side, on a pair with a chosen group or facet:
@@ -170,17 +185,13 @@ def facet_wedge_pairs(f_ok, sgn, h_f, img_c, axis_c, cos_a, sin_a, apex_in,
 
     Returns
     -------
-    fj : (M,) int, positions in ``f_ok`` (the image is ``img_c[:, fj]``)
-    wi : (M,) int, wedges
-    t_lo, t_hi : (M,) float, metres from the wedge's start
+    out_e, out_f, out_w : (N,) int, the buffers (grown when full): rows ``m:`` of the new
+        triples hold ``e``, the facet (``f_ok[j]``) and the wedge
+    out_img : (N, 3) float, metres, the end's image in the facet (``img_c[:, j]``)
+    out_lo, out_hi : (N,) float, metres from the wedge's start
+    m : int, the rows now written
     """
     n_f = len(f_ok)
-    cap = 1024
-    out_f = np.empty(cap, dtype=np.int64)
-    out_w = np.empty(cap, dtype=np.int64)
-    out_lo = np.empty(cap, dtype=np.float64)
-    out_hi = np.empty(cap, dtype=np.float64)
-    m = 0
     for g in range(len(g_start)):
         gx, gy, gz, gr = g_centre[g, 0], g_centre[g, 1], g_centre[g, 2], g_radius[g]
         for j in range(n_f):
@@ -209,8 +220,12 @@ def facet_wedge_pairs(f_ok, sgn, h_f, img_c, axis_c, cos_a, sin_a, apex_in,
                 if not (da > eps or db > eps):
                     continue
                 if not prune:
-                    out_f, out_w = _put(out_f, m, j), _put(out_w, m, w)
-                    out_lo, out_hi = _put(out_lo, m, -np.inf), _put(out_hi, m, np.inf)
+                    if m == len(out_e):
+                        out_e, out_f, out_w, out_img, out_lo, out_hi = _grown_pairs(
+                            out_e, out_f, out_w, out_img, out_lo, out_hi)  # fmt: skip
+                    out_e[m], out_f[m], out_w[m] = e, f, w
+                    out_img[m, 0], out_img[m, 1], out_img[m, 2] = ix, iy, iz
+                    out_lo[m], out_hi[m] = -np.inf, np.inf
                     m += 1
                     continue
                 if not _beam_reaches(ix, iy, iz, ux, uy, uz, ca, sa, ai,
@@ -254,11 +269,15 @@ def facet_wedge_pairs(f_ok, sgn, h_f, img_c, axis_c, cos_a, sin_a, apex_in,
                 length = w_length[w]
                 t_a = u * length if cut_a else 0.0
                 t_b = u * length if cut_b else length
-                out_f, out_w = _put(out_f, m, j), _put(out_w, m, w)
-                out_lo = _put(out_lo, m, t_a + lam_in * (t_b - t_a) - pad)
-                out_hi = _put(out_hi, m, t_a + lam_out * (t_b - t_a) + pad)
+                if m == len(out_e):
+                    out_e, out_f, out_w, out_img, out_lo, out_hi = _grown_pairs(
+                        out_e, out_f, out_w, out_img, out_lo, out_hi)  # fmt: skip
+                out_e[m], out_f[m], out_w[m] = e, f, w
+                out_img[m, 0], out_img[m, 1], out_img[m, 2] = ix, iy, iz
+                out_lo[m] = t_a + lam_in * (t_b - t_a) - pad
+                out_hi[m] = t_a + lam_out * (t_b - t_a) + pad
                 m += 1
-    return out_f[:m].copy(), out_w[:m].copy(), out_lo[:m].copy(), out_hi[:m].copy()
+    return out_e, out_f, out_w, out_img, out_lo, out_hi, m
 
 
 @inline
