@@ -270,6 +270,28 @@ def test_stage_threads_follow_the_usable_cores(scene_links, monkeypatch):
     _same(one, two)
 
 
+def test_each_lane_reports_the_time_it_spent_on_its_chunks(scene_links):
+    """``busy_us[caller]`` and ``busy_us[workers]``: each lane's time on its chunks, within the
+    trace's wall time (the rest is idle or the join); a trace in this process alone has no
+    worker lane."""
+    import time
+
+    sc, tx, rx, cfg = scene_links
+    st: dict = {}
+    trace(sc, tx, rx, F_C, cfg, workers=1, chunk_links=3 * len(tx), stats=st)
+    assert st["busy_us[caller]"] > 0 and "busy_us[workers]" not in st
+    if cpu_count() < 2:
+        pytest.skip("needs two cores")
+    st = {}
+    t0 = time.perf_counter()
+    trace(sc, tx, rx, F_C, cfg, workers=2, chunk_links=3 * len(tx), stats=st)
+    wall_us = (time.perf_counter() - t0) * 1e6
+    assert 0 < st["busy_us[caller]"] <= wall_us and 0 < st["busy_us[workers]"] <= wall_us
+    # a lane's stages run inside its chunks
+    stages = sum(v for k, v in st.items() if k.startswith("time_us["))
+    assert stages <= st["busy_us[caller]"] + st["busy_us[workers]"]
+
+
 def test_a_running_pool_takes_small_traces(scene_links, monkeypatch):
     if cpu_count() < 2:
         pytest.skip("needs two cores")

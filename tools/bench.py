@@ -234,6 +234,20 @@ def _serial_parts(scene, tx, rx, f, cfg) -> dict:
     return {"check_s": t1 - t0, "join_s": t3 - t2, "join_repeat_s": t5 - t4}
 
 
+def _lane_busy(scene, tx, rx, f, cfg) -> dict:
+    """One trace on 2 lanes (a kept pool): its wall time, and the time each lane spent on its
+    chunks (the tracer's ``busy_us`` counters); the rest of a lane's wall time is idle (the
+    worker: waiting for its next chunk while its last result crosses to this process) or, in
+    this process, the join."""
+    st: dict = {}
+    t0 = time.perf_counter()
+    trace(scene, tx, rx, f, cfg, workers=2, stats=st)
+    wall = time.perf_counter() - t0
+    caller, workers = st.get("busy_us[caller]", 0) / 1e6, st.get("busy_us[workers]", 0) / 1e6
+    return {"wall_s": round(wall, 4), "caller_busy_s": round(caller, 4),
+            "worker_busy_s": round(workers, 4), "worker_idle_s": round(max(wall - workers, 0.0), 4)}  # fmt: skip
+
+
 def _amdahl(serial_fraction: float, n: int = AMDAHL_CORES) -> float:
     """Parallel efficiency on ``n`` cores by Amdahl's law: ``1 / (n s + 1 - s)``."""
     s = min(max(serial_fraction, 0.0), 1.0)
@@ -275,6 +289,7 @@ def bench_scaling(scene_name: str, repeat: int, grid_step: float) -> dict:
             r["efficiency"] = round(t1 / r["seconds"] / r["cores"], 3)
         entry = {"links": links, "paths": paths.n_paths, "runs": rows}
         if n_all >= 2:
+            entry["lanes"] = _lane_busy(scene, inp.bs_xyz, rx, f, cfg)
             ser = {**_serial_parts(scene, inp.bs_xyz, rx, f, cfg), **starts}
             s_fit = 2.0 * rows["processes@2"]["seconds"] / t1 - 1.0  # t2 = t1 (s + (1 - s) / 2)
             entry["serial"] = {k: round(v, 4) for k, v in ser.items()}
@@ -301,6 +316,13 @@ def _print_scaling(sc: dict) -> None:
                 f"    {key:<12} {r['seconds']:8.3f} s {r['links_per_s']:9.1f} links/s "
                 f"{r['paths_per_s']:10.0f} paths/s  speed-up {r['speedup']:.2f} "
                 f"efficiency {r['efficiency']:.2f}"
+            )
+        la = w.get("lanes")
+        if la:
+            print(
+                f"    one trace on 2 lanes: {la['wall_s']:.3f} s; busy on their chunks: this "
+                f"process {la['caller_busy_s']:.3f} s, the worker {la['worker_busy_s']:.3f} s "
+                f"(idle {la['worker_idle_s']:.3f} s)"
             )
         s = w.get("serial")
         if s:

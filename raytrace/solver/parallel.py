@@ -101,6 +101,11 @@ def cpu_count() -> int:
         return max(1, os.cpu_count() or 1)
 
 
+def in_worker() -> bool:
+    """Whether this code runs in a worker process of a :class:`ScenePool`."""
+    return bool(_SCENE.get("worker"))
+
+
 def in_job() -> bool:
     """Whether this code runs inside a pool's job (in a worker process of any pool, or a chunk
     this process took): a trace there must not start processes of its own by default."""

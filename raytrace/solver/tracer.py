@@ -19,6 +19,7 @@ not depend on the number of threads.
 
 from __future__ import annotations
 
+import time
 import warnings
 from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
@@ -38,6 +39,7 @@ from .parallel import (
     auto_in_process,
     cpu_count,
     from_main,
+    in_worker,
     receiver_chunks,
     resolve_workers,
 )
@@ -159,7 +161,9 @@ def trace(
     progress : bool or callable, a progress bar over the stages (or chunks), or a callback
     stats : dict, optional, filled with counters (candidates, segments tested, dropped paths)
         and each stage's time in microseconds (``time_us[<stage>]``; summed over chunks, and
-        overlapping on threads)
+        overlapping on threads); a trace in chunks also gives the time each kind of lane spent
+        on its chunks (``busy_us[caller]``: this process, ``busy_us[workers]``: the worker
+        processes together), against which their idle time shows
     involving : object indices, optional; only paths that reflect or diffract on at least one of
         these objects (no line of sight). With :func:`reevaluate`, this is how a snapshot with
         moving objects is traced without retracing the static scene.
@@ -299,13 +303,18 @@ def _chunked(
 
 
 def _trace_job(scene: Scene, job: tuple) -> tuple[Any, dict[str, int]]:
-    """One chunk of :func:`trace_chunks` (in a worker or in this process)."""
-    tx, rx, chunk, f, cfg, involving, opaque, reduce, in_worker = job
+    """One chunk of :func:`trace_chunks` (in a worker or in this process), with the time its
+    lane spent on it (``busy_us[workers]`` or ``busy_us[caller]``, microseconds)."""
+    t0 = time.perf_counter()
+    tx, rx, chunk, f, cfg, involving, opaque, reduce, in_pool = job
     stats: dict[str, int] = {}
     part = _trace_links(scene, tx, rx[chunk.start : chunk.stop], f, cfg, False, stats, involving,
-                        1 if in_worker else None, opaque)  # fmt: skip
+                        1 if in_pool else None, opaque)  # fmt: skip
     paths = part.with_receivers(rx, chunk.start)
-    return (paths if reduce is None else reduce(paths)), stats
+    out = paths if reduce is None else reduce(paths)
+    lane = "busy_us[workers]" if in_worker() else "busy_us[caller]"
+    stats[lane] = int(round((time.perf_counter() - t0) * 1e6))
+    return out, stats
 
 
 def _checked(
