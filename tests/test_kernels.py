@@ -264,7 +264,8 @@ def test_opaque_blocks_drop_own_objects_and_touches_only():
         a, d, length, org, d32, reach = kernels.segment_rays(chain, live, j, 1e-6)
         hit = sc.first_hit_among(np.ones(2, bool), org, d32, reach)
         got = kernels.opaque_blocks(hit, live, j, vobj, a, d, length,
-                                    *penetration.convex_plane_arrays(sc), tol)  # fmt: skip
+                                    *penetration.convex_plane_arrays(sc),
+                                    *penetration.flat_sheet_arrays(sc), tol)  # fmt: skip
         own = np.zeros(len(live), bool)
         if j > 0:
             own |= hit == vobj[live, j - 1]

@@ -32,7 +32,13 @@ from ..core.vec import rows as take_rows
 from . import kernels
 from .context import TraceContext
 from .paths import DIFFRACTION, PENETRATION, REFLECTION, Paths
-from .penetration import CONTACT_TOL_MARGINS, Crossings, convex_plane_arrays, segment_crossings
+from .penetration import (
+    CONTACT_TOL_MARGINS,
+    Crossings,
+    convex_plane_arrays,
+    flat_sheet_arrays,
+    segment_crossings,
+)
 
 
 class DiffractionOperator(NamedTuple):
@@ -182,6 +188,7 @@ def blocked_by_opaque(ctx: TraceContext, cand: Candidates) -> np.ndarray:
         return np.zeros(m, dtype=bool)
     chain, margin = carray(cand.chain), ctx.scene.margin
     vobj, planes = carray(cand.vobj, np.int64), convex_plane_arrays(ctx.scene)
+    sheets = flat_sheet_arrays(ctx.scene)
     blocked = np.zeros(m, dtype=bool)
     # one segment at a time, the longest on the whole first (the likeliest to be blocked): the
     # other segments of a blocked candidate need no query (each ray's answer is its own, so the
@@ -199,7 +206,7 @@ def blocked_by_opaque(ctx: TraceContext, cand: Candidates) -> np.ndarray:
         # a vertex at a neighbour's corner, which Embree reports in one direction and not in the
         # other) is not blocked by it: both left to segment_crossings, which steps past touches
         # and records real crossings
-        b = kernels.opaque_blocks(hit, live, int(j), vobj, a, d, length, *planes,
+        b = kernels.opaque_blocks(hit, live, int(j), vobj, a, d, length, *planes, *sheets,
                                   CONTACT_TOL_MARGINS * margin)  # fmt: skip
         blocked[live[np.flatnonzero(b)]] = True
         live = live[np.flatnonzero(~b)]

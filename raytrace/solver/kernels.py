@@ -753,6 +753,42 @@ def _touches(ob, ax, ay, az, dx, dy, dz, normal, offset, count, tol):
 
 
 @helper
+def _sheet_touch(ob, ax, ay, az, dx, dy, dz, near, plane, reach, edge_start, edge_count, edges,
+                 tol):  # fmt: skip
+    """Whether the line ``a + t d`` only touches flat sheet ``ob``, and whether along its plane.
+
+    The sheets' analogue of :func:`_touches`: a line that stays within ``tol`` of the sheet's
+    plane across the whole sheet (``|d . n| reach <= tol``) runs along it, and one that crosses
+    the plane within ``tol`` of the sheet's outline passes its edge. Either only touches it:
+    whether Embree reports such a hit depends on its BVH (a receiver in the plane of a fence,
+    looking past the edge of the pane that meets it). The outline is tested only where the hit
+    is ``near`` its triangle's boundary (:func:`_contact`). Arrays as
+    :func:`raytrace.solver.penetration.flat_sheet_arrays` gives them (``reach`` 0: not a flat
+    sheet). Returns (touch, along), bools."""
+    r = reach[ob]
+    if r <= 0.0:
+        return False, False
+    nx, ny, nz = plane[ob, 0], plane[ob, 1], plane[ob, 2]
+    dn = dot3(nx, ny, nz, dx, dy, dz)
+    if abs(dn) * r <= tol:
+        return True, True
+    if not near:
+        return False, False
+    tp = (plane[ob, 3] - dot3(nx, ny, nz, ax, ay, az)) / dn
+    px, py, pz = ax + tp * dx, ay + tp * dy, az + tp * dz
+    for k in range(edge_start[ob], edge_start[ob] + edge_count[ob]):
+        ex, ey, ez = edges[k, 3] - edges[k, 0], edges[k, 4] - edges[k, 1], edges[k, 5] - edges[k, 2]
+        wx, wy, wz = px - edges[k, 0], py - edges[k, 1], pz - edges[k, 2]
+        ee = dot3(ex, ey, ez, ex, ey, ez)
+        u = dot3(wx, wy, wz, ex, ey, ez) / ee if ee > 0 else 0.0
+        u = min(max(u, 0.0), 1.0)
+        qx, qy, qz = wx - u * ex, wy - u * ey, wz - u * ez
+        if dot3(qx, qy, qz, qx, qy, qz) <= tol * tol:
+            return True, False
+    return False, False
+
+
+@helper
 def _touches_segment(ob, ax, ay, az, dx, dy, dz, t_max, normal, offset, count, tol):
     """:func:`_touches` for the segment ``0 <= t <= t_max`` of the line only."""
     cv, lo, hi, par = _span(normal, offset, count, ob, ax, ay, az, dx, dy, dz, tol)
@@ -1007,11 +1043,13 @@ def _off_the_solid(f, ob, ax, ay, az, dx, dy, dz, face_normal, normal, offset, c
     "f8[:, ::1], f8[::1], f8[::1], f8[::1], b1[::1], i8[::1], f8[:, ::1], f8[::1], i8[:, ::1], "
     "f8, f8, f8, f8, i8, "
     "f8[:, :, ::1], f8[:, :, ::1], f8[:, :, ::1], f8[:, ::1], i8[::1], i8[::1], i8[::1], "
-    f"f8[:, ::1], f8[::1], {_WALK})"
+    "f8[:, ::1], f8[:, ::1], f8[::1], i8[::1], i8[::1], f8[:, ::1], "
+    f"f8[::1], {_WALK})"
 )
 def walk_hits(rows, th, face, o, a, length, tmax, t, active, crossed, shift, shift_end,
               end_objects, margin, guard, tol, grazing_cos, limit, corners, edge_normals, normal,
-              offset, count_planes, face_start, face_count, face_normal, sheet_thickness,
+              offset, count_planes, face_start, face_count, face_normal, sheet_plane,
+              sheet_reach, sheet_edge_start, sheet_edge_count, sheet_edges, sheet_thickness,
               d, closed, k, count, exceeded, dist, obj, normal_p, thick, inside, t_in, normal_in,
               t_last, normal_last):  # fmt: skip
     """One round of the segment walk (:func:`raytrace.solver.penetration.segment_crossings`):
@@ -1064,14 +1102,30 @@ def walk_hits(rows, th, face, o, a, length, tmax, t, active, crossed, shift, shi
         px, py, pz, e, side, near = _contact(f, ax, ay, az, dx, dy, dz, t_hit, face_normal,
                                              corners, edge_normals, tol)  # fmt: skip
         touch = near and _touches(ob, ax, ay, az, dx, dy, dz, normal, offset, count_planes, tol)
+        along = False
+        if not touch and not closed[ob]:
+            touch, along = _sheet_touch(ob, ax, ay, az, dx, dy, dz, near, sheet_plane,
+                                        sheet_reach, sheet_edge_start, sheet_edge_count,
+                                        sheet_edges, tol)  # fmt: skip
         if e >= -tol:
             f = _canonical(f, ob, px, py, pz, dx, dy, dz, side, face_start, face_count,
                            face_normal, corners, edge_normals, tol)  # fmt: skip
         if touch:
             t[r] = t_hit + margin
-            sx, sy, sz, shift_end[r] = _off_the_solid(f, ob, ax, ay, az, dx, dy, dz, face_normal,
-                                                      normal, offset, count_planes, tol)  # fmt: skip
-            shift[r, 0], shift[r, 1], shift[r, 2] = sx, sy, sz
+            if along:  # on, off the sheet's plane, until past the sheet
+                nx, ny, nz = sheet_plane[ob, 0], sheet_plane[ob, 1], sheet_plane[ob, 2]
+                dn = dot3(nx, ny, nz, dx, dy, dz)
+                cx, cy, cz = nx - dn * dx, ny - dn * dy, nz - dn * dz
+                size = np.sqrt(cx * cx + cy * cy + cz * cz)
+                shift[r, 0], shift[r, 1], shift[r, 2] = (2.0 * tol * cx / size,
+                                                         2.0 * tol * cy / size,
+                                                         2.0 * tol * cz / size)  # fmt: skip
+                shift_end[r] = t_hit + sheet_reach[ob] + tol
+            elif closed[ob]:
+                sx, sy, sz, shift_end[r] = _off_the_solid(f, ob, ax, ay, az, dx, dy, dz,
+                                                          face_normal, normal, offset,
+                                                          count_planes, tol)  # fmt: skip
+                shift[r, 0], shift[r, 1], shift[r, 2] = sx, sy, sz
             active[r] = t[r] < tmax[r]
             continue
         # the distance on the booked face's plane, in float64
@@ -1148,24 +1202,31 @@ def segment_rays(chain, live, j, margin):
 
 @kernel(
     "b1[::1](i8[::1], i8[::1], i8, i8[:, ::1], f8[:, ::1], f8[:, ::1], f8[::1], f8[:, :, ::1], "
-    "f8[:, ::1], i8[::1], f8)"
+    "f8[:, ::1], i8[::1], f8[:, ::1], f8[::1], i8[::1], i8[::1], f8[:, ::1], f8)"
 )
-def opaque_blocks(hit, live, j, vobj, a, d, length, normal, offset, count, tol):
+def opaque_blocks(hit, live, j, vobj, a, d, length, normal, offset, count, sheet_plane,
+                  sheet_reach, sheet_edge_start, sheet_edge_count, sheet_edges, tol):  # fmt: skip
     """Which of the rays of :func:`segment_rays` (segment ``j`` of the chains ``live``) are
     blocked by their first opaque hit ``hit`` (n,) (-1: none): not when it is the object under
     either end of the segment (``vobj`` (M, k): the vertex's own, within float32 noise), nor
     when the segment ``a + t d``, ``0 <= t <= length``, only touches that convex solid (no span
-    deeper than ``tol``; planes as in :func:`line_span`), which Embree reports in one direction
-    and not in the other: both are left to the segment walk, which records exactly what a
-    segment crosses."""
+    deeper than ``tol``; planes as in :func:`line_span`) or that flat sheet (along its plane or
+    past its outline, :func:`_sheet_touch`; arrays as ``flat_sheet_arrays`` gives them), which
+    Embree reports in one direction and not in the other: both are left to the segment walk,
+    which records exactly what a segment crosses."""
     k = vobj.shape[1]
     out = np.zeros(len(hit), dtype=np.bool_)
     for i in range(len(hit)):
         ob, c = hit[i], live[i]
         if ob < 0 or (j > 0 and ob == vobj[c, j - 1]) or (j < k and ob == vobj[c, j]):
             continue
-        out[i] = not _touches_segment(ob, a[i, 0], a[i, 1], a[i, 2], d[i, 0], d[i, 1], d[i, 2],
-                                      length[i], normal, offset, count, tol)  # fmt: skip
+        ax, ay, az, dx, dy, dz = a[i, 0], a[i, 1], a[i, 2], d[i, 0], d[i, 1], d[i, 2]
+        touch = _touches_segment(ob, ax, ay, az, dx, dy, dz, length[i], normal, offset, count,
+                                 tol)  # fmt: skip
+        if not touch and sheet_reach[ob] > 0.0:
+            touch = _sheet_touch(ob, ax, ay, az, dx, dy, dz, True, sheet_plane, sheet_reach,
+                                 sheet_edge_start, sheet_edge_count, sheet_edges, tol)[0]  # fmt: skip
+        out[i] = not touch
     return out
 
 

@@ -15,7 +15,9 @@ its entry face (the coincident face it was entered through, turned against the r
 when its own entry face is the one reported. A solid left without a seen entry at the segment's
 start has no entry face; its exit face stands in. Likewise a hit at an edge or a vertex is
 booked on a canonical face, a ray that only touches a convex solid (at an edge, a vertex or
-along a face) does not cross it, and hit distances are taken on the booked face's plane in
+along a face) or a flat sheet (along its plane, or past its outline within the contact
+tolerance: a receiver in the plane of a fence, looking past the edge of the pane that meets it)
+does not cross it, and hit distances are taken on the booked face's plane in
 float64 (:func:`raytrace.solver.kernels.walk_hits`): the crossings do not depend on the BVH,
 which differs between a static scene and a snapshot with forklifts.
 
@@ -194,6 +196,61 @@ def convex_plane_arrays(scene: Scene) -> tuple[np.ndarray, np.ndarray, np.ndarra
     return cache
 
 
+def flat_sheet_arrays(
+    scene: Scene,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The open sheets that lie in one plane (a pane, a fence, a partition), as the kernels take
+    them (:func:`raytrace.solver.kernels._sheet_touch`); cached.
+
+    Returns
+    -------
+    plane : (O, 4) float, each flat sheet's unit normal and offset (``n . x = offset``, m)
+    reach : (O,) float, its bounding-box diagonal, metres; 0 for every other object
+    edge_start, edge_count : (O,) int, its outline's edges in ``edges``
+    edges : (E, 6) float, the outline's edges (the faces' edges that no other face of the sheet
+        shares, corners welded by position): both ends, metres
+    """
+    cache = scene.__dict__.get("_flat_sheet_arrays")
+    if cache is not None:
+        return cache
+    n_obj = len(scene.objects)
+    plane = np.zeros((n_obj, 4))
+    reach = np.zeros(n_obj)
+    start = np.zeros(n_obj, dtype=np.int64)
+    count = np.zeros(n_obj, dtype=np.int64)
+    parts = [np.zeros((0, 6))]
+    tol = 1e-9 * max(scene.extent, 1.0) if len(scene.vertices) else 1e-9
+    total = 0
+    for o, obj in enumerate(scene.objects):
+        if obj.closed or obj.face_count == 0:
+            continue
+        sl = slice(obj.face_start, obj.face_start + obj.face_count)
+        tri = scene.vertices[scene.faces[sl]]  # (m, 3, 3)
+        fn = scene.face_normal[sl]
+        n0 = fn[0]
+        if np.any(np.abs(fn @ n0) < 1.0 - 1e-9):
+            continue
+        off = tri.reshape(-1, 3) @ n0
+        if off.max() - off.min() > tol:
+            continue
+        # the outline: edges of one face only, the corners welded by their coordinates
+        _, ids = np.unique(tri.reshape(-1, 3), axis=0, return_inverse=True)
+        ids = ids.reshape(-1, 3)
+        e = np.sort(np.stack([ids, np.roll(ids, -1, axis=1)], axis=2).reshape(-1, 2), axis=1)
+        _, inv, k = np.unique(e, axis=0, return_inverse=True, return_counts=True)
+        once = k[inv.reshape(-1)] == 1
+        ends = np.stack([tri, np.roll(tri, -1, axis=1)], axis=2).reshape(-1, 6)[once]
+        lo, hi = tri.reshape(-1, 3).min(axis=0), tri.reshape(-1, 3).max(axis=0)
+        plane[o] = (*n0, off.mean())
+        reach[o] = float(np.linalg.norm(hi - lo))
+        start[o], count[o] = total, len(ends)
+        total += len(ends)
+        parts.append(ends)
+    cache = (plane, reach, start, count, np.ascontiguousarray(np.concatenate(parts)))
+    scene.__dict__["_flat_sheet_arrays"] = cache
+    return cache
+
+
 #: Cells of :func:`_closed_solid_grid` along the longer side of the scene's footprint.
 GRID_CELLS = 64
 
@@ -369,7 +426,8 @@ def segment_crossings(
     a, length, tmax = carray(a), carray(length), carray(tmax)
     end_objects = carray(end_objects, np.int64)
     scene_arrays = (*_edge_planes(scene), *convex_plane_arrays(scene), *_object_faces(scene),
-                    _face_normals(scene), walk.sheet_thickness)  # fmt: skip
+                    _face_normals(scene), *flat_sheet_arrays(scene),
+                    walk.sheet_thickness)  # fmt: skip
     for _ in range(limit + FREE_STEPS):
         # one round: the next hit of every segment still walking (kernels.walk_hits says what
         # is done with it)
