@@ -564,3 +564,81 @@ def test_the_opaque_test_leaves_a_metal_sheets_edge_to_the_walk():
             for p, q in ((tx, rx), (rx, tx)):
                 paths = trace(sc, p, q, 3.5e9, cfg, threads=1)
                 assert paths.n_paths == los, (n_spare, x)
+
+
+def test_a_shifted_walk_does_not_enter_the_floor_under_its_end_vertex():
+    """Two stations side by side on the floor (the hall's line 2) and segments in their common
+    face plane y = 12 from the first's edge down to a floor reflection point beyond the second:
+    the segment runs along the second's face (a touch), and the walk goes on along a line
+    shifted 2 contact tolerances off it, downward, which meets the floor up to 2 tol / cos
+    before the reflection point: beyond the vertex guard at a glancing angle. That is the
+    vertex's own face, not an entry into the floor (it used to add a floor penetration one way
+    and not the other): no crossing, both ways, whatever the BVH."""
+    rng = np.random.default_rng(21)
+    n = 60
+    z0 = rng.uniform(0.1, 0.4, n)
+    slope = rng.uniform(0.08, 0.2, n)  # glancing: the shifted line meets the floor 1-3 mm early
+    slope = np.minimum(slope, z0 / 0.5)
+    a = np.column_stack([np.full(n, 29.9), np.full(n, 12.0), z0])
+    b = np.column_stack([29.9 - z0 / slope, np.full(n, 12.0), np.zeros(n)])
+    assert np.all(b[:, 0] <= 29.7 - 0.3)
+    for n_spare in (0, 4, 9):
+        corner = np.random.default_rng(n_spare).uniform(5, 40, (n_spare, 3)) * [1, 1, 0]
+        spare = [(f"s{i}", box(p + [0, 0, 4], p + [0.5, 0.5, 4.5]), "wood")
+                 for i, p in enumerate(corner)]  # fmt: skip
+        sc = make_scene([("floor", box((0, 0, -0.3), (46, 42, 0)), "concrete"),
+                         ("st_02", box((29.9, 12, 0), (32.1, 14, 2.2)), "metal"),
+                         ("st_01", box((27.5, 12, 0), (29.7, 14, 2.2)), "metal"),
+                         *spare])  # fmt: skip
+        ends = np.tile([1, 0], (n, 1))
+        for p, q, e in ((a, b, ends), (b, a, ends[:, ::-1].copy())):
+            cr = segment_crossings(sc, p, q, 2, e)
+            assert not cr.exceeded.any() and np.all(cr.count == 0), n_spare
+
+
+def test_a_crossing_on_a_shifted_stretch_is_placed_on_its_plane_whatever_the_bvh():
+    """Segments that run along the fence of :func:`_fence_corner` (crossing its plane at a
+    glancing angle: the walk goes on shifted off it, past the fence) and then cross a large
+    oblique pane, cut for Embree or whole: the pane's entry distance is taken on its plane in
+    float64 along the line queried (the shifted one), so it is the same number either way; on
+    Embree's float32 answer it differed between the cut and the whole pane."""
+    from raytrace.scene import accel
+
+    objs = [("fence_w", quad((34, 29, 0.1), (0, 3.5, 0), (0, 0, 1.9)), "metal"),
+            ("floor", box((0, 0, -0.3), (46, 42, 0)), "concrete"),
+            ("pane", quad((40, 22, 0), (-12, 12, 0), (0, 0, 6)), "glass")]  # fmt: skip
+    rng = np.random.default_rng(5)
+    n = 40
+    z = rng.uniform(0.4, 1.8, n)
+    # across the fence's plane at y = 31, 10 and 50 um off it at the ends; the pane x + y = 62
+    a = np.column_stack([np.full(n, 34 - 1e-5), np.full(n, 32.4), z])
+    b = np.column_stack([np.full(n, 34 + 5e-5), np.full(n, 24.0), z])
+    dist = []
+    saved = accel.EMBREE_SPLIT_FRACTION
+    try:
+        for fraction in (saved, np.inf):
+            accel.EMBREE_SPLIT_FRACTION = fraction
+            sc = make_scene(objs)
+            assert (len(sc._embree_meshes()[2][1]) > 2) == (fraction == saved)
+            cr = segment_crossings(sc, a, b, 1)
+            assert not cr.exceeded.any() and np.all(cr.count == 1)
+            assert np.all(cr.object[:, 0] == 2)
+            np.testing.assert_allclose(cr.point[:, 0, 1], 28.0, atol=1e-3)
+            dist.append(cr.distance[:, 0])
+    finally:
+        accel.EMBREE_SPLIT_FRACTION = saved
+    np.testing.assert_array_equal(dist[0], dist[1])
+    # closed form: the plane x + y = 62 met by the line shifted 2 tol along the fence's normal
+    # (less its part along the segment), in float64
+    from raytrace.solver.penetration import CONTACT_TOL_MARGINS, flat_sheet_arrays
+
+    tol = CONTACT_TOL_MARGINS * sc.margin
+    nrm = flat_sheet_arrays(sc)[0][0, :3]
+    d = (b - a) / np.linalg.norm(b - a, axis=1)[:, None]
+    c = nrm - (d @ nrm)[:, None] * d
+    q = a + 2 * tol * c / np.linalg.norm(c, axis=1)[:, None]
+    want = (62.0 - q[:, 0] - q[:, 1]) / (d[:, 0] + d[:, 1])
+    np.testing.assert_allclose(dist[0], want, rtol=0, atol=PLANE_TOL_M * 100)
+    # the power of the test: that line is 2 tol = 2.5e-4 m off the segment's own
+    unshifted = np.linalg.norm(b - a, axis=1) * (32.4 - 28.0) / 8.4
+    assert np.all(np.abs(dist[0] - unshifted) > 1e-4)

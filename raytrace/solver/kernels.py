@@ -1021,6 +1021,29 @@ def walk_rays(active, a, d, t, tmax, shift, shift_end):
 
 
 @helper
+def _own_face_shifted(f, at_start, t_hit, length, ax, ay, az, dx, dy, dz, face_normal, corners,
+                      guard, tol, near_start, near_end):  # fmt: skip
+    """The guard of :func:`walk_hits` for a query on a line shifted by 2 ``tol`` (past a touched
+    solid or sheet): a hit on face ``f`` of the object under the segment's start (``at_start``)
+    or end whose plane passes within ``tol`` of that end is the vertex's own when it is within
+    ``guard + 2 tol / cos`` of it (cos: between the segment and the face's normal, at least
+    0.02; the segment's own line meets that plane only at the vertex). Returns the updated
+    (near_start, near_end)."""
+    nx, ny, nz = face_normal[f, 0], face_normal[f, 1], face_normal[f, 2]
+    cos = abs(dot3(nx, ny, nz, dx, dy, dz))
+    if cos < 0.02:
+        return near_start, near_end
+    reach = guard + 2.0 * tol / cos
+    s = 0.0 if at_start else length
+    px, py, pz = ax + s * dx - corners[f, 0, 0], ay + s * dy - corners[f, 0, 1], az + s * dz - corners[f, 0, 2]
+    if abs(dot3(nx, ny, nz, px, py, pz)) > tol:
+        return near_start, near_end
+    if at_start:
+        return near_start or t_hit < reach, near_end
+    return near_start, near_end or t_hit > length - reach
+
+
+@helper
 def _off_the_solid(f, ob, ax, ay, az, dx, dy, dz, face_normal, normal, offset, count, tol):
     """Where a walk that touched face ``f`` of convex solid ``ob`` goes on: a shift of two
     contact tolerances along the face's outward normal, across the ray, and the distance at
@@ -1076,6 +1099,10 @@ def walk_hits(rows, th, face, o, a, length, tmax, t, active, crossed, shift, shi
     for i in range(len(rows)):
         r, f, ob = rows[i], face[i], o[i]
         ax, ay, az, dx, dy, dz = a[r, 0], a[r, 1], a[r, 2], d[r, 0], d[r, 1], d[r, 2]
+        # the line this query was on (shifted off a touched solid or sheet, :func:`walk_rays`)
+        qx, qy, qz = ax, ay, az
+        if t[r] < shift_end[r]:
+            qx, qy, qz = ax + shift[r, 0], ay + shift[r, 1], az + shift[r, 2]
         if ob < 0:
             if t[r] < shift_end[r]:  # nothing on the shifted stretch: back on the own line
                 t[r] = shift_end[r]
@@ -1084,9 +1111,15 @@ def walk_hits(rows, th, face, o, a, length, tmax, t, active, crossed, shift, shi
                 active[r] = False
             continue
         t_hit = t[r] + th[i]
-        if (ob == end_objects[r, 0] and t_hit < guard) or (
-            ob == end_objects[r, 1] and t_hit > length[r] - guard
-        ):
+        near_start, near_end = t_hit < guard, t_hit > length[r] - guard
+        if t[r] < shift_end[r] and (ob == end_objects[r, 0] or ob == end_objects[r, 1]):
+            # a line shifted off a touched solid by 2 tol meets the plane of a vertex's own
+            # face up to 2 tol / cos from the vertex, beyond the guard at a glancing angle
+            near_start, near_end = _own_face_shifted(f, ob == end_objects[r, 0], t_hit,
+                                                     length[r], ax, ay, az, dx, dy, dz,
+                                                     face_normal, corners, guard, tol,
+                                                     near_start, near_end)  # fmt: skip
+        if (ob == end_objects[r, 0] and near_start) or (ob == end_objects[r, 1] and near_end):
             t[r] = t_hit + margin
             if ob == end_objects[r, 0]:
                 # leaving a vertex along its own solid's face: on, off the solid
@@ -1128,12 +1161,12 @@ def walk_hits(rows, th, face, o, a, length, tmax, t, active, crossed, shift, shi
                 shift[r, 0], shift[r, 1], shift[r, 2] = sx, sy, sz
             active[r] = t[r] < tmax[r]
             continue
-        # the distance on the booked face's plane, in float64
+        # the distance on the booked face's plane, in float64, along the line queried
         nx, ny, nz = face_normal[f, 0], face_normal[f, 1], face_normal[f, 2]
         dn = dot3(nx, ny, nz, dx, dy, dz)
         ok = abs(dn) > grazing_cos
-        tp = dot3(nx, ny, nz, corners[f, 0, 0] - ax, corners[f, 0, 1] - ay,
-                   corners[f, 0, 2] - az) / (dn if ok else 1.0)  # fmt: skip
+        tp = dot3(nx, ny, nz, corners[f, 0, 0] - qx, corners[f, 0, 1] - qy,
+                   corners[f, 0, 2] - qz) / (dn if ok else 1.0)  # fmt: skip
         if ok and abs(tp - t_hit) <= tol:
             t_hit = tp
         # the boundary's bookkeeping (_boundary decides on scalars; the walk's arrays are read
