@@ -419,8 +419,9 @@ def test_sheets_meeting_in_an_l_keep_one_outer_corner():
 
 
 def test_hit_records_read_embree_answers_as_the_numpy_rule():
-    """Embree's geomID, primID, tfar to (distance, face, object): inf, -1, -1 for a miss, the
-    object's first face plus primID for a hit; a subset scene's geomID to its member object."""
+    """Embree's geomID, primID, tfar to (distance, face, object): inf, -1, -1 for a miss, for a
+    hit the face that the object's Embree triangle primID is part of (``prim_face[prim_start[g]
+    + primID]``); a subset scene's geomID to its member object."""
     from raytrace.scene import accel
 
     rng = np.random.default_rng(9)
@@ -428,13 +429,87 @@ def test_hit_records_read_embree_answers_as_the_numpy_rule():
     geom = rng.integers(-1, 5, n).astype(np.int32)
     prim = np.where(geom >= 0, rng.integers(0, 12, n), -1).astype(np.int32)
     tfar = rng.uniform(0, 50, n).astype(np.float32)
-    face_start = np.array([0, 12, 24, 30, 42], dtype=np.int64)
-    t, face, obj = accel.hit_records(geom, prim, tfar, face_start)
+    prim_start = np.arange(5, dtype=np.int64) * 12
+    prim_face = rng.permutation(60).astype(np.int64)
+    t, face, obj = accel.hit_records(geom, prim, tfar, prim_start, prim_face)
     hit = geom >= 0
     np.testing.assert_array_equal(t, np.where(hit, tfar.astype(float), np.inf))
-    np.testing.assert_array_equal(face, np.where(hit, face_start[np.maximum(geom, 0)] + prim, -1))
+    want = np.where(hit, prim_face[prim_start[np.maximum(geom, 0)] + np.maximum(prim, 0)], -1)
+    np.testing.assert_array_equal(face, want)
     np.testing.assert_array_equal(obj, np.where(hit, geom, -1))
     members = np.array([3, 7, 8, 11, 20], dtype=np.int64)
     np.testing.assert_array_equal(accel.subset_hits(geom, members),
                                   np.where(hit, members[np.maximum(geom, 0)], -1))  # fmt: skip
 
+
+
+def test_embree_mesh_cuts_each_triangle_into_watertight_pieces():
+    """An object's triangles cut n x n for Embree: the pieces of each face cover it (areas sum
+    to its area, every corner on its plane, the face's orientation), each piece names its face,
+    and the two triangles that share an edge (given in opposite directions) cut it at the same
+    float32 points, so Embree's watertight hit test has no crack between them."""
+    from raytrace.scene import accel
+
+    rng = np.random.default_rng(4)
+    v = rng.uniform(-30, 30, (5, 3))
+    faces = np.array([[0, 1, 2], [2, 1, 3], [0, 2, 4]])
+    for n in (1, 2, 3, 5):
+        points, tri, face = accel.embree_mesh(v, faces, n)
+        assert points.dtype == np.float32 and tri.dtype == np.int32
+        assert len(tri) == len(faces) * n * n and len(face) == len(tri)
+        p = points[tri].astype(float)
+        cross = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+        whole = np.cross(v[faces[:, 1]] - v[faces[:, 0]], v[faces[:, 2]] - v[faces[:, 0]])
+        area = np.bincount(face, 0.5 * np.linalg.norm(cross, axis=1), minlength=len(faces))
+        np.testing.assert_allclose(area, 0.5 * np.linalg.norm(whole, axis=1), rtol=1e-5)
+        assert np.all(np.einsum("ij,ij->i", cross, whole[face]) > 0)
+        unit = whole / np.linalg.norm(whole, axis=1)[:, None]
+        off = np.einsum("tkj,tj->tk", p, unit[face]) - np.einsum("ij,ij->i", v[faces[:, 0]],
+                                                                  unit)[face, None]  # fmt: skip
+        assert np.abs(off).max() < 1e-5
+        # the shared edge 1-2 (faces 0 and 1) and 0-2 (faces 0 and 2): the same points
+        for f0, f1, (i, j) in ((0, 1, (1, 2)), (0, 2, (0, 2))):
+            on = []
+            for f in (f0, f1):
+                q = np.unique(points[tri[face == f]].reshape(-1, 3), axis=0).astype(float)
+                e = v[j] - v[i]
+                w = q - v[i]
+                u = w @ e / (e @ e)
+                dist = np.linalg.norm(w - u[:, None] * e, axis=1)
+                on.append({tuple(x) for x in q[(dist < 1e-4) & (u > -1e-6) & (u < 1 + 1e-6)]})
+            assert on[0] == on[1] and len(on[0]) == n + 1
+
+
+def test_intersect_names_the_same_faces_with_large_objects_cut():
+    """A hall-sized floor and wall (cut for Embree: longer than a quarter of the scene's
+    extent) and small boxes: ``intersect`` gives the face, object and distance that the uncut
+    scene gives (float32 distances), for random rays; a subset query the same objects."""
+    from raytrace.scene import accel
+
+    objs = [("floor", box((0, 0, -0.3), (60, 50, 0)), "concrete"),
+            ("wall", box((0, 0, 0), (60, 0.3, 9)), "concrete")]  # fmt: skip
+    rng = np.random.default_rng(12)
+    for i, p in enumerate(rng.uniform([1, 1, 0], [59, 49, 3], (20, 3))):
+        objs.append((f"b{i}", box(p, p + rng.uniform(0.2, 2.0, 3)), "metal"))
+    cut = make_scene(objs)
+    assert [len(t) for _, t, _ in cut._embree_meshes()[:2]] != [12, 12]
+    n = 4000
+    o = rng.uniform([0.5, 0.5, 0.1], [59.5, 49.5, 8], (n, 3))
+    d = rng.normal(size=(n, 3))
+    d /= np.linalg.norm(d, axis=1)[:, None]
+    got = cut.intersect(o, d, 100.0)
+    sub = cut.first_hit_among(np.arange(len(objs)) < 2, o, d, np.full(n, 100.0))
+    saved = accel.EMBREE_SPLIT_FRACTION
+    try:
+        accel.EMBREE_SPLIT_FRACTION = np.inf
+        whole = make_scene(objs)
+        assert [len(t) for _, t, _ in whole._embree_meshes()[:2]] == [12, 12]
+        want = whole.intersect(o, d, 100.0)
+        want_sub = whole.first_hit_among(np.arange(len(objs)) < 2, o, d, np.full(n, 100.0))
+    finally:
+        accel.EMBREE_SPLIT_FRACTION = saved
+    assert np.isin(want[2], [0, 1]).mean() > 0.3 and (want[2] >= 2).sum() > 40
+    np.testing.assert_array_equal(got[1], want[1])
+    np.testing.assert_array_equal(got[2], want[2])
+    np.testing.assert_allclose(got[0], want[0], rtol=1e-5)
+    np.testing.assert_array_equal(sub, want_sub)

@@ -339,15 +339,34 @@ class Scene:
         from embreex.mesh_construction import TriangleMesh
 
         self._embree = rtcs.EmbreeScene()
-        # geometry id == object index (the order of adding), so a hit names its object
-        for obj in self.objects:
-            f = self.faces[obj.face_start : obj.face_start + obj.face_count]
-            used, inv = np.unique(f, return_inverse=True)
-            TriangleMesh(
-                self._embree,
-                self.vertices[used].astype(np.float32),
-                inv.reshape(-1, 3).astype(np.int32),
-            )
+        # geometry id == object index (the order of adding), so a hit names its object; Embree's
+        # triangle primID of object g is face prim_face[prim_start[g] + primID]
+        meshes = self._embree_meshes()
+        for points, triangles, _ in meshes:
+            TriangleMesh(self._embree, points, triangles)
+        counts = np.array([len(t) for _, t, _ in meshes], dtype=np.int64)
+        self.__dict__["_prim_start"] = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(
+            np.int64
+        )
+        self.__dict__["_prim_face"] = np.concatenate(
+            [np.zeros(0, dtype=np.int64)]
+            + [o.face_start + face for o, (_, _, face) in zip(self.objects, meshes, strict=True)]
+        )
+
+    def _embree_meshes(self) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+        """Each object's triangles as Embree is given them (:func:`accel.embree_mesh`: the
+        objects as large as the scene cut smaller): float32 points (P, 3), int32 triangles
+        (T, 3) and the object's face (T,) each triangle is part of. Cached."""
+        cached = self.__dict__.get("_embree_mesh_list")
+        if cached is None or len(cached) != len(self.objects):
+            extent = self.extent if len(self.vertices) else 0.0
+            cached = []
+            for obj in self.objects:
+                f = self.faces[obj.face_start : obj.face_start + obj.face_count]
+                n = accel.embree_split(self.vertices, f, extent)
+                cached.append(accel.embree_mesh(self.vertices, f, n))
+            self.__dict__["_embree_mesh_list"] = cached
+        return cached
 
     # -- properties ---------------------------------------------------------------------------
     @property
@@ -408,15 +427,6 @@ class Scene:
             "_object_face_start",
             lambda: np.array([o.face_start for o in self.objects], dtype=np.int64),
         )
-
-    @property
-    def _face_start_c(self) -> np.ndarray:
-        """:attr:`object_face_start` as the kernels take it (writable, cached)."""
-        cached = self.__dict__.get("_face_start_kernel")
-        if cached is None or len(cached) != len(self.objects):
-            cached = np.array(self.object_face_start, dtype=np.int64)
-            self.__dict__["_face_start_kernel"] = cached
-        return cached
 
     def material_thickness(self) -> np.ndarray:
         """(n_materials,) float, slab thickness (m) of each used material, for open sheets."""
@@ -624,11 +634,11 @@ class Scene:
 
             es = rtcs.EmbreeScene()
             members = np.flatnonzero(objects)
-            # geometry id == position in ``members``
+            meshes = self._embree_meshes()
+            # geometry id == position in ``members``; the objects' triangles as in the full scene
             for i in members:
-                obj = self.objects[i]
-                f = self.faces[obj.face_start : obj.face_start + obj.face_count]
-                TriangleMesh(es, self.vertices[f].astype(np.float32))
+                points, triangles, _ = meshes[i]
+                TriangleMesh(es, points[triangles])
             cache[key] = (es, members)
         es, members = cache[key]
         if not ok.all():  # (most calls ask about every ray)
@@ -676,7 +686,7 @@ class Scene:
             output=1,
         )
         return accel.hit_records(res["geomID"], res["primID"], res["tfar"],
-                                 self._face_start_c)  # fmt: skip
+                                 self.__dict__["_prim_start"], self.__dict__["_prim_face"])  # fmt: skip
 
     def convex_objects(self) -> np.ndarray:
         """(O,) bool: closed solids that are convex (every vertex on or behind every facet plane
