@@ -58,9 +58,9 @@ def test_compare_reverse_matches_every_path_of_a_small_scene():
 @pytest.mark.parametrize("band", ["c-band", "mmwave"])
 def test_the_hall_is_reciprocal(band):
     """The bundled hall, every mechanism at its default depth, traced from the base stations to
-    the test points and back. 21 of its 46 153 C-band paths are found in one direction only
-    (about 130 before the grazing-segment fixes): rays exactly through the shared edge of two
-    objects, which Embree reports from one end and not from the other (docs/tracing.md)."""
+    the test points and back. 1 of its 46 172 C-band paths (1 of 38 424 at mmWave) is found in
+    one direction only (about 130 before the grazing-segment fixes, 21 before the sheets' touch
+    and the shifted walk's guard; docs/tracing.md)."""
     sc = load_scene("hall")
     inp = SceneMetadata.from_scene(sc, require=True)
     f = get_band(band).center_frequency_hz
@@ -68,7 +68,7 @@ def test_the_hall_is_reciprocal(band):
     rev = trace(sc, inp.point_xyz, inp.bs_xyz, f, TraceConfig())
     rows = compare_reverse(fwd, rev)
     one_way = sum(r.one_way for r in rows.values())
-    assert one_way <= 0.001 * fwd.n_paths, format_table(rows)
+    assert one_way <= 1e-4 * fwd.n_paths, format_table(rows)
     for kind, r in rows.items():
         assert r.db <= (PENETRATED_GAIN_TOL_DB if "T" in kind else GAIN_TOL_DB), kind
         assert r.delay_m <= DELAY_TOL_M, kind
