@@ -455,7 +455,8 @@ def test_a_threaded_join_equals_the_serial_one(scene_links, monkeypatch):
 def test_workers_end_when_their_caller_is_killed(tmp_path):
     """A caller killed without closing its pools (SIGKILL, the out-of-memory killer): its worker
     processes (children of the fork server, waiting on the pool's queue) end within seconds, both
-    the trace pool's and those of ``process_context()`` (the dataset and sweep pools)."""
+    the trace pool's and those of ``process_context()`` (the dataset and sweep pools), and remove
+    the files in shared memory written for it."""
     import signal
     import subprocess
     import sys
@@ -480,9 +481,16 @@ def test_workers_end_when_their_caller_is_killed(tmp_path):
     env = {**os.environ, "PYTHONPATH": root}
     proc = subprocess.Popen([sys.executable, str(script)], cwd=tmp_path, stdout=subprocess.PIPE,
                             text=True, env=env)  # fmt: skip
+    from raytrace.solver import shared
+
+    # a chunk's file in shared memory that the caller will never read
+    unread = os.path.join(shared.SHM_DIR, f"{shared.PREFIX}{proc.pid}-0-0")
     try:
         workers = [int(p) for p in proc.stdout.readline().split()]
         assert len(workers) == 2 and proc.pid not in workers
+        if os.path.isdir(shared.SHM_DIR):
+            with open(unread, "wb") as fh:
+                fh.write(b"paths")
     finally:
         os.kill(proc.pid, signal.SIGKILL)
         proc.wait()
@@ -494,6 +502,7 @@ def test_workers_end_when_their_caller_is_killed(tmp_path):
     for p in left:
         os.kill(p, signal.SIGKILL)
     assert not left, f"worker processes {sorted(left)} outlived their killed caller"
+    assert not os.path.exists(unread), "the workers left their killed caller's file behind"
 
 
 def test_a_process_is_told_apart_from_a_gone_one():

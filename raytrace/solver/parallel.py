@@ -27,6 +27,10 @@ What a pool costs, and how it is kept small (measured in docs/tracing.md, "Where
   while the workers start and no core idles while it waits.
 * **Guided chunks** (:func:`receiver_chunks` with ``lanes``): the last chunks are smaller, so the
   lanes finish together.
+* **A worker's paths come back through shared memory** (:mod:`raytrace.solver.shared`): it writes
+  them to a file in ``/dev/shm`` and sends the name, so it does not wait in the result pipe for
+  this process to read them, and this process maps them instead of reading and unpickling them
+  on the core it traces on.
 
 A worker process that dies (killed, out of memory) makes the pool raise one
 :class:`WorkerCrashError`; the broken pool is dropped and the next call starts a new one. The
@@ -59,6 +63,7 @@ from typing import Any
 
 from ..core.errors import HallrayError, TraceInputError
 from ..scene.model import Scene
+from .shared import remove_left_over
 
 #: Links per chunk of receivers (bounds the candidate arrays of one trace to a few hundred MB).
 CHUNK_LINKS = 256
@@ -343,6 +348,7 @@ def _watch_caller(pid: int, period_s: float = CALLER_WATCH_S) -> None:
         while True:
             time.sleep(period_s)
             if _caller_token(pid) != token:
+                remove_left_over(pid)  # the chunks it will not read
                 os._exit(0)
 
     threading.Thread(target=watch, name="caller-watch", daemon=True).start()
@@ -359,6 +365,7 @@ class _Watched:
         self._caller = os.getpid()
 
     def run(self) -> None:
+        _STATE["caller"] = self._caller
         _watch_caller(self._caller)
         super().run()  # type: ignore[misc]
 
@@ -418,9 +425,16 @@ def close_pools() -> None:
         _KEPT.clear()
     if ex is not None:
         ex.shutdown(wait=True, cancel_futures=True)
+    # the chunks' files in shared memory that this process did not read (a trace stopped)
+    remove_left_over(os.getpid())
 
 
 atexit.register(close_pools)
+
+
+def caller_pid() -> int | None:
+    """In a worker: the pid of the process that started its pool (None elsewhere)."""
+    return _STATE.get("caller")
 
 
 def _executor(

@@ -23,6 +23,7 @@ import time
 import warnings
 from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -37,6 +38,7 @@ from .evaluate import candidates, evaluate
 from .parallel import (
     ScenePool,
     auto_in_process,
+    caller_pid,
     cpu_count,
     from_main,
     in_worker,
@@ -44,6 +46,7 @@ from .parallel import (
     resolve_workers,
 )
 from .paths import DIFFRACTION, Paths
+from .shared import SharedArrays, share
 
 __all__ = [
     "MIN_POWER_DB",
@@ -289,6 +292,8 @@ def _chunked(
     try:
         with ScenePool(scene, n_workers, main=from_main(reduce)) as pool:
             for chunk, (result, chunk_stats) in zip(chunks, pool.map(_trace_job, jobs)):
+                if isinstance(result, _SharedPaths):
+                    result = result.load()
                 if stats is not None:
                     for key, v in chunk_stats.items():
                         stats[key] = stats.get(key, 0) + v
@@ -311,10 +316,37 @@ def _trace_job(scene: Scene, job: tuple) -> tuple[Any, dict[str, int]]:
     part = _trace_links(scene, tx, rx[chunk.start : chunk.stop], f, cfg, False, stats, involving,
                         1 if in_pool else None, opaque)  # fmt: skip
     paths = part.with_receivers(rx, chunk.start)
-    out = paths if reduce is None else reduce(paths)
+    out: Any = paths if reduce is None else reduce(paths)
+    if reduce is None and in_worker():
+        out = _SharedPaths.of(paths)
     lane = "busy_us[workers]" if in_worker() else "busy_us[caller]"
     stats[lane] = int(round((time.perf_counter() - t0) * 1e6))
     return out, stats
+
+
+@dataclass(frozen=True)
+class _SharedPaths:
+    """A worker's paths, their arrays in a file in shared memory (:mod:`raytrace.solver.shared`:
+    the worker does not wait for this process to read them through the result pipe)."""
+
+    arrays: SharedArrays
+    tx: np.ndarray
+    rx: np.ndarray
+    frequency_hz: float
+
+    @classmethod
+    def of(cls, paths: Paths) -> _SharedPaths | Paths:
+        """The paths' handle, or the paths themselves where there is no shared memory."""
+        caller = caller_pid()
+        arrays = None if caller is None else share(
+            {k: getattr(paths, k) for k in Paths._PER_PATH}, caller
+        )
+        if arrays is None:
+            return paths
+        return cls(arrays, paths.tx, paths.rx, paths.frequency_hz)
+
+    def load(self) -> Paths:
+        return Paths(tx=self.tx, rx=self.rx, frequency_hz=self.frequency_hz, **self.arrays.load())
 
 
 def _checked(

@@ -1,0 +1,66 @@
+"""Arrays handed from a worker to its caller through a file in shared memory."""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import pytest
+from test_parallel import F_C, _same, scene_links  # noqa: F401 (a fixture)
+
+from raytrace import trace
+from raytrace.solver import shared, tracer
+
+needs_shm = pytest.mark.skipif(not os.path.isdir(shared.SHM_DIR), reason="no /dev/shm")
+
+
+@needs_shm
+def test_arrays_come_back_equal_writable_and_the_file_is_removed():
+    rng = np.random.default_rng(2)
+    arrays = {
+        "kinds": rng.integers(0, 4, (7, 4)).astype(np.int8),
+        "points": rng.normal(size=(7, 4, 3)),
+        "gain": rng.normal(size=7) + 1j * rng.normal(size=7),
+        "count": rng.integers(0, 9, 7).astype(np.int16),
+        "empty": np.zeros((0, 4, 3)),
+        "strided": rng.normal(size=(7, 6))[:, ::2],  # not contiguous: written in C order
+    }
+    handle = shared.share(arrays, os.getpid())
+    assert handle is not None and os.path.exists(handle.path)
+    assert all(offset % shared.ALIGN == 0 for *_, offset in handle.layout)
+    got = handle.load()
+    assert not os.path.exists(handle.path)
+    assert list(got) == list(arrays)
+    for k, a in arrays.items():
+        assert got[k].dtype == a.dtype and got[k].shape == a.shape, k
+        np.testing.assert_array_equal(got[k], a, err_msg=k)
+    got["points"][0, 0, 0] = 42.0  # a private mapping: writable
+    assert got["points"][0, 0, 0] == 42.0
+
+
+def test_without_a_shared_memory_directory_the_arrays_go_as_they_are(tmp_path, monkeypatch):
+    monkeypatch.setattr(shared, "SHM_DIR", str(tmp_path / "none"))
+    assert shared.share({"a": np.arange(3)}, os.getpid()) is None
+
+
+def test_left_over_files_of_one_caller_are_removed(tmp_path, monkeypatch):
+    monkeypatch.setattr(shared, "SHM_DIR", str(tmp_path))
+    mine = shared.share({"a": np.arange(3)}, 123)
+    other = shared.share({"a": np.arange(3)}, 1234)
+    shared.remove_left_over(123)
+    assert not os.path.exists(mine.path) and os.path.exists(other.path)
+
+
+@needs_shm
+def test_a_workers_paths_come_through_shared_memory(scene_links, monkeypatch):  # noqa: F811
+    """With two lanes the worker's chunks come as files (the calling process loads them), the
+    paths are those of one thread, and no file is left behind."""
+    sc, tx, rx, cfg = scene_links
+    loads = []
+    real = tracer._SharedPaths.load
+    monkeypatch.setattr(tracer._SharedPaths, "load", lambda self: loads.append(1) or real(self))
+    whole = trace(sc, tx, rx, F_C, cfg, threads=1)
+    _same(whole, trace(sc, tx, rx, F_C, cfg, workers=2, chunk_links=3 * len(tx)))
+    assert loads
+    assert not [f for f in os.listdir(shared.SHM_DIR)
+                if f.startswith(f"{shared.PREFIX}{os.getpid()}-")]  # fmt: skip
