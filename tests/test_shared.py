@@ -64,3 +64,35 @@ def test_a_workers_paths_come_through_shared_memory(scene_links, monkeypatch):  
     assert loads
     assert not [f for f in os.listdir(shared.SHM_DIR)
                 if f.startswith(f"{shared.PREFIX}{os.getpid()}-")]  # fmt: skip
+
+
+def test_a_full_or_small_shared_memory_falls_back_to_the_pipe(tmp_path, monkeypatch):
+    """A file that cannot be written whole (the directory filled up meanwhile) is removed and
+    None returned; a directory with too little room free is not written to at all."""
+    monkeypatch.setattr(shared, "SHM_DIR", str(tmp_path))
+    real_open = open
+
+    class Full:
+        def __init__(self, path, mode):
+            self.fh = real_open(path, mode)
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            self.fh.close()
+
+        def write(self, data):
+            if len(data) > 8:
+                raise OSError(28, "No space left on device")
+            return self.fh.write(data)
+
+    monkeypatch.setattr(shared, "open", Full, raising=False)
+    assert shared.share({"a": np.arange(100.0)}, 7) is None
+    assert not os.listdir(tmp_path)
+    monkeypatch.undo()
+    monkeypatch.setattr(shared, "SHM_DIR", str(tmp_path))
+    free = os.statvfs(tmp_path)
+    monkeypatch.setattr(shared, "FREE_FACTOR", free.f_bavail * free.f_frsize / 800 + 1)
+    assert shared.share({"a": np.arange(100.0)}, 7) is None
+    assert not os.listdir(tmp_path)

@@ -31,6 +31,8 @@ SHM_DIR = "/dev/shm"
 PREFIX = "hallray-"
 #: Each array starts at a multiple of this many bytes in the file.
 ALIGN = 64
+#: A file is written only where the directory has this many times its size free.
+FREE_FACTOR = 4
 
 _COUNTER = itertools.count()
 
@@ -68,9 +70,17 @@ class SharedArrays:
 
 def share(arrays: dict[str, np.ndarray], caller: int) -> SharedArrays | None:
     """Write ``arrays`` (C order) to a new file in :data:`SHM_DIR` for process ``caller``;
-    None where that directory does not exist or the file cannot be written (the caller then
-    sends the arrays themselves)."""
+    None where that directory does not exist, has less than :data:`FREE_FACTOR` times their size
+    free, or the file cannot be written (the caller then sends the arrays themselves)."""
     if not os.path.isdir(SHM_DIR):
+        return None
+    # leave room: a container's /dev/shm may be small (Docker's default is 64 MB)
+    need = sum(np.asarray(a).nbytes + ALIGN for a in arrays.values())
+    try:
+        st = os.statvfs(SHM_DIR)
+    except OSError:
+        return None
+    if st.f_bavail * st.f_frsize < FREE_FACTOR * need:
         return None
     path = os.path.join(SHM_DIR, f"{PREFIX}{caller}-{os.getpid()}-{next(_COUNTER)}")
     layout = []
