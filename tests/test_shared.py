@@ -96,3 +96,33 @@ def test_a_full_or_small_shared_memory_falls_back_to_the_pipe(tmp_path, monkeypa
     monkeypatch.setattr(shared, "FREE_FACTOR", free.f_bavail * free.f_frsize / 800 + 1)
     assert shared.share({"a": np.arange(100.0)}, 7) is None
     assert not os.listdir(tmp_path)
+
+
+@needs_shm
+def test_mappings_stay_within_a_budget_of_file_descriptors(monkeypatch):
+    """Each mapping holds a file descriptor (Python's mmap keeps a duplicate), so past
+    max_mapped() mappings alive a chunk is read into memory instead; a mapping's count goes when
+    its last array does."""
+    import gc
+
+    monkeypatch.setattr(shared, "max_mapped", lambda: 1)
+    start = shared._MAPPED[0]
+    fds = len(os.listdir("/proc/self/fd")) if os.path.isdir("/proc/self/fd") else None
+    a = np.arange(1000.0)
+    got = [shared.share({"a": a}, os.getpid()).load()["a"] for _ in range(3)]
+    for g in got:
+        np.testing.assert_array_equal(g, a)
+    assert shared._MAPPED[0] == start + 1
+    if fds is not None:
+        assert len(os.listdir("/proc/self/fd")) <= fds + 1
+    del got, g
+    gc.collect()
+    assert shared._MAPPED[0] == start
+
+
+def test_the_mapping_budget_is_a_quarter_of_the_descriptor_limit(monkeypatch):
+    import resource
+
+    for soft, want in ((1024, 256), (400, 100), (20000, 256), (2, 0)):
+        monkeypatch.setattr(resource, "getrlimit", lambda _, s=soft: (s, 1 << 20))
+        assert shared.max_mapped() == want

@@ -21,7 +21,9 @@ import glob
 import itertools
 import mmap
 import os
+import weakref
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -35,6 +37,27 @@ ALIGN = 64
 FREE_FACTOR = 4
 
 _COUNTER = itertools.count()
+#: Mappings alive in this process (each holds a file descriptor: Python's mmap keeps a duplicate
+#: of the file's, and a trace of thousands of chunks must not run out of them).
+_MAPPED = [0]
+
+
+def _unmapped() -> None:
+    _MAPPED[0] -= 1
+
+
+def max_mapped() -> int:
+    """How many chunks may stay mapped at once: a quarter of this process's file descriptor
+    limit, at most 256 (beyond, a chunk is read into memory instead: one copy)."""
+    try:
+        import resource
+
+        soft = resource.getrlimit(resource.RLIMIT_NOFILE)[0]
+    except (ImportError, OSError, ValueError):
+        return 64
+    if soft == resource.RLIM_INFINITY or soft <= 0:
+        return 256
+    return max(0, min(256, soft // 4))
 
 
 @dataclass(frozen=True)
@@ -47,11 +70,19 @@ class SharedArrays:
     layout: tuple[tuple[str, str, tuple[int, ...], int], ...]
 
     def load(self) -> dict[str, np.ndarray]:
-        """The arrays, as writable views of a private (copy-on-write) mapping of the file; the
-        file is removed (its pages are freed with the last view)."""
+        """The arrays, as writable views of a private (copy-on-write) mapping of the file (or,
+        with :func:`max_mapped` mappings alive already, a copy); the file is removed (its pages
+        are freed with the last view)."""
         try:
             with open(self.path, "rb") as fh:
-                buf = mmap.mmap(fh.fileno(), self.size, access=mmap.ACCESS_COPY) if self.size else b""
+                buf: Any = b""
+                if self.size and _MAPPED[0] < max_mapped():
+                    buf = mmap.mmap(fh.fileno(), self.size, access=mmap.ACCESS_COPY)
+                    _MAPPED[0] += 1
+                    weakref.finalize(buf, _unmapped)
+                elif self.size:
+                    buf = np.empty(self.size, dtype=np.uint8)
+                    fh.readinto(memoryview(buf))
         finally:
             try:
                 os.unlink(self.path)
