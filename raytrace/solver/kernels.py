@@ -1081,9 +1081,12 @@ def walk_hits(rows, th, face, o, a, length, tmax, t, active, crossed, shift, shi
 
     Per segment: a miss ends the walk (a shifted one goes back on its own line past the solid);
     a hit on the object under either end within ``guard`` of it is float32 noise of the vertex,
-    stepped over (leaving along the solid's face: go on off the solid); a hit is booked on its
-    canonical face (:func:`_canonical`) and a touch (:func:`_contact`) is stepped over
-    off the solid; otherwise its distance is taken on the booked face's plane in float64 (where
+    stepped over (leaving along the solid's face: go on off the solid; on a shifted line, within
+    ``guard + 2 tol / cos`` on a face through the vertex, :func:`_own_face_shifted`); a hit is
+    booked on its canonical face (:func:`_canonical`) and a touch of a convex solid
+    (:func:`_contact`) or of a flat sheet (:func:`_sheet_touch`) is stepped over, off the solid
+    or, along a sheet, off its plane; otherwise its distance is taken on the booked face's plane
+    in float64, along the line queried (where
     the ray is not grazing, ``|cos| > grazing_cos``, and the plane is within ``tol`` of
     Embree's answer: Embree's float32 distance to one plane differs by ~1e-7 relative between
     the triangles of a face and between coincident faces of two objects, so chords, and the slab
@@ -1094,7 +1097,9 @@ def walk_hits(rows, th, face, o, a, length, tmax, t, active, crossed, shift, shi
     ``t``, ``active``, ``crossed``, ``shift``, ``shift_end`` (per segment) and the arrays after
     ``sheet_thickness`` (:class:`raytrace.solver.penetration._Walk`) are updated; ``a`` (N, 3),
     ``length``, ``tmax`` (N,) metres and ``end_objects`` (N, 2) describe the segments; the
-    arrays from ``corners`` to ``face_normal`` are the scene's, as the other kernels take them.
+    arrays from ``corners`` to ``face_normal`` are the scene's, as the other kernels take them,
+    and ``sheet_plane`` to ``sheet_edges`` its flat sheets
+    (:func:`raytrace.solver.penetration.flat_sheet_arrays`).
     """
     for i in range(len(rows)):
         r, f, ob = rows[i], face[i], o[i]
