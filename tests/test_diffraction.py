@@ -405,13 +405,17 @@ def test_boundary_limit_value_and_jump() -> None:
         assert abs((b - a) - np.sqrt(dist) / sin_b) < 1e-6
     mid = dif.utd_coefficients(2.0, np.pi + phi_in, phi_in, sin_b, dist, K0)
     assert all(np.isfinite(m) for m in mid)
+    # exactly on the boundary: the lit side's value (phi < pi + phi', where the GO field is)
+    for a, m in zip(lo, mid):
+        assert abs(m - a) < 1e-6 * abs(a)
 
 
 def test_wedge_factor_is_cot_times_the_sine_everywhere() -> None:
     """The finite form of the wedge factor (D9): ``f = cot(eps/2n) |sin(eps/2)| sqrt(2kL)``
     against the cotangent written out (away from eps = 0), the sinc form near 0, and
-    ``n sqrt(2kL)`` times ``sgn(eps)`` at eps -> 0: exactly 0 at eps = 0, finite for eps down to
-    the smallest normal numbers, over the whole range ``[-n pi, n pi]``."""
+    ``n sqrt(2kL)`` times ``sgn(eps)`` at eps -> 0: at eps = 0 the value of the side eps > 0
+    (where the geometrical-optics field is), finite for eps down to the smallest normal numbers,
+    over the whole range ``[-n pi, n pi]``."""
     from raytrace.physics.utd import _wedge_factors
 
     for n in (1.5, 1.9, 2.0):
@@ -430,7 +434,7 @@ def test_wedge_factor_is_cot_times_the_sine_everywhere() -> None:
         sinc = n * np.cos(e[near] / (2 * n)) * np.sinc(e[near] / (2 * np.pi))
         sinc /= np.sinc(e[near] / (2 * np.pi * n))
         np.testing.assert_allclose(got[near], np.sign(e[near]) * sinc * np.sqrt(100.0), rtol=1e-14)
-        assert np.all(got[e == 0] == 0)
+        assert np.all(got[e == 0] == n * np.sqrt(2 * 50.0))
 
 
 def test_luebbers_pec_limit_equals_kp() -> None:

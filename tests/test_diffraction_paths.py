@@ -339,3 +339,29 @@ def test_segment_touching_an_opaque_box_is_not_blocked_one_way_only():
     i, j = at_corner(fwd), at_corner(rev)
     assert len(i) == len(j) == 1
     np.testing.assert_allclose(rev.gain[j], fwd.gain[i], rtol=1e-9)
+
+
+@pytest.mark.parametrize("boundary", ["shadow", "reflection"])
+def test_the_total_field_exactly_on_a_boundary_is_its_limit_from_either_side(boundary):
+    """A metal sheet 100 m wide and a receiver whose line of sight passes exactly over its top
+    edge (shadow boundary), or whose reflection point lies exactly on that edge (reflection
+    boundary), then 1 mm either side. The tracer counts the geometrical-optics field exactly on
+    the boundary (a grazing ray only touches the edge; a point on a facet's edge is in it), so
+    the diffracted term must take the lit side's value there: the total field is the mean of
+    the two sides' within 0.2 % (about half the GO field). It was the whole GO field: 6 dB
+    above both."""
+    sc = make_scene([("sheet", quad((0, -50, -50), (0, 100, 0), (0, 0, 52)), "metal")])
+    cfg = TraceConfig(max_reflections=1, max_penetrations=0, max_diffractions=1,
+                      max_interactions=1)  # fmt: skip
+    tx = np.array([[-5.0, 0.3, 4.0]])
+    total = []
+    for dz in (0.0, 1e-3, -1e-3):
+        q = tx + 2.5 * (np.array([0.0, 1.0, 2.0 + dz]) - tx)  # through the edge point (0, 1, 2)
+        rx = q if boundary == "shadow" else q * [-1, 1, 1]  # its mirror: reflected at the edge
+        p = trace(sc, tx, rx, F_C, cfg, threads=1)
+        gain = p.gain[p.kind_label != "LoS"] if boundary == "reflection" else p.gain
+        total.append(abs(gain.sum()))
+    on, side = total[0], 0.5 * (total[1] + total[2])
+    assert abs(on - side) < 2e-3 * side
+    free = C0 / F_C / (4 * np.pi * np.linalg.norm(q - tx))
+    assert 0.4 < side / free < 0.6

@@ -730,7 +730,12 @@ def _wedge_factor(beta, sign, n, kl):
     ``f = sgn(eps) sin(eps/2) cos(eps/2n) / sin(eps/2n) sqrt(2 kL)``; the ratio of the two sines
     is well conditioned and tends to ``n`` as eps -> 0 (``n`` at eps = 0). The term's limit for
     eps -> 0 is ``n sqrt(2 pi kL) sgn(eps) exp(j pi/4)`` (KP's boundary value); the jump of
-    sgn(eps) is the one that cancels the jump of the geometrical-optics field.
+    sgn(eps) is the one that cancels the jump of the geometrical-optics field. ``eps > 0`` is the
+    side where that field is (the incident field at a shadow boundary, the reflected one at a
+    reflection boundary), and exactly on the boundary (``eps = 0``) the term takes that side's
+    value: there the tracer counts the geometrical-optics field (a ray that grazes an edge only
+    touches it; a reflection point on a facet's edge is in the facet), so the total field is
+    its limit from either side, half the geometrical-optics field.
     """
     big_n = np.rint((sign * beta + np.pi) / (_TWO_PI * n))
     eps = np.pi + sign * beta - _TWO_PI * n * big_n
@@ -739,7 +744,7 @@ def _wedge_factor(beta, sign, n, kl):
     a = eps / (2.0 * n)
     sa = np.sin(a)
     ratio = s * np.cos(a) / sa if sa != 0.0 else n
-    return x, np.sign(eps) * ratio * np.sqrt(2.0 * kl)
+    return x, (1.0 if eps >= 0.0 else -1.0) * ratio * np.sqrt(2.0 * kl)
 
 
 @inline
