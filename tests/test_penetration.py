@@ -642,3 +642,37 @@ def test_a_crossing_on_a_shifted_stretch_is_placed_on_its_plane_whatever_the_bvh
     # the power of the test: that line is 2 tol = 2.5e-4 m off the segment's own
     unshifted = np.linalg.norm(b - a, axis=1) * (32.4 - 28.0) / 8.4
     assert np.all(np.abs(dist[0] - unshifted) > 1e-4)
+
+
+@pytest.mark.parametrize("upward", [True, False], ids=["up through", "down through"])
+def test_a_sheet_lying_on_a_solids_face_is_crossed_with_it_whatever_the_bvh(upward):
+    """The office's ceiling board rests on the top face of its walls (z = 3): a segment through
+    the wall top crosses the board and the wall's face at one point. The walk steps over a
+    boundary by the margin, so it booked whichever Embree reported: going up, the board (and the
+    wall was never left: its chord ran to the segment's end, 2.6 m) or the wall's exit (and the
+    board was lost); going down, the wall's entry lost the board. Both are booked now, in the
+    order of their objects: every segment crosses both, the wall's equivalent slab is its
+    0.6 m height, the board's its thickness, for five BVHs, both ways."""
+    rng = np.random.default_rng(2)
+    n = 200
+    low = np.column_stack([rng.uniform(0.5, 5.5, n), rng.uniform(40.02, 40.08, n),
+                           np.full(n, 2.0)])  # fmt: skip
+    high = low + np.column_stack([rng.uniform(-0.5, 0.5, n), rng.uniform(-0.01, 0.01, n),
+                                  np.full(n, 3.0)])  # fmt: skip
+    a, b = (low, high) if upward else (high, low)
+    board = None
+    for n_spare in (0, 3, 7, 12, 20):
+        corner = np.random.default_rng(n_spare).uniform(10, 30, (n_spare, 3)) * [1, 1, 0]
+        spare = [(f"s{i}", box(p, p + 0.5), "wood") for i, p in enumerate(corner)]
+        sc = make_scene([("ceiling", quad((0, 40, 3), (6, 0, 0), (0, 6, 0)), "ceiling_board"),
+                         ("wall_top", box((0, 40, 2.4), (6, 40.1, 3.0)), "plasterboard"),
+                         *spare])  # fmt: skip
+        board = sc.materials["ceiling_board"].thickness_m
+        cr = segment_crossings(sc, a, b, 3)
+        assert not cr.exceeded.any() and np.all(cr.count == 2), n_spare
+        order = np.argsort(cr.object[:, :2], axis=1)
+        objs = np.take_along_axis(cr.object[:, :2], order, axis=1)
+        thick = np.take_along_axis(cr.thickness[:, :2], order, axis=1)
+        np.testing.assert_array_equal(objs, np.broadcast_to([0, 1], (n, 2)))
+        np.testing.assert_allclose(thick[:, 0], board, rtol=1e-12)
+        np.testing.assert_allclose(thick[:, 1], 0.6, atol=CHORD_TOL_M)

@@ -1043,6 +1043,57 @@ def _own_face_shifted(f, at_start, t_hit, length, ax, ay, az, dx, dy, dz, face_n
     return near_start, near_end or t_hit > length - reach
 
 
+#: Boundaries of coincident faces booked at one point, at most (:func:`walk_hits`).
+_MAX_COINCIDENT = 8
+
+
+@helper
+def _coincident(r, ob, f, t_hit, qx, qy, qz, dx, dy, dz, length, guard, end_objects, co_start,
+                co_count, co_face, face_object, closed, corners, edge_normals, normal, offset,
+                count_planes, sheet_plane, sheet_reach, sheet_edge_start, sheet_edge_count,
+                sheet_edges, tol, book_ob, book_f):  # fmt: skip
+    """The boundaries at the point where segment ``r``'s queried line (origin ``q``) meets face
+    ``f`` of object ``ob`` at ``t_hit``: ``book_ob[0], book_f[0]`` (``ob, f``) and those of the
+    faces in ``f``'s plane (:func:`raytrace.solver.penetration.coincident_faces`) that contain
+    the point (within ``tol``), are crossed there (not a touch: :func:`_touches`,
+    :func:`_sheet_touch`) and are not an end vertex's own (within ``guard``), one per object,
+    sorted by object (so that the order of the booking does not depend on which face Embree
+    reported). Returns how many."""
+    px, py, pz = qx + t_hit * dx, qy + t_hit * dy, qz + t_hit * dz
+    n = 1
+    for c in range(co_start[f], co_start[f] + co_count[f]):
+        g = co_face[c]
+        og = face_object[g]
+        seen = False
+        for j in range(n):
+            seen = seen or book_ob[j] == og
+        if seen or n == len(book_ob):
+            continue
+        if (og == end_objects[r, 0] and t_hit < guard) or (
+            og == end_objects[r, 1] and t_hit > length - guard
+        ):
+            continue
+        if _edge_distance(corners, edge_normals, g, px, py, pz) > tol:
+            continue
+        if closed[og]:
+            if _touches(og, qx, qy, qz, dx, dy, dz, normal, offset, count_planes, tol):
+                continue
+        elif _sheet_touch(og, qx, qy, qz, dx, dy, dz, True, sheet_plane, sheet_reach,
+                          sheet_edge_start, sheet_edge_count, sheet_edges, tol)[0]:  # fmt: skip
+            continue
+        book_ob[n], book_f[n] = og, g
+        n += 1
+    # insertion sort by object (n is 1 or 2)
+    for j in range(1, n):
+        bo, bf = book_ob[j], book_f[j]
+        m = j
+        while m > 0 and book_ob[m - 1] > bo:
+            book_ob[m], book_f[m] = book_ob[m - 1], book_f[m - 1]
+            m -= 1
+        book_ob[m], book_f[m] = bo, bf
+    return n
+
+
 @helper
 def _off_the_solid(f, ob, ax, ay, az, dx, dy, dz, face_normal, normal, offset, count, tol):
     """Where a walk that touched face ``f`` of convex solid ``ob`` goes on: a shift of two
@@ -1067,12 +1118,14 @@ def _off_the_solid(f, ob, ax, ay, az, dx, dy, dz, face_normal, normal, offset, c
     "f8, f8, f8, f8, i8, "
     "f8[:, :, ::1], f8[:, :, ::1], f8[:, :, ::1], f8[:, ::1], i8[::1], i8[::1], i8[::1], "
     "f8[:, ::1], f8[:, ::1], f8[::1], i8[::1], i8[::1], f8[:, ::1], "
+    "i8[::1], i8[::1], i8[::1], i8[::1], "
     f"f8[::1], {_WALK})"
 )
 def walk_hits(rows, th, face, o, a, length, tmax, t, active, crossed, shift, shift_end,
               end_objects, margin, guard, tol, grazing_cos, limit, corners, edge_normals, normal,
               offset, count_planes, face_start, face_count, face_normal, sheet_plane,
-              sheet_reach, sheet_edge_start, sheet_edge_count, sheet_edges, sheet_thickness,
+              sheet_reach, sheet_edge_start, sheet_edge_count, sheet_edges, co_start, co_count,
+              co_face, face_object, sheet_thickness,
               d, closed, k, count, exceeded, dist, obj, normal_p, thick, inside, t_in, normal_in,
               t_last, normal_last):  # fmt: skip
     """One round of the segment walk (:func:`raytrace.solver.penetration.segment_crossings`):
@@ -1099,8 +1152,15 @@ def walk_hits(rows, th, face, o, a, length, tmax, t, active, crossed, shift, shi
     ``length``, ``tmax`` (N,) metres and ``end_objects`` (N, 2) describe the segments; the
     arrays from ``corners`` to ``face_normal`` are the scene's, as the other kernels take them,
     and ``sheet_plane`` to ``sheet_edges`` its flat sheets
-    (:func:`raytrace.solver.penetration.flat_sheet_arrays`).
+    (:func:`raytrace.solver.penetration.flat_sheet_arrays`), ``co_start`` to ``co_face`` the
+    faces of other objects in each face's plane (:func:`raytrace.solver.penetration.
+    coincident_faces`: a boundary on one of them at the hit point is booked at the same
+    distance, every boundary there in the order of its object) and ``face_object`` each face's
+    object.
     """
+    # the boundaries booked at one point: object and face (a sheet on a solid's face: two)
+    book_ob = np.empty(_MAX_COINCIDENT, dtype=np.int64)
+    book_f = np.empty(_MAX_COINCIDENT, dtype=np.int64)
     for i in range(len(rows)):
         r, f, ob = rows[i], face[i], o[i]
         ax, ay, az, dx, dy, dz = a[r, 0], a[r, 1], a[r, 2], d[r, 0], d[r, 1], d[r, 2]
@@ -1174,29 +1234,40 @@ def walk_hits(rows, th, face, o, a, length, tmax, t, active, crossed, shift, shi
                    corners[f, 0, 2] - qz) / (dn if ok else 1.0)  # fmt: skip
         if ok and abs(tp - t_hit) <= tol:
             t_hit = tp
-        # the boundary's bookkeeping (_boundary decides on scalars; the walk's arrays are read
-        # and written here, in the kernel's body)
-        record, rec_t, rec_ob, rnx, rny, rnz, rec_th, now_inside, entered = _boundary(
-            inside[r], ob, closed[ob], sheet_thickness[ob], t_hit, nx, ny, nz, dx, dy, dz,
-            normal_in[r, 0], normal_in[r, 1], normal_in[r, 2], t_in[r], normal_last[r, 0],
-            normal_last[r, 1], normal_last[r, 2], t_last[r])  # fmt: skip
-        if record:
-            slot = count[r]
-            if slot < k:
-                _store(r, slot, rec_t, rec_ob, rnx, rny, rnz,
-                       _slab_thickness(rec_th, closed[rec_ob], rnx, rny, rnz, dx, dy, dz), dist,
-                       obj, normal_p, thick)  # fmt: skip
-            else:
-                exceeded[r] = True
-            count[r] = slot + 1
-        inside[r] = now_inside
-        if entered:
-            t_in[r] = t_hit
-            normal_in[r, 0], normal_in[r, 1], normal_in[r, 2] = nx, ny, nz
-        t_last[r] = t_hit
-        normal_last[r, 0], normal_last[r, 1], normal_last[r, 2] = nx, ny, nz
+        book_ob[0], book_f[0] = ob, f
+        n_book = 1
+        if co_count[f] > 0:  # a boundary of another object in this face's plane, at this point?
+            n_book = _coincident(r, ob, f, t_hit, qx, qy, qz, dx, dy, dz, length[r], guard,
+                                 end_objects, co_start, co_count, co_face, face_object, closed,
+                                 corners, edge_normals, normal, offset, count_planes,
+                                 sheet_plane, sheet_reach, sheet_edge_start, sheet_edge_count,
+                                 sheet_edges, tol, book_ob, book_f)  # fmt: skip
+        for c in range(n_book):
+            ob, f = book_ob[c], book_f[c]
+            nx, ny, nz = face_normal[f, 0], face_normal[f, 1], face_normal[f, 2]
+            # the boundary's bookkeeping (_boundary decides on scalars; the walk's arrays are
+            # read and written here, in the kernel's body)
+            record, rec_t, rec_ob, rnx, rny, rnz, rec_th, now_inside, entered = _boundary(
+                inside[r], ob, closed[ob], sheet_thickness[ob], t_hit, nx, ny, nz, dx, dy, dz,
+                normal_in[r, 0], normal_in[r, 1], normal_in[r, 2], t_in[r], normal_last[r, 0],
+                normal_last[r, 1], normal_last[r, 2], t_last[r])  # fmt: skip
+            if record:
+                slot = count[r]
+                if slot < k:
+                    _store(r, slot, rec_t, rec_ob, rnx, rny, rnz,
+                           _slab_thickness(rec_th, closed[rec_ob], rnx, rny, rnz, dx, dy, dz),
+                           dist, obj, normal_p, thick)  # fmt: skip
+                else:
+                    exceeded[r] = True
+                count[r] = slot + 1
+            inside[r] = now_inside
+            if entered:
+                t_in[r] = t_hit
+                normal_in[r, 0], normal_in[r, 1], normal_in[r, 2] = nx, ny, nz
+            t_last[r] = t_hit
+            normal_last[r, 0], normal_last[r, 1], normal_last[r, 2] = nx, ny, nz
         t[r] = t_hit + margin
-        crossed[r] += 1
+        crossed[r] += n_book
         active[r] = t[r] < tmax[r] and not exceeded[r]
         if active[r] and crossed[r] >= limit:
             exceeded[r] = True

@@ -251,6 +251,52 @@ def flat_sheet_arrays(
     return cache
 
 
+def coincident_faces(scene: Scene) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The faces of closed solids and of flat sheets that lie in one plane and overlap (a ceiling
+    board resting on a wall's top face, a pane on a frame), as the kernels take them; cached.
+
+    A segment crosses both at one point, and the walk steps over a boundary by the margin, so it
+    would book whichever of the two Embree reports and miss the other (or, leaving a solid
+    through a face a sheet lies on, never leave it). :func:`raytrace.solver.kernels.walk_hits`
+    books both. Face pairs are in one plane when their normals are parallel and every corner of
+    one is within the contact tolerance of the other's plane, and overlap when their bounding
+    boxes do (grown by the tolerance).
+
+    Returns
+    -------
+    start, count : (F,) int, each face's coincident faces in ``face``
+    face : (C,) int, the coincident faces (of another object: a sheet for a solid's face, a
+        solid's face for a sheet's)
+    """
+    cache = scene.__dict__.get("_coincident_faces")
+    if cache is not None:
+        return cache
+    n_f = len(scene.faces)
+    plane, reach, _, _, _ = flat_sheet_arrays(scene)
+    tol = CONTACT_TOL_MARGINS * scene.margin
+    pairs = []
+    sheets = np.flatnonzero(reach > 0)
+    solid_faces = np.flatnonzero(scene.object_closed[scene.face_object])
+    if len(sheets) and len(solid_faces):
+        tri = scene.vertices[scene.faces]
+        lo, hi = tri.min(axis=1) - tol, tri.max(axis=1) + tol
+        for o in sheets:
+            n, off = plane[o, :3], plane[o, 3]
+            cand = solid_faces[np.abs(scene.face_normal[solid_faces] @ n) >= 1.0 - 1e-9]
+            cand = cand[np.all(np.abs(tri[cand] @ n - off) <= tol, axis=1)]
+            obj = scene.objects[o]
+            mine = np.arange(obj.face_start, obj.face_start + obj.face_count)
+            for g in mine:
+                near = cand[np.all((lo[cand] <= hi[g]) & (hi[cand] >= lo[g]), axis=1)]
+                pairs += [(f, g) for f in near] + [(g, f) for f in near]
+    pairs = np.array(sorted(set(pairs)), dtype=np.int64).reshape(-1, 2)
+    count = np.bincount(pairs[:, 0], minlength=n_f).astype(np.int64)
+    start = np.concatenate([[0], np.cumsum(count)[:-1]]).astype(np.int64)
+    cache = (start, count, np.ascontiguousarray(pairs[:, 1]))
+    scene.__dict__["_coincident_faces"] = cache
+    return cache
+
+
 #: Cells of :func:`_closed_solid_grid` along the longer side of the scene's footprint.
 GRID_CELLS = 64
 
@@ -426,8 +472,8 @@ def segment_crossings(
     a, length, tmax = carray(a), carray(length), carray(tmax)
     end_objects = carray(end_objects, np.int64)
     scene_arrays = (*_edge_planes(scene), *convex_plane_arrays(scene), *_object_faces(scene),
-                    _face_normals(scene), *flat_sheet_arrays(scene),
-                    walk.sheet_thickness)  # fmt: skip
+                    _face_normals(scene), *flat_sheet_arrays(scene), *coincident_faces(scene),
+                    carray(scene.face_object, np.int64), walk.sheet_thickness)  # fmt: skip
     for _ in range(limit + FREE_STEPS):
         # one round: the next hit of every segment still walking (kernels.walk_hits says what
         # is done with it)
