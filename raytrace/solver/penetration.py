@@ -17,9 +17,10 @@ start has no entry face; its exit face stands in. Likewise a hit at an edge or a
 booked on a canonical face, a ray that only touches a convex solid (at an edge, a vertex or
 along a face) or a flat sheet (along its plane, or past its outline within the contact
 tolerance: a receiver in the plane of a fence, looking past the edge of the pane that meets it)
-does not cross it, and hit distances are taken on the booked face's plane in
-float64 (:func:`raytrace.solver.kernels.walk_hits`): the crossings do not depend on the BVH,
-which differs between a static scene and a snapshot with forklifts.
+does not cross it, a sheet lying on a solid's face is crossed with it (both boundaries at the
+point are booked, :func:`coincident_faces`), and hit distances are taken on the booked face's
+plane in float64 (:func:`raytrace.solver.kernels.walk_hits`): the crossings do not depend on
+the BVH, which differs between a static scene and a snapshot with forklifts.
 
 The equivalent slab thickness of a chord through a solid is the chord length times the cosine of
 the incidence angle on the more head-on of its entry and exit faces (:func:`kernels._more_head_on`):
