@@ -58,7 +58,7 @@ def test_compare_reverse_matches_every_path_of_a_small_scene():
 @pytest.mark.parametrize("band", ["c-band", "mmwave"])
 def test_the_hall_is_reciprocal(band):
     """The bundled hall, every mechanism at its default depth, traced from the base stations to
-    the test points and back. 1 of its 46 172 C-band paths (1 of 38 424 at mmWave) is found in
+    the test points and back. 1 of its 46 171 C-band paths (1 of 38 423 at mmWave) is found in
     one direction only (about 130 before the grazing-segment fixes, 21 before the sheets' touch
     and the shifted walk's guard; docs/tracing.md)."""
     sc = load_scene("hall")
