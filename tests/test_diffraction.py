@@ -1216,3 +1216,32 @@ def test_luebbers_with_mesh_labels_is_not_mirror_symmetric() -> None:
     a = 20 * np.log10(np.abs(old(phi_in, phi)))
     b = 20 * np.log10(np.abs(old(n * np.pi - phi_in, n * np.pi - phi)))
     assert np.max(np.abs(a - b)) > 1.0
+
+
+@pytest.mark.parametrize("boundary", ["ISB, face 0 lit", "RSB, face 0", "ISB, face n lit",
+                                      "RSB, face n"])  # fmt: skip
+@pytest.mark.parametrize("phi_in_from_face", [0.3, 1.2])
+def test_exactly_on_a_boundary_the_coefficient_is_the_lit_sides(boundary, phi_in_from_face):
+    """n = 1.5, each of the four boundaries (the shadow boundary of an incident field lighting
+    face 0 or face n, the reflection boundary of either face): exactly on it the coefficient is
+    its limit from the side where that geometrical-optics field is (the tracer counts the field
+    there), to 1e-9, and differs from the other side's by the jump."""
+    n, d = 1.5, 1e-11
+    if "face 0" in boundary:
+        phi_in = phi_in_from_face
+        phi_b = np.pi + phi_in if boundary.startswith("ISB") else np.pi - phi_in
+        lit = -1.0  # the incident field for phi < pi + phi', the reflected one for phi < pi - phi'
+    else:
+        phi_in = n * np.pi - phi_in_from_face
+        phi_b = phi_in - np.pi if boundary.startswith("ISB") else (2 * n - 1) * np.pi - phi_in
+        lit = 1.0
+
+    def coefficient(phi):
+        s, h = dif.utd_coefficients(n, np.array([phi]), np.array([phi_in]), np.array([0.8]),
+                                    np.array([5.0]), K0)  # fmt: skip
+        return np.array([s[0], h[0]])
+
+    on, lit_side = coefficient(phi_b), coefficient(phi_b + lit * d)
+    other = coefficient(phi_b - lit * d)
+    assert np.abs(on - lit_side).max() < 1e-9
+    assert np.abs(on - other).max() > 1.0
