@@ -619,9 +619,7 @@ def face_rule_angle(
     face 0's angle with ``(phi', phi)`` and face n's with ``(n pi - phi', n pi - phi)``
     (:func:`_face_rule`, which this evaluates elementwise).
     """
-    a_in, a_out, s_in, s_out = np.broadcast_arrays(
-        *(np.asarray(v, dtype=float) for v in (a_in, a_out, s_in, s_out))
-    )
+    a_in, a_out, s_in, s_out = _broadcast(a_in, a_out, s_in, s_out)
     psi = _face_rules(*(_c(v.reshape(-1)) for v in (a_in, a_out, s_in, s_out)))
     return psi.reshape(a_in.shape)[()]  # a scalar for scalar input, as numpy gives
 
@@ -787,12 +785,20 @@ def _reflection_pair(
 _C_NUMERATOR = complex(-np.exp(-0.25j * np.pi))
 
 
+def _broadcast(*values: object) -> list[np.ndarray]:
+    """``values`` as float arrays of their common shape: those already of it as they are, the
+    others as read-only broadcast views (the kernels copy them). Not ``np.broadcast_arrays``,
+    whose views warn (numpy 2) when asked whether they are writable."""
+    arrays = [np.asarray(v, dtype=float) for v in values]
+    shape = np.broadcast_shapes(*(a.shape for a in arrays))
+    return [a if a.shape == shape else np.broadcast_to(a, shape) for a in arrays]
+
+
 def _utd_terms(n, phi, phi_in, sin_beta0, distance_m, wavenumber):
     """``C (D1 + D2)``, ``C D3``, ``C D4`` of (D7) (broadcast, complex): the polarisation-free
     parts of the KP coefficient, before the face reflection coefficients multiply D3 and D4."""
-    n, phi, phi_in, sin_beta0, dist, k = np.broadcast_arrays(
-        *(np.asarray(v, dtype=float) for v in (n, phi, phi_in, sin_beta0, distance_m, wavenumber))
-    )
+    n, phi, phi_in, sin_beta0, dist, k = _broadcast(n, phi, phi_in, sin_beta0, distance_m,
+                                                    wavenumber)  # fmt: skip
     shape = n.shape
     kl = k * dist
     x, f = _wedge_factors(*(_c(v.reshape(-1)) for v in (n, phi, phi_in, kl)))
