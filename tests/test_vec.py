@@ -45,3 +45,25 @@ def test_rows_equal_numpy_indexing(shape: tuple[int, ...]) -> None:
         np.testing.assert_array_equal(got, want)
     np.testing.assert_array_equal(index(np.array([True, False, True])), [0, 2])
     np.testing.assert_array_equal(index(np.array([2, 0])), [2, 0])
+
+
+def test_broadcast_rows_are_numpys_broadcast_flat_writable_and_quiet():
+    """Each array broadcast to the common shape, flat, contiguous and writable (what the kernels
+    take), equal to np.broadcast_arrays'; an array already of the shape is not copied; and no
+    numpy 2 FutureWarning when the kernels ask whether the rows are writable."""
+    import warnings
+
+    from raytrace.core.jit import carray
+    from raytrace.core.vec import broadcast_rows
+
+    a, b, c = np.asarray(1.5), np.arange(6.0).reshape(2, 3), np.array([[1.0], [2.0]])
+    shape, rows = broadcast_rows(a, b, c)
+    assert shape == (2, 3)
+    for got, want in zip(rows, np.broadcast_arrays(a, b, c), strict=True):
+        np.testing.assert_array_equal(got, want.reshape(-1))
+        assert got.flags.c_contiguous and got.flags.writeable
+    assert np.shares_memory(rows[1], b)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        for r in broadcast_rows(np.asarray(2.0), np.array([0.3]))[1]:
+            carray(r)

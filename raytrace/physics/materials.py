@@ -34,6 +34,7 @@ from raytrace.core.constants import C0, EPS0
 from ..core.errors import MaterialError
 from ..core.fileio import read_yaml
 from ..core.jit import carray, inline, kernel
+from ..core.vec import broadcast_rows
 
 __all__ = [
     "DEFAULT_USER_THICKNESS_M",
@@ -734,12 +735,6 @@ def _out(x: np.ndarray) -> Any:
     return x[()] if x.ndim == 0 else x
 
 
-def _rows_of(*arrays: Any) -> tuple[tuple[int, ...], list[np.ndarray]]:
-    """The broadcast shape of ``arrays`` and each broadcast to it, flat and contiguous."""
-    b = np.broadcast_arrays(*arrays)
-    return b[0].shape, [np.ascontiguousarray(x.reshape(-1)) for x in b]
-
-
 def fresnel(eta: complex | np.ndarray, cos_theta: float | np.ndarray) -> tuple[Any, Any, Any, Any]:
     """Fresnel coefficients of a single air -> medium interface (P.2040-3 section 2.2.1).
 
@@ -768,14 +763,14 @@ def fresnel(eta: complex | np.ndarray, cos_theta: float | np.ndarray) -> tuple[A
     -------
     r_te, r_tm, t_te, t_tm : complex128 (broadcast shape of the inputs)
     """
-    shape, (e, c) = _rows_of(np.asarray(eta, dtype=complex), np.asarray(cos_theta, dtype=float))
+    shape, (e, c) = broadcast_rows(np.asarray(eta, dtype=complex), np.asarray(cos_theta, dtype=float))
     return tuple(_out(x.reshape(shape)) for x in _fresnel_rows(e, c, True))
 
 
 def fresnel_reflection(eta: complex | np.ndarray, cos_theta: float | np.ndarray) -> tuple[Any, Any]:
     """``r_te, r_tm`` of :func:`fresnel` alone (the same arithmetic, without the transmission
     coefficients and their square root): what a reflection needs."""
-    shape, (e, c) = _rows_of(np.asarray(eta, dtype=complex), np.asarray(cos_theta, dtype=float))
+    shape, (e, c) = broadcast_rows(np.asarray(eta, dtype=complex), np.asarray(cos_theta, dtype=float))
     r_te, r_tm, _, _ = _fresnel_rows(e, c, False)
     return _out(r_te.reshape(shape)), _out(r_tm.reshape(shape))
 
@@ -886,7 +881,7 @@ def slab(
         raise MaterialError("slab thickness must be finite and >= 0 m")
     if np.any(~np.isfinite(f) | (f <= 0)):
         raise MaterialError("slab frequency must be finite and > 0 Hz")
-    shape, (e, c, dd, ff) = _rows_of(np.asarray(eta, dtype=complex),
+    shape, (e, c, dd, ff) = broadcast_rows(np.asarray(eta, dtype=complex),
                                      np.asarray(cos_theta, dtype=float), d, f)  # fmt: skip
     out = _slab_rows(e, c, dd, ff, reference == "p2040")
     return tuple(_out(x.reshape(shape)) for x in out)
@@ -924,7 +919,7 @@ def slab_group_delay(
     -------
     tau : float or (...) float64, seconds (>= 0 for the building materials of P.2040)
     """
-    shape, (e, c, d, s) = _rows_of(
+    shape, (e, c, d, s) = broadcast_rows(
         np.asarray(eta, dtype=complex), np.asarray(cos_theta, dtype=float),
         np.asarray(thickness_m, dtype=float), np.asarray(eta_slope, dtype=complex),
     )

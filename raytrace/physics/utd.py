@@ -57,8 +57,8 @@ from ..core.constants import C0
 from ..core.errors import TraceInputError
 from ..core.jit import carray as _c
 from ..core.jit import helper, inline, kernel
+from ..core.vec import broadcast_rows, cross3, dot3
 from ..core.vec import cross as _cross
-from ..core.vec import cross3, dot3
 from ..core.vec import norm as _norm
 from ..core.vec import rows as _rows
 from .materials import clipped_cos1, reflection1
@@ -619,9 +619,9 @@ def face_rule_angle(
     face 0's angle with ``(phi', phi)`` and face n's with ``(n pi - phi', n pi - phi)``
     (:func:`_face_rule`, which this evaluates elementwise).
     """
-    a_in, a_out, s_in, s_out = _broadcast(a_in, a_out, s_in, s_out)
-    psi = _face_rules(*(_c(v.reshape(-1)) for v in (a_in, a_out, s_in, s_out)))
-    return psi.reshape(a_in.shape)[()]  # a scalar for scalar input, as numpy gives
+    shape, rows = broadcast_rows(*(np.asarray(v, dtype=float) for v in (a_in, a_out, s_in, s_out)))
+    psi = _face_rules(*rows)
+    return psi.reshape(shape)[()]  # a scalar for scalar input, as numpy gives
 
 
 # -- 3. UTD coefficients --------------------------------------------------------------------------
@@ -785,27 +785,20 @@ def _reflection_pair(
 _C_NUMERATOR = complex(-np.exp(-0.25j * np.pi))
 
 
-def _broadcast(*values: object) -> list[np.ndarray]:
-    """``values`` as float arrays of their common shape: those already of it as they are, the
-    others as read-only broadcast views (the kernels copy them). Not ``np.broadcast_arrays``,
-    whose views warn (numpy 2) when asked whether they are writable."""
-    arrays = [np.asarray(v, dtype=float) for v in values]
-    shape = np.broadcast_shapes(*(a.shape for a in arrays))
-    return [a if a.shape == shape else np.broadcast_to(a, shape) for a in arrays]
-
-
 def _utd_terms(n, phi, phi_in, sin_beta0, distance_m, wavenumber):
     """``C (D1 + D2)``, ``C D3``, ``C D4`` of (D7) (broadcast, complex): the polarisation-free
     parts of the KP coefficient, before the face reflection coefficients multiply D3 and D4."""
-    n, phi, phi_in, sin_beta0, dist, k = _broadcast(n, phi, phi_in, sin_beta0, distance_m,
-                                                    wavenumber)  # fmt: skip
-    shape = n.shape
-    kl = k * dist
-    x, f = _wedge_factors(*(_c(v.reshape(-1)) for v in (n, phi, phi_in, kl)))
+    shape, (n, phi, phi_in, sin_beta0, dist, k) = broadcast_rows(
+        *(np.asarray(v, dtype=float) for v in (n, phi, phi_in, sin_beta0, distance_m, wavenumber))
+    )
+    x, f = _wedge_factors(n, phi, phi_in, k * dist)
     w = f * _transition_over_sqrt(x)  # the four terms, one Faddeeva call for all
     c = _C_NUMERATOR / (2.0 * n * np.sqrt(_TWO_PI * k) * sin_beta0)
-    d12 = c * (w[:, 0] + w[:, 1]).reshape(shape)
-    return d12, c * w[:, 2].reshape(shape), c * w[:, 3].reshape(shape)
+    return (
+        (c * (w[:, 0] + w[:, 1])).reshape(shape),
+        (c * w[:, 2]).reshape(shape),
+        (c * w[:, 3]).reshape(shape),
+    )
 
 
 def utd_coefficients(
