@@ -1094,21 +1094,29 @@ def _coincident(r, ob, f, t_hit, qx, qy, qz, dx, dy, dz, length, guard, end_obje
     return n
 
 
-@helper
-def _off_the_solid(f, ob, ax, ay, az, dx, dy, dz, face_normal, normal, offset, count, tol):
-    """Where a walk that touched face ``f`` of convex solid ``ob`` goes on: a shift of two
-    contact tolerances along the face's outward normal, across the ray, and the distance at
-    which the line leaves the solid grown by ``tol`` (past it, the walk is back on its own
-    line; a zero shift and -inf for other objects)."""
-    nx, ny, nz = face_normal[f, 0], face_normal[f, 1], face_normal[f, 2]
+@inline
+def _across(nx, ny, nz, dx, dy, dz, tol):
+    """A shift of two contact tolerances along the unit normal ``n``, across the ray ``d`` (its
+    part along the ray removed), and the length of that part (0: ``n`` along the ray)."""
     dn = dot3(nx, ny, nz, dx, dy, dz)
     cx, cy, cz = nx - dn * dx, ny - dn * dy, nz - dn * dz
     size = np.sqrt(cx * cx + cy * cy + cz * cz)
     grow = 2.0 * tol
     den = size if (size > 1e-300 or size != size) else 1e-300
+    return grow * cx / den, grow * cy / den, grow * cz / den, size
+
+
+@helper
+def _off_the_solid(f, ob, ax, ay, az, dx, dy, dz, face_normal, normal, offset, count, tol):
+    """Where a walk that touched face ``f`` of convex solid ``ob`` goes on: a shift of two
+    contact tolerances along the face's outward normal, across the ray (:func:`_across`), and
+    the distance at which the line leaves the solid grown by ``tol`` (past it, the walk is back
+    on its own line; a zero shift and -inf for other objects)."""
+    sx, sy, sz, size = _across(face_normal[f, 0], face_normal[f, 1], face_normal[f, 2], dx, dy,
+                               dz, tol)  # fmt: skip
     cv, lo, hi, par = _span(normal, offset, count, ob, ax, ay, az, dx, dy, dz, -tol)
     if cv and np.isfinite(hi) and size > 0:
-        return grow * cx / den, grow * cy / den, grow * cz / den, hi
+        return sx, sy, sz, hi
     return 0.0, 0.0, 0.0, -np.inf
 
 
@@ -1210,14 +1218,9 @@ def walk_hits(rows, th, face, o, a, length, tmax, t, active, crossed, shift, shi
                            face_normal, corners, edge_normals, tol)  # fmt: skip
         if touch:
             t[r] = t_hit + margin
-            if along:  # on, off the sheet's plane, until past the sheet
-                nx, ny, nz = sheet_plane[ob, 0], sheet_plane[ob, 1], sheet_plane[ob, 2]
-                dn = dot3(nx, ny, nz, dx, dy, dz)
-                cx, cy, cz = nx - dn * dx, ny - dn * dy, nz - dn * dz
-                size = np.sqrt(cx * cx + cy * cy + cz * cz)
-                shift[r, 0], shift[r, 1], shift[r, 2] = (2.0 * tol * cx / size,
-                                                         2.0 * tol * cy / size,
-                                                         2.0 * tol * cz / size)  # fmt: skip
+            if along:  # on, off the sheet's plane (:func:`_across`), until past the sheet
+                shift[r, 0], shift[r, 1], shift[r, 2], _ = _across(
+                    sheet_plane[ob, 0], sheet_plane[ob, 1], sheet_plane[ob, 2], dx, dy, dz, tol)  # fmt: skip
                 shift_end[r] = t_hit + sheet_reach[ob] + tol
             elif closed[ob]:
                 sx, sy, sz, shift_end[r] = _off_the_solid(f, ob, ax, ay, az, dx, dy, dz,
