@@ -433,8 +433,10 @@ def test_a_job_from_main_needs_a_pool_that_imports_main(scene_links):
 
 def test_a_threaded_join_equals_the_serial_one(scene_links, monkeypatch):
     """Joining chunks on several threads (large traces) gives the same arrays as one thread, and
-    trace() with the threaded join forced gives the same paths."""
+    trace() with the threaded join forced gives the same paths; its outputs are mapped in small
+    pages (core.memory) from the first byte here."""
     import raytrace.solver.tracer as tracer_mod
+    from raytrace.core import memory
     from raytrace.solver.paths import Paths
 
     sc, tx, rx, cfg = scene_links
@@ -443,6 +445,7 @@ def test_a_threaded_join_equals_the_serial_one(scene_links, monkeypatch):
     pieces = [p.select(slice(0, p.n_paths // 2)) for p in parts]
     pieces += [p.select(slice(p.n_paths // 2, None)) for p in parts]
     one = Paths.concatenate(pieces)
+    monkeypatch.setattr(memory, "SMALL_PAGES_BYTES", 1)
     for threads in (2, 3, 8):
         many = Paths.concatenate(pieces, threads=threads)
         for k in Paths._PER_PATH:

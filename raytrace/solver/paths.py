@@ -27,6 +27,7 @@ import numpy as np
 from ..core.constants import linear_power_to_db
 from ..core.errors import HallrayError
 from ..core.fileio import write_atomic
+from ..core.memory import fresh_empty
 from ..core.vec import index
 from ..core.vec import rows as take_rows
 
@@ -137,7 +138,8 @@ class Paths:
         tasks = []  # (bytes, out, row, source)
         for k in cls._PER_PATH:
             src = [getattr(p, k) for p in padded]
-            out = np.empty((int(starts[-1]), *src[0].shape[1:]), dtype=src[0].dtype)
+            # small pages: huge ones may stall the first writes in compaction (core.memory)
+            out = fresh_empty((int(starts[-1]), *src[0].shape[1:]), dtype=src[0].dtype)
             kw[k] = out
             tasks += [(a.nbytes, out, int(r), a) for a, r in zip(src, starts[:-1]) if len(a)]
         # biggest copies first, each to the least loaded thread
