@@ -187,3 +187,52 @@ def test_chain_diffraction_rejects_bad_input() -> None:
     for args, change, match in bad:
         with pytest.raises(TraceInputError, match=match):
             utd.chain_diffraction(*args, **{**ok, **change})
+
+
+def _leg_end(p, t0, n0, e, phi, r, along):
+    """The end of a leg from edge point ``p`` at azimuth ``phi`` from face 0, ``r`` m from the
+    edge line and ``along`` m along it."""
+    return p + r * (np.cos(phi) * t0 + np.sin(phi) * n0) + along * e
+
+
+def test_validity_on_the_faces_and_for_any_wedge_angle() -> None:
+    """diffraction_valid skips the azimuth where a leg is on face 0's side of the edge plane
+    (``w . n0 >= 0``): the same verdicts as the full geometry for ends exactly in that plane
+    (either sign of zero), within the snap angle of either face, just inside the wedge, and for
+    exterior angles below pi as well (where that side is not all exterior)."""
+    rng = np.random.default_rng(21)
+    e, n0, nn, face0 = _random_wedges(rng, 12)
+    base = utd.wedge_frames(e, n0, nn, face0)
+    src_l, dst_l, pt_l, idx_l = [], [], [], []
+    for w in range(12):
+        ee, t0, nrm0 = base.edge_dir[w], base.face0_tangent[w], base.normal_0[w]
+        p = rng.normal(size=3)
+        # azimuths on face 0 (0, -0 offsets), face 0's plane behind the edge (pi), near the snap
+        # angle of both faces, inside, and random; lengths and along-edge offsets random
+        npi = base.n[w] * np.pi
+        phis = [0.0, np.pi, -1e-10, 1e-10, -2e-9, npi, npi + 1e-10, npi + 2e-9,
+                0.5 * (npi + 2 * np.pi), *rng.uniform(0, 2 * np.pi, 6)]
+        for a in phis:
+            for b in phis[::2]:
+                src_l.append(_leg_end(p, t0, nrm0, ee, a, rng.uniform(1, 5), rng.normal()))
+                dst_l.append(_leg_end(p, t0, nrm0, ee, b, rng.uniform(1, 5), rng.normal()))
+                pt_l.append(p)
+                idx_l.append(w)
+    src, dst, point, idx = np.array(src_l), np.array(dst_l), np.array(pt_l), np.array(idx_l)
+    # exactly in face 0's plane: w . n0 is +0.0 or -0.0 for legs along t0 (n0 has exact zeros)
+    axis = utd.wedge_frames(np.array([[0.0, 0, 1]]), np.array([[0.0, 1, 0]]),
+                            np.array([[1.0, 0, 0]]), np.array([[1.0, 0, 0]]))  # fmt: skip
+    for n_value in (None, 0.5, 0.9, 1.0, 1.5, 2.0):
+        frames = base if n_value is None else base._replace(n=np.full(12, n_value))
+        got = utd.diffraction_valid(frames.take(idx), src, dst, point)
+        ref = utd.framed_wedge_geometry(frames.take(idx), src, dst, point).valid
+        assert np.array_equal(got, ref), n_value
+        assert 0 < ref.sum() < len(ref) or n_value == 2.0  # (a half-plane has no inside)
+        fr = axis if n_value is None else axis._replace(n=np.array([n_value]))
+        s = np.array([[1.0, 0.0, 0.0], [1.0, -0.0, 0.0], [-1.0, 0.0, 0.0], [-1.0, -0.0, 0.0],
+                      [1.0, -1e-300, 0.0], [-1.0, 1e-300, 0.0]])  # fmt: skip
+        d = np.tile([[0.3, 2.0, 1.0]], (len(s), 1))
+        pts = np.zeros((len(s), 3))
+        one = fr.take(np.zeros(len(s), dtype=int))
+        assert np.array_equal(utd.diffraction_valid(one, s, d, pts),
+                              utd.framed_wedge_geometry(one, s, d, pts).valid)  # fmt: skip

@@ -469,12 +469,41 @@ def _ray_fixed(ix, iy, iz, cix, ciy, ciz, sin_in, ox, oy, oz, cox, coy, coz, sin
     return bx, by, bz, hx, hy, hz, ax, ay, az, gx, gy, gz
 
 
+@inline
+def _into_wedge(wx, wy, wz, t0x, t0y, t0z, n0x, n0y, n0z, npi):
+    """:func:`_azimuth1`'s second value (vector ``w`` points into the wedge), without the
+    arctangent where the answer is known: on face 0's side of the plane through the edge
+    (``w . n0 >= 0``) the angle is at most ``pi``, never beyond a face at ``n pi >= pi``."""
+    if dot3(wx, wy, wz, n0x, n0y, n0z) >= 0.0 and npi >= np.pi:
+        return False
+    return _azimuth1(wx, wy, wz, t0x, t0y, t0z, n0x, n0y, n0z, npi)[1]
+
+
 @helper
 def diffraction_valid1(e, t0, n0, n, w, sx, sy, sz, dx, dy, dz, px, py, pz):
     """:func:`diffraction_valid` of one diffraction at ``p`` from ``s`` to ``d`` on the wedge of
     frame row ``w`` (``e, t0, n0, n`` of :class:`WedgeFrame`, one row per wedge), a compiled
-    scalar helper for kernels."""
-    return _legs(e, t0, n0, n, w, sx, sy, sz, dx, dy, dz, px, py, pz)[18]
+    scalar helper for kernels: :func:`_legs`' ``valid`` with the same arithmetic, the azimuths
+    only where they decide it (on the hall's RD and DR candidates, the arctangents were half
+    the time of the exact tests)."""
+    ex, ey, ez = e[w, 0], e[w, 1], e[w, 2]
+    t0x, t0y, t0z, n0x, n0y, n0z = t0[w, 0], t0[w, 1], t0[w, 2], n0[w, 0], n0[w, 1], n0[w, 2]
+    npi = n[w] * np.pi
+    ix, iy, iz = px - sx, py - sy, pz - sz
+    s_in = np.sqrt(ix * ix + iy * iy + iz * iz)
+    ix, iy, iz = ix / s_in, iy / s_in, iz / s_in
+    ox, oy, oz = dx - px, dy - py, dz - pz
+    s_out = np.sqrt(ox * ox + oy * oy + oz * oz)
+    ox, oy, oz = ox / s_out, oy / s_out, oz / s_out
+    cix, ciy, ciz = cross3(ex, ey, ez, ix, iy, iz)
+    cox, coy, coz = cross3(ex, ey, ez, ox, oy, oz)
+    sin_in = np.sqrt(cix * cix + ciy * ciy + ciz * ciz)
+    sin_out = np.sqrt(cox * cox + coy * coy + coz * coz)
+    if not (s_in > 0 and s_out > 0 and sin_in > _MIN_SIN_BETA0 and sin_out > _MIN_SIN_BETA0):
+        return False
+    if _into_wedge(sx - px, sy - py, sz - pz, t0x, t0y, t0z, n0x, n0y, n0z, npi):
+        return False
+    return not _into_wedge(dx - px, dy - py, dz - pz, t0x, t0y, t0z, n0x, n0y, n0z, npi)
 
 
 @inline
