@@ -40,6 +40,7 @@ from . import reflection as refl
 from .context import TraceContext
 from .evaluate import Candidates, DiffractionModel, DiffractionOperator, candidates, evaluate
 from .paths import DIFFRACTION, REFLECTION, Paths
+from .shadow import shadows_of as _shadows
 
 #: Work is split into chunks of about this many candidates.
 CHUNK = 300_000
@@ -153,6 +154,9 @@ def _pure(ctx: TraceContext) -> Paths:
     open_r = ~_surely_inside(frame, w_all, *ctx.rx.T[:, None, :])  # (W, R)
     if not kernels.PRUNE:
         open_t[:] = True
+    # an edge seen from the transmitter or the receiver only through an opaque solid (shadow)
+    open_t &= ~_shadows(ctx, ctx.tx)[1].T
+    open_r &= ~_shadows(ctx, ctx.rx)[1].T
     if ctx.wedge_mask is not None:
         open_t &= ctx.wedge_mask[:, None]
     # Keller's point must lie on the edge (padded): tested per (transmitter, wedge) and
@@ -259,6 +263,8 @@ def _facet_wedge_pairs(
     """
     fc = ctx.scene.facets
     side = refl.reflecting_side(fc, ends)  # (E, K)
+    # a facet the end sees only through an opaque solid reflects nothing of it that arrives
+    side[_shadows(ctx, ends)[0]] = 0
     geo = _PairGeometry.of(ctx)
     if ctx.facet_mask is not None and not mixed_rdr:
         # only pairs with the wedge or the facet on a chosen object (a group is one object's)
@@ -346,6 +352,8 @@ def _one_reflection(ctx: TraceContext, before: bool) -> list[Paths]:
     # the other end inside the wedge: never a valid diffraction
     o_xyz = others.T[:, None, :]  # (3, 1, O)
     open_w = ~_surely_inside(_wedge_frame(ctx), np.arange(len(w))[:, None], *o_xyz)
+    # or seeing the edge only through an opaque solid
+    open_w &= ~_shadows(ctx, others)[1].T
     fr = _wedge_frame(ctx).utd
     fixed = (carray(others), carray(td_w), carray(rho_w), carray(open_w, bool), carray(w.start),
              carray(w.direction), carray(w.end), carray(fc.normal), carray(fc.offset), side_e,

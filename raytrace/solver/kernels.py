@@ -54,7 +54,8 @@ from ..physics.utd import diffraction_valid1, keller_point
 from ..scene.accel import FACET_TEST_SIG, facet_box_test, in_triangles
 
 __all__ = ["PRUNE", "surely_inside", "facet_wedge_pairs", "expand_over_others",
-           "reflection_edge_points", "along_and_off_rows", "second_order_candidates", "line_span", "edge_distance",
+           "reflection_edge_points", "along_and_off_rows", "second_order_candidates", "line_span",
+           "shadowed_groups", "edge_distance",
            "opaque_blocks", "touch_rows", "entry_points", "end_probes",
            "walk_record", "unseen_entries", "walk_rays", "walk_hits", "segment_rays",
            "path_gains", "interaction_sequences", "mixed_candidates"]
@@ -646,6 +647,80 @@ def _span(normal, offset, count, ob, ax, ay, az, dx, dy, dz, inset):
         elif dn == 0 and s > 0:
             par = True
     return count[ob] > 0, lo, hi, par
+
+
+@inline
+def _deep_through(normal, offset, count, c, ex, ey, ez, px, py, pz, depth):
+    """The segment from ``e`` to ``p`` passes through convex solid ``c`` shrunk by ``depth``
+    (:func:`_span`) before reaching ``p``."""
+    dx, dy, dz = px - ex, py - ey, pz - ez
+    length = np.sqrt(dx * dx + dy * dy + dz * dz)
+    if not length > 0.0:
+        return False
+    _, lo, hi, par = _span(normal, offset, count, c, ex, ey, ez, dx / length, dy / length,
+                           dz / length, depth)  # fmt: skip
+    return not par and max(lo, 0.0) < min(hi, length)
+
+
+@kernel(
+    "b1[:, ::1](f8[:, ::1], f8[:, ::1], i8[:, ::1], i8[::1], i8[::1], i8[::1], i8[::1], "
+    "f8[:, :, ::1], f8[:, ::1], i8[::1], f8)"
+)
+def shadowed_groups(ends, points, hit, g_start, g_count, g_point, own, normal, offset, count,
+                    depth):  # fmt: skip
+    """Which groups of points (a facet's corners, an edge's ends) each end point sees only
+    through one convex solid, at least ``depth`` metres inside it on every segment.
+
+    For end ``e`` and group ``g`` (points ``g_point[g_start[g]:][:g_count[g]]`` of ``points``
+    (P, 3)), each first hit ``hit[e, p]`` (E, P) (-1: none) other than the group's own object
+    ``own[g]`` is a candidate solid; the group is in its shadow when the segment from the end
+    to every point of the group passes through the solid shrunk by ``depth`` (its planes
+    ``normal . x = offset`` moved inwards, :func:`_span`) before reaching the point. Planes as in
+    :func:`line_span` (``count[o] = 0``: not a convex solid, never a candidate). Each point's
+    segment is tested against its own first hit once per end, shared by the groups it is in.
+
+    Returns
+    -------
+    (E, G) bool
+    """
+    n_e, n_g, n_p = len(ends), len(g_start), len(points)
+    out = np.zeros((n_e, n_g), dtype=np.bool_)
+    deep = np.zeros(n_p, dtype=np.bool_)  # through its own first hit, for the current end
+    for e in range(n_e):
+        ex, ey, ez = ends[e, 0], ends[e, 1], ends[e, 2]
+        for p in range(n_p):
+            c = hit[e, p]
+            deep[p] = c >= 0 and count[c] > 0 and _deep_through(
+                normal, offset, count, c, ex, ey, ez, points[p, 0], points[p, 1], points[p, 2],
+                depth)  # fmt: skip
+        for g in range(n_g):
+            s0, n_in = g_start[g], g_count[g]
+            for i in range(n_in):
+                c = hit[e, g_point[s0 + i]]
+                if not deep[g_point[s0 + i]] or c == own[g]:
+                    continue
+                seen = False  # the same candidate from an earlier point of the group
+                for i2 in range(i):
+                    q = g_point[s0 + i2]
+                    if hit[e, q] == c and deep[q]:
+                        seen = True
+                if seen:
+                    continue
+                through = True
+                for i2 in range(n_in):
+                    q = g_point[s0 + i2]
+                    if hit[e, q] == c:
+                        ok = deep[q]
+                    else:
+                        ok = _deep_through(normal, offset, count, c, ex, ey, ez, points[q, 0],
+                                           points[q, 1], points[q, 2], depth)  # fmt: skip
+                    if not ok:
+                        through = False
+                        break
+                if through:
+                    out[e, g] = True
+                    break
+    return out
 
 
 @kernel(

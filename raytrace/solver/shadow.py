@@ -1,0 +1,127 @@
+"""Facets and edges that an end point sees only through an opaque convex solid.
+
+A path with a segment from an end point ``E`` (a transmitter or a receiver) to a point on facet
+``f`` (a reflection) or on edge ``w`` (a diffraction) is blocked when that segment passes through
+an opaque solid ``C`` (metal: :func:`~raytrace.solver.context.opaque_objects`). Before this
+module, each such candidate was built (the mixed stages' triples, their expansion over the other
+ends, the exact tests) and then dropped by the opaque test, one Embree ray per segment: on the 2 m
+grid over the hall, two thirds of the RD and DR candidates ended there.
+
+Here a whole facet or edge is ruled out per end point, before any candidate through it is made.
+The points ``p`` for which the segment ``E -> p`` passes through a convex set ``C'`` form a
+convex set: ``p = E + s (c - E)`` with ``c`` in ``C'`` and ``s >= 1`` is closed under convex
+combinations (``c`` becomes a weighted mean of the ``c_i``, in ``C'``). So when the segments from
+``E`` to every corner of a facet (its triangles' vertices) or to both ends of an edge pass
+through ``C'``, so do the segments to every point of the facet or edge. ``C'`` is ``C`` shrunk by
+:data:`SHADOW_DEPTH_M` (its planes moved inwards), so each such segment passes within the
+solid by at least that depth: a chord of at least twice :data:`~raytrace.solver.context.
+OPAQUE_CHORD_M` through an opaque solid, for points within micrometres of the facet or edge
+(the exact tests' tolerances) as well. Such a path is dropped either way, by the opaque test or
+by its power after the crossing analysis; these go before they are made.
+
+The candidate solid for a group is the first convex opaque solid that Embree reports on the rays
+from the end to the group's points (not the group's own object); the proof itself is the planes'
+(float64, :func:`raytrace.solver.kernels.shadowed_groups`). A facet or edge without a proof is
+kept: the rule only prunes, and which paths are found does not depend on it.
+"""
+
+from __future__ import annotations
+
+import threading
+
+import numpy as np
+
+from ..core.jit import carray
+from ..scene.model import Scene
+from . import kernels
+from .context import OPAQUE_CHORD_M, TraceContext
+from .penetration import convex_plane_arrays
+
+__all__ = ["SHADOW_DEPTH_M", "shadowed", "shadows_of"]
+
+#: Depth (m) inside an opaque solid on every segment from an end to a facet or edge in its
+#: shadow: the chord is then at least twice the one that makes the solid opaque.
+SHADOW_DEPTH_M = OPAQUE_CHORD_M
+
+
+def _groups(scene: Scene) -> tuple[np.ndarray, ...]:
+    """The scene's points (P, 3) and their groups: each facet's corners, then each edge's ends,
+    as ``g_start, g_count`` (G,) into ``g_point`` (flat indices into the points), and each
+    group's own object (G,). Cached on the scene."""
+    cached = scene.__dict__.get("_shadow_groups")
+    if cached is not None:
+        return cached
+    fc, w = scene.facets, scene.wedges
+    corners = [np.unique(fc.triangles[s : s + n].reshape(-1, 3), axis=0)
+               for s, n in zip(fc.tri_start, fc.tri_count)]  # fmt: skip
+    ends = [np.stack([w.start[i], w.end[i]]) for i in range(len(w))]
+    every = corners + ends
+    flat = np.concatenate(every) if every else np.zeros((0, 3))
+    points, g_point = np.unique(flat, axis=0, return_inverse=True)
+    count = np.array([len(x) for x in every], dtype=np.int64)
+    start = np.concatenate([[0], np.cumsum(count)[:-1]]).astype(np.int64)
+    own = np.concatenate([fc.object, w.object if len(w) else np.zeros(0)]).astype(np.int64)
+    cached = (carray(points), start, count, carray(g_point.reshape(-1), np.int64), own)
+    scene.__dict__["_shadow_groups"] = cached
+    return cached
+
+
+def shadowed(scene: Scene, opaque: np.ndarray, ends: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The facets and edges each end point sees only through an opaque convex solid.
+
+    Parameters
+    ----------
+    scene : Scene
+    opaque : (O,) bool, the objects that block
+    ends : (E, 3) float, metres
+
+    Returns
+    -------
+    facets : (E, K) bool, every segment from the end to the facet crosses an opaque solid
+    wedges : (E, W) bool, the same for the edges
+    """
+    n_k, n_w = len(scene.facets), len(scene.wedges)
+    ends = carray(ends).reshape(-1, 3)
+    normal, offset, count = convex_plane_arrays(scene)
+    solid = np.asarray(opaque, dtype=bool) & (count > 0)
+    if not solid.any() or len(ends) == 0:
+        return np.zeros((len(ends), n_k), dtype=bool), np.zeros((len(ends), n_w), dtype=bool)
+    points, start, n_p, g_point, own = _groups(scene)
+    d = points[None, :, :] - ends[:, None, :]  # (E, P, 3)
+    length = np.sqrt(np.einsum("epc,epc->ep", d, d))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        unit = d / length[..., None]
+    origin = np.broadcast_to(ends[:, None, :], d.shape).reshape(-1, 3)
+    hit = scene.first_hit_among(solid, origin, unit.reshape(-1, 3), length.reshape(-1))
+    out = kernels.shadowed_groups(ends, points, carray(hit.reshape(length.shape), np.int64),
+                                  start, n_p, g_point, own, normal, offset, count,
+                                  float(SHADOW_DEPTH_M))  # fmt: skip
+    return out[:, :n_k], out[:, n_k:]
+
+
+def shadows_of(ctx: TraceContext, ends: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`shadowed` for a trace's transmitters or receivers (``ends`` is ``ctx.tx`` or
+    ``ctx.rx``; other end sets are computed each time), with its opaque objects: computed once
+    per trace and end set; nothing in shadow with the pruning off (:data:`kernels.PRUNE`).
+
+    Returns
+    -------
+    facets : (E, K) bool, read-only
+    wedges : (E, W) bool, read-only
+    """
+    which = "tx" if ends is ctx.tx else "rx" if ends is ctx.rx else None
+    cache = ctx.__dict__.setdefault("_shadows", {})
+    lock = ctx.__dict__.setdefault("_shadows_lock", threading.Lock())
+    with lock:  # (the stages run on threads: one computes, the others wait for it)
+        found = cache.get(which) if which is not None else None
+        if found is None:
+            if kernels.PRUNE:
+                found = shadowed(ctx.scene, ctx.opaque, ends)
+            else:
+                found = (np.zeros((len(ends), len(ctx.scene.facets)), dtype=bool),
+                         np.zeros((len(ends), len(ctx.scene.wedges)), dtype=bool))  # fmt: skip
+            for x in found:
+                x.setflags(write=False)
+            if which is not None:
+                cache[which] = found
+    return found

@@ -1,0 +1,135 @@
+"""solver.shadow: facets and edges an end point sees only through an opaque convex solid."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from conftest import box, make_scene
+
+from raytrace import TraceConfig, trace
+from raytrace.solver.context import opaque_objects
+from raytrace.solver.shadow import SHADOW_DEPTH_M, shadowed
+
+F_C = 3.775e9
+#: The box that casts the shadow, and the walls behind it.
+BOX = ((2.0, 3.0, 0.0), (3.0, 7.0, 3.0))
+
+
+def _scene(box_material: str = "metal"):
+    """A floor, a box (``box_material``) at x 2..3, y 3..7, z 0..3, and behind it (seen from x < 2)
+    a small wall ``hidden`` (y 4.5..5.5, z 1..2) and a wide wall ``wide`` (y -10..20)."""
+    return make_scene(
+        [
+            ("floor", box((-2.0, -2.0, -0.3), (12.0, 12.0, 0.0)), "concrete"),
+            ("box", box(*BOX), box_material),
+            ("hidden", box((6.0, 4.5, 1.0), (6.2, 5.5, 2.0)), "concrete"),
+            ("wide", box((9.0, -10.0, 0.0), (9.2, 20.0, 6.0)), "concrete"),
+        ]
+    )
+
+
+def _facet(sc, name: str, normal) -> int:
+    """The facet of object ``name`` with outward normal ``normal``."""
+    o = [ob.name for ob in sc.objects].index(name)
+    k = np.flatnonzero((sc.facets.object == o) & (sc.facets.normal @ np.asarray(normal, float) > 0.99))
+    assert len(k) == 1
+    return int(k[0])
+
+
+def _edges_of(sc, name: str) -> np.ndarray:
+    o = [ob.name for ob in sc.objects].index(name)
+    return np.flatnonzero(sc.wedges.object == o)
+
+
+def test_a_metal_box_hides_the_wall_behind_it_and_only_that():
+    sc = _scene()
+    ends = np.array([[0.0, 5.0, 1.5],  # hidden wall fully behind the box
+                     [0.0, 0.5, 1.5],  # seen past the box's side
+                     [0.0, 5.0, 5.5]])  # seen over the box's top  # fmt: skip
+    facets, wedges = shadowed(sc, opaque_objects(sc, F_C), ends)
+    front = _facet(sc, "hidden", (-1, 0, 0))
+    assert facets[:, front].tolist() == [True, False, False]
+    # every edge of the hidden wall is behind the box from the first end (the far face's too)
+    assert wedges[0, _edges_of(sc, "hidden")].all()
+    assert not wedges[1:, _edges_of(sc, "hidden")].any()
+    # the wide wall is only partly hidden; the box's own faces and edges never are
+    assert not facets[:, _facet(sc, "wide", (-1, 0, 0))].any()
+    own = sc.facets.object == [ob.name for ob in sc.objects].index("box")
+    assert not facets[:, own].any() and not wedges[:, _edges_of(sc, "box")].any()
+
+
+def test_only_opaque_solids_cast_shadows():
+    sc = _scene("concrete")
+    facets, wedges = shadowed(sc, opaque_objects(sc, F_C), np.array([[0.0, 5.0, 1.5]]))
+    assert not facets.any() and not wedges.any()
+    facets, _ = shadowed(sc, np.zeros(len(sc.objects), bool), np.array([[0.0, 5.0, 1.5]]))
+    assert not facets.any()
+
+
+@pytest.mark.parametrize("inside_mm, hidden", [(0.5, False), (2.0, True)])
+def test_a_corner_must_be_behind_the_solid_by_the_depth(inside_mm, hidden):
+    """An end level with the hidden wall's top (z 2) and the box's top lowered to just above the
+    line to it: the wall is in shadow only when that line runs at least SHADOW_DEPTH_M (1 mm)
+    inside the box."""
+    assert SHADOW_DEPTH_M == pytest.approx(1e-3)
+    top = 2.0 + inside_mm * 1e-3
+    sc = make_scene([("box", box((2.0, 3.0, 0.0), (3.0, 7.0, top)), "metal"),
+                     ("hidden", box((6.0, 4.5, 1.0), (6.2, 5.5, 2.0)), "concrete")])  # fmt: skip
+    facets, _ = shadowed(sc, opaque_objects(sc, F_C), np.array([[0.0, 5.0, 2.0]]))
+    assert facets[0, _facet(sc, "hidden", (-1, 0, 0))] == hidden
+
+
+def test_every_point_of_a_shadowed_facet_is_behind_the_box_by_the_depth():
+    """Random ends; for each facet or edge in shadow, random points on it (and 1 um off it): the
+    segment from the end passes through the box shrunk by the depth (slab method, closed form)."""
+    sc = _scene()
+    rng = np.random.default_rng(3)
+    ends = np.column_stack([rng.uniform(-1.5, 1.8, 40), rng.uniform(0, 10, 40),
+                            rng.uniform(0.2, 3.5, 40)])  # fmt: skip
+    facets, wedges = shadowed(sc, opaque_objects(sc, F_C), ends)
+    assert facets.sum() > 20 and wedges.sum() > 20
+    lo, hi = np.array(BOX[0]) + SHADOW_DEPTH_M, np.array(BOX[1]) - SHADOW_DEPTH_M
+    fc, w = sc.facets, sc.wedges
+    for e, k in zip(*np.nonzero(facets)):
+        tri = fc.triangles[fc.tri_start[k] + rng.integers(0, fc.tri_count[k], 50)]
+        bary = rng.dirichlet(np.ones(3), 50)
+        p = np.einsum("nc,ncd->nd", bary, tri) + rng.normal(size=(50, 3)) * 1e-6
+        _assert_through(ends[e], p, lo, hi)
+    for e, j in zip(*np.nonzero(wedges)):
+        t = rng.uniform(-1e-6, 1 + 1e-6, 50)[:, None]
+        _assert_through(ends[e], w.start[j] + t * (w.end[j] - w.start[j]), lo, hi)
+
+
+def _assert_through(end, p, lo, hi):
+    """Each segment end -> p meets the box [lo, hi] (slab method)."""
+    d = p - end
+    with np.errstate(divide="ignore"):
+        t1, t2 = (lo - end) / d, (hi - end) / d
+    t_in = np.max(np.minimum(t1, t2), axis=1)
+    t_out = np.min(np.maximum(t1, t2), axis=1)
+    assert np.all(np.maximum(t_in, 0) < np.minimum(t_out, 1)), (end, p[t_in >= t_out])
+
+
+@pytest.mark.parametrize("seed", [5, 11])
+def test_shadows_lose_no_path(monkeypatch, seed):
+    """Tracing with the shadows' pruning and without it gives the same paths, on boxes of mixed
+    materials (metal among them), while the pruning removes candidates."""
+    from test_diffraction_paths import _cluttered_scene, _same_paths
+
+    sc, tx, rx = _cluttered_scene(seed)
+    cfg = TraceConfig(max_reflections=2, max_penetrations=2, max_diffractions=1, max_interactions=3)
+    with_shadows = trace(sc, tx, rx, F_C, cfg, threads=1, stats=(on := {}))
+
+    def nothing(ctx, ends):
+        return (np.zeros((len(ends), len(ctx.scene.facets)), bool),
+                np.zeros((len(ends), len(ctx.scene.wedges)), bool))  # fmt: skip
+
+    import raytrace.solver.diffraction as diffraction
+    import raytrace.solver.specular as specular
+
+    monkeypatch.setattr(diffraction, "_shadows", nothing)
+    monkeypatch.setattr(specular, "shadows_of", nothing)
+    without = trace(sc, tx, rx, F_C, cfg, threads=1, stats=(off := {}))
+    _same_paths(with_shadows, without)
+    for kind in ("candidates_rd", "candidates_dr", "candidates_r1"):
+        assert on[kind] < off[kind], kind
