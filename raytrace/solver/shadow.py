@@ -102,7 +102,10 @@ def shadowed(scene: Scene, opaque: np.ndarray, ends: np.ndarray) -> tuple[np.nda
 def shadows_of(ctx: TraceContext, ends: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """:func:`shadowed` for a trace's transmitters or receivers (``ends`` is ``ctx.tx`` or
     ``ctx.rx``; other end sets are computed each time), with its opaque objects: computed once
-    per trace and end set; nothing in shadow with the pruning off (:data:`kernels.PRUNE`).
+    per trace and end set. Nothing is in shadow with the pruning off (:data:`kernels.PRUNE`),
+    nor in a trace restricted to some objects (``involving``: a snapshot's moving objects, whose
+    few candidates cost less than the shadows' rays; 0.040 -> 0.074 s per snapshot of the hall
+    with them).
 
     Returns
     -------
@@ -115,7 +118,7 @@ def shadows_of(ctx: TraceContext, ends: np.ndarray) -> tuple[np.ndarray, np.ndar
     with lock:  # (the stages run on threads: one computes, the others wait for it)
         found = cache.get(which) if which is not None else None
         if found is None:
-            if kernels.PRUNE:
+            if kernels.PRUNE and ctx.facet_mask is None:
                 found = shadowed(ctx.scene, ctx.opaque, ends)
             else:
                 found = (np.zeros((len(ends), len(ctx.scene.facets)), dtype=bool),
