@@ -133,3 +133,27 @@ def test_shadows_lose_no_path(monkeypatch, seed):
     _same_paths(with_shadows, without)
     for kind in ("candidates_rd", "candidates_dr", "candidates_r1"):
         assert on[kind] < off[kind], kind
+
+
+def test_the_transmitters_shadows_are_kept_per_position_and_opaque_set(monkeypatch):
+    """A grid is traced in chunks against the same transmitters: their shadows are computed once
+    per scene, position and opaque set; the receivers' every trace."""
+    import raytrace.solver.shadow as shadow_mod
+
+    sc = _scene()
+    calls = []
+    real = shadow_mod.shadowed
+    monkeypatch.setattr(shadow_mod, "shadowed", lambda s, o, e: calls.append(len(e)) or real(s, o, e))
+    tx = np.array([[0.0, 5.0, 1.5], [0.0, 0.5, 1.5]])
+    rx = np.array([[7.0, 5.0, 1.5], [8.0, 2.0, 1.0]])
+    cfg = TraceConfig()
+    first = trace(sc, tx, rx, F_C, cfg, threads=1)
+    assert sorted(calls) == [2, 2]  # transmitters and receivers
+    calls.clear()
+    again = trace(sc, tx, rx[::-1], F_C, cfg, threads=1)
+    assert calls == [2]  # the receivers only
+    assert again.n_paths == first.n_paths
+    calls.clear()
+    none = np.zeros(len(sc.objects), dtype=bool)
+    trace(sc, tx, rx, F_C, cfg, threads=1, opaque=none)
+    assert sorted(calls) == [2, 2]  # another opaque set: computed anew

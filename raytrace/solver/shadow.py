@@ -32,12 +32,13 @@ import threading
 import numpy as np
 
 from ..core.jit import carray
+from ..core.kept import keep
 from ..scene.model import Scene
 from . import kernels
 from .context import OPAQUE_CHORD_M, TraceContext
 from .penetration import convex_plane_arrays
 
-__all__ = ["SHADOW_DEPTH_M", "shadowed", "shadows_of"]
+__all__ = ["SHADOW_DEPTH_M", "SHADOWS_KEPT", "shadowed", "shadows_of"]
 
 #: Depth (m) inside an opaque solid on every segment from an end to a facet or edge in its
 #: shadow: the chord is then at least twice the one that makes the solid opaque.
@@ -99,6 +100,24 @@ def shadowed(scene: Scene, opaque: np.ndarray, ends: np.ndarray) -> tuple[np.nda
     return out[:, :n_k], out[:, n_k:]
 
 
+#: Transmitter sets whose shadows are kept per scene: a grid is traced in chunks of receivers
+#: against the same few transmitters.
+SHADOWS_KEPT = 16
+
+
+def _kept_or_new(ctx: TraceContext, ends: np.ndarray, which: str) -> tuple[np.ndarray, ...]:
+    """:func:`shadowed` of the ends; the transmitters' kept on the scene (per position and
+    opaque objects) for the next trace with the same ones."""
+    if which != "tx":
+        return shadowed(ctx.scene, ctx.opaque, ends)
+    kept = ctx.scene.__dict__.setdefault("_kept_shadows", {})
+    key = (carray(ends).tobytes(), np.asarray(ctx.opaque, dtype=bool).tobytes())
+    found = kept.get(key)
+    if found is None:
+        found = keep(kept, key, shadowed(ctx.scene, ctx.opaque, ends), SHADOWS_KEPT)
+    return found
+
+
 def shadows_of(ctx: TraceContext, ends: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """:func:`shadowed` for a trace's transmitters or receivers (``ends`` is ``ctx.tx`` or
     ``ctx.rx``; other end sets are computed each time), with its opaque objects: computed once
@@ -119,7 +138,7 @@ def shadows_of(ctx: TraceContext, ends: np.ndarray) -> tuple[np.ndarray, np.ndar
         found = cache.get(which) if which is not None else None
         if found is None:
             if kernels.PRUNE and ctx.facet_mask is None:
-                found = shadowed(ctx.scene, ctx.opaque, ends)
+                found = _kept_or_new(ctx, ends, which)
             else:
                 found = (np.zeros((len(ends), len(ctx.scene.facets)), dtype=bool),
                          np.zeros((len(ends), len(ctx.scene.wedges)), dtype=bool))  # fmt: skip
