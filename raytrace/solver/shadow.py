@@ -16,8 +16,13 @@ through ``C'``, so do the segments to every point of the facet or edge. ``C'`` i
 :data:`SHADOW_DEPTH_M` (its planes moved inwards), so each such segment passes within the
 solid by at least that depth: a chord of at least twice :data:`~raytrace.solver.context.
 OPAQUE_CHORD_M` through an opaque solid, for points within micrometres of the facet or edge
-(the exact tests' tolerances) as well. Such a path is dropped either way, by the opaque test or
-by its power after the crossing analysis; these go before they are made.
+(the exact tests' tolerances) as well. Such a path is dropped either way: by the opaque test,
+or, where that test leaves a segment to the crossing analysis (its first opaque hit is the
+object under one of its ends, or one it only touches), by its power after it: through the
+default opaque objects (metals, skin depth ~1 um) such a chord costs far more than the dynamic
+range. These go before they are made. (With objects declared opaque by the caller that are not
+(``opaque=``), a path through 2 mm of one that the opaque test let pass used to be kept; it is
+now dropped, as the declaration asks.)
 
 The candidate solid for a group is the first convex opaque solid that Embree reports on the rays
 from the end to the group's points (not the group's own object); the proof itself is the planes'
