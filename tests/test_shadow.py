@@ -157,3 +157,16 @@ def test_the_transmitters_shadows_are_kept_per_position_and_opaque_set(monkeypat
     none = np.zeros(len(sc.objects), dtype=bool)
     trace(sc, tx, rx, F_C, cfg, threads=1, opaque=none)
     assert sorted(calls) == [2, 2]  # another opaque set: computed anew
+
+
+def test_ends_in_blocks_give_the_same_shadows(monkeypatch):
+    import raytrace.solver.shadow as shadow_mod
+
+    sc = _scene()
+    rng = np.random.default_rng(8)
+    ends = np.column_stack([rng.uniform(-1.5, 1.8, 30), rng.uniform(0, 10, 30),
+                            rng.uniform(0.2, 3.5, 30)])  # fmt: skip
+    whole = shadowed(sc, opaque_objects(sc, F_C), ends)
+    monkeypatch.setattr(shadow_mod, "ENDS_PER_QUERY", 4)
+    blocks = shadowed(sc, opaque_objects(sc, F_C), ends)
+    assert whole[0].any() and all(np.array_equal(a, b) for a, b in zip(whole, blocks))

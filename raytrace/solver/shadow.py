@@ -48,6 +48,8 @@ __all__ = ["SHADOW_DEPTH_M", "SHADOWS_KEPT", "shadowed", "shadows_of"]
 #: Depth (m) inside an opaque solid on every segment from an end to a facet or edge in its
 #: shadow: the chord is then at least twice the one that makes the solid opaque.
 SHADOW_DEPTH_M = OPAQUE_CHORD_M
+#: End points per Embree query (its arrays hold this many times the scene's corner points).
+ENDS_PER_QUERY = 256
 
 
 def _groups(scene: Scene) -> tuple[np.ndarray, ...]:
@@ -65,7 +67,7 @@ def _groups(scene: Scene) -> tuple[np.ndarray, ...]:
     flat = np.concatenate(every) if every else np.zeros((0, 3))
     points, g_point = np.unique(flat, axis=0, return_inverse=True)
     count = np.array([len(x) for x in every], dtype=np.int64)
-    start = np.concatenate([[0], np.cumsum(count)[:-1]]).astype(np.int64)
+    start = (np.cumsum(count) - count).astype(np.int64)
     own = np.concatenate([fc.object, w.object if len(w) else np.zeros(0)]).astype(np.int64)
     cached = (carray(points), start, count, carray(g_point.reshape(-1), np.int64), own)
     scene.__dict__["_shadow_groups"] = cached
@@ -93,15 +95,18 @@ def shadowed(scene: Scene, opaque: np.ndarray, ends: np.ndarray) -> tuple[np.nda
     if not solid.any() or len(ends) == 0:
         return np.zeros((len(ends), n_k), dtype=bool), np.zeros((len(ends), n_w), dtype=bool)
     points, start, n_p, g_point, own = _groups(scene)
-    d = points[None, :, :] - ends[:, None, :]  # (E, P, 3)
-    length = np.sqrt(np.einsum("epc,epc->ep", d, d))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        unit = d / length[..., None]
-    origin = np.broadcast_to(ends[:, None, :], d.shape).reshape(-1, 3)
-    hit = scene.first_hit_among(solid, origin, unit.reshape(-1, 3), length.reshape(-1))
-    out = kernels.shadowed_groups(ends, points, carray(hit.reshape(length.shape), np.int64),
-                                  start, n_p, g_point, own, normal, offset, count,
-                                  float(SHADOW_DEPTH_M))  # fmt: skip
+    out = np.zeros((len(ends), len(start)), dtype=bool)
+    for e0 in range(0, len(ends), ENDS_PER_QUERY):  # (E, P, 3) arrays of bounded size
+        block = ends[e0 : e0 + ENDS_PER_QUERY]
+        d = points[None, :, :] - block[:, None, :]  # (e, P, 3)
+        length = np.sqrt(np.einsum("epc,epc->ep", d, d))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            unit = d / length[..., None]
+        origin = np.broadcast_to(block[:, None, :], d.shape).reshape(-1, 3)
+        hit = scene.first_hit_among(solid, origin, unit.reshape(-1, 3), length.reshape(-1))
+        out[e0 : e0 + len(block)] = kernels.shadowed_groups(
+            carray(block), points, carray(hit.reshape(length.shape), np.int64), start, n_p,
+            g_point, own, normal, offset, count, float(SHADOW_DEPTH_M))  # fmt: skip
     return out[:, :n_k], out[:, n_k:]
 
 
