@@ -201,7 +201,7 @@ def facet_wedge_pairs(f_ok, sgn, h_f, img_c, axis_c, cos_a, sin_a, apex_in,
                 continue
             h = h_f[j]
             # room for every wedge of the group, made here and not per triple: the check and
-            # call in the inner loop cost 11 % of this kernel's time on the hall
+            # call in the inner loop cost 11 % of this kernel's time on the 2 m grid
             if m + g_count[g] > len(out_e):
                 out_e, out_f, out_w, out_img, out_lo, out_hi = _grown_pairs(
                     out_e, out_f, out_w, out_img, out_lo, out_hi, m + g_count[g])  # fmt: skip
