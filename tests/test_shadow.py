@@ -170,3 +170,31 @@ def test_ends_in_blocks_give_the_same_shadows(monkeypatch):
     monkeypatch.setattr(shadow_mod, "ENDS_PER_QUERY", 4)
     blocks = shadowed(sc, opaque_objects(sc, F_C), ends)
     assert whole[0].any() and all(np.array_equal(a, b) for a, b in zip(whole, blocks))
+
+
+def test_shadows_lose_no_path_in_a_dense_metal_factory(monkeypatch):
+    """A synthetic 3GPP InF-DH hall with metal clutter (many shadows): the same paths with the
+    shadows' pruning and without it, and far fewer mixed candidates with it."""
+    from test_diffraction_paths import _same_paths
+
+    import raytrace.solver.diffraction as diffraction
+    import raytrace.solver.specular as specular
+    from raytrace.halls.inf import generate_hall, scene_from_spec, split_spec
+    from raytrace.scene.metadata import SceneMetadata
+
+    spec, _ = split_spec(generate_hall("InF-DH", size=(40, 30, 8), seed=3, los_notes=False,
+                                       materials={"metal": 0.7, "concrete": 0.3}))  # fmt: skip
+    sc = scene_from_spec(spec)
+    inp = SceneMetadata.from_scene(sc, require=True)
+    tx, rx = inp.bs_xyz, inp.point_xyz[:12]
+    with_shadows = trace(sc, tx, rx, F_C, TraceConfig(), threads=1, stats=(on := {}))
+
+    def nothing(ctx, ends):
+        return (np.zeros((len(ends), len(ctx.scene.facets)), bool),
+                np.zeros((len(ends), len(ctx.scene.wedges)), bool))  # fmt: skip
+
+    monkeypatch.setattr(diffraction, "_shadows", nothing)
+    monkeypatch.setattr(specular, "shadows_of", nothing)
+    without = trace(sc, tx, rx, F_C, TraceConfig(), threads=1, stats=(off := {}))
+    _same_paths(with_shadows, without)
+    assert on["candidates_rd"] < 0.5 * off["candidates_rd"]
