@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from conftest import box, make_scene
+from conftest import box as box_mesh
 
 from raytrace import TraceConfig, trace
 from raytrace.solver.context import opaque_objects
@@ -110,6 +111,10 @@ def _assert_through(end, p, lo, hi):
     assert np.all(np.maximum(t_in, 0) < np.minimum(t_out, 1)), (end, p[t_in >= t_out])
 
 
+def _no_triple(scene, opaque, end, f_idx, *args):
+    return np.zeros(len(f_idx), dtype=bool)
+
+
 @pytest.mark.parametrize("seed", [5, 11])
 def test_shadows_lose_no_path(monkeypatch, seed):
     """Tracing with the shadows' pruning and without it gives the same paths, on boxes of mixed
@@ -129,6 +134,8 @@ def test_shadows_lose_no_path(monkeypatch, seed):
 
     monkeypatch.setattr(diffraction, "_shadows", nothing)
     monkeypatch.setattr(specular, "shadows_of", nothing)
+    monkeypatch.setattr(diffraction, "triples_in_shadow", _no_triple)
+    sc.wedges.cache.clear()  # the transmitters' kept triples
     without = trace(sc, tx, rx, F_C, cfg, threads=1, stats=(off := {}))
     _same_paths(with_shadows, without)
     for kind in ("candidates_rd", "candidates_dr", "candidates_r1"):
@@ -195,6 +202,72 @@ def test_shadows_lose_no_path_in_a_dense_metal_factory(monkeypatch):
 
     monkeypatch.setattr(diffraction, "_shadows", nothing)
     monkeypatch.setattr(specular, "shadows_of", nothing)
+    monkeypatch.setattr(diffraction, "triples_in_shadow", _no_triple)
+    sc.wedges.cache.clear()
     without = trace(sc, tx, rx, F_C, TraceConfig(), threads=1, stats=(off := {}))
     _same_paths(with_shadows, without)
     assert on["candidates_rd"] < 0.5 * off["candidates_rd"]
+
+
+def _rd_scene(box, material="metal"):
+    """A wall (facet at x = 10 facing -x), a pillar whose vertical edge stands at (5, 5) and a box
+    ``(lo, hi)`` of ``material`` between them."""
+    return make_scene([
+        ("floor", box_mesh((-1.0, -1.0, -0.3), (12.0, 12.0, 0.0)), "concrete"),
+        ("wall", box_mesh((10.0, 0.0, 0.0), (10.2, 10.0, 5.0)), "concrete"),
+        ("pillar", box_mesh((4.6, 4.6, 0.0), (5.0, 5.0, 5.0)), "concrete"),
+        ("box", box_mesh(*box), material),
+    ])  # fmt: skip
+
+
+def _rd_triple(sc, tx):
+    """The triple (wall facet, the pillar's edge at (5, 5)) of transmitter ``tx``: facet, edge,
+    the image, and the whole edge as the span."""
+    f = _facet(sc, "wall", (-1, 0, 0))
+    w = sc.wedges
+    mid = 0.5 * (w.start + w.end)
+    j = int(np.flatnonzero((np.abs(mid[:, 0] - 5) < 1e-9) & (np.abs(mid[:, 1] - 5) < 1e-9)
+                           & (np.abs(w.direction[:, 2]) > 0.99))[0])  # fmt: skip
+    img = tx - 2 * (tx @ sc.facets.normal[f] - sc.facets.offset[f]) * sc.facets.normal[f]
+    length = np.linalg.norm(w.end[j] - w.start[j])
+    return np.array([f]), np.array([j]), img[None, :], np.array([0.0]), np.array([length])
+
+
+@pytest.mark.parametrize("box, material, blocked", [
+    (((7.0, 5.3, -0.2), (8.0, 6.2, 6.0)), "metal", True),      # every reflection -> edge leg
+    (((7.0, 5.3, -0.2), (8.0, 6.2, 6.0)), "concrete", False),  # not opaque
+    (((7.0, 5.3, -0.2), (8.0, 6.2, 2.0)), "metal", False),     # the upper legs pass over it
+    (((5.5, 7.6, -0.2), (6.5, 8.8, 6.0)), "metal", True),      # every transmitter -> wall leg
+    (((12.0, 6.5, -0.2), (14.0, 8.5, 6.0)), "metal", False),   # behind the wall: only images
+])  # fmt: skip
+def test_a_triple_is_blocked_only_when_every_path_of_it_is(box, material, blocked):
+    """Transmitter (2, 9, 2): its image in the wall is (18, 9, 2); a diffraction point (5, 5, z)
+    on the edge has its reflection point at (10, 6.54, 2 + 8 (z - 2) / 13). A metal box across
+    every reflection-to-edge leg (y 5.6-5.9 at x 7-8) blocks the triple; concrete, or a box too
+    low for the legs to the top of the edge, does not; one across every transmitter-to-wall leg
+    does too; one behind the wall, across the lines from the image only, does not. Sampled
+    candidates of a blocked triple cross the box shrunk by the depth on one of the two legs
+    (slab method)."""
+    from raytrace.solver.shadow import triples_in_shadow
+
+    sc = _rd_scene(box, material)
+    tx = np.array([2.0, 9.0, 2.0])
+    f, j, img, lo, hi = _rd_triple(sc, tx)
+    got = triples_in_shadow(sc, opaque_objects(sc, F_C), tx, f, j, img, lo, hi)
+    assert got.tolist() == [blocked]
+    if blocked:
+        w = sc.wedges
+        rng = np.random.default_rng(1)
+        d = w.start[j] + rng.uniform(0, 1, (200, 1)) * (w.end[j] - w.start[j])
+        u = (img[0, 0] - 10.0) / (img[0, 0] - d[:, 0])
+        r = img + u[:, None] * (d - img)
+        b_lo, b_hi = np.array(box[0]) + SHADOW_DEPTH_M, np.array(box[1]) - SHADOW_DEPTH_M
+        for rr, dd in zip(r, d):
+            assert _meets(tx, rr, b_lo, b_hi) or _meets(rr, dd, b_lo, b_hi)
+
+
+def _meets(a, b, lo, hi) -> bool:
+    d = b - a
+    with np.errstate(divide="ignore"):
+        t1, t2 = (lo - a) / d, (hi - a) / d
+    return bool(max(np.max(np.minimum(t1, t2)), 0) < min(np.min(np.maximum(t1, t2)), 1))

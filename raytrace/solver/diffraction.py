@@ -41,6 +41,7 @@ from .context import TraceContext
 from .evaluate import Candidates, DiffractionModel, DiffractionOperator, candidates, evaluate
 from .paths import DIFFRACTION, REFLECTION, Paths
 from .shadow import shadows_of as _shadows
+from .shadow import triples_in_shadow
 
 #: Work is split into chunks of about this many candidates.
 CHUNK = 300_000
@@ -287,12 +288,19 @@ def _facet_wedge_pairs(
             else (ctx.facet_mask.tobytes(), ctx.wedge_mask.tobytes()))  # fmt: skip
     outs = []
     for e in range(len(ends)):
-        key = (ends[e].tobytes(), side[e].tobytes(), mask, kernels.PRUNE, float(ctx.scene.margin))
+        key = (ends[e].tobytes(), side[e].tobytes(), mask, kernels.PRUNE, float(ctx.scene.margin),
+               ctx.opaque.tobytes())
         found = kept.get(key)
         if found is None:
             *arrays, m = _end_pairs(fc, geo, fixed, ends[e], side[e], 0,
                                     _pair_buffers(PAIRS_PER_END))  # fmt: skip
-            found = tuple(x[:m].copy() for x in arrays[1:])
+            found = tuple(x[:m] for x in arrays[1:])
+            if kernels.PRUNE and ctx.facet_mask is None:
+                # triples whose every path is blocked by an opaque solid (shadow.py)
+                keep = ~triples_in_shadow(ctx.scene, ctx.opaque, ends[e], *found[:2],
+                                          *found[2:])  # fmt: skip
+                found = tuple(x[keep] for x in found)
+            found = tuple(x.copy() for x in found)
             for x in found:
                 x.setflags(write=False)
             keep_bounded(kept, key, found, END_PAIRS_KEPT)

@@ -55,7 +55,7 @@ from ..scene.accel import FACET_TEST_SIG, facet_box_test, in_triangles
 
 __all__ = ["PRUNE", "surely_inside", "facet_wedge_pairs", "expand_over_others",
            "reflection_edge_points", "along_and_off_rows", "second_order_candidates", "line_span",
-           "shadowed_groups", "edge_distance",
+           "shadowed_groups", "shadowed_triples", "edge_distance",
            "opaque_blocks", "touch_rows", "entry_points", "end_probes",
            "walk_record", "unseen_entries", "walk_rays", "walk_hits", "segment_rays",
            "path_gains", "interaction_sequences", "mixed_candidates"]
@@ -706,6 +706,55 @@ def shadowed_groups(ends, points, hit, g_start, g_count, g_point, own, normal, o
                 if through:
                     out[e, g] = True
                     break
+    return out
+
+
+@kernel(
+    "b1[::1](f8[::1], f8[:, ::1], f8[:, ::1], f8[:, ::1], f8[:, ::1], i8[::1], i8[::1], "
+    "i8[:, ::1], f8[:, :, ::1], f8[:, ::1], i8[::1], f8)"
+)
+def shadowed_triples(end, d_lo, d_hi, r_lo, r_hi, own_f, own_w, hit, normal, offset, count,
+                     depth):  # fmt: skip
+    """Which (end, facet, edge) triples of one end point have every candidate blocked.
+
+    A triple's diffraction point lies on the part ``d_lo -> d_hi`` (M, 3) of its edge, and its
+    reflection point on ``r_lo -> r_hi``, that part's projection from the end's image onto the
+    facet's plane. The triple is blocked when, for a convex solid ``c`` among its first hits
+    ``hit`` (M, 4) other than the facet's and the edge's objects (``own_f``, ``own_w``), the
+    segments from the end to ``r_lo`` and to ``r_hi`` pass ``depth`` into it (then so does every
+    segment from the end to a reflection point: :func:`shadowed_groups`' convexity), or the legs
+    ``r_lo -> d_lo`` and ``r_hi -> d_hi`` do. For the second: a diffraction point ``D`` between the
+    two is ``I + s (c - I)``, ``s >= 1``, with ``I`` the image and ``c`` a weighted mean of the two
+    legs' points in the shrunk solid, which lie in front of the facet's plane; so ``c`` is in the
+    shrunk solid, in front of the plane and between ``I`` and ``D``: on the leg from the reflection
+    point to ``D``. Planes as in :func:`line_span`.
+
+    Returns
+    -------
+    (M,) bool
+    """
+    m = len(own_f)
+    out = np.zeros(m, dtype=np.bool_)
+    ex, ey, ez = end[0], end[1], end[2]
+    for i in range(m):
+        of, ow = own_f[i], own_w[i]
+        for k in range(4):
+            c = hit[i, k]
+            if c < 0 or c == of or c == ow or count[c] == 0:
+                continue
+            if k < 2:  # the end's segment to the reflection point
+                ok = _deep_through(normal, offset, count, c, ex, ey, ez, r_lo[i, 0], r_lo[i, 1],
+                                   r_lo[i, 2], depth) and _deep_through(
+                    normal, offset, count, c, ex, ey, ez, r_hi[i, 0], r_hi[i, 1], r_hi[i, 2],
+                    depth)  # fmt: skip
+            else:  # the leg from the reflection point to the edge
+                ok = _deep_through(normal, offset, count, c, r_lo[i, 0], r_lo[i, 1], r_lo[i, 2],
+                                   d_lo[i, 0], d_lo[i, 1], d_lo[i, 2], depth) and _deep_through(
+                    normal, offset, count, c, r_hi[i, 0], r_hi[i, 1], r_hi[i, 2], d_hi[i, 0],
+                    d_hi[i, 1], d_hi[i, 2], depth)  # fmt: skip
+            if ok:
+                out[i] = True
+                break
     return out
 
 

@@ -43,7 +43,7 @@ from . import kernels
 from .context import OPAQUE_CHORD_M, TraceContext
 from .penetration import convex_plane_arrays
 
-__all__ = ["SHADOW_DEPTH_M", "SHADOWS_KEPT", "shadowed", "shadows_of"]
+__all__ = ["SHADOW_DEPTH_M", "SHADOWS_KEPT", "shadowed", "shadows_of", "triples_in_shadow"]
 
 #: Depth (m) inside an opaque solid on every segment from an end to a facet or edge in its
 #: shadow: the chord is then at least twice the one that makes the solid opaque.
@@ -157,3 +157,59 @@ def shadows_of(ctx: TraceContext, ends: np.ndarray) -> tuple[np.ndarray, np.ndar
             if which is not None:
                 cache[which] = found
     return found
+
+
+#: Ray origins for the triples' candidate solids are moved this far along the ray (m), off the
+#: facet a reflection point lies on (the proof itself is the planes').
+_RAY_START_M = 1e-4
+
+
+def triples_in_shadow(scene: Scene, opaque: np.ndarray, end: np.ndarray, f_idx: np.ndarray,
+                      w_idx: np.ndarray, img: np.ndarray, t_lo: np.ndarray,
+                      t_hi: np.ndarray) -> np.ndarray:  # fmt: skip
+    """Which (end, facet, edge) triples of one end point have every candidate blocked by an
+    opaque convex solid: on the segment from the end to the reflection point, or on the one from
+    the reflection point to the edge (:func:`raytrace.solver.kernels.shadowed_triples`). Four
+    Embree rays per triple find the candidate solids; the tracer asks only for the transmitters'
+    triples, which a scene keeps for its next trace.
+
+    Parameters
+    ----------
+    end : (3,) float, metres
+    f_idx, w_idx : (M,) int, facets and edges
+    img : (M, 3) float, the end's image in each facet, metres
+    t_lo, t_hi : (M,) float, the part of each edge a diffraction point lies in, metres from its
+        start (:func:`raytrace.solver.kernels.facet_wedge_pairs`)
+
+    Returns
+    -------
+    (M,) bool
+    """
+    m = len(f_idx)
+    normal, offset, count = convex_plane_arrays(scene)
+    solid = np.asarray(opaque, dtype=bool) & (count > 0)
+    if m == 0 or not solid.any():
+        return np.zeros(m, dtype=bool)
+    fc, w = scene.facets, scene.wedges
+    length = np.sqrt(np.einsum("wc,wc->w", w.end - w.start, w.end - w.start))[w_idx]
+    unit = (w.end - w.start)[w_idx] / np.where(length > 0, length, 1.0)[:, None]
+    d_lo = w.start[w_idx] + np.clip(t_lo, 0.0, length)[:, None] * unit
+    d_hi = w.start[w_idx] + np.clip(t_hi, 0.0, length)[:, None] * unit
+    n, off = fc.normal[f_idx], fc.offset[f_idx]
+    s_i = np.einsum("mc,mc->m", img, n) - off
+    with np.errstate(invalid="ignore", divide="ignore"):
+        r_lo = img + (s_i / (s_i - (np.einsum("mc,mc->m", d_lo, n) - off)))[:, None] * (d_lo - img)
+        r_hi = img + (s_i / (s_i - (np.einsum("mc,mc->m", d_hi, n) - off)))[:, None] * (d_hi - img)
+    a = np.concatenate([np.broadcast_to(end, (m, 3)), np.broadcast_to(end, (m, 3)), r_lo, r_hi])
+    b = np.concatenate([r_lo, r_hi, d_lo, d_hi])
+    d = b - a
+    dist = np.sqrt(np.einsum("nc,nc->n", d, d))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        u = d / dist[:, None]
+    reach = np.where(np.isfinite(dist), dist - _RAY_START_M, 0.0)
+    hit = scene.first_hit_among(solid, a + _RAY_START_M * u, u, reach)
+    return kernels.shadowed_triples(
+        carray(end).reshape(3), carray(d_lo), carray(d_hi), carray(r_lo), carray(r_hi),
+        carray(fc.object[f_idx], np.int64), carray(w.object[w_idx], np.int64),
+        carray(hit.reshape(4, m).T, np.int64), normal, offset, count,
+        float(SHADOW_DEPTH_M))  # fmt: skip
