@@ -111,8 +111,23 @@ def _assert_through(end, p, lo, hi):
     assert np.all(np.maximum(t_in, 0) < np.minimum(t_out, 1)), (end, p[t_in >= t_out])
 
 
-def _no_triple(scene, opaque, end, f_idx, *args):
-    return np.zeros(len(f_idx), dtype=bool)
+def _trace_without_shadows(monkeypatch, sc, tx, rx, cfg):
+    """The trace with every shadow pruning off (and the scene's kept triples dropped), and its
+    counters."""
+    import raytrace.solver.diffraction as diffraction
+    import raytrace.solver.specular as specular
+
+    def nothing(ctx, ends):
+        return (np.zeros((len(ends), len(ctx.scene.facets)), bool),
+                np.zeros((len(ends), len(ctx.scene.wedges)), bool))  # fmt: skip
+
+    monkeypatch.setattr(diffraction, "_shadows", nothing)
+    monkeypatch.setattr(specular, "shadows_of", nothing)
+    monkeypatch.setattr(diffraction, "triples_in_shadow",
+                        lambda sc, o, e, f, *a: np.zeros(len(f), dtype=bool))  # fmt: skip
+    sc.wedges.cache.clear()  # the transmitters' kept triples
+    stats: dict = {}
+    return trace(sc, tx, rx, F_C, cfg, threads=1, stats=stats), stats
 
 
 @pytest.mark.parametrize("seed", [5, 11])
@@ -124,19 +139,7 @@ def test_shadows_lose_no_path(monkeypatch, seed):
     sc, tx, rx = _cluttered_scene(seed)
     cfg = TraceConfig(max_reflections=2, max_penetrations=2, max_diffractions=1, max_interactions=3)
     with_shadows = trace(sc, tx, rx, F_C, cfg, threads=1, stats=(on := {}))
-
-    def nothing(ctx, ends):
-        return (np.zeros((len(ends), len(ctx.scene.facets)), bool),
-                np.zeros((len(ends), len(ctx.scene.wedges)), bool))  # fmt: skip
-
-    import raytrace.solver.diffraction as diffraction
-    import raytrace.solver.specular as specular
-
-    monkeypatch.setattr(diffraction, "_shadows", nothing)
-    monkeypatch.setattr(specular, "shadows_of", nothing)
-    monkeypatch.setattr(diffraction, "triples_in_shadow", _no_triple)
-    sc.wedges.cache.clear()  # the transmitters' kept triples
-    without = trace(sc, tx, rx, F_C, cfg, threads=1, stats=(off := {}))
+    without, off = _trace_without_shadows(monkeypatch, sc, tx, rx, cfg)
     _same_paths(with_shadows, without)
     for kind in ("candidates_rd", "candidates_dr", "candidates_r1"):
         assert on[kind] < off[kind], kind
@@ -184,8 +187,6 @@ def test_shadows_lose_no_path_in_a_dense_metal_factory(monkeypatch):
     shadows' pruning and without it, and far fewer mixed candidates with it."""
     from test_diffraction_paths import _same_paths
 
-    import raytrace.solver.diffraction as diffraction
-    import raytrace.solver.specular as specular
     from raytrace.halls.inf import generate_hall, scene_from_spec, split_spec
     from raytrace.scene.metadata import SceneMetadata
 
@@ -195,16 +196,7 @@ def test_shadows_lose_no_path_in_a_dense_metal_factory(monkeypatch):
     inp = SceneMetadata.from_scene(sc, require=True)
     tx, rx = inp.bs_xyz, inp.point_xyz[:12]
     with_shadows = trace(sc, tx, rx, F_C, TraceConfig(), threads=1, stats=(on := {}))
-
-    def nothing(ctx, ends):
-        return (np.zeros((len(ends), len(ctx.scene.facets)), bool),
-                np.zeros((len(ends), len(ctx.scene.wedges)), bool))  # fmt: skip
-
-    monkeypatch.setattr(diffraction, "_shadows", nothing)
-    monkeypatch.setattr(specular, "shadows_of", nothing)
-    monkeypatch.setattr(diffraction, "triples_in_shadow", _no_triple)
-    sc.wedges.cache.clear()
-    without = trace(sc, tx, rx, F_C, TraceConfig(), threads=1, stats=(off := {}))
+    without, off = _trace_without_shadows(monkeypatch, sc, tx, rx, TraceConfig())
     _same_paths(with_shadows, without)
     assert on["candidates_rd"] < 0.5 * off["candidates_rd"]
 

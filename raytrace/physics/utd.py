@@ -431,6 +431,25 @@ def _azimuth1(wx, wy, wz, t0x, t0y, t0z, n0x, n0y, n0z, npi):
 
 
 @inline
+def _unit_legs(ex, ey, ez, sx, sy, sz, dx, dy, dz, px, py, pz):
+    """The incident and diffracted legs of a diffraction at ``p`` from ``s`` to ``d`` on an edge
+    of unit direction ``e``: unit vectors, lengths, ``e x s`` and its norm (``sin beta_0``),
+    as ``ix, iy, iz, s_in, ox, oy, oz, s_out, cix, ciy, ciz, sin_in, cox, coy, coz, sin_out``."""
+    ix, iy, iz = px - sx, py - sy, pz - sz
+    s_in = np.sqrt(ix * ix + iy * iy + iz * iz)
+    ix, iy, iz = ix / s_in, iy / s_in, iz / s_in
+    ox, oy, oz = dx - px, dy - py, dz - pz
+    s_out = np.sqrt(ox * ox + oy * oy + oz * oz)
+    ox, oy, oz = ox / s_out, oy / s_out, oz / s_out
+    cix, ciy, ciz = cross3(ex, ey, ez, ix, iy, iz)
+    cox, coy, coz = cross3(ex, ey, ez, ox, oy, oz)
+    sin_in = np.sqrt(cix * cix + ciy * ciy + ciz * ciz)
+    sin_out = np.sqrt(cox * cox + coy * coy + coz * coz)
+    return (ix, iy, iz, s_in, ox, oy, oz, s_out, cix, ciy, ciz, sin_in, cox, coy, coz,
+            sin_out)  # fmt: skip
+
+
+@inline
 def _legs(e, t0, n0, n, w, sx, sy, sz, dx, dy, dz, px, py, pz):
     """Unit vectors, lengths, azimuths and ``e x s`` of the incident and diffracted legs of a
     diffraction at ``p`` from ``s`` to ``d`` on the wedge of frame row ``w``. The frame is read
@@ -438,18 +457,10 @@ def _legs(e, t0, n0, n, w, sx, sy, sz, dx, dy, dz, px, py, pz):
     ex, ey, ez = e[w, 0], e[w, 1], e[w, 2]
     t0x, t0y, t0z, n0x, n0y, n0z = t0[w, 0], t0[w, 1], t0[w, 2], n0[w, 0], n0[w, 1], n0[w, 2]
     npi = n[w] * np.pi
-    ix, iy, iz = px - sx, py - sy, pz - sz
-    s_in = np.sqrt(ix * ix + iy * iy + iz * iz)
-    ix, iy, iz = ix / s_in, iy / s_in, iz / s_in
-    ox, oy, oz = dx - px, dy - py, dz - pz
-    s_out = np.sqrt(ox * ox + oy * oy + oz * oz)
-    ox, oy, oz = ox / s_out, oy / s_out, oz / s_out
+    (ix, iy, iz, s_in, ox, oy, oz, s_out, cix, ciy, ciz, sin_in, cox, coy, coz,
+     sin_out) = _unit_legs(ex, ey, ez, sx, sy, sz, dx, dy, dz, px, py, pz)  # fmt: skip
     phi_in, in_s = _azimuth1(sx - px, sy - py, sz - pz, t0x, t0y, t0z, n0x, n0y, n0z, npi)
     phi, in_d = _azimuth1(dx - px, dy - py, dz - pz, t0x, t0y, t0z, n0x, n0y, n0z, npi)
-    cix, ciy, ciz = cross3(ex, ey, ez, ix, iy, iz)
-    cox, coy, coz = cross3(ex, ey, ez, ox, oy, oz)
-    sin_in = np.sqrt(cix * cix + ciy * ciy + ciz * ciz)
-    sin_out = np.sqrt(cox * cox + coy * coy + coz * coz)
     valid = (s_in > 0 and s_out > 0 and sin_in > _MIN_SIN_BETA0 and sin_out > _MIN_SIN_BETA0
              and not in_s and not in_d)  # fmt: skip
     return (ix, iy, iz, s_in, ox, oy, oz, s_out, phi_in, phi, cix, ciy, ciz, sin_in, cox, coy,
@@ -489,16 +500,8 @@ def diffraction_valid1(e, t0, n0, n, w, sx, sy, sz, dx, dy, dz, px, py, pz):
     ex, ey, ez = e[w, 0], e[w, 1], e[w, 2]
     t0x, t0y, t0z, n0x, n0y, n0z = t0[w, 0], t0[w, 1], t0[w, 2], n0[w, 0], n0[w, 1], n0[w, 2]
     npi = n[w] * np.pi
-    ix, iy, iz = px - sx, py - sy, pz - sz
-    s_in = np.sqrt(ix * ix + iy * iy + iz * iz)
-    ix, iy, iz = ix / s_in, iy / s_in, iz / s_in
-    ox, oy, oz = dx - px, dy - py, dz - pz
-    s_out = np.sqrt(ox * ox + oy * oy + oz * oz)
-    ox, oy, oz = ox / s_out, oy / s_out, oz / s_out
-    cix, ciy, ciz = cross3(ex, ey, ez, ix, iy, iz)
-    cox, coy, coz = cross3(ex, ey, ez, ox, oy, oz)
-    sin_in = np.sqrt(cix * cix + ciy * ciy + ciz * ciz)
-    sin_out = np.sqrt(cox * cox + coy * coy + coz * coz)
+    _, _, _, s_in, _, _, _, s_out, _, _, _, sin_in, _, _, _, sin_out = _unit_legs(
+        ex, ey, ez, sx, sy, sz, dx, dy, dz, px, py, pz)  # fmt: skip
     if not (s_in > 0 and s_out > 0 and sin_in > _MIN_SIN_BETA0 and sin_out > _MIN_SIN_BETA0):
         return False
     if _into_wedge(sx - px, sy - py, sz - pz, t0x, t0y, t0z, n0x, n0y, n0z, npi):
