@@ -263,3 +263,49 @@ def _meets(a, b, lo, hi) -> bool:
     with np.errstate(divide="ignore"):
         t1, t2 = (lo - a) / d, (hi - a) / d
     return bool(max(np.max(np.minimum(t1, t2)), 0) < min(np.min(np.maximum(t1, t2)), 1))
+
+
+def test_a_blocked_triple_is_sound_for_random_boxes_and_an_edge_through_the_plane():
+    """Random metal boxes; the triples (wall facet, pillar edge) and (wall facet, the floor's
+    edge along x, which runs through the wall's plane: its span's far part lies behind it, where
+    no diffraction point of the triple can be), boxes in front of the wall and behind it.
+    Whenever a triple is found blocked, every sampled
+    candidate (a diffraction point on the end's side of the plane, its reflection point on the
+    plane) crosses the box shrunk by the depth on one of its two legs."""
+    from raytrace.solver.shadow import triples_in_shadow
+
+    rng = np.random.default_rng(12)
+    tx = np.array([2.0, 9.0, 2.0])
+    found = 0
+    for i in range(160):
+        lo = rng.uniform((3.0, -3.0, -0.2), (9.0, 9.0, 1.0))
+        hi = lo + rng.uniform((0.3, 0.3, 0.5), (2.5, 4.0, 6.0))
+        hi[0] = min(hi[0], 9.9)
+        if i % 2:  # behind the wall, where the floor edge's span runs on (x 10.3 - 12)
+            lo[0], hi[0] = rng.uniform(10.3, 11.5), 12.5
+        if (lo[:2] < 5.1).all() and (hi[:2] > 4.5).all():
+            continue  # across the pillar (its edge would be covered)
+        sc = _rd_scene((tuple(lo), tuple(hi)))
+        if sc.inside_solid(tx[None])[0] >= 0:
+            continue
+        f = _facet(sc, "wall", (-1, 0, 0))
+        fn, fo = sc.facets.normal[f], sc.facets.offset[f]
+        w = sc.wedges
+        along_x = np.flatnonzero((np.abs(w.direction[:, 0]) > 0.99) & (np.abs(w.start[:, 2]) < 1e-9)
+                                 & (np.abs(w.start[:, 1] + 1.0) < 1e-9))  # fmt: skip
+        edges = [int(_rd_triple(sc, tx)[1][0]), int(along_x[0])]
+        img = tx - 2 * (tx @ fn - fo) * fn
+        length = np.linalg.norm(w.end[edges] - w.start[edges], axis=1)
+        got = triples_in_shadow(sc, opaque_objects(sc, F_C), tx, np.array([f, f]),
+                                np.array(edges), np.stack([img, img]), np.zeros(2), length)  # fmt: skip
+        b_lo, b_hi = lo + SHADOW_DEPTH_M, hi - SHADOW_DEPTH_M
+        for k in np.flatnonzero(got):
+            found += 1
+            j = edges[k]
+            d = w.start[j] + rng.uniform(0, 1, (300, 1)) * (w.end[j] - w.start[j])
+            d = d[(d @ fn - fo) * (tx @ fn - fo) > 1e-12]  # on the transmitter's side
+            u = (img @ fn - fo) / ((img @ fn - fo) - (d @ fn - fo))
+            r = img + u[:, None] * (d - img)
+            for rr, dd in zip(r, d):
+                assert _meets(tx, rr, b_lo, b_hi) or _meets(rr, dd, b_lo, b_hi), (lo, hi, j)
+    assert found >= 5

@@ -193,9 +193,21 @@ def triples_in_shadow(scene: Scene, opaque: np.ndarray, end: np.ndarray, f_idx: 
     fc, w = scene.facets, scene.wedges
     length = np.sqrt(np.einsum("wc,wc->w", w.end - w.start, w.end - w.start))[w_idx]
     unit = (w.end - w.start)[w_idx] / np.where(length > 0, length, 1.0)[:, None]
-    d_lo = w.start[w_idx] + np.clip(t_lo, 0.0, length)[:, None] * unit
-    d_hi = w.start[w_idx] + np.clip(t_hi, 0.0, length)[:, None] * unit
     n, off = fc.normal[f_idx], fc.offset[f_idx]
+    lo, hi = np.clip(t_lo, 0.0, length), np.clip(t_hi, 0.0, length)
+    # a diffraction point lies on the end's side of the facet's plane (the exact tests' rule; the
+    # padded span may reach behind it): the span is cut where the edge meets the plane, so that
+    # its projection from the image, the reflection points' range, is a bounded segment
+    side = np.sign(np.einsum("c,mc->m", np.asarray(end, dtype=float), n) - off)
+    s_lo = side * (np.einsum("mc,mc->m", w.start[w_idx] + lo[:, None] * unit, n) - off)
+    s_hi = side * (np.einsum("mc,mc->m", w.start[w_idx] + hi[:, None] * unit, n) - off)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cut = lo + (hi - lo) * s_lo / (s_lo - s_hi)  # where the edge meets the plane
+    lo = np.where(s_lo < 0, cut, lo)
+    hi = np.where(s_hi < 0, cut, hi)
+    ahead = (s_lo >= 0) | (s_hi >= 0)  # some of the span in front (else no candidate: no proof)
+    d_lo = w.start[w_idx] + lo[:, None] * unit
+    d_hi = w.start[w_idx] + hi[:, None] * unit
     s_i = np.einsum("mc,mc->m", img, n) - off
     with np.errstate(invalid="ignore", divide="ignore"):
         r_lo = img + (s_i / (s_i - (np.einsum("mc,mc->m", d_lo, n) - off)))[:, None] * (d_lo - img)
@@ -208,7 +220,7 @@ def triples_in_shadow(scene: Scene, opaque: np.ndarray, end: np.ndarray, f_idx: 
         u = d / dist[:, None]
     reach = np.where(np.isfinite(dist), dist - _RAY_START_M, 0.0)
     hit = scene.first_hit_among(solid, a + _RAY_START_M * u, u, reach)
-    return kernels.shadowed_triples(
+    return ahead & kernels.shadowed_triples(
         carray(end).reshape(3), carray(d_lo), carray(d_hi), carray(r_lo), carray(r_hi),
         carray(fc.object[f_idx], np.int64), carray(w.object[w_idx], np.int64),
         carray(hit.reshape(4, m).T, np.int64), normal, offset, count,
