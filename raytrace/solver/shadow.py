@@ -40,6 +40,7 @@ from ..core.jit import carray
 from ..core.kept import keep
 from ..scene.model import Scene
 from . import kernels
+from . import reflection as refl
 from .context import OPAQUE_CHORD_M, TraceContext
 from .penetration import convex_plane_arrays
 
@@ -62,7 +63,7 @@ def _groups(scene: Scene) -> tuple[np.ndarray, ...]:
     fc, w = scene.facets, scene.wedges
     corners = [np.unique(fc.triangles[s : s + n].reshape(-1, 3), axis=0)
                for s, n in zip(fc.tri_start, fc.tri_count)]  # fmt: skip
-    ends = [np.stack([w.start[i], w.end[i]]) for i in range(len(w))]
+    ends = list(np.stack([w.start, w.end], axis=1))  # (2, 3) per edge
     every = corners + ends
     flat = np.concatenate(every) if every else np.zeros((0, 3))
     points, g_point = np.unique(flat, axis=0, return_inverse=True)
@@ -191,16 +192,15 @@ def triples_in_shadow(scene: Scene, opaque: np.ndarray, end: np.ndarray, f_idx: 
     if m == 0 or not solid.any():
         return np.zeros(m, dtype=bool)
     fc, w = scene.facets, scene.wedges
-    length = np.sqrt(np.einsum("wc,wc->w", w.end - w.start, w.end - w.start))[w_idx]
-    unit = (w.end - w.start)[w_idx] / np.where(length > 0, length, 1.0)[:, None]
+    length, unit = w.length[w_idx], w.direction[w_idx]
     n, off = fc.normal[f_idx], fc.offset[f_idx]
     lo, hi = np.clip(t_lo, 0.0, length), np.clip(t_hi, 0.0, length)
     # a diffraction point lies on the end's side of the facet's plane (the exact tests' rule; the
     # padded span may reach behind it): the span is cut where the edge meets the plane, so that
     # its projection from the image, the reflection points' range, is a bounded segment
-    side = np.sign(np.einsum("c,mc->m", np.asarray(end, dtype=float), n) - off)
-    s_lo = side * (np.einsum("mc,mc->m", w.start[w_idx] + lo[:, None] * unit, n) - off)
-    s_hi = side * (np.einsum("mc,mc->m", w.start[w_idx] + hi[:, None] * unit, n) - off)
+    side = np.sign(refl.signed_distance(np.broadcast_to(end, (m, 3)), n, off))
+    s_lo = side * refl.signed_distance(w.start[w_idx] + lo[:, None] * unit, n, off)
+    s_hi = side * refl.signed_distance(w.start[w_idx] + hi[:, None] * unit, n, off)
     with np.errstate(invalid="ignore", divide="ignore"):
         cut = lo + (hi - lo) * s_lo / (s_lo - s_hi)  # where the edge meets the plane
     lo = np.where(s_lo < 0, cut, lo)
@@ -208,10 +208,9 @@ def triples_in_shadow(scene: Scene, opaque: np.ndarray, end: np.ndarray, f_idx: 
     ahead = (s_lo >= 0) | (s_hi >= 0)  # some of the span in front (else no candidate: no proof)
     d_lo = w.start[w_idx] + lo[:, None] * unit
     d_hi = w.start[w_idx] + hi[:, None] * unit
-    s_i = np.einsum("mc,mc->m", img, n) - off
-    with np.errstate(invalid="ignore", divide="ignore"):
-        r_lo = img + (s_i / (s_i - (np.einsum("mc,mc->m", d_lo, n) - off)))[:, None] * (d_lo - img)
-        r_hi = img + (s_i / (s_i - (np.einsum("mc,mc->m", d_hi, n) - off)))[:, None] * (d_hi - img)
+    # the reflection points' range: the span's ends projected from the image onto the plane
+    r_lo = refl.segment_plane_point(img, d_lo, n, off)[1]
+    r_hi = refl.segment_plane_point(img, d_hi, n, off)[1]
     a = np.concatenate([np.broadcast_to(end, (m, 3)), np.broadcast_to(end, (m, 3)), r_lo, r_hi])
     b = np.concatenate([r_lo, r_hi, d_lo, d_hi])
     d = b - a
