@@ -256,6 +256,32 @@ def test_inside_solid_exact_for_convex_solids_sharing_faces():
     assert sc.inside_solid(in_walls).tolist() == [2, 5, 1, 3]
 
 
+def test_inside_solid_of_convex_solids_is_every_plane_behind():
+    """The compiled test against the definition, computed independently: a point is inside a
+    convex solid when it is behind every one of its facet planes by the tolerance, and the
+    solid reported is the first such in object order (two overlapping boxes: the first one),
+    on random points over the hall, over overlapping boxes and on their faces."""
+    hall = load_scene("hall")
+    over = make_scene([("a", box((0, 0, 0), (2, 2, 2)), "metal"),
+                       ("b", box((1, 1, 1), (3, 3, 3)), "metal")])  # fmt: skip
+    rng = np.random.default_rng(11)
+    for sc, pts in ((hall, rng.uniform(*hall.bounds, (30_000, 3))),
+                    (over, np.concatenate([rng.uniform(-0.5, 3.5, (5_000, 3)),
+                                           rng.integers(0, 4, (500, 3)).astype(float)]))):  # fmt: skip
+        convex = sc.convex_objects()
+        assert not (sc.object_closed & ~convex).any()  # (open sheets contain nothing)
+        fc, tol = sc.facets, 1e-9 * max(sc.extent, 1.0)
+        s = np.einsum("pc,fc->pf", pts, fc.normal) - fc.offset  # every point, every plane
+        inside = np.stack([convex[o] & (s[:, fc.object == o] < -tol).all(axis=1)
+                           for o in range(len(sc.objects))], axis=1)  # fmt: skip
+        want = np.where(inside.any(axis=1), np.argmax(inside, axis=1), -1)
+        got = sc.inside_solid(pts)
+        assert got.tolist() == want.tolist()
+        assert (got >= 0).any() and (got < 0).any()
+    both = over.inside_solid(np.array([[1.5, 1.5, 1.5], [2.5, 2.5, 2.5], [2.0, 1.5, 1.5]]))
+    assert both.tolist() == [0, 1, 1]  # in both: the first; on a's face: b's only
+
+
 @pytest.mark.parametrize(
     "name, facets, wedges, wedge_n",
     [

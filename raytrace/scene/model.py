@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import SceneError
+from ..core.jit import carray
 from ..physics.materials import MaterialLibrary
 from . import accel
 from .elements import Facets, SceneObject, Wedges
@@ -730,18 +731,13 @@ class Scene:
         convex = self.convex_objects()
         fc = self.facets
         tol = 1e-9 * max(self.extent, 1.0)
-        conv_ids = np.flatnonzero(convex)
-        if conv_ids.size:
+        if convex.any():
             sel = np.flatnonzero(convex[fc.object])  # facets of convex objects, grouped by object
             owner = fc.object[sel]
             starts = np.flatnonzero(np.r_[True, owner[1:] != owner[:-1]])
-            objs = owner[starts]
-            for c0 in range(0, n, 20_000):
-                p = pts[c0 : c0 + 20_000]
-                behind = (p @ fc.normal[sel].T - fc.offset[sel]) < -tol
-                inside = np.logical_and.reduceat(behind, starts, axis=1)  # (chunk, n_convex)
-                hit = inside.any(axis=1)
-                out[c0 : c0 + 20_000][hit] = objs[np.argmax(inside[hit], axis=1)]
+            out = accel.convex_owner(carray(pts), carray(fc.normal[sel]), carray(fc.offset[sel]),
+                                     carray(starts, np.int64), carray(owner[starts], np.int64),
+                                     float(tol))  # fmt: skip
         others = self.object_closed & ~convex
         if others.any():
             todo = np.flatnonzero(out < 0)
