@@ -270,6 +270,35 @@ def test_stage_threads_follow_the_usable_cores(scene_links, monkeypatch):
     _same(one, two)
 
 
+def _blas_helpers(scene, item):
+    """In a lane: its pid, its BLAS thread setting, and the threads a shared product started."""
+
+    def threads() -> int:
+        return len(os.listdir("/proc/self/task"))
+
+    before = threads()
+    a = np.ones((600, 600))
+    _ = a @ a  # large enough for BLAS to share it among helper threads, where it has any
+    return os.getpid(), os.environ.get("OPENBLAS_NUM_THREADS"), threads() - before
+
+
+def test_worker_processes_load_blas_with_one_thread(scene_links):
+    """numpy's BLAS helper threads spin for about 0.1 s after each product they share, on the
+    cores the other lanes trace on: the workers (one lane each) load BLAS with one thread, so
+    that a product starts none; this process keeps its own setting."""
+    if cpu_count() < 2 or not os.path.isdir("/proc/self/task"):
+        pytest.skip("needs two cores and /proc")
+    mine = os.environ.get("OPENBLAS_NUM_THREADS")
+    with ScenePool(scene_links[0], 2) as pool:
+        out = list(pool.map(_blas_helpers, range(2)))
+    worker = [r for r in out if r[0] != os.getpid()]
+    assert worker, "no item went to the worker"
+    for _, setting, started in worker:
+        assert setting == "1"
+        assert started == 0
+    assert os.environ.get("OPENBLAS_NUM_THREADS") == mine
+
+
 def test_each_lane_reports_the_time_it_spent_on_its_chunks(scene_links):
     """``busy_us[caller]`` and ``busy_us[workers]``: each lane's time on its chunks, within the
     trace's wall time (the rest is idle or the join); a trace in this process alone has no
