@@ -270,6 +270,27 @@ def test_stage_threads_follow_the_usable_cores(scene_links, monkeypatch):
     _same(one, two)
 
 
+def test_one_lane_in_chunks_keeps_the_threads_asked_for(scene_links, monkeypatch):
+    """``threads`` holds for a trace in chunks on one lane too (not only below the chunking
+    threshold): ``threads=1`` starts no stage thread, the default one per usable core, in every
+    chunk; the same paths."""
+    sc, tx, rx, cfg = scene_links
+    started = []
+
+    class Counting(tracer.ThreadPoolExecutor):
+        def __init__(self, max_workers=None, **kw):
+            started.append(max_workers)
+            super().__init__(max_workers=max_workers, **kw)
+
+    monkeypatch.setattr(tracer, "ThreadPoolExecutor", Counting)
+    monkeypatch.setattr(tracer, "cpu_count", lambda: 2)
+    one = trace(sc, tx, rx[:6], F_C, cfg, workers=1, threads=1, chunk_links=2 * len(tx))
+    assert started == []
+    every = trace(sc, tx, rx[:6], F_C, cfg, workers=1, chunk_links=2 * len(tx))
+    assert started == [2, 2, 2]
+    _same(one, every)
+
+
 def _blas_helpers(scene, item):
     """In a lane: its pid, its BLAS thread setting, and the threads a shared product started."""
 

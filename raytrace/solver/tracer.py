@@ -197,7 +197,7 @@ def trace(
     ):
         return _trace_links(scene, tx, rx, f, cfg, progress, stats, involving, threads, opaque)
     chunks = _chunked(scene, tx, rx, f, cfg, None, workers, chunk_links, progress, stats,
-                      involving, opaque)  # fmt: skip
+                      involving, opaque, threads)  # fmt: skip
     return join_chunks([paths for _, paths in chunks], len(tx))
 
 
@@ -276,14 +276,16 @@ def _chunked(
     stats: dict[str, int] | None,
     involving: np.ndarray | list[int] | None,
     opaque: np.ndarray | None,
+    threads: int | None = None,
 ) -> Iterator[tuple[range, Any]]:
-    """:func:`trace_chunks` on validated input."""
+    """:func:`trace_chunks` on validated input (``threads``: as in :func:`trace`, for chunks
+    traced on one lane; with several, each lane traces on one thread)."""
     # guided chunks give every lane a share even of a trace smaller than one fixed chunk
     n_chunks = len(rx) if chunk_links is None else len(receiver_chunks(len(tx), len(rx), chunk_links))
     n_workers = resolve_workers(workers, n_chunks)
     chunks = receiver_chunks(len(tx), len(rx), chunk_links, n_workers)
     n_workers = min(n_workers, len(chunks))
-    jobs = [(tx, rx, c, f, cfg, involving, opaque, reduce, n_workers > 1) for c in chunks]
+    jobs = [(tx, rx, c, f, cfg, involving, opaque, reduce, n_workers > 1, threads) for c in chunks]
     bar = None
     if progress is True:
         from tqdm import tqdm
@@ -311,10 +313,10 @@ def _trace_job(scene: Scene, job: tuple) -> tuple[Any, dict[str, int]]:
     """One chunk of :func:`trace_chunks` (in a worker or in this process), with the time its
     lane spent on it (``busy_us[workers]`` or ``busy_us[caller]``, microseconds)."""
     t0 = time.perf_counter()
-    tx, rx, chunk, f, cfg, involving, opaque, reduce, in_pool = job
+    tx, rx, chunk, f, cfg, involving, opaque, reduce, in_pool, threads = job
     stats: dict[str, int] = {}
     part = _trace_links(scene, tx, rx[chunk.start : chunk.stop], f, cfg, False, stats, involving,
-                        1 if in_pool else None, opaque)  # fmt: skip
+                        1 if in_pool else threads, opaque)  # fmt: skip
     paths = part.with_receivers(rx, chunk.start)
     out: Any = paths if reduce is None else reduce(paths)
     if reduce is None and in_worker():
