@@ -14,6 +14,10 @@ What a pool costs, and how it is kept small (measured in docs/tracing.md, "Where
   forks are safe (a fork of a process whose Embree or tracer threads are alive is not: that is
   why the workers are never forked from the caller; and Embree merely imported before a fork
   makes the fork trace 2x slower). Where there is no fork server (Windows) workers are spawned.
+  The fork server loads BLAS with one thread (``OPENBLAS_NUM_THREADS``, ``OMP_NUM_THREADS``,
+  ``MKL_NUM_THREADS`` at 1 in its environment): a worker is one lane, and BLAS's helper threads
+  would spin on the other lanes' cores. Python has one fork server per interpreter, so a caller's
+  own ``forkserver`` processes started after a pool get this setting and this ``PYTHONPATH`` too.
 * **The pool outlives one call**: it is kept for the next call with the same scene (its pickled
   bytes, compared by digest) and as many workers or fewer, so a caller that traces many times
   (the accuracy map, reproduce-paper) starts it once. A call with another scene or more workers
