@@ -249,10 +249,9 @@ def test_cores_are_those_the_process_may_use(monkeypatch):
     assert cpu_count() == 64
 
 
-def test_stage_threads_follow_the_usable_cores(scene_links, monkeypatch):
-    """A trace's stages run on one thread where the process may use one core (more threads would
-    only contend for the GIL), and on threads where it may use several: the same paths."""
-    sc, tx, rx, cfg = scene_links
+@pytest.fixture
+def stage_pools(monkeypatch):
+    """The thread counts of the stage thread pools the tracer starts, in order."""
     started = []
 
     class Counting(tracer.ThreadPoolExecutor):
@@ -261,6 +260,14 @@ def test_stage_threads_follow_the_usable_cores(scene_links, monkeypatch):
             super().__init__(max_workers=max_workers, **kw)
 
     monkeypatch.setattr(tracer, "ThreadPoolExecutor", Counting)
+    return started
+
+
+def test_stage_threads_follow_the_usable_cores(scene_links, monkeypatch, stage_pools):
+    """A trace's stages run on one thread where the process may use one core (more threads would
+    only contend for the GIL), and on threads where it may use several: the same paths."""
+    sc, tx, rx, cfg = scene_links
+    started = stage_pools
     monkeypatch.setattr(tracer, "cpu_count", lambda: 1)
     one = trace(sc, tx, rx[:3], F_C, cfg, workers=1)
     assert started == []
@@ -270,19 +277,12 @@ def test_stage_threads_follow_the_usable_cores(scene_links, monkeypatch):
     _same(one, two)
 
 
-def test_one_lane_in_chunks_keeps_the_threads_asked_for(scene_links, monkeypatch):
+def test_one_lane_in_chunks_keeps_the_threads_asked_for(scene_links, monkeypatch, stage_pools):
     """``threads`` holds for a trace in chunks on one lane too (not only below the chunking
     threshold): ``threads=1`` starts no stage thread, the default one per usable core, in every
     chunk; the same paths."""
     sc, tx, rx, cfg = scene_links
-    started = []
-
-    class Counting(tracer.ThreadPoolExecutor):
-        def __init__(self, max_workers=None, **kw):
-            started.append(max_workers)
-            super().__init__(max_workers=max_workers, **kw)
-
-    monkeypatch.setattr(tracer, "ThreadPoolExecutor", Counting)
+    started = stage_pools
     monkeypatch.setattr(tracer, "cpu_count", lambda: 2)
     one = trace(sc, tx, rx[:6], F_C, cfg, workers=1, threads=1, chunk_links=2 * len(tx))
     assert started == []
