@@ -256,6 +256,19 @@ def test_inside_solid_exact_for_convex_solids_sharing_faces():
     assert sc.inside_solid(in_walls).tolist() == [2, 5, 1, 3]
 
 
+def test_bounds_are_the_vertices_extremes_kept_read_only_and_left_out_of_a_pickle():
+    import pickle
+
+    sc = make_scene([("a", box((0, 0, 0), (2, 1, 3)), "metal"),
+                     ("b", box((-1, 4, 0.5), (0, 5, 1)), "glass")])  # fmt: skip
+    fresh = pickle.dumps(sc)
+    np.testing.assert_array_equal(sc.bounds, [sc.vertices.min(axis=0), sc.vertices.max(axis=0)])
+    assert sc.bounds is sc.bounds and sc.extent == pytest.approx(np.sqrt(9 + 25 + 9))
+    with pytest.raises(ValueError):
+        sc.bounds[0, 0] = 5.0
+    assert pickle.dumps(sc) == fresh
+
+
 def test_inside_solid_of_convex_solids_is_every_plane_behind():
     """The compiled test against the definition, computed independently: a point is inside a
     convex solid when it is behind every one of its facet planes by the tolerance, and the
