@@ -159,6 +159,10 @@ class Material:
         return f"{_fmt_ghz(self.f_min_hz)}-{_fmt_ghz(self.f_max_hz)} GHz"
 
     def _check_frequency(self, f: np.ndarray, extrapolate: bool, stacklevel: int = 4) -> None:
+        if f.ndim == 0 and self.f_min_hz * (1.0 - _RANGE_RTOL) <= float(f) <= self.f_max_hz * (
+            1.0 + _RANGE_RTOL
+        ):
+            return  # one frequency in range (every trace asks per material): no array work
         if f.size == 0:
             return
         flat = np.ravel(f)
