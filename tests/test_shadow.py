@@ -59,6 +59,25 @@ def test_a_metal_box_hides_the_wall_behind_it_and_only_that():
     assert not facets[:, own].any() and not wedges[:, _edges_of(sc, "box")].any()
 
 
+def test_a_facet_in_shadow_reflects_nothing_of_that_end():
+    """reflecting_sides: the facets' reflecting sides of a trace's ends, 0 where the end sees the
+    facet only through the metal box, as reflecting_side elsewhere."""
+    from raytrace.solver.context import TraceContext
+    from raytrace.solver.reflection import reflecting_side
+    from raytrace.solver.shadow import reflecting_sides
+
+    sc = _scene()
+    tx = np.array([[0.0, 5.0, 1.5], [0.0, 0.5, 1.5]])
+    rx = np.array([[1.0, 5.0, 1.5]])
+    ctx = TraceContext(sc, tx, rx, F_C, TraceConfig())
+    got, plain = reflecting_sides(ctx, ctx.tx), reflecting_side(sc.facets, tx)
+    front = _facet(sc, "hidden", (-1, 0, 0))
+    assert plain[:, front].tolist() == [1, 1] and got[:, front].tolist() == [0, 1]
+    rest = ~shadowed(sc, ctx.opaque, tx)[0]
+    np.testing.assert_array_equal(got[rest], plain[rest])
+    assert (got[~rest] == 0).all() and (plain[~rest] != 0).any()
+
+
 def test_only_opaque_solids_cast_shadows():
     sc = _scene("concrete")
     facets, wedges = shadowed(sc, opaque_objects(sc, F_C), np.array([[0.0, 5.0, 1.5]]))
@@ -114,16 +133,16 @@ def _assert_through(end, p, lo, hi):
 def _trace_without_shadows(monkeypatch, sc, tx, rx, cfg):
     """The trace with every shadow pruning off (and the scene's kept triples dropped), and its
     counters."""
-    import raytrace.solver.diffraction as diffraction
-    import raytrace.solver.specular as specular
+    import raytrace.solver.shadow as shadow_mod
 
     def nothing(ctx, ends):
         return (np.zeros((len(ends), len(ctx.scene.facets)), bool),
                 np.zeros((len(ends), len(ctx.scene.wedges)), bool))  # fmt: skip
 
-    monkeypatch.setattr(diffraction, "_shadows", nothing)
-    monkeypatch.setattr(specular, "shadows_of", nothing)
-    monkeypatch.setattr(diffraction, "triples_in_shadow",
+    # the stages ask the shadow module for every shadow (shadow.shadows_of, reflecting_sides,
+    # triples_in_shadow): its two entry points off switch them all off
+    monkeypatch.setattr(shadow_mod, "shadows_of", nothing)
+    monkeypatch.setattr(shadow_mod, "triples_in_shadow",
                         lambda sc, o, e, f, *a: np.zeros(len(f), dtype=bool))  # fmt: skip
     sc.wedges.cache.clear()  # the transmitters' kept triples
     stats: dict = {}

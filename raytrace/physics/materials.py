@@ -886,7 +886,7 @@ def slab(
     if np.any(~np.isfinite(f) | (f <= 0)):
         raise MaterialError("slab frequency must be finite and > 0 Hz")
     shape, (e, c, dd, ff) = broadcast_rows(np.asarray(eta, dtype=complex),
-                                     np.asarray(cos_theta, dtype=float), d, f)  # fmt: skip
+                                           np.asarray(cos_theta, dtype=float), d, f)  # fmt: skip
     out = _slab_rows(e, c, dd, ff, reference == "p2040")
     return tuple(_out(x.reshape(shape)) for x in out)
 

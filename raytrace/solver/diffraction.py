@@ -35,13 +35,11 @@ from ..physics.utd import (
     wedge_frames,
 )
 from ..scene import accel
-from . import kernels
+from . import kernels, shadow
 from . import reflection as refl
 from .context import TraceContext
 from .evaluate import Candidates, DiffractionModel, DiffractionOperator, candidates, evaluate
 from .paths import DIFFRACTION, REFLECTION, Paths
-from .shadow import shadows_of as _shadows
-from .shadow import triples_in_shadow
 
 #: Work is split into chunks of about this many candidates.
 CHUNK = 300_000
@@ -156,8 +154,8 @@ def _pure(ctx: TraceContext) -> Paths:
     if not kernels.PRUNE:
         open_t[:] = True
     # an edge seen from the transmitter or the receiver only through an opaque solid (shadow)
-    open_t &= ~_shadows(ctx, ctx.tx)[1].T
-    open_r &= ~_shadows(ctx, ctx.rx)[1].T
+    open_t &= ~shadow.shadows_of(ctx, ctx.tx)[1].T
+    open_r &= ~shadow.shadows_of(ctx, ctx.rx)[1].T
     if ctx.wedge_mask is not None:
         open_t &= ctx.wedge_mask[:, None]
     # Keller's point must lie on the edge (padded): tested per (transmitter, wedge) and
@@ -263,9 +261,7 @@ def _facet_wedge_pairs(
         point of this reflection lies in it (necessary condition).
     """
     fc = ctx.scene.facets
-    side = refl.reflecting_side(fc, ends)  # (E, K)
-    # a facet the end sees only through an opaque solid reflects nothing of it that arrives
-    side[_shadows(ctx, ends)[0]] = 0
+    side = shadow.reflecting_sides(ctx, ends)  # (E, K), none in a facet in the end's shadow
     geo = _PairGeometry.of(ctx)
     if ctx.facet_mask is not None and not mixed_rdr:
         # only pairs with the wedge or the facet on a chosen object (a group is one object's)
@@ -297,8 +293,7 @@ def _facet_wedge_pairs(
             found = tuple(x[:m] for x in arrays[1:])
             if kernels.PRUNE and ctx.facet_mask is None:
                 # triples whose every path is blocked by an opaque solid (shadow.py)
-                keep = ~triples_in_shadow(ctx.scene, ctx.opaque, ends[e], *found[:2],
-                                          *found[2:])  # fmt: skip
+                keep = ~shadow.triples_in_shadow(ctx.scene, ctx.opaque, ends[e], *found)
                 found = tuple(x[keep] for x in found)
             found = tuple(x.copy() for x in found)
             for x in found:
@@ -361,7 +356,7 @@ def _one_reflection(ctx: TraceContext, before: bool) -> list[Paths]:
     o_xyz = others.T[:, None, :]  # (3, 1, O)
     open_w = ~_surely_inside(_wedge_frame(ctx), np.arange(len(w))[:, None], *o_xyz)
     # or seeing the edge only through an opaque solid
-    open_w &= ~_shadows(ctx, others)[1].T
+    open_w &= ~shadow.shadows_of(ctx, others)[1].T
     fr = _wedge_frame(ctx).utd
     fixed = (carray(others), carray(td_w), carray(rho_w), carray(open_w, bool), carray(w.start),
              carray(w.direction), carray(w.end), carray(fc.normal), carray(fc.offset), side_e,

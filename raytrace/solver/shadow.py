@@ -44,7 +44,8 @@ from . import reflection as refl
 from .context import OPAQUE_CHORD_M, TraceContext
 from .penetration import convex_plane_arrays
 
-__all__ = ["SHADOW_DEPTH_M", "SHADOWS_KEPT", "shadowed", "shadows_of", "triples_in_shadow"]
+__all__ = ["SHADOW_DEPTH_M", "SHADOWS_KEPT", "reflecting_sides", "shadowed", "shadows_of",
+           "triples_in_shadow"]
 
 #: Depth (m) inside an opaque solid on every segment from an end to a facet or edge in its
 #: shadow: the chord is then at least twice the one that makes the solid opaque.
@@ -158,6 +159,15 @@ def shadows_of(ctx: TraceContext, ends: np.ndarray) -> tuple[np.ndarray, np.ndar
             if which is not None:
                 cache[which] = found
     return found
+
+
+def reflecting_sides(ctx: TraceContext, ends: np.ndarray) -> np.ndarray:
+    """(E, K) int8: :func:`raytrace.solver.reflection.reflecting_side` of the trace's ``ends``
+    (``ctx.tx`` or ``ctx.rx``), 0 where the end sees the facet only through an opaque solid
+    (:func:`shadows_of`): a facet in shadow reflects nothing of that end."""
+    side = refl.reflecting_side(ctx.scene.facets, ends)
+    side[shadows_of(ctx, ends)[0]] = 0
+    return side
 
 
 #: Ray origins for the triples' candidate solids are moved this far along the ray (m), off the

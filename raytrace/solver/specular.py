@@ -16,12 +16,11 @@ import numpy as np
 from ..core.jit import carray
 from ..core.kept import keep
 from ..scene import accel
-from . import kernels
+from . import kernels, shadow
 from . import reflection as refl
 from .context import TraceContext
 from .evaluate import candidates, evaluate
 from .paths import Paths
-from .shadow import shadows_of
 
 #: Work is split into chunks of about this many candidate paths to bound memory.
 CHUNK = 400_000
@@ -57,11 +56,9 @@ def first_order(ctx: TraceContext) -> list[Paths]:
     """Single reflections: the image of the transmitter in every facet that both ends see on a
     reflecting side, through the receiver, crossing the facet."""
     fc = ctx.scene.facets
-    side_tx = refl.reflecting_side(fc, ctx.tx)  # (T, K)
-    side_rx = refl.reflecting_side(fc, ctx.rx)  # (R, K)
-    # a facet that either end sees only through an opaque solid (shadow.py) reflects nothing
-    side_tx[shadows_of(ctx, ctx.tx)[0]] = 0
-    side_rx[shadows_of(ctx, ctx.rx)[0]] = 0
+    # (a facet that an end sees only through an opaque solid reflects nothing of it)
+    side_tx = shadow.reflecting_sides(ctx, ctx.tx)  # (T, K)
+    side_rx = shadow.reflecting_sides(ctx, ctx.rx)  # (R, K)
     ok_tkr = (side_tx[:, :, None] != 0) & (side_tx[:, :, None] == side_rx.T[None])
     if ctx.facet_mask is not None:
         ok_tkr &= ctx.facet_mask[None, :, None]
@@ -85,9 +82,8 @@ def second_order(ctx: TraceContext) -> list[Paths]:
     pairs = accel.facing_pairs(fc)
     if ctx.facet_mask is not None:
         pairs = pairs & (ctx.facet_mask[:, None] | ctx.facet_mask[None, :])
-    side_rx = refl.reflecting_side(fc, ctx.rx)  # (R, K)
-    # no second reflection in a facet the receiver sees only through an opaque solid
-    side_rx[shadows_of(ctx, ctx.rx)[0]] = 0
+    # (no second reflection in a facet the receiver sees only through an opaque solid)
+    side_rx = shadow.reflecting_sides(ctx, ctx.rx)  # (R, K)
     rx_centre = 0.5 * (ctx.rx.min(axis=0) + ctx.rx.max(axis=0))
     rx_radius = float(np.sqrt(((ctx.rx - rx_centre) ** 2).sum(axis=1)).max()) * (1 + 1e-9) + 1e-9
     side_rx, rx = carray(side_rx, np.int8), carray(ctx.rx)
@@ -102,7 +98,7 @@ def second_order(ctx: TraceContext) -> list[Paths]:
         out.append(evaluate(ctx, candidates(ctx, *(np.concatenate(x) for x in zip(*found)))))
         found.clear()
 
-    shadow_tx = shadows_of(ctx, ctx.tx)[0]
+    shadow_tx = shadow.shadows_of(ctx, ctx.tx)[0]
     for t in range(len(ctx.tx)):
         _, _, _, f1a, f2, _, _, receiver_args, exact_args = _second_images(ctx, t, pairs,
                                                                            shadow_tx[t])  # fmt: skip
@@ -141,10 +137,10 @@ SECOND_IMAGES_KEPT = 16
 
 
 def _second_images(
-    ctx: TraceContext, t: int, pairs: np.ndarray, shadow: np.ndarray
+    ctx: TraceContext, t: int, pairs: np.ndarray, in_shadow: np.ndarray
 ) -> tuple[np.ndarray, ...]:
     """Transmitter ``t``'s side of double reflections (cached on the facets, per transmitter
-    position, facet restriction, facets in its shadow (``shadow`` (K,) bool: no first
+    position, facet restriction, facets in its shadow (``in_shadow`` (K,) bool: no first
     reflection there) and :data:`raytrace.solver.kernels.PRUNE`).
 
     Returns
@@ -163,14 +159,14 @@ def _second_images(
     """
     fc = ctx.scene.facets
     mask = None if ctx.facet_mask is None else ctx.facet_mask.tobytes()
-    key = (ctx.tx[t].tobytes(), mask, np.packbits(shadow).tobytes(), kernels.PRUNE)
+    key = (ctx.tx[t].tobytes(), mask, np.packbits(in_shadow).tobytes(), kernels.PRUNE)
     kept = fc.cache.setdefault("second_images", {})
     found = kept.get(key)
     if found is not None:
         return found
     centre, radius = accel.facet_spheres(fc)
     side_t = refl.reflecting_side(fc, ctx.tx[t : t + 1])[0]  # (K,)
-    f1 = np.flatnonzero((side_t != 0) & ~shadow)
+    f1 = np.flatnonzero((side_t != 0) & ~in_shadow)
     img1 = refl.mirror(np.broadcast_to(ctx.tx[t], (len(f1), 3)), fc.normal[f1], fc.offset[f1])
     # only first facets with some partner, and side tests only on possible partners
     rows = pairs[f1].any(axis=1)
