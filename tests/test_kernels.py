@@ -10,7 +10,7 @@ from conftest import box, make_scene, quad
 from raytrace.core.jit import carray
 from raytrace.physics import utd
 from raytrace.scene import accel
-from raytrace.solver import diffraction, kernels
+from raytrace.solver import diffraction, kernels, shadow
 from raytrace.solver import reflection as refl
 from raytrace.solver.config import TraceConfig
 from raytrace.solver.context import TraceContext
@@ -152,7 +152,7 @@ def test_pair_buffers_grow_and_keep_every_end_in_order(monkeypatch):
             np.testing.assert_array_equal(a[mine], b)
     sc.wedges.cache.pop("end_pairs", None)
     # (the kept ends' triples also lose those blocked whole: test_shadow.py; not here)
-    monkeypatch.setattr(diffraction, "triples_in_shadow",
+    monkeypatch.setattr(shadow, "triples_in_shadow",
                         lambda sc, o, e, f, *a: np.zeros(len(f), dtype=bool))  # fmt: skip
     kept = diffraction._facet_wedge_pairs(ctx, ends, keep=True)  # one end at a time, grown too
     for a, b in zip(whole, kept):
