@@ -172,26 +172,31 @@ def test_a_segment_touching_a_solid_at_an_edge_does_not_cross_it():
 
 def test_a_segment_through_two_edges_gets_the_same_faces_whatever_the_bvh():
     """Diagonals of the cube's horizontal sections enter and leave through vertical edges.
-    Embree reports the entry on face x = 0 in one scene and on y = 1 in another (same cube,
+    Embree reports the entry on face x = 0 in some scenes and on y = 1 in others (same cube,
     other crates far away); the face booked (the lowest-index one of those containing the hit
-    and facing the ray the same way) and so the normal must be the same. Closed form: chord
-    sqrt(2), cos 45 degrees on either entry face: slab 1 m."""
+    and facing the ray the same way) and so the normal must be the same in all. Closed form:
+    chord sqrt(2), cos 45 degrees on either entry face: slab 1 m.
+
+    Which BVH reports which face depends on Embree's build (its version and the CPU's ISA), so
+    the test tries several crate counts and keeps going until two scenes disagree."""
     n = 9
     zs = np.linspace(0.1, 0.9, n)
     a = np.column_stack([np.full(n, -1.0), np.full(n, 2.0), zs])
     b = np.column_stack([np.full(n, 2.0), np.full(n, -1.0), zs])
     d = (b - a) / np.linalg.norm(b - a, axis=1)[:, None]
     normals, reported = [], []
-    for n_spare, seed in ((0, 0), (6, 0)):
-        sc = _unit_box(n_spare, seed)
+    for n_spare in (0, 3, 6, 1, 2, 4, 5, 8, 12, 24):
+        sc = _unit_box(n_spare, 0)
         cr = segment_crossings(sc, a, b, 2)
         np.testing.assert_array_equal(cr.count, 1)
         np.testing.assert_allclose(cr.thickness[:, 0], 1.0, atol=CHORD_TOL_M)
         normals.append(cr.normal[:, 0])
         reported.append(sc.face_normal[sc.intersect(a + sc.margin * d, d, np.full(n, 5.0))[1]])
-    np.testing.assert_array_equal(normals[1], normals[0])
-    # the test has its power only if Embree reported different entry faces in the two scenes
-    assert np.all(np.abs(reported[0] - reported[1]).max(axis=1) > 0.5)
+        np.testing.assert_array_equal(normals[-1], normals[0])
+        if np.all(np.abs(reported[-1] - reported[0]).max(axis=1) > 0.5):
+            return
+    # the test has its power only if Embree reported different entry faces in two scenes
+    pytest.skip("this Embree build reports the same entry face in every scene tried")
 
 
 def test_a_segment_along_a_face_does_not_cross_its_solid():
