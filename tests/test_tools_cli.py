@@ -38,13 +38,6 @@ CASES: dict[str, tuple[str, list[str], str]] = {
         "bench_twin.py", ["--data", "{tmp}", "--maps", "{tmp}", "--steps", "0.05,abc"], "--steps"
     ),
     "build_scenes-exclusive-options": ("build_scenes.py", ["--check", "--los-table"], "not allowed"),
-    "build_twin_map-unknown-scene": (
-        "build_twin_map.py", ["--scene", "no_such_scene.glb", "-o", "{tmp}/map.npz"],
-        "scene file not found",
-    ),
-    "build_twin_map-bad-shift": (
-        "build_twin_map.py", ["--shift", "abc", "-o", "{tmp}/map.npz"], "--shift"
-    ),
     "check_layers-missing-root": ("check_layers.py", ["{tmp}/no"], "no raytrace"),
     "check_reciprocity-not-an-integer": (
         "check_reciprocity.py", ["--max-reflections", "two"], "--max-reflections"
@@ -53,14 +46,7 @@ CASES: dict[str, tuple[str, list[str], str]] = {
     "compare_sionna-no-sionna": (
         "compare_sionna.py", ["--sionna-python", "{tmp}/no/python"], "no Sionna RT python"
     ),
-    "eval_twin-missing-map": (
-        "eval_twin.py", ["--maps", "{tmp}/no", "--data", "{tmp}/no"], "no such map file"
-    ),
-    "eval_twin-bad-twin-param": ("eval_twin.py", ["--maps", "{tmp}", "--twin-param", "bias"], "KEY=VALUE"),
     "make_figures-unknown-option": ("make_figures.py", ["--no-such-option"], "unrecognized"),
-    "oracle_twin_resynth-unknown-band": (
-        "oracle_twin_resynth.py", ["--bands", "nosuch", "--cache", "{tmp}/cache"], "unknown band"
-    ),
     "plot_hall-zero-dpi": ("plot_hall.py", ["--dpi", "0", "-o", "{tmp}/hall.png"], "--dpi"),
     "plot_hall-missing-output-directory": (
         "plot_hall.py", ["-o", "{tmp}/no/hall.png"], "does not exist"
