@@ -18,17 +18,13 @@ from __future__ import annotations
 
 import argparse
 import math
-import sys
-from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-
-from raytrace import TraceConfig, load_scene, trace  # noqa: E402
-from raytrace.cli.harness import OneLineParser, run_tool  # noqa: E402
-from raytrace.core.errors import HallrayError  # noqa: E402
-from raytrace.emulation.bands import get_band  # noqa: E402
-from raytrace.scene.metadata import SceneMetadata  # noqa: E402
-from raytrace.studies.reciprocity import compare_reverse, format_table  # noqa: E402
+from raytrace import TraceConfig, load_scene, trace
+from raytrace.cli.harness import OneLineParser, run_tool
+from raytrace.core.errors import HallrayError
+from raytrace.emulation.bands import get_band
+from raytrace.scene.metadata import SceneMetadata
+from raytrace.studies.reciprocity import compare_reverse, format_table
 
 
 def parser() -> argparse.ArgumentParser:

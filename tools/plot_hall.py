@@ -13,24 +13,22 @@ from __future__ import annotations
 
 import argparse
 import io
-import sys
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
-
-import matplotlib  # noqa: E402
+import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import trimesh  # noqa: E402
+import matplotlib.pyplot as plt
+import trimesh
 
-from positioning.output import check_output  # noqa: E402
-from raytrace.cli.harness import OneLineParser, run_tool  # noqa: E402
-from raytrace.core.errors import HallrayError  # noqa: E402
-from raytrace.core.fileio import write_atomic  # noqa: E402
-from raytrace.halls.spec import load_hall_spec, plot_top_view  # noqa: E402
-from raytrace.scene.metadata import SceneMetadata  # noqa: E402
+from positioning.output import check_output
+from raytrace.cli.harness import OneLineParser, run_tool
+from raytrace.core.errors import HallrayError
+from raytrace.core.fileio import write_atomic
+from raytrace.halls.spec import load_hall_spec, plot_top_view
+from raytrace.scene.metadata import SceneMetadata
+
+ROOT = Path(__file__).resolve().parent.parent
 
 #: Area names drawn on the reference hall's plan (x, y in m).
 REFERENCE_LABELS = {

@@ -16,18 +16,15 @@ import argparse
 import cProfile
 import math
 import pstats
-import sys
 import time
 from collections import defaultdict
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-
-from raytrace import TraceConfig, load_scene, trace  # noqa: E402
-from raytrace.cli.harness import OneLineParser, run_tool  # noqa: E402
-from raytrace.core.errors import HallrayError  # noqa: E402
-from raytrace.scene.metadata import SceneMetadata  # noqa: E402
-from raytrace.solver.parallel import receiver_chunks  # noqa: E402
+from raytrace import TraceConfig, load_scene, trace
+from raytrace.cli.harness import OneLineParser, run_tool
+from raytrace.core.errors import HallrayError
+from raytrace.scene.metadata import SceneMetadata
+from raytrace.solver.parallel import receiver_chunks
 
 
 def _module(file: str) -> str:

@@ -13,19 +13,15 @@ from __future__ import annotations
 
 import argparse
 import pickle
-import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-
-from positioning.output import check_output  # noqa: E402
-from raytrace import TraceConfig, load_scene, trace  # noqa: E402
-from raytrace.cli.harness import OneLineParser, run_tool  # noqa: E402
-from raytrace.core.errors import HallrayError  # noqa: E402
-from raytrace.scene.metadata import SceneMetadata  # noqa: E402
+from positioning.output import check_output
+from raytrace import TraceConfig, load_scene, trace
+from raytrace.cli.harness import OneLineParser, run_tool
+from raytrace.core.errors import HallrayError
+from raytrace.scene.metadata import SceneMetadata
 
 FIELDS = ("link", "tx_index", "rx_index", "n_reflections", "n_penetrations", "n_diffractions",
           "interaction", "objects", "elements", "delay_s", "gain", "points")  # fmt: skip
