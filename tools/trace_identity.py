@@ -21,6 +21,7 @@ from positioning.output import check_output
 from raytrace import TraceConfig, load_scene, trace
 from raytrace.cli.harness import OneLineParser, run_tool
 from raytrace.core.errors import HallrayError
+from raytrace.core.fileio import write_atomic
 from raytrace.scene.metadata import SceneMetadata
 
 FIELDS = ("link", "tx_index", "rx_index", "n_reflections", "n_penetrations", "n_diffractions",
@@ -87,8 +88,9 @@ def load_reference(path: str) -> dict[str, dict[str, np.ndarray]]:
 
 def parser() -> argparse.ArgumentParser:
     ap = OneLineParser(description=__doc__.splitlines()[0])
-    ap.add_argument("mode", choices=("save", "check"))
-    ap.add_argument("ref")
+    ap.add_argument("mode", choices=("save", "check"),
+                    help="save: write the reference; check: compare against it")  # fmt: skip
+    ap.add_argument("ref", help="the reference file (.pkl)")
     return ap
 
 
@@ -100,8 +102,7 @@ def _main(args: argparse.Namespace) -> int:
         ref = load_reference(args.ref)
     got = cases()
     if args.mode == "save":
-        with open(args.ref, "wb") as fh:
-            pickle.dump(got, fh)
+        write_atomic(args.ref, pickle.dumps(got))  # never a half-written reference
         return 0
     bad = 0
     for name, r in ref.items():
