@@ -343,8 +343,8 @@ def bench_positioning(n_epochs: int) -> dict:
 
 def parser() -> argparse.ArgumentParser:
     ap = OneLineParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--scene", default="hall")
-    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--scene", default="hall", help="scene file or 'hall' [hall]")
+    ap.add_argument("--repeat", type=int, default=3, help="runs per timing, best kept [3]")
     ap.add_argument(
         "--epochs", type=int, default=20000, help="epochs for the positioning benchmark"
     )
@@ -358,7 +358,7 @@ def parser() -> argparse.ArgumentParser:
     scaling = ap.add_mutually_exclusive_group()
     scaling.add_argument("--no-scaling", action="store_true", help="skip the scaling over cores")
     scaling.add_argument("--only-scaling", action="store_true", help="only the scaling over cores")
-    ap.add_argument("--json", action="store_true")
+    ap.add_argument("--json", action="store_true", help="print the figures as one JSON object")
     return ap
 
 

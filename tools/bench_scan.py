@@ -50,8 +50,8 @@ print(json.dumps({{"summary": s, "wall_s": wall, "peak_rss_mib": rss_kib / 1024,
 def parser() -> argparse.ArgumentParser:
     p = OneLineParser(description=__doc__.splitlines()[0])
     p.add_argument("--points", type=int, default=1_000_000, help="points in the cloud [1e6]")
-    p.add_argument("--seed", type=int, default=11)
-    p.add_argument("--json", action="store_true")
+    p.add_argument("--seed", type=int, default=11, help="seed of the simulated scan [11]")
+    p.add_argument("--json", action="store_true", help="print the report as one JSON object")
     return p
 
 

@@ -50,7 +50,7 @@ def parser() -> argparse.ArgumentParser:
     ap = OneLineParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", required=True, help="folder of the datasets (one per setup)")
     ap.add_argument("--maps", required=True, help="folder with <band>/map.npz")
-    ap.add_argument("--setups", default=SETUPS)
+    ap.add_argument("--setups", default=SETUPS, help=f"comma-separated datasets of DATA [{SETUPS}]")
     ap.add_argument("--steps", type=_steps, default="0.05",
                     help="raster spacings, m, comma-separated")  # fmt: skip
     return ap

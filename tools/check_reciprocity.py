@@ -29,11 +29,11 @@ from raytrace.studies.reciprocity import compare_reverse, format_table
 
 def parser() -> argparse.ArgumentParser:
     ap = OneLineParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--scene", default="hall")
-    ap.add_argument("--band", default="c-band")
-    ap.add_argument("--max-reflections", type=int, default=2)
-    ap.add_argument("--max-penetrations", type=int, default=2)
-    ap.add_argument("--max-diffractions", type=int, default=1)
+    ap.add_argument("--scene", default="hall", help="scene file or 'hall' [hall]")
+    ap.add_argument("--band", default="c-band", help="band name [c-band]")
+    ap.add_argument("--max-reflections", type=int, default=2, help="reflections per path [2]")
+    ap.add_argument("--max-penetrations", type=int, default=2, help="penetrations per path [2]")
+    ap.add_argument("--max-diffractions", type=int, default=1, help="diffractions per path [1]")
     ap.add_argument("--tol-db", type=float, default=1e-6, help="gain difference counted, dB")
     return ap
 

@@ -55,9 +55,11 @@ REFERENCE_LABELS = {
 
 def parser() -> argparse.ArgumentParser:
     parser = OneLineParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("hall", nargs="?", default=str(ROOT / "scenes" / "hall.yaml"))
-    parser.add_argument("-o", "--output", default=str(ROOT / "docs" / "hall_top.png"))
-    parser.add_argument("--dpi", type=int, default=150)
+    parser.add_argument("hall", nargs="?", default=str(ROOT / "scenes" / "hall.yaml"),
+                        help="hall YAML or built GLB [scenes/hall.yaml]")  # fmt: skip
+    parser.add_argument("-o", "--output", default=str(ROOT / "docs" / "hall_top.png"),
+                        help="PNG to write [docs/hall_top.png]")  # fmt: skip
+    parser.add_argument("--dpi", type=int, default=150, help="resolution [150]")
     parser.add_argument("--labels", action="store_true", help="write object names on the plan")
     return parser
 

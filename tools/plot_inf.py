@@ -101,8 +101,8 @@ def parser() -> argparse.ArgumentParser:
     ap = OneLineParser(description=__doc__.splitlines()[0])
     ap.add_argument("--size", default="120x60x10", help="hall of the LoS check [120x60x10]")
     ap.add_argument("--halls-size", default="42x46x8.8", help="hall of the top views [42x46x8.8]")
-    ap.add_argument("--seeds", type=int, default=5)
-    ap.add_argument("--out", default=str(ROOT / "docs"))
+    ap.add_argument("--seeds", type=int, default=5, help="halls per profile in the LoS check [5]")
+    ap.add_argument("--out", default=str(ROOT / "docs"), help="folder of the two PNGs [docs/]")
     return ap
 
 

@@ -41,9 +41,10 @@ def _module(file: str) -> str:
 
 def parser() -> argparse.ArgumentParser:
     ap = OneLineParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--scene", default="hall")
-    ap.add_argument("--grid-step", type=float, default=None)
-    ap.add_argument("--top", type=int, default=25)
+    ap.add_argument("--scene", default="hall", help="scene file or 'hall' [hall]")
+    ap.add_argument("--grid-step", type=float, default=None,
+                    help="trace a grid of this step (m) over the floor instead of the points")  # fmt: skip
+    ap.add_argument("--top", type=int, default=25, help="functions listed [25]")
     return ap
 
 
