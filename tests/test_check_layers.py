@@ -39,7 +39,7 @@ def _module(n_lines: int) -> str:
 BASE = {
     "raytrace/__init__.py": '"""pkg"""\n__version__ = "0"\n',
     "raytrace/core/__init__.py": "",
-    "raytrace/core/b.py": "__all__ = [\"shown\"]\n_hidden = 1\nshown = 2\n",
+    "raytrace/core/b.py": '__all__ = ["shown"]\n_hidden = 1\nshown = 2\n',
     "raytrace/core/_impl.py": "thing = 1\n",
     "positioning/__init__.py": "",
 }
@@ -218,8 +218,7 @@ def test_unknown_rule_is_one_line_and_exit_2(tmp_path):
     proc = _run(str(_write(tmp_path, CLEAN)), "--rules", "size,nosuch")
     assert proc.returncode == 2 and proc.stdout == ""
     assert proc.stderr == (
-        "error: argument --rules: unknown rule group 'nosuch' "
-        f"(known: {', '.join(RULES)})\n"
+        f"error: argument --rules: unknown rule group 'nosuch' (known: {', '.join(RULES)})\n"
     )
 
 
