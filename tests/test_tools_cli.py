@@ -1,14 +1,16 @@
-"""The maintainers' scripts in tools/ on bad input: one line ``error: ...`` on stderr, exit status
-2, no traceback, nothing written, and before any real work (each run is mostly interpreter and
-import time).
+"""The maintainers' tools in tools/: each answers ``--help`` and is listed in docs/tools.md; on bad
+input each gives one line ``error: ...`` on stderr, exit status 2, no traceback, nothing written,
+and before any real work (each run is mostly interpreter and import time).
 
-The scripts are run as subprocesses, as a maintainer runs them (``python tools/NAME.py ...`` from
-the checkout), all at once on a thread pool to keep the file short.
+The tools are run as subprocesses, as a maintainer runs them (``python tools/NAME.py ...`` from
+the checkout, ``python tools/NAME`` for a tool that is a folder), all at once on a thread pool to
+keep the file short.
 """
 
 from __future__ import annotations
 
 import os
+import re
 import subprocess
 import sys
 from concurrent.futures import ThreadPoolExecutor
@@ -38,29 +40,15 @@ CASES: dict[str, tuple[str, list[str], str]] = {
         "bench_twin.py", ["--data", "{tmp}", "--maps", "{tmp}", "--steps", "0.05,abc"], "--steps"
     ),
     "build_scenes-exclusive-options": ("build_scenes.py", ["--check", "--los-table"], "not allowed"),
-    "build_twin_map-unknown-scene": (
-        "build_twin_map.py", ["--scene", "no_such_scene.glb", "-o", "{tmp}/map.npz"],
-        "scene file not found",
-    ),
-    "build_twin_map-bad-shift": (
-        "build_twin_map.py", ["--shift", "abc", "-o", "{tmp}/map.npz"], "--shift"
-    ),
     "check_layers-missing-root": ("check_layers.py", ["{tmp}/no"], "no raytrace"),
     "check_reciprocity-not-an-integer": (
         "check_reciprocity.py", ["--max-reflections", "two"], "--max-reflections"
     ),
     "check_reciprocity-negative-tolerance": ("check_reciprocity.py", ["--tol-db", "-1"], "--tol-db"),
     "compare_sionna-no-sionna": (
-        "compare_sionna.py", ["--sionna-python", "{tmp}/no/python"], "no Sionna RT python"
+        "compare_sionna", ["--sionna-python", "{tmp}/no/python"], "no Sionna RT python"
     ),
-    "eval_twin-missing-map": (
-        "eval_twin.py", ["--maps", "{tmp}/no", "--data", "{tmp}/no"], "no such map file"
-    ),
-    "eval_twin-bad-twin-param": ("eval_twin.py", ["--maps", "{tmp}", "--twin-param", "bias"], "KEY=VALUE"),
     "make_figures-unknown-option": ("make_figures.py", ["--no-such-option"], "unrecognized"),
-    "oracle_twin_resynth-unknown-band": (
-        "oracle_twin_resynth.py", ["--bands", "nosuch", "--cache", "{tmp}/cache"], "unknown band"
-    ),
     "plot_hall-zero-dpi": ("plot_hall.py", ["--dpi", "0", "-o", "{tmp}/hall.png"], "--dpi"),
     "plot_hall-missing-output-directory": (
         "plot_hall.py", ["-o", "{tmp}/no/hall.png"], "does not exist"
@@ -113,3 +101,43 @@ def test_bad_input_gives_one_line(runs, case):
     assert lines[0].startswith("error: "), proc.stderr
     assert message in lines[0], proc.stderr
     assert not any(tmp.iterdir()), f"{script} wrote {sorted(tmp.iterdir())} on bad input"
+
+
+def _tools() -> list[str]:
+    """Every tool: tools/*.py and the folders of tools/ that run as a program (__main__.py)."""
+    tools = ROOT / "tools"
+    return sorted(
+        [p.name for p in tools.glob("*.py")]
+        + [p.name for p in tools.iterdir() if (p / "__main__.py").is_file()]
+    )
+
+
+def test_there_are_tools_and_every_case_names_one():
+    assert len(_tools()) >= 10
+    assert {script for script, _, _ in CASES.values()} <= set(_tools())
+
+
+@pytest.fixture(scope="module")
+def helps(tmp_path_factory):
+    """tool -> future of its ``--help`` run."""
+    workers = 2 * (os.cpu_count() or 2)
+    tmp = tmp_path_factory.mktemp("help")
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        yield {tool: pool.submit(_run, tool, ["--help"], tmp) for tool in _tools()}
+
+
+@pytest.mark.parametrize("tool", _tools())
+def test_every_tool_has_help(helps, tool):
+    proc = helps[tool].result()
+    assert (proc.returncode, proc.stderr) == (0, ""), proc.stderr
+    assert proc.stdout.startswith("usage: "), proc.stdout
+    assert "-h, --help" in proc.stdout
+
+
+def test_every_tool_is_listed_in_docs_tools_md():
+    """docs/tools.md has a section per tool (``## tools/NAME``), and no section of a tool that is
+    gone; the README links the page."""
+    text = (ROOT / "docs" / "tools.md").read_text(encoding="utf-8")
+    listed = re.findall(r"^## `tools/([\w.]+)`", text, flags=re.M)
+    assert sorted(listed) == _tools()
+    assert "(docs/tools.md)" in (ROOT / "README.md").read_text(encoding="utf-8")

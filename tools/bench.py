@@ -24,12 +24,10 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-
-from raytrace import TraceConfig, load_scene, trace  # noqa: E402
-from raytrace.cli.harness import OneLineParser, run_tool  # noqa: E402
-from raytrace.core.errors import HallrayError  # noqa: E402
-from raytrace.scene.metadata import SceneMetadata  # noqa: E402
+from raytrace import TraceConfig, load_scene, trace
+from raytrace.cli.harness import OneLineParser, run_tool
+from raytrace.core.errors import HallrayError
+from raytrace.scene.metadata import SceneMetadata
 
 
 def _best_of(fn, repeat):
@@ -158,26 +156,21 @@ def _cores(n: int):
         os.sched_setaffinity(0, before)
 
 
-def _noop(scene, item):
-    """A job that does nothing: times a worker pool's start-up (scene sent, Embree rebuilt)."""
-    return item
-
-
+# A pool's start-up (scene sent, Embree rebuilt) is timed with the job ``operator.is_(scene,
+# item)``: it does nothing, and the workers have it without importing this script (a job is sent
+# by reference, and the workers do not import ``__main__``).
 _COLD_START = """
-import sys, time
-sys.path.insert(0, {root!r})
+import operator, time
 def main():
     from raytrace import load_scene
-    from raytrace.solver import parallel as P
-    sys.path.insert(0, {tools!r})
-    from bench import _noop
+    from raytrace.solver.parallel import ScenePool, close_pools
     scene = load_scene({scene!r})
     t0 = time.perf_counter()
-    P.ScenePool(scene, {lanes})  # the kept pool of lanes - 1 workers; wait for each to answer
-    ex = P._KEPT["executor"]
-    [f.result() for f in [ex.submit(P._call, _noop, i) for i in range({lanes} - 1)]]
+    # the kept pool of lanes - 1 workers; with as many items as lanes this process takes the
+    # last one and the workers the others: done when each worker has answered
+    list(ScenePool(scene, {lanes}).map(operator.is_, range({lanes})))
     print(time.perf_counter() - t0)
-    P.close_pools()
+    close_pools()
 if __name__ == "__main__":
     main()
 """
@@ -187,39 +180,35 @@ def _pool_start(scene_name: str, lanes: int, repeat: int) -> dict:
     """Seconds until the ``lanes - 1`` workers of a pool answer: the first pool of a fresh
     interpreter (fork server started, its imports; best of ``repeat`` interpreters), and a kept
     pool taken again for the same scene (the scene pickled and compared)."""
+    import operator
     import subprocess
 
-    from raytrace.solver import parallel as P
+    from raytrace.solver.parallel import ScenePool
 
-    root = str(Path(__file__).resolve().parent.parent)
-    code = _COLD_START.format(root=root, tools=str(Path(__file__).resolve().parent),
-                              scene=scene_name, lanes=lanes)  # fmt: skip
+    code = _COLD_START.format(scene=scene_name, lanes=lanes)
     cold = min(
         float(subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                              check=True).stdout.split()[-1])  # fmt: skip
         for _ in range(repeat)
     )
-    # the job by its module's name, not __main__'s (the pool's workers do not import __main__)
-    sys.path.insert(0, str(Path(__file__).resolve().parent))
-    from bench import _noop as noop
-
     scene = load_scene(scene_name)
     kept = np.inf
     for _ in range(repeat + 1):  # the first one starts the pool
         t0 = time.perf_counter()
-        P.ScenePool(scene, lanes)
-        ex = P._KEPT["executor"]
-        [f.result() for f in [ex.submit(P._call, noop, i) for i in range(lanes - 1)]]
+        list(ScenePool(scene, lanes).map(operator.is_, range(lanes)))
         kept = min(kept, time.perf_counter() - t0) if _ else np.inf
     return {"pool_start_first_s": cold, "pool_start_kept_s": kept}
 
 
 def _serial_parts(scene, tx, rx, f, cfg) -> dict:
     """Seconds spent outside the chunks' tracing: the input checks, joining the chunks' paths."""
-    from raytrace.solver.tracer import _checked, join_chunks, trace_chunks
+    from raytrace.solver.tracer import check_distinct, check_positions, join_chunks, trace_chunks
 
     t0 = time.perf_counter()
-    _checked(scene, tx, rx, f, cfg)
+    # what trace() checks before it traces (tracer._checked: the positions, then their distance)
+    check_distinct(
+        check_positions(scene, tx, "transmitter"), check_positions(scene, rx, "receiver")
+    )
     t1 = time.perf_counter()
     parts = [p for _, p in trace_chunks(scene, tx, rx, f, cfg, workers=1)]
     t2 = time.perf_counter()
@@ -339,19 +328,23 @@ def _print_scaling(sc: dict) -> None:
 
 
 def bench_positioning(n_epochs: int) -> dict:
-    try:
-        sys.path.insert(0, str(Path(__file__).resolve().parent))
-        import bench_positioning
+    """Fixes per second of every positioning method: ``tools/bench_positioning.py N --json``'s
+    speed figures (run as a maintainer runs it), or ``{"error": ...}``."""
+    import subprocess
 
-        return bench_positioning.run(n_epochs=n_epochs)
-    except Exception as exc:
-        return {"error": f"{type(exc).__name__}: {exc}"}
+    script = Path(__file__).resolve().parent / "bench_positioning.py"
+    proc = subprocess.run([sys.executable, str(script), str(n_epochs), "--json", "--speed-only"],
+                          capture_output=True, text=True)  # fmt: skip
+    if proc.returncode != 0:
+        lines = proc.stderr.strip().splitlines() or [f"exit status {proc.returncode}"]
+        return {"error": lines[-1]}
+    return json.loads(proc.stdout)["speed"]
 
 
 def parser() -> argparse.ArgumentParser:
     ap = OneLineParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--scene", default="hall")
-    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--scene", default="hall", help="scene file or 'hall' [hall]")
+    ap.add_argument("--repeat", type=int, default=3, help="runs per timing, best kept [3]")
     ap.add_argument(
         "--epochs", type=int, default=20000, help="epochs for the positioning benchmark"
     )
@@ -365,7 +358,7 @@ def parser() -> argparse.ArgumentParser:
     scaling = ap.add_mutually_exclusive_group()
     scaling.add_argument("--no-scaling", action="store_true", help="skip the scaling over cores")
     scaling.add_argument("--only-scaling", action="store_true", help="only the scaling over cores")
-    ap.add_argument("--json", action="store_true")
+    ap.add_argument("--json", action="store_true", help="print the figures as one JSON object")
     return ap
 
 

@@ -24,17 +24,16 @@ one NLoS base station (random per epoch) in *every* epoch, for 4 or more base st
 
 from __future__ import annotations
 
-import sys
+import json
 import time
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from positioning import C0, METHODS, error_2d, locate, summarize  # noqa: E402
-from positioning.command import OneLineParser, run_command  # noqa: E402
-from positioning.errors import PositioningError  # noqa: E402
+from positioning import C0, METHODS, error_2d, locate, summarize
+from positioning.command import OneLineParser, run_command
+from positioning.errors import PositioningError
+from positioning.fingerprint import FingerprintMap, write_map
 
 BS = np.array([[0.0, 0.0, 4.0], [29.0, 0.0, 4.0], [29.0, 25.0, 4.0], [0.0, 25.0, 4.0]])
 
@@ -91,33 +90,79 @@ def compare(
     return out
 
 
+#: Size (x, y from 0, m) of the benchmark's fingerprint map: the bundled hall's.
+HALL_AREA_M = (42.0, 46.0)
+#: The C-band first-lobe receiver's settings (as raytrace.studies.accuracy_map.receiver_model_meta
+#: gives them): the receiver model of the schema-v2 map.
+CBAND_MODEL = {"frequency_hz": 3.775e9, "period_s": 1.25e-8, "roll_off": 0.25, "oversampling": 8,
+               "span": 16, "noise_std": 7.81, "alpha": 15.42, "rho": 10 ** (-12 / 20)}  # fmt: skip
+
+
+def los_map(step: float = 0.5, height: float = 1.0) -> FingerprintMap:
+    """A schema-v1 map of a :data:`HALL_AREA_M` hall around :data:`BS` where every base station
+    is in line of sight everywhere: cells on a ``step`` lattice offset by half a step, first
+    arrival = straight distance, the service area the rectangle."""
+    xs = np.arange(step / 2, HALL_AREA_M[0], step)
+    ys = np.arange(step / 2, HALL_AREA_M[1], step)
+    X, Y = np.meshgrid(xs, ys)
+    cells = np.column_stack([X.ravel(), Y.ravel(), np.full(X.size, height)])
+    dist = np.linalg.norm(cells[:, None, :] - BS[None, :, :], axis=2)
+    n, b = dist.shape
+    ax, ay = HALL_AREA_M
+    return FingerprintMap(
+        cell_xyz=cells,
+        bs_xyz=BS,
+        bs_names=np.array([f"BS{i + 1}" for i in range(b)]),
+        los=np.ones((n, b), dtype=bool),
+        first_kind=np.full((n, b), "LoS"),
+        excess_m=np.zeros((n, b)),
+        toa_s=dist / C0,
+        toa_std_s=np.zeros((n, b)),
+        detected_fraction=np.ones((n, b)),
+        gdop=np.ones(n),
+        methods=np.array(["irls"]),
+        err_p90_m=np.zeros((1, n)),
+        err_mean_m=np.zeros((1, n)),
+        availability=np.ones((1, n)),
+        meta={"service_area": [[0, 0], [ax, 0], [ax, ay], [0, ay]]},
+    )
+
+
+def two_ray_paths(xyz: np.ndarray, k: int = 16, refl: float = -0.7):
+    """Per point (n, 3) and base station of :data:`BS`: the line-of-sight path and the floor
+    reflection (image source below the floor, coefficient ``refl``), padded to ``k`` slots:
+    delay (n, B, k) s, gain (n, B, k) complex, direction (n, B, k, 3), radius (n, B, k) m."""
+    f = CBAND_MODEL["frequency_hz"]
+    n, b = len(xyz), len(BS)
+    delay = np.full((n, b, k), np.nan)
+    gain = np.zeros((n, b, k), complex)
+    u = np.full((n, b, k, 3), np.nan)
+    radius = np.full((n, b, k), np.nan)
+    for j, (src, r) in enumerate(((BS, 1.0), (BS * np.array([1.0, 1.0, -1.0]), refl))):
+        v = xyz[:, None, :] - src[None]
+        d = np.linalg.norm(v, axis=2)
+        delay[..., j] = d / C0
+        gain[..., j] = r * C0 / f / (4 * np.pi * d) * np.exp(-2j * np.pi * f * d / C0)
+        u[..., j, :] = v / d[..., None]
+        radius[..., j] = d
+    return delay, gain, u, radius
+
+
 def hall_map_file(folder: str) -> str:
-    """A LoS-only fingerprint map of a 42 m x 46 m hall around :data:`BS`, 0.5 m grid, written
-    to ``folder``; returns its path."""
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "positioning"))
-    from pos_synth import synth_map
-
-    from positioning.fingerprint import write_map
-
-    fmap = synth_map(BS, area=(42.0, 46.0), bias=lambda xy: np.zeros((len(xy), len(BS))))
-    return str(write_map(Path(folder) / "hall-map.npz", fmap))
+    """:func:`los_map` written to ``folder``; returns its path."""
+    return str(write_map(Path(folder) / "hall-map.npz", los_map()))
 
 
 def hall_map_v2_file(folder: str, k: int = 16) -> str:
-    """:func:`hall_map_file`'s map in schema version 2: per cell and base station the
-    line-of-sight path and a floor reflection (coefficient -0.7), padded to ``k`` slots, the
+    """:func:`los_map` in schema version 2: per cell and base station the line-of-sight path and
+    a floor reflection (coefficient -0.7), padded to ``k`` slots (:func:`two_ray_paths`), the
     C-band first-lobe receiver model, ``toa_s`` from that receiver; returns its path."""
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "positioning"))
-    from pos_synth import CBAND_MODEL, synth_map, two_ray_paths
-
-    from positioning.fingerprint import FingerprintMap, write_map
     from positioning.lobe import LobeReceiver
 
     model = LobeReceiver.from_meta(CBAND_MODEL)  # C-band, as accuracy-map writes it
-    base = synth_map(BS, area=(42.0, 46.0), bias=lambda xy: np.zeros((len(xy), len(BS))))
-    cells = base.cell_xyz
-    n, b = len(cells), len(BS)
-    delay, gain, u, radius = two_ray_paths(cells, BS, k=k, refl=-0.7)
+    base = los_map()
+    n, b = len(base.cell_xyz), len(BS)
+    delay, gain, u, radius = two_ray_paths(base.cell_xyz, k=k)
     toa = model.toa(delay.reshape(n * b, k), gain.reshape(n * b, k)).reshape(n, b)
     arrays = {**base.arrays(), "toa_s": toa}
     fmap = FingerprintMap(**arrays, meta={**base.meta, "receiver_model": model.to_meta()},
@@ -175,25 +220,43 @@ def parser() -> OneLineParser:
                    help="epochs of the speed runs [20000]")  # fmt: skip
     p.add_argument("--cpu-time", action="store_true",
                    help="fixes per CPU second instead of per wall-clock second")  # fmt: skip
+    p.add_argument("--speed-only", action="store_true", help="skip the accuracy comparison")
+    p.add_argument("--json", action="store_true",
+                   help="print one JSON object: {speed: {name: rate}, accuracy: [...]}")  # fmt: skip
     return p
+
+
+def accuracy_tables() -> list[dict]:
+    """:func:`compare` for 4 and 6 base stations and range noise 0.1 and 0.75 m."""
+    return [
+        {"n_bs": n_bs, "sigma_m": sigma, "methods": compare(n_bs=n_bs, sigma_m=sigma)}
+        for n_bs in (4, 6)
+        for sigma in (0.1, 0.75)
+    ]
 
 
 def _main(args) -> int:
     if args.n_epochs < 1:
         raise PositioningError(f"n_epochs must be >= 1, got {args.n_epochs}")
     n, cpu = args.n_epochs, args.cpu_time
+    speed = run(n, clock=time.process_time if cpu else time.perf_counter)
+    accuracy = [] if args.speed_only else accuracy_tables()
+    if args.json:
+        print(json.dumps({"epochs": n, "clock": "cpu" if cpu else "wall", "speed": speed,
+                          "accuracy": accuracy}, indent=1))  # fmt: skip
+        return 0
     unit = "fixes per CPU second" if cpu else "fixes/s"
     print(f"speed, {n} epochs, 4 base stations, 2D:")
-    for name, rate in run(n, clock=time.process_time if cpu else time.perf_counter).items():
+    for name, rate in speed.items():
         if name.startswith("twin-v2 prepare"):
             print(f"  {name:<26} {rate:10.1f}")
         else:
             print(f"  {name:<12} {rate:10.0f} {unit}")
-    for n_bs in (4, 6):
-        for sigma in (0.1, 0.75):
-            print(f"accuracy, {n_bs} base stations, sigma {sigma} m, one +5 m NLoS per epoch:")
-            for name, (mean, p90) in compare(n_bs=n_bs, sigma_m=sigma).items():
-                print(f"  {name:<12} mean {mean:6.2f} m   p90 {p90:6.2f} m")
+    for table in accuracy:
+        print(f"accuracy, {table['n_bs']} base stations, sigma {table['sigma_m']} m, "
+              "one +5 m NLoS per epoch:")  # fmt: skip
+        for name, (mean, p90) in table["methods"].items():
+            print(f"  {name:<12} mean {mean:6.2f} m   p90 {p90:6.2f} m")
     return 0
 
 

@@ -21,11 +21,8 @@ import tempfile
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
-
-from raytrace.cli.harness import OneLineParser, run_tool  # noqa: E402
-from raytrace.core.errors import HallrayError  # noqa: E402
+from raytrace.cli.harness import OneLineParser, run_tool
+from raytrace.core.errors import HallrayError
 
 #: Fewest points asked for: fewer may leave the simulated scan empty. The reconstruction needs
 #: far more (20000 are too few: scan-to-scene finds no plane and says so in one line).
@@ -33,7 +30,6 @@ MIN_POINTS = 1000
 
 CHILD = """
 import json, resource, sys, time, tracemalloc
-sys.path.insert(0, {root!r})
 from raytrace.core.errors import HallrayError
 from raytrace.halls.scan import ScanOptions, scan_to_scene
 tracemalloc.start()
@@ -54,8 +50,8 @@ print(json.dumps({{"summary": s, "wall_s": wall, "peak_rss_mib": rss_kib / 1024,
 def parser() -> argparse.ArgumentParser:
     p = OneLineParser(description=__doc__.splitlines()[0])
     p.add_argument("--points", type=int, default=1_000_000, help="points in the cloud [1e6]")
-    p.add_argument("--seed", type=int, default=11)
-    p.add_argument("--json", action="store_true")
+    p.add_argument("--seed", type=int, default=11, help="seed of the simulated scan [11]")
+    p.add_argument("--json", action="store_true", help="print the report as one JSON object")
     return p
 
 
@@ -84,7 +80,7 @@ def _main(args: argparse.Namespace) -> int:
     with tempfile.TemporaryDirectory() as tmp:
         cloud = str(Path(tmp) / "hall.ply")
         o3d.io.write_point_cloud(cloud, o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts)))
-        code = CHILD.format(root=str(ROOT), cloud=cloud, out=str(Path(tmp) / "hall.glb"))
+        code = CHILD.format(cloud=cloud, out=str(Path(tmp) / "hall.glb"))
         res = subprocess.run(
             [sys.executable, "-c", code], capture_output=True, text=True, check=False
         )

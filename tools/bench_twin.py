@@ -22,15 +22,13 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from positioning import api  # noqa: E402
-from positioning.command import OneLineParser, run_command  # noqa: E402
-from positioning.dataset import load_dataset  # noqa: E402
-from positioning.errors import PositioningError  # noqa: E402
-from positioning.metrics import error_2d  # noqa: E402
-from positioning.report import dataset_problem  # noqa: E402
-from positioning.twin import load  # noqa: E402
+from positioning import api
+from positioning.command import OneLineParser, run_command
+from positioning.dataset import load_dataset
+from positioning.errors import PositioningError
+from positioning.metrics import error_2d
+from positioning.report import dataset_problem
+from positioning.twin import load
 
 SETUPS = "static-c-band,static-mmwave,semi-dynamic-c-band,semi-dynamic-mmwave"
 
@@ -52,7 +50,7 @@ def parser() -> argparse.ArgumentParser:
     ap = OneLineParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", required=True, help="folder of the datasets (one per setup)")
     ap.add_argument("--maps", required=True, help="folder with <band>/map.npz")
-    ap.add_argument("--setups", default=SETUPS)
+    ap.add_argument("--setups", default=SETUPS, help=f"comma-separated datasets of DATA [{SETUPS}]")
     ap.add_argument("--steps", type=_steps, default="0.05",
                     help="raster spacings, m, comma-separated")  # fmt: skip
     return ap

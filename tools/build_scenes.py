@@ -19,13 +19,10 @@ import sys
 from collections.abc import Callable
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
-
-from raytrace.cli.harness import OneLineParser, run_tool  # noqa: E402
-from raytrace.core.errors import SceneError  # noqa: E402
-from raytrace.core.fileio import write_atomic  # noqa: E402
-from raytrace.halls.spec import (  # noqa: E402
+from raytrace.cli.harness import OneLineParser, run_tool
+from raytrace.core.errors import SceneError
+from raytrace.core.fileio import write_atomic
+from raytrace.halls.spec import (
     SCHEMA_VERSION,
     Box,
     Primitive,
@@ -38,6 +35,8 @@ from raytrace.halls.spec import (  # noqa: E402
     los_note,
     scene_from_primitives,
 )
+
+ROOT = Path(__file__).resolve().parent.parent
 
 SCENES = ROOT / "scenes"
 HALL_YAML = SCENES / "hall.yaml"

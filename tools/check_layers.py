@@ -1,34 +1,56 @@
 #!/usr/bin/env python3
-"""Check that hallray's imports follow its layers (docs/architecture.md); run by CI.
+"""Check hallray's layers and house rules (docs/architecture.md, docs/tools.md); run by CI.
 
-Fails (exit 1, one line per violation) on:
+Rule groups (``--rules``, default all); each violation is one line ``path:line: what [rule]``:
 
-* an import that goes against the arrows between raytrace's subpackages (``LAYERS`` below);
-* ``positioning`` importing ``raytrace``, or anything importing ``raytrace.cli``;
-* a solver stage module imported by anything but the tracer;
-* an import cycle between our modules (module-level and function-local imports together);
-* a function-local import of our own module that would close a cycle if it were at module level
-  (an import made only to dodge a cycle).
+``layers``
+    an import that goes against the arrows between raytrace's subpackages (``LAYERS`` below);
+    ``positioning`` importing ``raytrace``, or anything importing ``raytrace.cli``; a solver stage
+    module imported by anything but the tracer; an import cycle between our modules
+    (module-level and function-local imports together); a function-local import of our own
+    module that would close a cycle if it were at module level (an import made only to dodge a
+    cycle). Function-local imports that do not close a cycle are fine (lazy loading of heavy
+    modules). Imports inside ``if TYPE_CHECKING:`` count like any other: a cycle of types is a
+    cycle.
+``size``
+    a module over 800 lines, or a function over 100 lines (``def`` line to last line,
+    decorators not counted), in the packages and tools/. A compiled numba kernel that would lose
+    speed if split is exempt when its docstring contains the phrase ``long kernel:`` followed by
+    the reason (:data:`LONG_KERNEL`).
+``private``
+    a private name (one leading underscore, not a dunder) of one of our modules used by another
+    module: imported (``from .x import _y``) or read as an attribute of an imported module
+    (``x._y``, ``raytrace.solver.x._y``). A private *module* (``raytrace._scenes``) is private
+    to its package: importing it from inside that package is fine, from outside it is not.
+    Checked in the packages and tools/; tests may reach into the private helpers they test.
+``builtins``
+    a public function's or method's parameter, or a public module-level name (function, class,
+    variable), that shadows a Python builtin (``dir(builtins)`` minus
+    :data:`BUILTINS_ALLOWED`), in the packages and tools/.
+``syspath``
+    ``sys.path`` changed in tools/ or tests/ (``sys.path.insert``, ``.append``, assignment, ...),
+    or a module loaded by its file location (``importlib.util.spec_from_file_location``,
+    ``runpy.run_path``, ``SourceFileLoader``): tools and tests import the installed package.
 
-Function-local imports that do not close a cycle are fine (lazy loading of heavy modules).
-Imports inside ``if TYPE_CHECKING:`` count like any other: a cycle of types is a cycle. Standard
-library only.
+Exit status 1 if any rule is violated, 2 on bad input. Standard library only, apart from the
+tools' harness.
 
-Usage: ``python tools/check_layers.py [ROOT]`` (default: the checkout this file is in).
+Usage: ``python tools/check_layers.py [ROOT] [--rules layers,size,private,builtins,syspath]``
+(ROOT default: the checkout this file is in).
 """
 
 from __future__ import annotations
 
 import argparse
 import ast
+import builtins
 import sys
 from collections import defaultdict
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
 # the tools' harness (one-line errors, exit status 2 on bad input): standard library only
-from positioning.command import OneLineParser, run_command  # noqa: E402
+from positioning.command import OneLineParser, run_command
 
 
 class LayerCheckError(Exception):
@@ -217,10 +239,278 @@ def check(root: Path) -> list[str]:
     return problems
 
 
+# =================================================================================================
+# house rules (docs/tools.md): size, private names, builtins, sys.path
+# =================================================================================================
+
+#: The packages the size, private and builtins rules read (those present in the checkout).
+PACKAGES = ("raytrace", "positioning", "hallray")
+MAX_MODULE_LINES = 800
+MAX_FUNCTION_LINES = 100
+#: A function's docstring containing this phrase exempts it from MAX_FUNCTION_LINES: a compiled
+#: numba kernel that would lose speed if split, the reason after the colon.
+LONG_KERNEL = "long kernel:"
+#: Builtins a public name may shadow: the site module's interactive banners, never called by code.
+BUILTINS_ALLOWED = frozenset({"copyright", "credits", "license"})
+#: Calls that load a module from a file location (a sys.path trick by other means).
+LOAD_BY_PATH = frozenset({"spec_from_file_location", "SourceFileLoader", "addsitedir"})
+
+
+def python_files(root: Path, folders: tuple[str, ...]) -> Iterator[tuple[Path, str]]:
+    """``(path, module name)`` of every ``.py`` file under each of ``root/folders`` present."""
+    for folder in folders:
+        if (root / folder).is_dir():
+            for path in sorted((root / folder).rglob("*.py")):
+                yield path, module_name(root, path)
+
+
+def parse(path: Path) -> ast.Module:
+    """The syntax tree of a file (a file that is not Python is bad input: one line)."""
+    try:
+        return ast.parse(path.read_text(encoding="utf-8"), str(path))
+    except (SyntaxError, UnicodeDecodeError) as exc:
+        raise LayerCheckError(f"{path}: not valid Python ({exc})") from None
+
+
+def is_private(name: str) -> bool:
+    """One leading underscore and not a dunder (``_x``, ``__x``; not ``__x__``)."""
+    return name.startswith("_") and not (name.startswith("__") and name.endswith("__"))
+
+
+def functions(
+    tree: ast.Module,
+) -> Iterator[tuple[str, ast.FunctionDef | ast.AsyncFunctionDef, bool]]:
+    """``(qualified name, node, public)`` of every function and method. Public: its name and
+    every enclosing class's are not private, and it is not nested in a function."""
+
+    def visit(node: ast.AST, prefix: str, public: bool, in_function: bool):
+        for child in ast.iter_child_nodes(node):
+            if isinstance(child, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                pub = public and not in_function and not is_private(child.name)
+                yield f"{prefix}{child.name}", child, pub
+                yield from visit(child, f"{prefix}{child.name}.", False, True)
+            elif isinstance(child, ast.ClassDef):
+                pub = public and not in_function and not is_private(child.name)
+                yield from visit(child, f"{prefix}{child.name}.", pub, in_function)
+            else:
+                yield from visit(child, prefix, public, in_function)
+
+    yield from visit(tree, "", True, False)
+
+
+def check_size(root: Path) -> list[str]:
+    """Modules over MAX_MODULE_LINES lines, functions over MAX_FUNCTION_LINES (``def`` line to
+    last line) unless their docstring has LONG_KERNEL, in the packages and tools/."""
+    problems = []
+    for path, _ in python_files(root, (*PACKAGES, "tools")):
+        rel = path.relative_to(root)
+        text = path.read_text(encoding="utf-8")
+        n = len(text.splitlines())
+        if n > MAX_MODULE_LINES:
+            problems.append(f"{rel}:1: module has {n} lines (over {MAX_MODULE_LINES})")
+        for name, node, _ in functions(parse(path)):
+            length = node.end_lineno - node.lineno + 1
+            if length > MAX_FUNCTION_LINES and LONG_KERNEL not in (ast.get_docstring(node) or ""):
+                problems.append(
+                    f"{rel}:{node.lineno}: function {name} has {length} lines "
+                    f"(over {MAX_FUNCTION_LINES}; a numba kernel may say '{LONG_KERNEL}' why)"
+                )
+    return problems
+
+
+def import_base(node: ast.ImportFrom, mod: str, is_pkg: bool) -> str:
+    """The absolute module a ``from ... import`` reads from."""
+    if not node.level:
+        return node.module or ""
+    base = mod.split(".") if is_pkg else mod.split(".")[:-1]
+    base = base[: len(base) - (node.level - 1)]
+    return ".".join(base + ([node.module] if node.module else []))
+
+
+def outside_private_module(target: str, importer: str) -> str | None:
+    """The package whose private module ``target`` is (or is in), if ``importer`` is outside
+    that package; else None."""
+    parts = target.split(".")
+    for k, part in enumerate(parts):
+        if is_private(part):
+            package = ".".join(parts[:k])
+            if not (importer == package or importer.startswith(package + ".")):
+                return package
+    return None
+
+
+def check_private(root: Path) -> list[str]:
+    """Private names of our modules used by another module: imported, or read as an attribute
+    of an imported module; private modules imported from outside their package. In the packages
+    and tools/ (not tests/: a test may check a module's private helpers)."""
+    known = {name for _, name in python_files(root, PACKAGES)}
+    problems = []
+    for path, mod in python_files(root, (*PACKAGES, "tools")):
+        rel = path.relative_to(root)
+        tree = parse(path)
+        is_pkg = path.name == "__init__.py"
+        bound: dict[str, str] = {}  # local name -> our module it refers to
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Import):
+                for a in node.names:
+                    pkg = outside_private_module(a.name, mod)
+                    if pkg is not None and a.name.split(".")[0] in PACKAGES:
+                        problems.append(f"{rel}:{node.lineno}: imports {a.name}, private to {pkg}")
+                    if a.asname:
+                        bound[a.asname] = a.name
+                    else:
+                        bound[a.name.split(".")[0]] = a.name.split(".")[0]
+            elif isinstance(node, ast.ImportFrom):
+                base = import_base(node, mod, is_pkg)
+                if base.split(".")[0] not in PACKAGES:
+                    continue
+                for a in node.names:
+                    sub = f"{base}.{a.name}"
+                    target = sub if sub in known else base
+                    pkg = outside_private_module(target, mod)
+                    if pkg is not None:
+                        problems.append(f"{rel}:{node.lineno}: imports {target}, private to {pkg}")
+                    elif target == base and base != mod and is_private(a.name):
+                        problems.append(
+                            f"{rel}:{node.lineno}: imports private name {a.name} from {base}"
+                        )
+                    if sub in known:
+                        bound[a.asname or a.name] = sub
+        for node in ast.walk(tree):
+            if not (isinstance(node, ast.Attribute) and is_private(node.attr)):
+                continue
+            chain, value = [], node.value
+            while isinstance(value, ast.Attribute):
+                chain.append(value.attr)
+                value = value.value
+            if not (isinstance(value, ast.Name) and value.id in bound):
+                continue
+            owner = ".".join([bound[value.id], *reversed(chain)])
+            if owner in known and owner != mod:
+                problems.append(f"{rel}:{node.lineno}: uses private name {node.attr} of {owner}")
+    return problems
+
+
+def shadowing_builtins() -> frozenset[str]:
+    """The builtins a public name must not shadow."""
+    return frozenset(n for n in dir(builtins) if not n.startswith("_")) - BUILTINS_ALLOWED
+
+
+def module_level_names(tree: ast.Module) -> Iterator[tuple[str, int]]:
+    """``(name, line)`` of every name bound at module level: functions, classes, imports,
+    assignment and loop targets (also inside top-level ``if``, ``try``, ``with``, ``for``)."""
+
+    def visit(node: ast.AST):
+        for child in ast.iter_child_nodes(node):
+            if isinstance(child, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+                yield child.name, child.lineno
+            elif isinstance(child, (ast.Import, ast.ImportFrom)):
+                if isinstance(child, ast.ImportFrom) and child.module == "__future__":
+                    continue
+                for a in child.names:
+                    if a.name != "*":
+                        yield a.asname or a.name.split(".")[0], child.lineno
+            elif isinstance(child, ast.Name) and isinstance(child.ctx, ast.Store):
+                yield child.id, child.lineno
+            elif not isinstance(child, (ast.Lambda, ast.comprehension, ast.expr)) or isinstance(
+                child, (ast.Tuple, ast.List, ast.Starred, ast.NamedExpr)
+            ):
+                yield from visit(child)
+
+    yield from visit(tree)
+
+
+def check_builtins(root: Path) -> list[str]:
+    """Public functions' and methods' parameters and public module-level names that shadow a
+    builtin, in the packages and tools/."""
+    names = shadowing_builtins()
+    problems = []
+    for path, _ in python_files(root, (*PACKAGES, "tools")):
+        rel = path.relative_to(root)
+        tree = parse(path)
+        for name, line in module_level_names(tree):
+            if name in names:
+                problems.append(f"{rel}:{line}: module-level name {name} shadows the builtin")
+        for qual, node, public in functions(tree):
+            if not public:
+                continue
+            a = node.args
+            params = [*a.posonlyargs, *a.args, *a.kwonlyargs, a.vararg, a.kwarg]
+            for p in params:
+                if p is not None and p.arg in names:
+                    problems.append(
+                        f"{rel}:{p.lineno}: parameter {p.arg} of {qual} shadows the builtin"
+                    )
+    return problems
+
+
+def _dotted(node: ast.AST) -> str:
+    """``a.b.c`` of a Name/Attribute chain, else ''."""
+    parts = []
+    while isinstance(node, ast.Attribute):
+        parts.append(node.attr)
+        node = node.value
+    if isinstance(node, ast.Name):
+        parts.append(node.id)
+        return ".".join(reversed(parts))
+    return ""
+
+
+def check_syspath(root: Path) -> list[str]:
+    """``sys.path`` changed, or a module loaded by its file location, in tools/ or tests/."""
+    problems = []
+    for path, _ in python_files(root, ("tools", "tests")):
+        rel = path.relative_to(root)
+        for node in ast.walk(parse(path)):
+            what = None
+            if isinstance(node, ast.ImportFrom) and node.module == "sys":
+                if any(a.name == "path" for a in node.names):
+                    what = "imports sys.path by name"
+            elif isinstance(node, ast.Call):
+                func = _dotted(node.func)
+                if func.startswith("sys.path."):
+                    what = f"calls {func}"
+                elif func.rpartition(".")[2] in LOAD_BY_PATH or func == "runpy.run_path":
+                    what = f"loads a module by its file location ({func})"
+            elif isinstance(node, (ast.Assign, ast.AugAssign, ast.AnnAssign, ast.Delete)):
+                targets = (
+                    node.targets if isinstance(node, (ast.Assign, ast.Delete)) else [node.target]
+                )
+                for t in targets:
+                    if _dotted(t.value if isinstance(t, ast.Subscript) else t) == "sys.path":
+                        what = "assigns to sys.path"
+            if what:
+                problems.append(f"{rel}:{node.lineno}: {what}")
+    return problems
+
+
+#: Rule group -> its check (each returns lines ``path:line: what``).
+RULES: dict[str, Callable[[Path], list[str]]] = {
+    "layers": check,
+    "size": check_size,
+    "private": check_private,
+    "builtins": check_builtins,
+    "syspath": check_syspath,
+}
+
+
+def rule_list(text: str) -> list[str]:
+    """``--rules``: comma-separated rule groups (argparse type)."""
+    rules = [r.strip() for r in text.split(",") if r.strip()]
+    unknown = [r for r in rules if r not in RULES]
+    if unknown or not rules:
+        raise argparse.ArgumentTypeError(
+            f"unknown rule group {unknown[0] if unknown else text!r} (known: {', '.join(RULES)})"
+        )
+    return list(dict.fromkeys(rules))
+
+
 def parser() -> argparse.ArgumentParser:
     p = OneLineParser(description=__doc__.splitlines()[0])
     p.add_argument("root", nargs="?", type=Path, default=Path(__file__).resolve().parents[1],
                    help="the checkout to check (default: the one this file is in)")  # fmt: skip
+    p.add_argument("--rules", type=rule_list, default=list(RULES), metavar="R1,R2",
+                   help=f"rule groups to check (default all: {','.join(RULES)})")  # fmt: skip
     return p
 
 
@@ -229,13 +519,16 @@ def _main(args: argparse.Namespace) -> int:
     missing = [pkg for pkg in ("raytrace", "positioning") if not (root / pkg).is_dir()]
     if missing:
         raise LayerCheckError(f"{root}: no {' or '.join(missing)} package in it (not a checkout)")
-    problems = check(root)
-    for p in problems:
-        print(p)
-    if problems:
-        print(f"{len(problems)} layer violation(s)", file=sys.stderr)
+    broken = set()
+    for rule in args.rules:
+        for problem in RULES[rule](root):
+            print(f"{problem} [{rule}]")
+            broken.add(rule)
+    if broken:
+        failed = [r for r in args.rules if r in broken]
+        print(f"house rules violated: {', '.join(failed)}", file=sys.stderr)
         return 1
-    print("layers ok")
+    print(f"ok: {', '.join(args.rules)}")
     return 0
 
 

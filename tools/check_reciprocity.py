@@ -18,26 +18,22 @@ from __future__ import annotations
 
 import argparse
 import math
-import sys
-from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-
-from raytrace import TraceConfig, load_scene, trace  # noqa: E402
-from raytrace.cli.harness import OneLineParser, run_tool  # noqa: E402
-from raytrace.core.errors import HallrayError  # noqa: E402
-from raytrace.emulation.bands import get_band  # noqa: E402
-from raytrace.scene.metadata import SceneMetadata  # noqa: E402
-from raytrace.studies.reciprocity import compare_reverse, format_table  # noqa: E402
+from raytrace import TraceConfig, load_scene, trace
+from raytrace.cli.harness import OneLineParser, run_tool
+from raytrace.core.errors import HallrayError
+from raytrace.emulation.bands import get_band
+from raytrace.scene.metadata import SceneMetadata
+from raytrace.studies.reciprocity import compare_reverse, format_table
 
 
 def parser() -> argparse.ArgumentParser:
     ap = OneLineParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--scene", default="hall")
-    ap.add_argument("--band", default="c-band")
-    ap.add_argument("--max-reflections", type=int, default=2)
-    ap.add_argument("--max-penetrations", type=int, default=2)
-    ap.add_argument("--max-diffractions", type=int, default=1)
+    ap.add_argument("--scene", default="hall", help="scene file or 'hall' [hall]")
+    ap.add_argument("--band", default="c-band", help="band name [c-band]")
+    ap.add_argument("--max-reflections", type=int, default=2, help="reflections per path [2]")
+    ap.add_argument("--max-penetrations", type=int, default=2, help="penetrations per path [2]")
+    ap.add_argument("--max-diffractions", type=int, default=1, help="diffractions per path [1]")
     ap.add_argument("--tol-db", type=float, default=1e-6, help="gain difference counted, dB")
     return ap
 

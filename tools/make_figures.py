@@ -13,14 +13,12 @@ noise; needs open3d).
 from __future__ import annotations
 
 import argparse
-import sys
 import tempfile
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
+from raytrace.cli.harness import OneLineParser, run_tool
 
-from raytrace.cli.harness import OneLineParser, run_tool  # noqa: E402
+ROOT = Path(__file__).resolve().parent.parent
 
 LINKS = ["BS1,P07", "BS3,P23", "BS2,P06"]
 

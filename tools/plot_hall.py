@@ -13,24 +13,22 @@ from __future__ import annotations
 
 import argparse
 import io
-import sys
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
-
-import matplotlib  # noqa: E402
+import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import trimesh  # noqa: E402
+import matplotlib.pyplot as plt
+import trimesh
 
-from positioning.output import check_output  # noqa: E402
-from raytrace.cli.harness import OneLineParser, run_tool  # noqa: E402
-from raytrace.core.errors import HallrayError  # noqa: E402
-from raytrace.core.fileio import write_atomic  # noqa: E402
-from raytrace.halls.spec import load_hall_spec, plot_top_view  # noqa: E402
-from raytrace.scene.metadata import SceneMetadata  # noqa: E402
+from positioning.output import check_output
+from raytrace.cli.harness import OneLineParser, run_tool
+from raytrace.core.errors import HallrayError
+from raytrace.core.fileio import write_atomic
+from raytrace.halls.spec import load_hall_spec, plot_top_view
+from raytrace.scene.metadata import SceneMetadata
+
+ROOT = Path(__file__).resolve().parent.parent
 
 #: Area names drawn on the reference hall's plan (x, y in m).
 REFERENCE_LABELS = {
@@ -57,9 +55,11 @@ REFERENCE_LABELS = {
 
 def parser() -> argparse.ArgumentParser:
     parser = OneLineParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("hall", nargs="?", default=str(ROOT / "scenes" / "hall.yaml"))
-    parser.add_argument("-o", "--output", default=str(ROOT / "docs" / "hall_top.png"))
-    parser.add_argument("--dpi", type=int, default=150)
+    parser.add_argument("hall", nargs="?", default=str(ROOT / "scenes" / "hall.yaml"),
+                        help="hall YAML or built GLB [scenes/hall.yaml]")  # fmt: skip
+    parser.add_argument("-o", "--output", default=str(ROOT / "docs" / "hall_top.png"),
+                        help="PNG to write [docs/hall_top.png]")  # fmt: skip
+    parser.add_argument("--dpi", type=int, default=150, help="resolution [150]")
     parser.add_argument("--labels", action="store_true", help="write object names on the plan")
     return parser
 

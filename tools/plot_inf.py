@@ -12,29 +12,27 @@ from __future__ import annotations
 
 import argparse
 import io
-import sys
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
-
-import matplotlib  # noqa: E402
+import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
 
-from raytrace.cli.harness import OneLineParser, run_tool  # noqa: E402
-from raytrace.core.errors import HallrayError  # noqa: E402
-from raytrace.core.fileio import write_atomic  # noqa: E402
-from raytrace.halls.inf import (  # noqa: E402
+from raytrace.cli.harness import OneLineParser, run_tool
+from raytrace.core.errors import HallrayError
+from raytrace.core.fileio import write_atomic
+from raytrace.halls.inf import (
     PROFILES,
     generate_hall,
     los_check,
     parse_size,
     split_spec,
 )
-from raytrace.halls.spec import parse_hall_spec, plot_top_view  # noqa: E402
+from raytrace.halls.spec import parse_hall_spec, plot_top_view
+
+ROOT = Path(__file__).resolve().parent.parent
 
 
 def _save(fig, path: Path) -> None:
@@ -103,8 +101,8 @@ def parser() -> argparse.ArgumentParser:
     ap = OneLineParser(description=__doc__.splitlines()[0])
     ap.add_argument("--size", default="120x60x10", help="hall of the LoS check [120x60x10]")
     ap.add_argument("--halls-size", default="42x46x8.8", help="hall of the top views [42x46x8.8]")
-    ap.add_argument("--seeds", type=int, default=5)
-    ap.add_argument("--out", default=str(ROOT / "docs"))
+    ap.add_argument("--seeds", type=int, default=5, help="halls per profile in the LoS check [5]")
+    ap.add_argument("--out", default=str(ROOT / "docs"), help="folder of the two PNGs [docs/]")
     return ap
 
 

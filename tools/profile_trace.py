@@ -16,18 +16,15 @@ import argparse
 import cProfile
 import math
 import pstats
-import sys
 import time
 from collections import defaultdict
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-
-from raytrace import TraceConfig, load_scene, trace  # noqa: E402
-from raytrace.cli.harness import OneLineParser, run_tool  # noqa: E402
-from raytrace.core.errors import HallrayError  # noqa: E402
-from raytrace.scene.metadata import SceneMetadata  # noqa: E402
-from raytrace.solver.parallel import receiver_chunks  # noqa: E402
+from raytrace import TraceConfig, load_scene, trace
+from raytrace.cli.harness import OneLineParser, run_tool
+from raytrace.core.errors import HallrayError
+from raytrace.scene.metadata import SceneMetadata
+from raytrace.solver.parallel import receiver_chunks
 
 
 def _module(file: str) -> str:
@@ -44,9 +41,10 @@ def _module(file: str) -> str:
 
 def parser() -> argparse.ArgumentParser:
     ap = OneLineParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--scene", default="hall")
-    ap.add_argument("--grid-step", type=float, default=None)
-    ap.add_argument("--top", type=int, default=25)
+    ap.add_argument("--scene", default="hall", help="scene file or 'hall' [hall]")
+    ap.add_argument("--grid-step", type=float, default=None,
+                    help="trace a grid of this step (m) over the floor instead of the points")  # fmt: skip
+    ap.add_argument("--top", type=int, default=25, help="functions listed [25]")
     return ap
 
 

@@ -13,19 +13,16 @@ from __future__ import annotations
 
 import argparse
 import pickle
-import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-
-from positioning.output import check_output  # noqa: E402
-from raytrace import TraceConfig, load_scene, trace  # noqa: E402
-from raytrace.cli.harness import OneLineParser, run_tool  # noqa: E402
-from raytrace.core.errors import HallrayError  # noqa: E402
-from raytrace.scene.metadata import SceneMetadata  # noqa: E402
+from positioning.output import check_output
+from raytrace import TraceConfig, load_scene, trace
+from raytrace.cli.harness import OneLineParser, run_tool
+from raytrace.core.errors import HallrayError
+from raytrace.core.fileio import write_atomic
+from raytrace.scene.metadata import SceneMetadata
 
 FIELDS = ("link", "tx_index", "rx_index", "n_reflections", "n_penetrations", "n_diffractions",
           "interaction", "objects", "elements", "delay_s", "gain", "points")  # fmt: skip
@@ -91,8 +88,9 @@ def load_reference(path: str) -> dict[str, dict[str, np.ndarray]]:
 
 def parser() -> argparse.ArgumentParser:
     ap = OneLineParser(description=__doc__.splitlines()[0])
-    ap.add_argument("mode", choices=("save", "check"))
-    ap.add_argument("ref")
+    ap.add_argument("mode", choices=("save", "check"),
+                    help="save: write the reference; check: compare against it")  # fmt: skip
+    ap.add_argument("ref", help="the reference file (.pkl)")
     return ap
 
 
@@ -104,8 +102,7 @@ def _main(args: argparse.Namespace) -> int:
         ref = load_reference(args.ref)
     got = cases()
     if args.mode == "save":
-        with open(args.ref, "wb") as fh:
-            pickle.dump(got, fh)
+        write_atomic(args.ref, pickle.dumps(got))  # never a half-written reference
         return 0
     bad = 0
     for name, r in ref.items():

@@ -4,18 +4,14 @@ from __future__ import annotations
 
 import csv
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+from pos_synth import write_dataset
 
-sys.path.insert(0, str(Path(__file__).parent))
-
-from pos_synth import write_dataset  # noqa: E402
-
-from positioning import METHODS, error_2d, method_names, summarize  # noqa: E402
-from positioning.cli import (  # noqa: E402
+from positioning import METHODS, error_2d, method_names, summarize
+from positioning.cli import (
     FIXES_COLUMNS,
     accuracy_report_main,
     estimate_positions_main,

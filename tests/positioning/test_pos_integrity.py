@@ -4,21 +4,16 @@ of the service area and integrity (issue 13 items 4, 5, 8; issue 18's untrustwor
 from __future__ import annotations
 
 import csv
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
+from pos_synth import PAPER_BS, write_dataset
 
-sys.path.insert(0, str(Path(__file__).parent))
-
-from pos_synth import PAPER_BS, write_dataset  # noqa: E402
-
-from positioning import Status, locate  # noqa: E402
-from positioning.area import ServiceArea  # noqa: E402
-from positioning.cli import FIXES_COLUMNS, estimate_positions_main  # noqa: E402
-from positioning.noise import FLOOR_FIRST_LOBE  # noqa: E402
-from positioning.tdoa import C0, LinkInfo  # noqa: E402
+from positioning import Status, locate
+from positioning.area import ServiceArea
+from positioning.cli import FIXES_COLUMNS, estimate_positions_main
+from positioning.noise import FLOOR_FIRST_LOBE
+from positioning.tdoa import C0, LinkInfo
 
 #: mmWave-like band: 400 MHz, 28 GHz; link budget offset so that the free-space SNR at 20 m is
 #: about 12 dB (as in the bundled hall).

@@ -1,6 +1,8 @@
 """Synthetic ToA datasets in the contract's format (toa.csv + meta.json) for the positioning tests.
 
-Not a test module itself (no ``test_`` prefix); imported by the CLI tests and the benchmark.
+Not a test module itself (no ``test_`` prefix): a helper of the tests in tests/ and
+tests/positioning/, which import it by name (pytest puts tests/ on the import path when it loads
+tests/conftest.py, as for ``from conftest import ...``).
 """
 
 from __future__ import annotations
