@@ -19,7 +19,7 @@ from ..core.errors import HallrayError
 from .harness import OneLineParser, add_scene_arguments, run_tool
 
 
-def export_scene_parser() -> argparse.ArgumentParser:
+def parser() -> argparse.ArgumentParser:
     """The parser of ``hallray-export`` (also used by ``hallray export``)."""
     p = OneLineParser(
         prog="hallray-export",
@@ -52,7 +52,7 @@ def export_scene_parser() -> argparse.ArgumentParser:
 
 def export_scene_main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``hallray-export``; returns the exit status."""
-    return run_tool(main, export_scene_parser(), argv, interrupted="interrupted (nothing written)")
+    return run_tool(main, parser(), argv, interrupted="interrupted (nothing written)")
 
 
 def _is_export(d: Path) -> bool:
