@@ -196,8 +196,11 @@ def scene_traces(scene: Scene, max_triangles: int = DEFAULT_MAX_TRIANGLES) -> tu
 def site_traces(
     base_stations: Sequence[tuple[str, Sequence[float]]],
     points: Sequence[tuple[str, Sequence[float]]],
+    label_lift_m: float = 0.5,
 ) -> list:
-    """Base stations (gold diamonds) and points (red squares), labelled, as ``Scatter3d``."""
+    """Base stations (gold diamonds) and points (red squares) as ``Scatter3d`` markers, each
+    with its name ``label_lift_m`` above it (a text trace of the same legend group, so that the
+    marker does not hide the name)."""
     import plotly.graph_objects as go
 
     out: list = []
@@ -214,11 +217,18 @@ def site_traces(
         names = [str(s[0]) for s in sites]
         out.append(
             go.Scatter3d(
-                x=xyz[:, 0], y=xyz[:, 1], z=xyz[:, 2], mode="markers+text", text=names,
-                textposition="top center", textfont=font, marker=marker, name=name,
-                legendgroup=name, legendgrouptitle={"text": "positions"} if not out else None,
+                x=xyz[:, 0], y=xyz[:, 1], z=xyz[:, 2], mode="markers", text=names,
+                marker=marker, name=name, legendgroup=name,
+                legendgrouptitle={"text": "positions"} if not out else None,
                 hovertemplate="<b>%{text}</b><br>x %{x:.2f} m, y %{y:.2f} m, z %{z:.2f} m"
                 "<extra></extra>",
+            )
+        )  # fmt: skip
+        out.append(
+            go.Scatter3d(
+                x=xyz[:, 0], y=xyz[:, 1], z=xyz[:, 2] + label_lift_m, mode="text", text=names,
+                textfont=font, name=f"{name} (names)", legendgroup=name, showlegend=False,
+                hoverinfo="skip",
             )
         )  # fmt: skip
     return out
@@ -498,8 +508,9 @@ def preview(
 
     sites = SceneMetadata.from_scene(scene)
     traces, info = scene_traces(scene, max_triangles)
+    lift = 0.03 * float(scene.bounds[1][2] - scene.bounds[0][2]) + 0.2
     traces += site_traces(list(zip(sites.bs_names, sites.bs_xyz)),
-                          list(zip(sites.point_names, sites.point_xyz)))  # fmt: skip
+                          list(zip(sites.point_names, sites.point_xyz)), lift)  # fmt: skip
     n_links = n_paths = 0
     if paths is not None:
         tx_names = list(tx_names or site_names(paths.tx, sites.bs_names, sites.bs_xyz, "tx"))
