@@ -89,9 +89,14 @@ def main(args: argparse.Namespace) -> int:
         freq = float(get_band(args.band).center_frequency_hz)
     inputs = [resolve_scene(args.scene), args.materials]
     check_output(folder, inputs=inputs, directory=True, what="output directory")
+    tty = not args.quiet and sys.stderr.isatty()  # progress lines for a person at a terminal
+    if tty:
+        print(f"loading {args.scene}...", file=sys.stderr, flush=True)
     scene = load_scene(args.scene, args.materials, default_material=args.default_material)
+    if tty:
+        print(f"writing {len(scene.objects)} meshes...", file=sys.stderr, flush=True)
     bar = None
-    if not args.quiet and len(scene.objects) >= 200 and sys.stderr.isatty():
+    if tty and len(scene.objects) >= 200:
         from tqdm import tqdm
 
         bar = tqdm(total=len(scene.objects), desc="meshes", unit="mesh", leave=False)

@@ -92,6 +92,7 @@ def main(args: argparse.Namespace) -> int:
         raise HallrayError("give either --paths or --tx/--rx, not both")
     if (args.tx or args.rx) and not args.link:
         raise HallrayError("--tx/--rx are for tracing links: add --link TX,RX")
+    _say(args, f"loading {args.scene}")
     scene = load_scene(args.scene, args.materials, default_material=args.default_material)
     paths, links, names = _paths(args, scene)
     _say(args, "building the view")
@@ -113,8 +114,9 @@ def main(args: argparse.Namespace) -> int:
 
 
 def _say(args: argparse.Namespace, what: str) -> None:
-    """A progress line on stderr (not with -q), for the steps that may take seconds."""
-    if not args.quiet:
+    """A progress line on a terminal's stderr (not with -q, not into a pipe or file), for the
+    steps that may take seconds."""
+    if not args.quiet and sys.stderr.isatty():
         print(f"{what}...", file=sys.stderr, flush=True)
 
 
