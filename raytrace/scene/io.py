@@ -157,27 +157,19 @@ def _read_trimesh(p: Path) -> tuple[list[tuple[str, Any, list[str]]], dict[str, 
 def _read_mitsuba(
     p: Path,
 ) -> tuple[list[tuple[str, Any, list[str]]], dict[str, Any], dict[str, Any]]:
-    """A Mitsuba 3 / Sionna RT scene: ply/obj shapes referencing ITU radio materials."""
+    """A Mitsuba 3 / Sionna RT scene: ply/obj shapes referencing radio materials (ITU types,
+    Sionna RT 1.x radio-materials, or BSDF ids naming a material); with the hallray sidecar of
+    :mod:`.mitsuba` beside it, also the object names, exact materials and metadata."""
     import trimesh
+
+    from .mitsuba import read_bsdfs
 
     try:
         root = ET.parse(p).getroot()
     except (ET.ParseError, OSError) as exc:
         raise SceneError(f"cannot read scene XML {p.name}: {exc}") from None
-    bsdf_material: dict[str, str] = {}
-    user: dict[str, Any] = {}
-    for bsdf in root.iter("bsdf"):
-        bid = bsdf.get("id")
-        if not bid:
-            continue
-        if bsdf.get("type") == "itu-radio-material":
-            params = {c.get("name"): c.get("value") for c in bsdf if c.get("name")}
-            mtype = params.get("type", bid)
-            bsdf_material[bid] = str(mtype)
-            if params.get("thickness") is not None:
-                user[str(mtype)] = {"thickness": float(params["thickness"])}
-        else:
-            bsdf_material[bid] = bid
+    reading = read_bsdfs(root, p)
+    bsdf_material = reading.material_of
     named: list[tuple[str, Any, list[str]]] = []
     for i, shape in enumerate(root.iter("shape")):
         stype = shape.get("type")
@@ -202,10 +194,11 @@ def _read_mitsuba(
                 f"cannot read mesh {fname} of {p.name}: {exc}".splitlines()[0]
             ) from None
         name = shape.get("id") or Path(fname).stem or f"shape_{i}"
+        name = reading.shape_names.get(name, name)
         hints = [name]
         if ref is not None:
             hints = [bsdf_material.get(ref, ref), ref, name]
         named.append((name, mesh, hints))
     if not named:
         raise SceneError(f"scene XML {p.name} has no ply/obj shapes")
-    return named, {}, user
+    return named, reading.metadata, reading.materials
