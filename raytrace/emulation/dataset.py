@@ -45,6 +45,7 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import HallrayError, SceneError
+from ..scene.facts import SceneFacts, service_area  # noqa: F401 (its public path here too)
 from ..scene.io import load_scene
 from ..scene.metadata import SceneMetadata
 from ..scene.model import Scene
@@ -239,42 +240,6 @@ def _summary(m: Measurements) -> dict[str, Any]:
     }
 
 
-def _hall_width_depth(block: Mapping[str, Any]) -> tuple[float, float] | None:
-    """Width (x) and depth (y) of ``hall.size`` in the scene metadata, metres, if stated."""
-    hall = block.get("hall") if isinstance(block, Mapping) else None
-    try:
-        w, d = (float(v) for v in hall["size"][:2])  # type: ignore[index]
-    except (TypeError, KeyError, ValueError, IndexError):
-        return None
-    return w, d
-
-
-def _hall_xy(block: Mapping[str, Any], scene: Scene) -> list[list[float]]:
-    """``meta.json`` ``hall_xy``: the hall interior from the metadata, else the scene bounds."""
-    wd = _hall_width_depth(block)
-    if wd is not None:
-        return [[0.0, 0.0], [wd[0], wd[1]]]
-    lo, hi = scene.bounds
-    return [[float(lo[0]), float(lo[1])], [float(hi[0]), float(hi[1])]]
-
-
-def service_area(scene: Scene, meta: Mapping[str, Any]) -> dict[str, Any] | None:
-    """The dataset's service area: where a device can be, as positioning bounds its fixes.
-
-    The scene's floor outline inside its walls (:meth:`Scene.floor_outline`); for a scene without
-    a floor, the hall size of its metadata; otherwise None.
-    """
-    ring = scene.floor_outline()
-    if ring is not None:
-        src = "floor outline of the scene inside its walls"
-        return {"polygon": [[float(x), float(y)] for x, y in ring], "source": src}
-    wd = _hall_width_depth(meta)
-    if wd is None:
-        return None
-    w, d = wd
-    return {"polygon": [[0.0, 0.0], [w, 0.0], [w, d], [0.0, d]], "source": "hall size"}
-
-
 def _obstacles_2d(meta: Mapping[str, Any]) -> list[dict[str, Any]]:
     """The scene's obstacle footprints, each with a ``polygon`` [[x, y], ...] (the positioning
     package's plots read that key) besides the scene metadata's own ``xy``."""
@@ -288,7 +253,7 @@ def _obstacles_2d(meta: Mapping[str, Any]) -> list[dict[str, Any]]:
 def _meta(
     cfg: DatasetConfig,
     band: Band,
-    scene: Scene,
+    facts: SceneFacts,
     inputs: SceneMetadata,
     m: Measurements,
     scene_name: str,
@@ -311,7 +276,7 @@ def _meta(
         "seed": int(cfg.seed),
         "version": __version__,
         "scene": scene_name,
-        "scene_sha256": scene.content_hash(),
+        "scene_sha256": facts.sha256,
         "duration_s": float(cfg.duration_s),
         "rate_hz": float(cfg.rate_hz),
         "n_epochs": len(m.epochs),
@@ -341,8 +306,8 @@ def _meta(
             {"name": n, "xyz": [float(v) for v in p]}
             for n, p in zip(inputs.point_names, inputs.point_xyz)
         ],
-        "hall_xy": _hall_xy(inputs.block, scene),
-        "service_area": service_area(scene, inputs.block),
+        "hall_xy": facts.hall_xy(),
+        "service_area": facts.service_area(),
         "area_of_interest": inputs.block.get("area_of_interest"),
         "obstacles_2d": _obstacles_2d(inputs.block),
         "columns": list(COLUMNS),
@@ -401,10 +366,13 @@ def _dataset_parts(
     *,
     inputs: SceneMetadata | None = None,
     fleet: Fleet | None = None,
+    facts: SceneFacts | None = None,
 ) -> dict[str, str | Iterable[str]]:
-    """:func:`dataset_files` with ``toa.csv`` as an iterable of text blocks (streamed)."""
+    """:func:`dataset_files` with ``toa.csv`` as an iterable of text blocks (streamed);
+    ``facts``: the scene's, when the caller has read them."""
     band = cfg.validate()
     inputs = inputs if inputs is not None else SceneMetadata.from_scene(scene, require=True)
+    facts = facts if facts is not None else SceneFacts.of(scene, inputs.block)
     times = cfg.times_s
     shape = (len(times), len(inputs.point_names), len(inputs.bs_names))
     if measured.toa_s.shape != shape:
@@ -416,7 +384,7 @@ def _dataset_parts(
         raise HallrayError("a dataset's measurements are of its epochs 0 .. n - 1, in order")
     if (cfg.scenario == "semi-dynamic") != (fleet is not None):
         raise HallrayError("a semi-dynamic dataset needs its forklift fleet, a static one none")
-    meta = _meta(cfg, band, scene, inputs, measured, _scene_name(scene))
+    meta = _meta(cfg, band, facts, inputs, measured, _scene_name(scene))
     files = {
         "toa.csv": _toa_csv_blocks(inputs, times, measured),
         "meta.json": json.dumps(meta, indent=1, sort_keys=False) + "\n",
@@ -773,6 +741,7 @@ def make_datasets(
     t_start = time.perf_counter()
     sc = _open_scene(scene)
     inputs = SceneMetadata.from_scene(sc, require=True)
+    facts = SceneFacts.of(sc, inputs.block)  # read once for every dataset's meta.json
     if any(c.scenario == "semi-dynamic" for c in configs) and not inputs.routes:
         raise SceneError("the semi-dynamic scenario needs forklift routes in the scene metadata")
     out = Path(out_dir)
@@ -801,7 +770,7 @@ def make_datasets(
                 if cfg.toa_method != methods[0]:
                     name += f"-{cfg.toa_method}"
                 d = tmp / name if subdirectories else tmp
-                _write_files(d, _dataset_parts(sc, cfg, m, inputs=inputs, fleet=fleet))
+                _write_files(d, _dataset_parts(sc, cfg, m, inputs=inputs, fleet=fleet, facts=facts))
                 summaries.append(
                     {
                         "directory": str(out / d.relative_to(tmp)),

@@ -45,6 +45,7 @@ from ..core.errors import HallrayError, MaterialError, SceneError
 from ..core.fileio import read_yaml, write_atomic
 from ..core.palette import material_colors
 from ..physics.materials import MaterialLibrary
+from ..scene.facts import floor_level
 
 #: Point-cloud formats read by :func:`read_cloud`.
 CLOUD_SUFFIXES = (".ply", ".pcd", ".xyz", ".pts", ".las", ".laz")
@@ -509,16 +510,6 @@ def simulate_scan(
         near = cKDTree(centres).query(pts, distance_upper_bound=gap_radius_m)[0]
         pts = pts[~np.isfinite(near)]
     return pts + rng.normal(0.0, noise_m, size=pts.shape)
-
-
-def floor_level(scene: Any) -> float:
-    """Height of a scene's floor, m: the lowest large upward-facing facet (normal within 8 deg
-    of vertical, at least 5 % of the largest facet's area), else the bottom of the scene."""
-    f = scene.facets
-    if len(f) == 0:
-        return float(scene.bounds[0, 2])
-    up = (f.normal[:, 2] > 0.99) & (f.area > 0.05 * f.area.max())
-    return float(f.offset[up].min()) if up.any() else float(scene.bounds[0, 2])
 
 
 # --------------------------------------------------------------------------------------------

@@ -43,6 +43,7 @@ from ..core.fileio import write_atomic
 from ..emulation.bands import get_band
 from ..emulation.measurement import ToaModel, emulate_toa, prepare_links
 from ..emulation.receivers import DEFAULT_TOA_METHOD, TOA_METHODS, Receiver
+from ..scene.facts import SceneFacts
 from ..scene.metadata import SceneMetadata
 from ..scene.model import Scene
 from ..solver.config import TraceConfig
@@ -178,14 +179,9 @@ class MapGrid:
 
 
 def area_polygon(scene: Scene, block: dict[str, Any]) -> np.ndarray:
-    """(K, 2) float, m: where cells may lie (the dataset's service area, else the bounding box)."""
-    from ..emulation.dataset import service_area
-
-    area = service_area(scene, block)
-    if area is not None:
-        return np.asarray(area["polygon"], dtype=float)
-    (x0, y0, _), (x1, y1, _) = scene.bounds
-    return np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]], dtype=float)
+    """(K, 2) float, m: where cells may lie (the dataset's service area, else the bounding box;
+    :meth:`raytrace.scene.facts.SceneFacts.area_polygon`)."""
+    return SceneFacts.of(scene, block).area_polygon()
 
 
 def lattice_distance(points_xy: np.ndarray, offset_xy: np.ndarray, step_m: float) -> np.ndarray:
@@ -222,26 +218,16 @@ def grid_offset(
     return cand[int(np.argmax(ok))]
 
 
-def _height_range(scene: Scene, block: dict[str, Any]) -> tuple[float, float]:
-    """(floor, ceiling) heights of the hall, m."""
-    from ..halls.scan import floor_level
-
-    # a scene without a floor (floor_outline None) is open below: its bottom is the floor
-    floor = floor_level(scene) if scene.floor_outline() is not None else float(scene.bounds[0, 2])
-    top = float(scene.bounds[1, 2])
-    size = SceneMetadata.from_metadata({"hallray": block}).hall_size
-    if size is not None:
-        top = min(top, floor + size[2])
-    return floor, top
-
-
-def device_height(scene: Scene, settings: MapSettings, test_xyz: np.ndarray) -> float:
-    """The map's device height, m, checked against the hall's floor and ceiling."""
-    block = SceneMetadata.from_scene(scene).block
+def device_height(
+    scene: Scene, settings: MapSettings, test_xyz: np.ndarray, facts: SceneFacts | None = None
+) -> float:
+    """The map's device height, m, checked against the hall's floor and ceiling
+    (``facts``: the scene's, when the caller has read them)."""
+    facts = SceneFacts.of(scene) if facts is None else facts
     h = settings.height_m
     if h is None:
         h = float(np.median(test_xyz[:, 2])) if len(test_xyz) else FALLBACK_HEIGHT_M
-    floor, top = _height_range(scene, block)
+    floor, top = facts.height_range()
     if not floor < h < top:
         raise HallrayError(
             f"--height {h:g} m is outside the hall (floor {floor:.2f} m, ceiling {top:.2f} m)"
@@ -255,16 +241,20 @@ def make_grid(
     test_names: Sequence[str],
     test_xyz: np.ndarray,
     area_xy: np.ndarray | None = None,
+    facts: SceneFacts | None = None,
 ) -> MapGrid:
     """The cells: a lattice over the area at device height, outside solids (module docstring).
 
-    Raises :class:`HallrayError` when the step gives no cell or more than ``max_cells``.
+    ``area_xy`` (K, 2) float, m: the cells' polygon (default: the scene's service area, else its
+    bounding box); ``facts``: the scene's, when the caller has read them
+    (:class:`raytrace.scene.facts.SceneFacts`). Raises :class:`HallrayError` when the step gives
+    no cell or more than ``max_cells``.
     """
     import shapely
 
-    block = SceneMetadata.from_scene(scene).block
-    area = area_polygon(scene, block) if area_xy is None else np.asarray(area_xy, dtype=float)
-    h = device_height(scene, settings, test_xyz)
+    facts = SceneFacts.of(scene) if facts is None else facts
+    area = facts.area_polygon() if area_xy is None else np.asarray(area_xy, dtype=float)
+    h = device_height(scene, settings, test_xyz, facts)
     step = float(settings.step_m)
     lo, hi = area.min(axis=0), area.max(axis=0)
     n_lattice = np.floor((hi - lo) / step).astype(np.int64) + 1
@@ -563,7 +553,8 @@ def compute_map(
     if len(bs_xyz) == 0:
         raise HallrayError("the scene has no base stations (metadata['hallray']['base_stations'])")
     names = list(bs_names) if bs_names is not None else [f"BS{i + 1}" for i in range(len(bs_xyz))]
-    grid = make_grid(scene, settings, inputs.point_names, inputs.point_xyz, area_xy)
+    facts = SceneFacts.of(scene, inputs.block)  # the walk's one visit to the scene's facts
+    grid = make_grid(scene, settings, inputs.point_names, inputs.point_xyz, area_xy, facts)
     band = get_band(settings.band)
     receiver = Receiver(settings.receiver, band)
     chunks = receiver_chunks(len(bs_xyz), len(grid.cell_xyz), settings.chunk_links)
@@ -579,7 +570,7 @@ def compute_map(
     arrays = _join(parts, len(settings.methods))
     timing = {k: float(sum(p["time_s"][k] for p in parts)) for k in ("trace", "measure", "locate")}
     timing["total_wall"] = time.perf_counter() - t_start
-    meta = _meta(scene, scene_name, settings, band, grid, n_workers, timing,
+    meta = _meta(facts, scene_name, settings, band, grid, n_workers, timing,
                  sum(p["n_paths"] for p in parts))  # fmt: skip
     if stored_paths(settings) > 0:
         meta["receiver_model"] = receiver_model_meta(receiver)
@@ -664,7 +655,7 @@ def _join(parts: list[dict[str, Any]], n_methods: int) -> dict[str, np.ndarray]:
 
 
 def _meta(
-    scene: Scene, scene_name: str, settings: MapSettings, band: Any, grid: MapGrid,
+    facts: SceneFacts, scene_name: str, settings: MapSettings, band: Any, grid: MapGrid,
     n_workers: int, timing: dict[str, float], n_paths: int,
 ) -> dict[str, Any]:  # fmt: skip
     """The map's ``meta_json`` (docs/accuracy_map.md)."""
@@ -678,7 +669,7 @@ def _meta(
         "step_m": settings.step_m,
         "height_m": float(grid.cell_xyz[0, 2]),
         "scene": scene_name,
-        "scene_sha256": scene.content_hash(),
+        "scene_sha256": facts.sha256,
         "draws": settings.draws,
         "seed": settings.seed,
         "paths_per_link": stored_paths(settings),

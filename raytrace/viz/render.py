@@ -30,7 +30,7 @@ from ..core.constants import C0
 from ..core.errors import HallrayError
 from ..core.fileio import write_atomic
 from ..core.palette import material_colors
-from ..halls.scan import floor_level
+from ..scene.facts import floor_level
 from ..scene.model import Scene
 from ..solver.paths import Paths
 from .export import KIND_COLOURS, path_category, path_polylines
