@@ -392,7 +392,7 @@ def test_collinear_stations_and_flat_3d_are_not_trusted(tmp_path, capsys):
 
 # -- resources ------------------------------------------------------------------------------------
 def test_csv_is_streamed_in_blocks_with_the_same_bytes(monkeypatch):
-    import raytrace.emulation.dataset as dsm
+    import raytrace.emulation.dataset.files as dsm
     from raytrace.emulation.measurement import Measurements  # noqa: F401  (type of the fields)
 
     class Inputs:

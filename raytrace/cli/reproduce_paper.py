@@ -134,7 +134,7 @@ def _build(
     from positioning import method_names
     from positioning.cli import accuracy_report
 
-    from ..emulation.dataset import make_datasets
+    from ..emulation.dataset.make import make_datasets
     from ..studies.paper import costs_markdown, method_costs, write_comparison
 
     summaries = make_datasets(

@@ -762,10 +762,10 @@ def write_outputs(
     output). Returns the files' final paths."""
     import shutil
 
-    from ..emulation.dataset import _commit_output, _prepare_output
+    from ..emulation.dataset.staging import commit_output, stage_output
 
     out = Path(out_dir)
-    tmp = _prepare_output(out, force)
+    tmp = stage_output(out, force)
     committed = False
     try:
         write_map(tmp / "map.npz", amap.fmap)
@@ -775,7 +775,7 @@ def write_outputs(
             for name, png in map_pictures(scene, amap):
                 write_atomic(tmp / name, png)
                 names.append(name)
-        _commit_output(tmp, out)
+        commit_output(tmp, out)
         committed = True
     finally:
         if not committed:

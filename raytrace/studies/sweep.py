@@ -47,7 +47,7 @@ from ..solver.config import TRACE_KEYS as TRACE_FIELDS
 from ..solver.config import TraceConfig
 
 if TYPE_CHECKING:  # the pipeline's modules load lazily (the driver of a cluster sweep needs few)
-    from ..emulation.dataset import DatasetConfig
+    from ..emulation.dataset.config import DatasetConfig
     from ..emulation.measurement import Measurements
     from ..scene.metadata import SceneMetadata
     from ..scene.model import Scene
@@ -477,7 +477,7 @@ def cell_dataset_config(params: Mapping[str, Any]) -> DatasetConfig:
     """The :class:`raytrace.emulation.dataset.DatasetConfig` of a cell: static scenario, the
     cell's band, receiver, noise, epochs, seed and tracer limits. Its measurement model is the
     cell's, and its dataset is what ``make-dataset`` writes for the cell's hall."""
-    from ..emulation.dataset import DatasetConfig
+    from ..emulation.dataset.config import DatasetConfig
 
     return DatasetConfig(
         "static",
@@ -627,7 +627,7 @@ def _write_dataset(
     inf if the file's detected ToAs are not the measured ones."""
     from positioning.dataset import load_dataset
 
-    from ..emulation.dataset import write_dataset
+    from ..emulation.dataset.files import write_dataset
 
     write_dataset(out, hall.scene, cfg, measured, force=True)
     ds = load_dataset(out)
