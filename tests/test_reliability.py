@@ -423,7 +423,7 @@ def test_stop_pool_is_prompt():
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor
 
-    from raytrace.studies.sweep import _stop_pool
+    from raytrace.studies.sweep.run import _stop_pool
 
     pool = ProcessPoolExecutor(max_workers=2, mp_context=multiprocessing.get_context("spawn"))
     futures = [pool.submit(time.sleep, 30) for _ in range(4)]

@@ -611,9 +611,9 @@ def _run_chunks_dask(
     progress: bool | Callable[[int], None],
 ) -> list[dict[str, Any]]:  # fmt: skip
     """:func:`_run_chunks` on a Dask cluster (the sweep's connection and allocator settings)."""
-    from .sweep import _connect_dask, tune_malloc
+    from .cluster import connect_dask, tune_malloc
 
-    client, own = _connect_dask(scheduler)
+    client, own = connect_dask(scheduler)
     bar = None
     if progress is True:
         from tqdm import tqdm
