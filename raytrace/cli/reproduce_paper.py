@@ -104,7 +104,7 @@ def _main(args: argparse.Namespace) -> int:
     if not (math.isfinite(args.map_step) and args.map_step >= 0):
         raise HallrayError(f"--map-step must be a number of metres >= 0, got {args.map_step!r}")
     if args.map_step > 0:  # a grid step it refuses is refused before any work
-        from ..studies.accuracy_map import MapSettings
+        from ..studies.accuracy_map.settings import MapSettings
 
         MapSettings(step_m=args.map_step, receiver=receiver).check()
     out = Path(args.output)
@@ -182,7 +182,9 @@ def _build(
 def _build_maps(args: argparse.Namespace, receiver: str, folder: Path) -> list[dict[str, Any]]:
     """The static scene's fingerprint map per band (``accuracy-map``), timed and sized."""
     from ..scene.io import load_scene
-    from ..studies.accuracy_map import MapSettings, compute_map, write_outputs
+    from ..studies.accuracy_map.compute import compute_map
+    from ..studies.accuracy_map.files import write_outputs
+    from ..studies.accuracy_map.settings import MapSettings
 
     scene = load_scene(args.scene)
     out = []
