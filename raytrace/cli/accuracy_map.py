@@ -18,7 +18,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from ..core.errors import HallrayError
-from ..emulation.receivers import DEFAULT_TOA_METHOD, TOA_METHODS
+from ..emulation.receivers.receiver import DEFAULT_TOA_METHOD, TOA_METHODS
 from ..solver.config import add_trace_arguments
 from .harness import OneLineParser, add_scene_arguments, run_tool
 

@@ -19,7 +19,8 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from ..core.errors import HallrayError
-from ..emulation.receivers import DEFAULT_TOA_METHOD, TOA_METHODS, FirstLobeSettings
+from ..emulation.receivers.first_lobe import FirstLobeSettings
+from ..emulation.receivers.receiver import DEFAULT_TOA_METHOD, TOA_METHODS
 from ..solver.config import add_trace_arguments
 from .harness import OneLineParser, run_tool
 

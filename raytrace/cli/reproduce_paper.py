@@ -89,7 +89,7 @@ def reproduce_paper_main(argv: Sequence[str] | None = None) -> int:
 def _main(args: argparse.Namespace) -> int:
     from positioning.output import output_dir
 
-    from ..emulation.receivers import DEFAULT_TOA_METHOD, TOA_METHODS
+    from ..emulation.receivers.receiver import DEFAULT_TOA_METHOD, TOA_METHODS
 
     receiver = args.receiver or DEFAULT_TOA_METHOD
     if receiver not in TOA_METHODS:

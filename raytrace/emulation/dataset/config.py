@@ -13,9 +13,11 @@ from ...core.errors import HallrayError
 from ...scene.motion import FORKLIFT_CLEARANCE_M, snapshot_times
 from ...solver.config import TraceConfig
 from ..bands import Band, get_band
-from ..channel import LinkBudget, PulseShape
+from ..channel.budget import LinkBudget
+from ..channel.pulse import PulseShape
 from ..measurement import CLOCK_OFFSET_MAX_S, DELTA_S, ToaModel
-from ..receivers import DEFAULT_TOA_METHOD, TOA_METHODS, FirstLobeSettings, Receiver
+from ..receivers.first_lobe import FirstLobeSettings
+from ..receivers.receiver import DEFAULT_TOA_METHOD, TOA_METHODS, Receiver
 
 #: Version of the dataset schema (``meta.json`` ``schema_version``).
 SCHEMA_VERSION = 2

@@ -20,7 +20,7 @@ from ...solver.incremental import SnapshotTracer
 from ...solver.paths import Paths
 from ..bands import get_band
 from ..measurement import Measurements, ToaModel
-from ..receivers import PreparedLinks
+from ..receivers.receiver import PreparedLinks
 from .config import DatasetConfig
 
 #: the group of this worker process (set by its initializer, :func:`_init_worker`)

@@ -21,9 +21,10 @@ from ...scene.model import Scene
 from ...solver.config import TraceConfig
 from ...solver.paths import Paths
 from ..bands import get_band
-from ..channel import LinkBudget
+from ..channel.budget import LinkBudget
 from ..measurement import Measurements
-from ..receivers import DEFAULT_TOA_METHOD, FirstLobeSettings
+from ..receivers.first_lobe import FirstLobeSettings
+from ..receivers.receiver import DEFAULT_TOA_METHOD
 from .config import SCENARIOS, DatasetConfig
 from .epochs import ScenarioGroup, measure_group, scenario_group
 from .files import dataset_parts, dataset_summary, write_files

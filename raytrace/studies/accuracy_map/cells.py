@@ -14,7 +14,7 @@ import numpy as np
 
 from ...core.constants import C0
 from ...emulation.measurement import ToaModel, emulate_toa, prepare_links
-from ...emulation.receivers import Receiver
+from ...emulation.receivers.receiver import Receiver
 from ...solver.paths import Paths
 from .settings import MapSettings
 
@@ -121,8 +121,8 @@ def path_table(paths: Paths, k: int) -> dict[str, np.ndarray]:
 def receiver_model_meta(receiver: Receiver) -> dict[str, Any]:
     """The settings the twin's copy of the noiseless first-lobe receiver
     (:class:`positioning.lobe.LobeReceiver`) needs, as the map's ``meta["receiver_model"]``."""
-    from ...emulation import receivers as rx_mod
-    from ...emulation.receivers import cfar_factor
+    from ...emulation.receivers import first_lobe as rx_mod
+    from ...emulation.receivers.first_lobe import cfar_factor
 
     band, budget, pulse, fl = receiver.band, receiver.budget, receiver.pulse, receiver.first_lobe
     return {

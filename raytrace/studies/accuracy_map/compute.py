@@ -15,7 +15,7 @@ from positioning.fingerprint import FingerprintMap
 
 from ...core.errors import HallrayError
 from ...emulation.bands import get_band
-from ...emulation.receivers import Receiver
+from ...emulation.receivers.receiver import Receiver
 from ...scene.facts import SceneFacts
 from ...scene.metadata import SceneMetadata
 from ...scene.model import Scene

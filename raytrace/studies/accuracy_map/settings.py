@@ -9,7 +9,7 @@ import numpy as np
 
 from ...core.errors import HallrayError
 from ...emulation.bands import get_band
-from ...emulation.receivers import DEFAULT_TOA_METHOD, TOA_METHODS
+from ...emulation.receivers.receiver import DEFAULT_TOA_METHOD, TOA_METHODS
 from ...solver.config import TraceConfig
 from ...solver.parallel import (
     CHUNK_LINKS,

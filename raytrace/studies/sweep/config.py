@@ -19,7 +19,7 @@ import numpy as np
 
 from ...core.errors import HallrayError
 from ...core.fileio import read_yaml
-from ...emulation.receivers import DEFAULT_TOA_METHOD
+from ...emulation.receivers.receiver import DEFAULT_TOA_METHOD
 from ...solver.config import TRACE_KEYS as TRACE_FIELDS
 from ...solver.config import TraceConfig
 
@@ -328,7 +328,7 @@ def n_epochs(params: Mapping[str, Any]) -> int:
 def validate_cell(params: Mapping[str, Any]) -> None:
     """Check one cell's parameters without running it (one-line :class:`HallrayError`)."""
     from ...emulation.bands import get_band
-    from ...emulation.receivers import TOA_METHODS
+    from ...emulation.receivers.receiver import TOA_METHODS
     from ...halls.inf import check_hall
 
     if params.get("profile") is None:
