@@ -29,8 +29,9 @@ from positioning.output import check_output  # noqa: E402
 from raytrace.cli.harness import OneLineParser, run_tool  # noqa: E402
 from raytrace.core.errors import HallrayError  # noqa: E402
 from raytrace.core.fileio import write_atomic  # noqa: E402
-from raytrace.halls.spec import load_hall_spec, plot_top_view  # noqa: E402
+from raytrace.halls.spec import load_hall_spec  # noqa: E402
 from raytrace.scene.metadata import SceneMetadata  # noqa: E402
+from raytrace.viz.topview import plot_top_view  # noqa: E402
 
 #: Area names drawn on the reference hall's plan (x, y in m).
 REFERENCE_LABELS = {

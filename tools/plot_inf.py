@@ -34,7 +34,8 @@ from raytrace.halls.inf import (  # noqa: E402
     parse_size,
     split_spec,
 )
-from raytrace.halls.spec import parse_hall_spec, plot_top_view  # noqa: E402
+from raytrace.halls.spec import parse_hall_spec  # noqa: E402
+from raytrace.viz.topview import plot_top_view  # noqa: E402
 
 
 def _save(fig, path: Path) -> None:

@@ -116,7 +116,8 @@ def make_hall(
     is written; each file is written atomically. Returns ``{"dir", "spec", "info"}``."""
     from ..core.fileio import write_atomic
     from ..halls.inf import generate_hall, hall_yaml, split_spec
-    from ..halls.spec import build_scene, glb_bytes, parse_hall_spec
+    from ..halls.spec.build import build_scene, glb_bytes
+    from ..halls.spec.parse import parse_hall_spec
 
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
@@ -196,7 +197,7 @@ def _jsonable(x: Any) -> Any:
 
 def _los_sample(args: argparse.Namespace) -> tuple[Any, dict[str, Any]]:
     from ..halls.inf import PROFILES, canonical_profile, los_check, los_sample, resolve_params
-    from ..halls.spec import load_hall_spec
+    from ..halls.spec.parse import load_hall_spec
     from ..scene.io import load_scene
 
     target = Path(args.target)

@@ -47,14 +47,9 @@ import numpy as np
 from ..core.errors import HallrayError
 from ..core.scale import check_size
 from ..scene.model import Scene
-from .spec import (
-    ITU_MATERIALS,
-    HallSpec,
-    line_of_sight,
-    los_note,
-    parse_hall_spec,
-    tracer_scene,
-)
+from .spec.los import line_of_sight, los_note, tracer_scene
+from .spec.model import ITU_MATERIALS, HallSpec
+from .spec.parse import parse_hall_spec
 
 #: Version of the generator's algorithm: a change of the layout rules bumps it (seeds then give
 #: other halls). Stored in ``inf.json``.

@@ -1548,7 +1548,7 @@ def _assign_materials(
     elements: list[Element], pts: np.ndarray, opt: ScanOptions, rules: MaterialRules
 ) -> None:
     """Features, materials and names (planes largest first, then objects largest first)."""
-    from .spec import node_name
+    from .spec.model import node_name
 
     horiz = [e for e in elements if e.kind == "plane" and e.bounding and abs(e.normal[2]) > 0.9]
     floors = [e.offset * e.normal[2] for e in horiz if e.normal[2] > 0]
@@ -1596,7 +1596,7 @@ def scene_from_elements(
     material named after the radio material, and ``metadata["hallray"]``."""
     import trimesh
 
-    from .spec import paint
+    from .spec.build import paint
 
     colors = material_colors(e.material for e in elements)
     scene = trimesh.Scene()
@@ -1685,7 +1685,7 @@ def scan_to_scene(
     HallrayError
         Bad input of any kind (one-line message).
     """
-    from .spec import glb_bytes
+    from .spec.build import glb_bytes
 
     out = Path(out_path)
     if out.suffix.lower() != ".glb":

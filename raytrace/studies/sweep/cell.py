@@ -93,7 +93,7 @@ class CellHall:
 def cell_hall(params: Mapping[str, Any]) -> CellHall:
     """The hall of a cell: ``generate_hall(profile, size, seed, ...)`` as a scene."""
     from ...halls.inf import generate_hall, scene_from_spec, split_spec
-    from ...halls.spec import parse_hall_spec
+    from ...halls.spec.parse import parse_hall_spec
     from ...scene.metadata import SceneMetadata
 
     spec = generate_hall(
