@@ -92,7 +92,8 @@ class CellHall:
 
 def cell_hall(params: Mapping[str, Any]) -> CellHall:
     """The hall of a cell: ``generate_hall(profile, size, seed, ...)`` as a scene."""
-    from ...halls.inf import generate_hall, scene_from_spec, split_spec
+    from ...halls.inf.generator import generate_hall, split_spec
+    from ...halls.inf.los import scene_from_spec
     from ...halls.spec.parse import parse_hall_spec
     from ...scene.metadata import SceneMetadata
 
@@ -285,7 +286,7 @@ def run_cell(task: Mapping[str, Any]) -> dict[str, Any]:
 
     from positioning import summarize
 
-    from ...halls.inf import los_probability_3gpp
+    from ...halls.inf.params import los_probability_3gpp
 
     t0 = time.perf_counter()
     params, methods = task["params"], task["methods"]

@@ -329,7 +329,7 @@ def validate_cell(params: Mapping[str, Any]) -> None:
     """Check one cell's parameters without running it (one-line :class:`HallrayError`)."""
     from ...emulation.bands import get_band
     from ...emulation.receivers.receiver import TOA_METHODS
-    from ...halls.inf import check_hall
+    from ...halls.inf.generator import check_hall
 
     if params.get("profile") is None:
         raise HallrayError("no profile given")
