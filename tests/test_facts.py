@@ -70,20 +70,20 @@ def test_without_a_floor_the_hall_size_then_the_bounds():
     assert service_area(bare, {}) is None
     assert hall_xy(bare, {}) == [[1.0, 2.0], [7.0, 2.2]]
     facts = SceneFacts.of(bare)
-    np.testing.assert_allclose(facts.area_polygon(), [[1, 2], [7, 2], [7, 2.2], [1, 2.2]],
+    assert facts.service_area is None and facts.hall_xy == [[1.0, 2.0], [7.0, 2.2]]
+    np.testing.assert_allclose(facts.area_xy, [[1, 2], [7, 2], [7, 2.2], [1, 2.2]],
                                atol=LENGTH_TOL_M)  # fmt: skip
 
 
 def test_height_range(slab_hall):
     # floor 0.5 m; the top of the scene (4 m) lowered to the floor plus the hall height (3 m)
-    floor, top = SceneFacts.of(slab_hall).height_range()
+    floor, top = SceneFacts.of(slab_hall).height_range
     assert (floor, top) == pytest.approx((0.5, 3.5), abs=LENGTH_TOL_M)
     # no floor: open below (the bottom of the scene), even though the wall's top faces up;
     # a hall size without a height leaves the top of the scene
     sized = _scene([("wall", box((0, 0, -1), (6, 0.5, 3)), "concrete")], {"hall": {"size": [6, 4]}})
-    facts = SceneFacts.of(sized)
-    assert facts.floor_z == pytest.approx(3.0, abs=LENGTH_TOL_M)
-    assert facts.height_range() == pytest.approx((-1.0, 3.0), abs=LENGTH_TOL_M)
+    assert floor_level(sized) == pytest.approx(3.0, abs=LENGTH_TOL_M)
+    assert SceneFacts.of(sized).height_range == pytest.approx((-1.0, 3.0), abs=LENGTH_TOL_M)
 
 
 def test_facts_of_the_bundled_hall_are_the_functions():
@@ -91,7 +91,7 @@ def test_facts_of_the_bundled_hall_are_the_functions():
     block = SceneMetadata.from_scene(hall).block
     facts = SceneFacts.of(hall)
     assert facts.sha256 == hall.content_hash()
-    assert facts.service_area() == service_area(hall, block)
-    assert facts.hall_xy() == hall_xy(hall, block)
-    assert facts.floor_z == floor_level(hall)
-    np.testing.assert_array_equal(facts.area_polygon(), np.asarray(facts.service_area()["polygon"]))
+    assert facts.service_area == service_area(hall, block)
+    assert facts.hall_xy == hall_xy(hall, block)
+    assert facts.height_range[0] == floor_level(hall)
+    np.testing.assert_array_equal(facts.area_xy, np.asarray(facts.service_area["polygon"]))

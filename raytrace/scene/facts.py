@@ -11,8 +11,8 @@ facets and the ``hallray`` block of its metadata), so they are read here, once p
   metadata's ``hall.size`` (its corner at the origin), else the scene's bounding box;
 * **service area** (:func:`service_area`): the floor outline inside the walls
   (:meth:`raytrace.scene.model.Scene.floor_outline`), else the rectangle of ``hall.size``, else
-  none; :meth:`SceneFacts.area_polygon` falls back to the bounding box;
-* **floor and ceiling** (:meth:`SceneFacts.height_range`) of a device's height.
+  none; :attr:`SceneFacts.area_xy` falls back to the bounding box;
+* **floor and ceiling** of a device's height (:attr:`SceneFacts.height_range`).
 
 Distances in metres.
 """
@@ -96,22 +96,25 @@ def service_area(scene: Any, block: Mapping[str, Any]) -> dict[str, Any] | None:
 
 @dataclass(frozen=True)
 class SceneFacts:
-    """A scene's hall facts, read once (module docstring).
+    """A scene's hall facts, read once (module docstring): plain values, so that what is built
+    from them (a dataset's ``meta.json``, a map's grid) does not go back to the scene.
 
     Attributes
     ----------
     sha256 : str, :meth:`~raytrace.scene.model.Scene.content_hash`
-    bounds : (2, 3) float, m, the scene's bounding box
-    outline : (K, 2) float, m, or None, :meth:`~raytrace.scene.model.Scene.floor_outline`
-    floor_z : float, m, :func:`floor_level`
-    block : dict, the scene's ``hallray`` metadata block
+    hall_xy : [[x0, y0], [x1, y1]], m, :func:`hall_xy`
+    service_area : dict or None, :func:`service_area`
+    area_xy : (K, 2) float, m, the service area's polygon, else the scene's bounding box
+    height_range : (floor, ceiling), m, of a device in the hall: the floor level (the bottom of
+        the scene when it has no floor: it is open below) and the top of the scene, lowered to
+        the floor plus the metadata's hall height if that is less
     """
 
     sha256: str
-    bounds: np.ndarray
-    outline: np.ndarray | None
-    floor_z: float
-    block: Mapping[str, Any]
+    hall_xy: list[list[float]]
+    service_area: dict[str, Any] | None
+    area_xy: np.ndarray
+    height_range: tuple[float, float]
 
     @classmethod
     def of(cls, scene: Any, block: Mapping[str, Any] | None = None) -> SceneFacts:
@@ -119,32 +122,17 @@ class SceneFacts:
         has read it already (:attr:`raytrace.scene.metadata.SceneMetadata.block`)."""
         if block is None:
             block = SceneMetadata.from_scene(scene).block
-        return cls(scene.content_hash(), scene.bounds, scene.floor_outline(), floor_level(scene),
-                   block)  # fmt: skip
-
-    def service_area(self) -> dict[str, Any] | None:
-        """:func:`service_area` of the scene."""
-        return _service_area(self.outline, self.block)
-
-    def hall_xy(self) -> list[list[float]]:
-        """:func:`hall_xy` of the scene."""
-        return _hall_xy(self.bounds, self.block)
-
-    def area_polygon(self) -> np.ndarray:
-        """(K, 2) float, m: the service area's polygon, else the scene's bounding box."""
-        area = self.service_area()
+        bounds = scene.bounds
+        outline = scene.floor_outline()
+        area = _service_area(outline, block)
         if area is not None:
-            return np.asarray(area["polygon"], dtype=float)
-        (x0, y0, _), (x1, y1, _) = self.bounds
-        return np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]], dtype=float)
-
-    def height_range(self) -> tuple[float, float]:
-        """(floor, ceiling) of the hall, m: the floor level (the bottom of the scene when it has
-        no floor: it is open below) and the top of the scene, lowered to the floor plus the
-        metadata's hall height if that is less."""
-        floor = self.floor_z if self.outline is not None else float(self.bounds[0, 2])
-        top = float(self.bounds[1, 2])
-        size = SceneMetadata.from_metadata({"hallray": self.block}).hall_size
+            area_xy = np.asarray(area["polygon"], dtype=float)
+        else:
+            (x0, y0, _), (x1, y1, _) = bounds
+            area_xy = np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]], dtype=float)
+        floor = floor_level(scene) if outline is not None else float(bounds[0, 2])
+        top = float(bounds[1, 2])
+        size = SceneMetadata.from_metadata({"hallray": block}).hall_size
         if size is not None:
             top = min(top, floor + size[2])
-        return floor, top
+        return cls(scene.content_hash(), _hall_xy(bounds, block), area, area_xy, (floor, top))

@@ -157,8 +157,8 @@ def _meta(
             {"name": n, "xyz": [float(v) for v in p]}
             for n, p in zip(inputs.point_names, inputs.point_xyz)
         ],
-        "hall_xy": facts.hall_xy(),
-        "service_area": facts.service_area(),
+        "hall_xy": facts.hall_xy,
+        "service_area": facts.service_area,
         "area_of_interest": inputs.block.get("area_of_interest"),
         "obstacles_2d": _obstacles_2d(inputs.block),
         "columns": list(COLUMNS),

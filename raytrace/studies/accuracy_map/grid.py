@@ -52,8 +52,8 @@ class MapGrid:
 
 def area_polygon(scene: Scene, block: dict[str, Any]) -> np.ndarray:
     """(K, 2) float, m: where cells may lie (the dataset's service area, else the bounding box;
-    :meth:`raytrace.scene.facts.SceneFacts.area_polygon`)."""
-    return SceneFacts.of(scene, block).area_polygon()
+    :attr:`raytrace.scene.facts.SceneFacts.area_xy`)."""
+    return SceneFacts.of(scene, block).area_xy
 
 
 def lattice_distance(points_xy: np.ndarray, offset_xy: np.ndarray, step_m: float) -> np.ndarray:
@@ -99,7 +99,7 @@ def device_height(
     h = settings.height_m
     if h is None:
         h = float(np.median(test_xyz[:, 2])) if len(test_xyz) else FALLBACK_HEIGHT_M
-    floor, top = facts.height_range()
+    floor, top = facts.height_range
     if not floor < h < top:
         raise HallrayError(
             f"--height {h:g} m is outside the hall (floor {floor:.2f} m, ceiling {top:.2f} m)"
@@ -125,7 +125,7 @@ def make_grid(
     import shapely
 
     facts = SceneFacts.of(scene) if facts is None else facts
-    area = facts.area_polygon() if area_xy is None else np.asarray(area_xy, dtype=float)
+    area = facts.area_xy if area_xy is None else np.asarray(area_xy, dtype=float)
     h = device_height(scene, settings, test_xyz, facts)
     step = float(settings.step_m)
     lo, hi = area.min(axis=0), area.max(axis=0)
