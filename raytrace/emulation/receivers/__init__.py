@@ -3,6 +3,13 @@ in a window) and every estimator behind one interface (:mod:`.receiver`, :class:
 """
 
 from .first_lobe import (
+    MIN_CROSSING,
+    NEGLIGIBLE_DB,
+    NOISE_GUARD_T,
+    POST_T,
+    SURE_CROSSING,
+    TABLE_PER_T,
+    TOP_PATHS,
     FirstLobeSettings,
     LobeMeasurement,
     LobePlan,
@@ -23,6 +30,13 @@ from .receiver import (
 
 __all__ = [
     "DEFAULT_TOA_METHOD",
+    "MIN_CROSSING",
+    "NEGLIGIBLE_DB",
+    "NOISE_GUARD_T",
+    "POST_T",
+    "SURE_CROSSING",
+    "TABLE_PER_T",
+    "TOP_PATHS",
     "FirstLobeSettings",
     "LobeMeasurement",
     "LobePlan",

@@ -25,7 +25,12 @@ Modules: :mod:`.config` (parameters, cells, the config file), :mod:`.cell` (one 
 connection is :mod:`raytrace.studies.cluster`.
 """
 
-from ..cluster import CONNECT_TIMEOUT_S, tune_malloc
+from ..cluster import (
+    CONNECT_TIMEOUT_S,
+    MMAP_THRESHOLD_BYTES,
+    TRIM_THRESHOLD_BYTES,
+    tune_malloc,
+)
 from .cell import (
     NLOS_STREAM,
     CellData,
@@ -72,10 +77,12 @@ __all__ = [
     "DEFAULT_METHODS",
     "HALL_KEYS",
     "KEY_LENGTH",
+    "MMAP_THRESHOLD_BYTES",
     "NLOS_STREAM",
     "PIPELINE_VERSION",
     "TOA_KEYS",
     "TRACE_KEYS",
+    "TRIM_THRESHOLD_BYTES",
     "Cell",
     "CellData",
     "CellHall",
