@@ -12,7 +12,6 @@ from scipy.optimize import brentq
 
 from raytrace.core.constants import C0
 from raytrace.core.errors import HallrayError
-from raytrace.emulation import channel
 from raytrace.emulation.bands import get_band
 from raytrace.emulation.channel import (
     LinkBudget,
@@ -23,6 +22,7 @@ from raytrace.emulation.channel import (
     first_detectable_path,
     raised_cosine,
     raised_cosine_spectrum,
+    response,
     thermal_noise_power_w,
     toa_std_eq3_s,
 )
@@ -505,9 +505,9 @@ def test_chunking_does_not_change_results(monkeypatch):
     gain = los_gain(30.0) * rng.uniform(0.1, 1, 200) * np.exp(2j * np.pi * rng.uniform(size=200))
     args = (link, delay, gain, n_links, C_BAND)
     ref = {m: estimate_toa(*args, method=m, noise=False) for m in ("peak", "leading-edge")}
-    monkeypatch.setattr(channel, "_CHUNK_ELEMENTS", 3000)
+    monkeypatch.setattr(response, "_CHUNK_ELEMENTS", 3000)
     assert (
-        len(list(channel._link_chunks(discrete_cir(*args[:4]), np.arange(n_links), PULSE, T_C))) > 5
+        len(list(response._link_chunks(discrete_cir(*args[:4]), np.arange(n_links), PULSE, T_C))) > 5
     )
     for m, r in ref.items():
         got = estimate_toa(*args, method=m, noise=False)

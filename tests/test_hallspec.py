@@ -33,7 +33,6 @@ from raytrace.halls.spec import (
     los_markdown,
     los_note,
     parse_los_note,
-    plot_top_view,
     segment_blockers,
     tracer_scene,
     write_glb,
@@ -553,22 +552,6 @@ def test_write_atomic_keeps_old_file_on_failure(tmp_path, monkeypatch):
         write_atomic(target, b"new")
     assert target.read_bytes() == b"old"
     assert [p.name for p in tmp_path.iterdir()] == ["x.bin"]
-
-
-def test_plot_top_view_draws_every_site(hall):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots()
-    plot_top_view(ax, hall)
-    markers = [ln.get_marker() for ln in ax.get_lines()]
-    assert markers.count("^") == len(hall.base_stations)
-    assert markers.count("s") == len(hall.points)
-    labels = [t.get_text() for t in ax.get_legend().get_texts()]
-    assert {"metal", "plastic", "glass", "wood", "concrete", "area of interest"} <= set(labels)
-    plt.close(fig)
 
 
 # --------------------------------------------------------------------------------------------

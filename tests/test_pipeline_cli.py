@@ -61,7 +61,7 @@ def test_reproduce_paper_interrupted_in_the_report_says_so_once(tmp_path, capsys
     exit status of its own; reproduce-paper reports the interruption once, exits 130 and
     leaves no output."""
     import positioning.cli
-    from raytrace.emulation import dataset
+    from raytrace.emulation.dataset import make as dataset
 
     def datasets(folder, pairs, **kw):
         return [{"directory": str(folder / "static-c-band"), "epochs": 1, "toa_method": r}

@@ -11,7 +11,6 @@ from scipy.optimize import minimize_scalar
 
 from raytrace.core.constants import C0
 from raytrace.core.errors import HallrayError
-from raytrace.emulation import receivers
 from raytrace.emulation.bands import get_band
 from raytrace.emulation.channel import LinkBudget, PulseShape, discrete_cir
 from raytrace.emulation.receivers import (
@@ -22,6 +21,7 @@ from raytrace.emulation.receivers import (
     isolated_half_width_t,
     precursor_extent_t,
 )
+from raytrace.emulation.receivers import first_lobe as receivers
 
 C_BAND = get_band("c-band")
 MMWAVE = get_band("mmwave")

@@ -390,7 +390,7 @@ def test_collinear_stations_and_flat_3d_are_not_trusted(tmp_path, capsys):
 
 # -- resources ------------------------------------------------------------------------------------
 def test_csv_is_streamed_in_blocks_with_the_same_bytes(monkeypatch):
-    import raytrace.emulation.dataset as dsm
+    import raytrace.emulation.dataset.files as dsm
     from raytrace.emulation.measurement import Measurements  # noqa: F401  (type of the fields)
 
     class Inputs:
@@ -421,7 +421,7 @@ def test_stop_pool_is_prompt():
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor
 
-    from raytrace.studies.sweep import _stop_pool
+    from raytrace.studies.sweep.run import _stop_pool
 
     pool = ProcessPoolExecutor(max_workers=2, mp_context=multiprocessing.get_context("spawn"))
     futures = [pool.submit(time.sleep, 30) for _ in range(4)]

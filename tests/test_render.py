@@ -14,7 +14,8 @@ from raytrace.scene.io import load_scene
 from raytrace.solver.config import TraceConfig
 from raytrace.solver.tracer import trace
 from raytrace.viz.export import KIND_COLOURS
-from raytrace.viz.render import _camera_cut, _object_arrays, link_paths, render_scene
+from raytrace.viz.render import _camera_cut, link_paths, render_scene
+from raytrace.viz.topview import object_arrays
 
 #: A pixel within this (0..255 per channel) of a path colour counts as that colour.
 COLOUR_TOL = 12
@@ -132,7 +133,7 @@ def test_cut_away_hides_ceiling_and_the_walls_facing_the_camera():
         ("machine", box((0.2, 3, 0), (2, 7, 2.5)), "metal"),  # near the west wall, not on it
     ]
     scene = make_scene(objs)
-    arrays = _object_arrays(scene)
+    arrays = object_arrays(scene)
     lo, hi = scene.bounds
     names = scene.object_names
 

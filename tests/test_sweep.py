@@ -377,7 +377,7 @@ def test_dask_local_cluster_in_process(tmp_path):
 
 @pytest.mark.skipif(not os.uname().sysname == "Linux", reason="glibc mallopt")
 def test_tune_malloc_applies_on_glibc():
-    from raytrace.studies.sweep import tune_malloc
+    from raytrace.studies.cluster import tune_malloc
 
     assert tune_malloc() is True
 
@@ -416,9 +416,9 @@ def test_dask_local_cluster_two_worker_processes(tmp_path):
 
 def test_unreachable_scheduler_is_a_one_line_error(tmp_path, monkeypatch, capsys):
     pytest.importorskip("distributed")
-    import raytrace.studies.sweep as sweep
+    import raytrace.studies.cluster as cluster
 
-    monkeypatch.setattr(sweep, "CONNECT_TIMEOUT_S", 0.5)
+    monkeypatch.setattr(cluster, "CONNECT_TIMEOUT_S", 0.5)
     path = _write(tmp_path, small_config())
     code = run_sweep_main(
         [str(path), "-o", str(tmp_path / "o"), "--scheduler", "tcp://127.0.0.1:9"]
@@ -470,7 +470,7 @@ def test_cli_bad_input(tmp_path, capsys):
 
 
 def test_failed_cell_is_reported_and_retried(tmp_path, monkeypatch, capsys):
-    import raytrace.studies.sweep as sweep
+    import raytrace.studies.sweep.run as sweep
 
     real = sweep.run_cell
 

@@ -25,8 +25,9 @@ from positioning.output import check_output
 from raytrace.cli.harness import OneLineParser, run_tool
 from raytrace.core.errors import HallrayError
 from raytrace.core.fileio import write_atomic
-from raytrace.halls.spec import load_hall_spec, plot_top_view
+from raytrace.halls.spec import load_hall_spec
 from raytrace.scene.metadata import SceneMetadata
+from raytrace.viz.topview import plot_top_view
 
 ROOT = Path(__file__).resolve().parent.parent
 

@@ -30,7 +30,8 @@ from raytrace.halls.inf import (
     parse_size,
     split_spec,
 )
-from raytrace.halls.spec import parse_hall_spec, plot_top_view
+from raytrace.halls.spec import parse_hall_spec
+from raytrace.viz.topview import plot_top_view
 
 ROOT = Path(__file__).resolve().parent.parent
 

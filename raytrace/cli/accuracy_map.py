@@ -18,7 +18,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from ..core.errors import HallrayError
-from ..emulation.receivers import DEFAULT_TOA_METHOD, TOA_METHODS
+from ..emulation.receivers.receiver import DEFAULT_TOA_METHOD, TOA_METHODS
 from ..solver.config import add_trace_arguments
 from .harness import OneLineParser, add_scene_arguments, run_tool
 
@@ -78,11 +78,13 @@ def _accuracy_map(args: argparse.Namespace) -> int:
     from ..scene.io import load_scene
     from ..solver.config import config_from_args
     from ..solver.parallel import process_context, resolve_workers
-    from ..studies.accuracy_map import MapSettings, check_output, compute_map, write_outputs
+    from ..studies.accuracy_map.compute import compute_map
+    from ..studies.accuracy_map.files import check_output, write_outputs
+    from ..studies.accuracy_map.settings import MapSettings
 
     t0 = time.perf_counter()
     if args.paths is None:
-        from ..studies.accuracy_map import DEFAULT_PATHS
+        from ..studies.accuracy_map.settings import DEFAULT_PATHS
 
         args.paths = DEFAULT_PATHS
     elif args.paths > 0 and args.receiver != "first-lobe":

@@ -11,7 +11,9 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from ..core.errors import SceneError
-from ..halls.spec import build_scene, line_of_sight, load_hall_spec, los_note, write_glb
+from ..halls.spec.build import build_scene, write_glb
+from ..halls.spec.los import line_of_sight, los_note
+from ..halls.spec.parse import load_hall_spec
 from .harness import OneLineParser, run_tool
 
 

@@ -19,7 +19,8 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from ..core.errors import HallrayError
-from ..emulation.receivers import DEFAULT_TOA_METHOD, TOA_METHODS, FirstLobeSettings
+from ..emulation.receivers.first_lobe import FirstLobeSettings
+from ..emulation.receivers.receiver import DEFAULT_TOA_METHOD, TOA_METHODS
 from ..solver.config import add_trace_arguments
 from .harness import OneLineParser, run_tool
 
@@ -98,7 +99,7 @@ def make_dataset_main(argv: Sequence[str] | None = None) -> int:
 def _make_dataset(args: argparse.Namespace) -> int:
     from positioning.output import output_dir
 
-    from ..emulation.dataset import ALL_DATASETS
+    from ..emulation.dataset.config import ALL_DATASETS
 
     if args.all:
         if args.scenario or args.band:
@@ -129,7 +130,7 @@ def _make_dataset(args: argparse.Namespace) -> int:
 
 def _make(args: argparse.Namespace, tmp: Path, pairs: list, subdirs: bool) -> list[dict]:
     """Write the datasets into the empty staging directory ``tmp``."""
-    from ..emulation.dataset import make_datasets
+    from ..emulation.dataset.make import make_datasets
     from ..solver.config import config_from_args
 
     return make_datasets(

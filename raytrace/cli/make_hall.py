@@ -115,8 +115,9 @@ def make_hall(
     (created if its parent exists). Everything is generated and validated before the first file
     is written; each file is written atomically. Returns ``{"dir", "spec", "info"}``."""
     from ..core.fileio import write_atomic
-    from ..halls.inf import generate_hall, hall_yaml, split_spec
-    from ..halls.spec import build_scene, glb_bytes, parse_hall_spec
+    from ..halls.inf.generator import generate_hall, hall_yaml, split_spec
+    from ..halls.spec.build import build_scene, glb_bytes
+    from ..halls.spec.parse import parse_hall_spec
 
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
@@ -195,8 +196,9 @@ def _jsonable(x: Any) -> Any:
 
 
 def _los_sample(args: argparse.Namespace) -> tuple[Any, dict[str, Any]]:
-    from ..halls.inf import PROFILES, canonical_profile, los_check, los_sample, resolve_params
-    from ..halls.spec import load_hall_spec
+    from ..halls.inf.los import los_check, los_sample
+    from ..halls.inf.params import PROFILES, canonical_profile, resolve_params
+    from ..halls.spec.parse import load_hall_spec
     from ..scene.io import load_scene
 
     target = Path(args.target)
@@ -287,7 +289,7 @@ def _plot(sample: Any, summary: dict[str, Any], path: str) -> None:
     import numpy as np
 
     from ..core.fileio import write_atomic
-    from ..halls.inf import los_probability_3gpp
+    from ..halls.inf.params import los_probability_3gpp
 
     if not str(path).lower().endswith(".png"):
         raise HallrayError(f"--plot {path}: must end in .png")

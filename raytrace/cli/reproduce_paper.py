@@ -89,7 +89,7 @@ def reproduce_paper_main(argv: Sequence[str] | None = None) -> int:
 def _main(args: argparse.Namespace) -> int:
     from positioning.output import output_dir
 
-    from ..emulation.receivers import DEFAULT_TOA_METHOD, TOA_METHODS
+    from ..emulation.receivers.receiver import DEFAULT_TOA_METHOD, TOA_METHODS
 
     receiver = args.receiver or DEFAULT_TOA_METHOD
     if receiver not in TOA_METHODS:
@@ -104,7 +104,7 @@ def _main(args: argparse.Namespace) -> int:
     if not (math.isfinite(args.map_step) and args.map_step >= 0):
         raise HallrayError(f"--map-step must be a number of metres >= 0, got {args.map_step!r}")
     if args.map_step > 0:  # a grid step it refuses is refused before any work
-        from ..studies.accuracy_map import MapSettings
+        from ..studies.accuracy_map.settings import MapSettings
 
         MapSettings(step_m=args.map_step, receiver=receiver).check()
     out = Path(args.output)
@@ -134,7 +134,7 @@ def _build(
     from positioning import method_names
     from positioning.cli import accuracy_report
 
-    from ..emulation.dataset import make_datasets
+    from ..emulation.dataset.make import make_datasets
     from ..studies.paper import costs_markdown, method_costs, write_comparison
 
     summaries = make_datasets(
@@ -182,7 +182,9 @@ def _build(
 def _build_maps(args: argparse.Namespace, receiver: str, folder: Path) -> list[dict[str, Any]]:
     """The static scene's fingerprint map per band (``accuracy-map``), timed and sized."""
     from ..scene.io import load_scene
-    from ..studies.accuracy_map import MapSettings, compute_map, write_outputs
+    from ..studies.accuracy_map.compute import compute_map
+    from ..studies.accuracy_map.files import write_outputs
+    from ..studies.accuracy_map.settings import MapSettings
 
     scene = load_scene(args.scene)
     out = []

@@ -56,7 +56,9 @@ def run_sweep_main(argv: Sequence[str] | None = None) -> int:
 
 
 def _run_sweep(args: argparse.Namespace) -> int:
-    from ..studies.sweep import default_output, load_sweep_config, read_cell_result, run_sweep
+    from ..studies.sweep.config import load_sweep_config
+    from ..studies.sweep.files import read_cell_result
+    from ..studies.sweep.run import default_output, run_sweep
 
     cfg = load_sweep_config(args.config)
     if args.list:

@@ -45,7 +45,7 @@ _OPTIONS: tuple[tuple[str, str, type, str], ...] = (
 
 
 def scan_to_scene_parser() -> argparse.ArgumentParser:
-    from ..halls.scan import OBJECT_MODES, ScanOptions
+    from ..halls.scan.options import OBJECT_MODES, ScanOptions
 
     d = ScanOptions()
     p = OneLineParser(
@@ -93,7 +93,8 @@ def scan_to_scene_main(argv: Sequence[str] | None = None) -> int:
 
 
 def _scan_to_scene(args: argparse.Namespace) -> int:
-    from ..halls.scan import ScanOptions, scan_to_scene
+    from ..halls.scan.options import ScanOptions
+    from ..halls.scan.write import scan_to_scene
 
     opt = ScanOptions(
         objects=args.objects, **{name: getattr(args, name) for _, name, _, _ in _OPTIONS}

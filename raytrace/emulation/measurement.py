@@ -35,8 +35,10 @@ import numpy as np
 
 from ..solver.paths import Paths
 from .bands import Band
-from .channel import LinkBudget, PulseShape
-from .receivers import DEFAULT_TOA_METHOD, FirstLobeSettings, PreparedLinks, Receiver
+from .channel.budget import LinkBudget
+from .channel.pulse import PulseShape
+from .receivers.first_lobe import FirstLobeSettings
+from .receivers.receiver import DEFAULT_TOA_METHOD, PreparedLinks, Receiver
 
 #: Period between two base stations' transmissions, s (paper, section II).
 DELTA_S = 0.01

@@ -2,7 +2,7 @@
 
 :func:`render_scene` draws
 
-* a **top view**: the triangles projected from above, lowest first (so a machine stands on the
+* a **top view** (:func:`raytrace.viz.topview.plot_top_view`): the triangles projected from above, lowest first (so a machine stands on the
   floor), filled by material, the ceiling and anything above ``cut_height_m`` left out, vertical
   sheets as lines;
 * a **perspective view** (``mpl_toolkits.mplot3d``): a cut-away from the camera's side (the
@@ -29,11 +29,10 @@ import numpy as np
 from ..core.constants import C0
 from ..core.errors import HallrayError
 from ..core.fileio import write_atomic
-from ..core.palette import material_colors
-from ..halls.scan import floor_level
 from ..scene.model import Scene
 from ..solver.paths import Paths
 from .export import KIND_COLOURS, path_category, path_polylines
+from .topview import SceneView, plot_top_view
 
 #: Default picture size, pixels, and resolution.
 DEFAULT_SIZE_PX = (2000, 1000)
@@ -115,27 +114,6 @@ def link_paths(
                 strongest_kind=str(kinds[strongest[link]]) if f >= 0 else "-",
                 strongest_power_db=float(power[strongest[link]]) if f >= 0 else float("nan"),
             )
-        )
-    return out
-
-
-def _object_arrays(scene: Scene) -> list[dict[str, Any]]:
-    """Per object: triangles (F, 3, 3), face normals, material, closed, bounds."""
-    out = []
-    for k, o in enumerate(scene.objects):
-        sl = slice(o.face_start, o.face_start + o.face_count)
-        tri = scene.vertices[scene.faces[sl]]
-        out.append(
-            {
-                "index": k,
-                "name": o.name,
-                "material": o.material,
-                "closed": o.closed,
-                "tri": tri,
-                "normal": scene.face_normal[sl],
-                "lo": tri.reshape(-1, 3).min(axis=0),
-                "hi": tri.reshape(-1, 3).max(axis=0),
-            }
         )
     return out
 
@@ -247,12 +225,12 @@ def render_scene(
         base_stations = [(b["name"], b["xyz"]) for b in meta.get("base_stations", []) or []]
     if points is None:
         points = [(p["name"], p["xyz"]) for p in meta.get("points", []) or []]
-    view = _View.of(scene, cut_height_m)
+    view = SceneView.of(scene, cut_height_m)
 
     fig = plt.figure(figsize=(w / dpi, h / dpi), dpi=dpi)
     ax2 = fig.add_axes((0.045, 0.17, 0.40, 0.70))
     ax3 = fig.add_axes((0.46, 0.08, 0.54, 0.78), projection="3d")
-    n_tri = _draw_top_view(ax2, view)
+    n_tri = plot_top_view(ax2, view, fontsize=_FS)
     hidden = _draw_perspective(ax3, view, elev, azim)
     used_cats = _draw_paths(ax2, ax3, links)
     _draw_sites(ax2, ax3, view, base_stations, points)
@@ -270,71 +248,7 @@ def render_scene(
     }
 
 
-@dataclass
-class _View:
-    """What both views draw: the objects, their colours and the scene's heights, metres."""
-
-    objs: list[dict[str, Any]]
-    rgb: dict[str, np.ndarray]
-    lo: np.ndarray
-    hi: np.ndarray
-    floor: float
-    cut: float
-
-    @classmethod
-    def of(cls, scene: Scene, cut_height_m: float | None) -> _View:
-        lo, hi = scene.bounds
-        floor = floor_level(scene)
-        cut = cut_height_m if cut_height_m is not None else floor + 0.9 * (hi[2] - floor)
-        rgb = {m: np.array(c) for m, c in material_colors(scene.material_names).items()}
-        return cls(_object_arrays(scene), rgb, lo, hi, floor, cut)
-
-
-def _draw_top_view(ax: Any, view: _View) -> int:
-    """The triangles seen from above, lowest object first, those above the cut left out;
-    returns the number of triangles drawn."""
-    from matplotlib.collections import PolyCollection
-
-    shown = [o for o in view.objs if o["lo"][2] < view.cut]
-    n_tri = 0
-    for o in sorted(shown, key=lambda o: (o["hi"][2], o["index"])):
-        tri = o["tri"]
-        # faces seen from above: the upward ones of solids, every face of a sheet
-        vis = np.ones(len(tri), bool) if not o["closed"] else o["normal"][:, 2] > -1e-6
-        tri = tri[vis]
-        if len(tri) == 0:
-            continue
-        base = view.rgb[o["material"]]
-        on_floor = o["hi"][2] <= view.floor + 0.05
-        face = np.clip(base * (0.82 + 0.18 * np.abs(o["normal"][vis, 2]))[:, None], 0, 1)
-        horizontal_sheet = (not o["closed"]) and (o["hi"][2] - o["lo"][2] < 0.05) and not on_floor
-        alpha = 0.28 if on_floor else (0.45 if horizontal_sheet else 1.0)
-        edge = np.clip(base * 0.55, 0, 1)
-        lw = 1.4 if (not o["closed"] and not horizontal_sheet and not on_floor) else 0.15
-        if on_floor:
-            lw = 0.0
-        ax.add_collection(
-            PolyCollection(
-                tri[:, :, :2],
-                facecolors=np.column_stack([face, np.full(len(face), alpha)]),
-                edgecolors=[(*edge, 0.9 if lw > 1 else 0.35)],
-                linewidths=lw,
-                zorder=1 + 0.001 * o["hi"][2],
-            )
-        )
-        n_tri += len(tri)
-    lo, hi = view.lo, view.hi
-    ax.set_xlim(lo[0] - 0.02 * (hi[0] - lo[0]), hi[0] + 0.02 * (hi[0] - lo[0]))
-    ax.set_ylim(lo[1] - 0.02 * (hi[1] - lo[1]), hi[1] + 0.02 * (hi[1] - lo[1]))
-    ax.set_aspect("equal")
-    ax.set_xlabel("x (m)", fontsize=_FS)
-    ax.set_ylabel("y (m)", fontsize=_FS)
-    ax.tick_params(labelsize=_FS - 0.5)
-    ax.set_title("top view", fontsize=_FS + 1, loc="left")
-    return n_tri
-
-
-def _draw_perspective(ax: Any, view: _View, elev: float, azim: float) -> set:
+def _draw_perspective(ax: Any, view: SceneView, elev: float, azim: float) -> set:
     """The cut-away perspective view, Lambert-shaded; returns the objects left out."""
     from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
@@ -419,7 +333,7 @@ def _draw_paths(ax2: Any, ax3: Any, links: Sequence[LinkPaths]) -> list[str]:
 def _draw_sites(
     ax2: Any,
     ax3: Any,
-    view: _View,
+    view: SceneView,
     base_stations: Sequence[tuple[str, Sequence[float]]],
     points: Sequence[tuple[str, Sequence[float]]],
 ) -> None:
@@ -441,7 +355,7 @@ def _draw_sites(
 
 
 def _draw_legend(
-    fig: Any, view: _View, used_cats: list[str], links: bool, base_stations: bool, points: bool
+    fig: Any, view: SceneView, used_cats: list[str], links: bool, base_stations: bool, points: bool
 ) -> None:
     """Materials (most triangles first), path categories drawn, and the markers shown."""
     from matplotlib.lines import Line2D
@@ -477,7 +391,7 @@ def _draw_legend(
 def _draw_titles(
     fig: Any,
     scene: Scene,
-    view: _View,
+    view: SceneView,
     meta: dict[str, Any],
     links: Sequence[LinkPaths],
     title: str | None,

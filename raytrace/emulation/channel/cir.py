@@ -1,0 +1,111 @@
+"""Path arrays -> per-link structure: the paths of every link sorted by delay
+(:class:`DiscreteCIR`) and each link's first detectable path.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ...core.errors import HallrayError
+
+
+def check_paths(
+    link: np.ndarray, delay_s: np.ndarray, gain: np.ndarray, n_links: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    link = np.asarray(link)
+    delay_s = np.asarray(delay_s, dtype=float)
+    gain = np.asarray(gain, dtype=complex)
+    if isinstance(n_links, bool) or not isinstance(n_links, (int, np.integer)) or n_links < 0:
+        raise HallrayError(f"n_links must be a non-negative integer, got {n_links!r}")
+    if link.ndim != 1 or delay_s.shape != link.shape or gain.shape != link.shape:
+        raise HallrayError(
+            f"link, delay_s and gain must be 1-D of equal length, got shapes "
+            f"{link.shape}, {delay_s.shape}, {gain.shape}"
+        )
+    if link.size and link.dtype.kind not in "iu":
+        raise HallrayError(f"link must be an integer array, got dtype {link.dtype}")
+    link = link.astype(np.int64)
+    if link.size and (link.min() < 0 or link.max() >= n_links):
+        raise HallrayError(
+            f"link indices must be in [0, {n_links}), got {link.min()}..{link.max()}"
+        )
+    if not np.all(np.isfinite(delay_s)):
+        raise HallrayError("delay_s contains NaN or infinite values")
+    if not np.all(np.isfinite(gain)):
+        raise HallrayError("gain contains NaN or infinite values")
+    return link, delay_s, gain, int(n_links)
+
+
+@dataclass(frozen=True)
+class DiscreteCIR:
+    """Discrete channel impulse responses of all links, paths sorted by (link, delay).
+
+    Attributes
+    ----------
+    offsets : (n_links + 1,) int64
+        Paths of link ``l`` are ``[offsets[l], offsets[l + 1])`` of the arrays below.
+    path_index : (P,) int64
+        Index of each sorted entry in the caller's path arrays.
+    delay_s : (P,) float, seconds
+    gain : (P,) complex
+        Complex amplitude (field relative to transmitted), as given.
+    """
+
+    offsets: np.ndarray
+    path_index: np.ndarray
+    delay_s: np.ndarray
+    gain: np.ndarray
+
+    @property
+    def n_links(self) -> int:
+        return int(self.offsets.size - 1)
+
+    def link(self, index: int) -> tuple[np.ndarray, np.ndarray]:
+        """Delays (s) and complex amplitudes of one link, in order of arrival."""
+        lo, hi = int(self.offsets[index]), int(self.offsets[index + 1])
+        return self.delay_s[lo:hi], self.gain[lo:hi]
+
+
+def discrete_cir(
+    link: np.ndarray, delay_s: np.ndarray, gain: np.ndarray, n_links: int
+) -> DiscreteCIR:
+    """Group paths per link in order of arrival: ``h_l(t) = sum_j A_j delta(t - tau_j)`` (eq. 1).
+
+    Parameters
+    ----------
+    link : (P,) int
+        Link index of each path, in ``[0, n_links)``.
+    delay_s : (P,) float, seconds
+    gain : (P,) complex
+    n_links : int
+
+    Ties in delay keep the callers' order.
+    """
+    link, delay_s, gain, n_links = check_paths(link, delay_s, gain, n_links)
+    order = np.lexsort((np.arange(link.size), delay_s, link))
+    offsets = np.searchsorted(link[order], np.arange(n_links + 1), side="left").astype(np.int64)
+    return DiscreteCIR(offsets, order.astype(np.int64), delay_s[order], gain[order])
+
+
+def first_detectable_path(
+    link: np.ndarray, delay_s: np.ndarray, detectable: np.ndarray, n_links: int
+) -> np.ndarray:
+    """Index of the earliest detectable path of each link, ``(n_links,) int64``, -1 if none.
+
+    An undetectable path is never the first arrival, however early it is. Ties in delay go to the
+    lower path index.
+    """
+    link = np.asarray(link, dtype=np.int64)
+    detectable = np.asarray(detectable, dtype=bool)
+    out = np.full(int(n_links), -1, dtype=np.int64)
+    idx = np.flatnonzero(detectable)
+    if idx.size == 0:
+        return out
+    order = idx[np.lexsort((idx, np.asarray(delay_s)[idx], link[idx]))]
+    lk = link[order]
+    first = np.ones(order.size, dtype=bool)
+    first[1:] = lk[1:] != lk[:-1]
+    out[lk[first]] = order[first]
+    return out

@@ -1,0 +1,286 @@
+"""The files of one dataset: ``toa.csv`` (streamed in blocks), ``meta.json`` and, for the
+semi-dynamic scenario, ``forklifts.csv``; :func:`write_dataset` writes them from measurements
+already made (schema in docs/dataset.md).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import os
+import shutil
+from collections.abc import Iterable, Iterator, Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ...core.errors import HallrayError
+from ...scene.facts import SceneFacts
+from ...scene.metadata import SceneMetadata
+from ...scene.model import Scene
+from ...solver.incremental import Fleet
+from ..bands import Band
+from ..measurement import Measurements
+from .config import COLUMNS, SCHEMA_VERSION, DatasetConfig
+from .staging import commit_output, stage_output
+
+
+def _num(values: np.ndarray, fmt: str) -> list[str]:
+    """CSV texts of floats in ``fmt``: empty for NaN."""
+    return [format(v, fmt) if math.isfinite(v) else "" for v in values.ravel().tolist()]
+
+
+def _toa_csv(inputs: SceneMetadata, times_s: np.ndarray, m: Measurements) -> str:
+    """``toa.csv``: header and one row per (epoch, point, base station), in that order.
+
+    Floats are written with ``repr`` (shortest round trip), SNR and lobe figures with fixed
+    decimals; an undetected link has an empty ``toa_s``.
+    """
+    return "".join(_toa_csv_blocks(inputs, times_s, m))
+
+
+#: Epochs formatted per block of ``toa.csv`` text (memory: one block, not the whole file).
+CSV_BLOCK_EPOCHS = 100
+
+
+def _toa_csv_blocks(inputs: SceneMetadata, times_s: np.ndarray, m: Measurements) -> Iterator[str]:
+    """The text of ``toa.csv`` (:func:`_toa_csv`) in blocks of :data:`CSV_BLOCK_EPOCHS` epochs,
+    so that a writer streams it."""
+    n_e, n_p, n_b = m.toa_s.shape
+    yield ",".join(COLUMNS) + "\n"
+    # the texts of what repeats (per point, base station, link), then one join a row
+    point_xyz = [",".join(map(repr, p)) for p in inputs.point_xyz.tolist()]
+    dist = np.linalg.norm(inputs.bs_xyz[None, :, :] - inputs.point_xyz[:, None, :], axis=2)
+    dist_txt = [[repr(d) for d in row] for row in dist.tolist()]
+    tx_txt = [repr(t) for t in m.tx_offset_s.tolist()]
+    for e0 in range(0, n_e, CSV_BLOCK_EPOCHS):
+        sl = slice(e0, min(n_e, e0 + CSV_BLOCK_EPOCHS))
+        ep = m.epochs[sl]
+        epoch = [f"{e},{t!r}" for e, t in zip(ep.tolist(), times_s[ep].tolist())]
+        clock_txt = [[repr(c) for c in row] for row in m.clock_offset_s[sl].tolist()]
+        det = m.detected[sl].ravel().tolist()
+        toa = [repr(t) if d else "" for t, d in zip(m.toa_s[sl].ravel().tolist(), det)]
+        los = m.los[sl].ravel().astype(np.int64).tolist()
+        snr, ratio = _num(m.snr_db[sl], ".3f"), _num(m.peak_ratio_db[sl], ".3f")
+        width = _num(m.lobe_width[sl], ".4f")
+        first, lobe = m.first_kind[sl].ravel().tolist(), m.lobe_kind[sl].ravel().tolist()
+        lines = []
+        i = 0
+        for e in range(len(epoch)):  # formatting only; the numbers are in the arrays
+            for p in range(n_p):
+                for b in range(n_b):
+                    lines.append(
+                        f"{epoch[e]},{inputs.point_names[p]},{inputs.bs_names[b]},{toa[i]},"
+                        f"{point_xyz[p]},{dist_txt[p][b]},{los[i]},{first[i]},{snr[i]},"
+                        f"{ratio[i]},{width[i]},{lobe[i]},{tx_txt[b]},{clock_txt[e][p]}\n"
+                    )
+                    i += 1
+        yield "".join(lines)
+
+
+def dataset_summary(m: Measurements) -> dict[str, Any]:
+    """``meta.json`` ``summary``: rows and the detected / LoS / first-path LoS fractions."""
+    rows, det, los, first_los = (int(v) for v in m.counts())
+    return {
+        "rows": rows,
+        "detected_fraction": det / rows if rows else 0.0,
+        "los_fraction": los / rows if rows else 0.0,
+        "first_path_los_fraction": first_los / rows if rows else 0.0,
+    }
+
+
+def _obstacles_2d(meta: Mapping[str, Any]) -> list[dict[str, Any]]:
+    """The scene's obstacle footprints, each with a ``polygon`` [[x, y], ...] (the positioning
+    package's plots read that key) besides the scene metadata's own ``xy``."""
+    out = []
+    for o in meta.get("obstacles_2d") or []:
+        if isinstance(o, Mapping) and "xy" in o:
+            out.append({**o, "polygon": o["xy"]})
+    return out
+
+
+def _meta(
+    cfg: DatasetConfig,
+    band: Band,
+    facts: SceneFacts,
+    inputs: SceneMetadata,
+    m: Measurements,
+    scene_name: str,
+) -> dict[str, Any]:
+    """``meta.json``: every parameter that produced the dataset (schema in docs/dataset.md)."""
+    from ...core.version import __version__
+
+    routes = (
+        [dataclasses.asdict(r) for r in inputs.routes] if cfg.scenario == "semi-dynamic" else []
+    )
+    return {
+        "schema_version": SCHEMA_VERSION,
+        "scenario": cfg.scenario,
+        "band": band.name,
+        "band_parameters": {
+            "center_frequency_hz": band.center_frequency_hz,
+            "bandwidth_hz": band.bandwidth_hz,
+            "subcarrier_spacing_hz": band.subcarrier_spacing_hz,
+        },
+        "seed": int(cfg.seed),
+        "version": __version__,
+        "scene": scene_name,
+        "scene_sha256": facts.sha256,
+        "duration_s": float(cfg.duration_s),
+        "rate_hz": float(cfg.rate_hz),
+        "n_epochs": len(m.epochs),
+        "epoch_time_s": "epoch / rate_hz",
+        "toa_method": cfg.toa_method,
+        "noise": bool(cfg.noise),
+        "delta_s": float(cfg.delta_s),
+        "schedule_s": {n: float(o) for n, o in zip(inputs.bs_names, m.tx_offset_s)},
+        "clock_offset": {
+            "distribution": "uniform",
+            "low_s": 0.0,
+            "high_s": float(cfg.clock_offset_max_s),
+            "per": "epoch and point",
+        },
+        "random_streams": "numpy SeedSequence([seed, epoch]).spawn(2): clock offsets, noise",
+        "toa_model": "toa_s = tx_offset_s + clock_offset_s + estimated propagation delay",
+        "link_budget": dataclasses.asdict(cfg.budget),
+        "pulse": dataclasses.asdict(cfg.pulse),
+        "first_lobe": dataclasses.asdict(cfg.first_lobe),
+        "trace": dataclasses.asdict(cfg.trace),
+        "forklifts": {"clearance_m": float(cfg.clearance_m), "routes": routes},
+        "base_stations": [
+            {"name": n, "xyz": [float(v) for v in p]}
+            for n, p in zip(inputs.bs_names, inputs.bs_xyz)
+        ],
+        "points": [
+            {"name": n, "xyz": [float(v) for v in p]}
+            for n, p in zip(inputs.point_names, inputs.point_xyz)
+        ],
+        "hall_xy": facts.hall_xy,
+        "service_area": facts.service_area,
+        "area_of_interest": inputs.block.get("area_of_interest"),
+        "obstacles_2d": _obstacles_2d(inputs.block),
+        "columns": list(COLUMNS),
+        "summary": dataset_summary(m),
+    }
+
+
+def _forklift_csv(fleet: Fleet, times: np.ndarray) -> str:
+    lines = ["epoch,time_s,forklift,x,y,z,heading_rad\n"]
+    for e, t in enumerate(times):
+        centre, yaw = fleet.poses(float(t))
+        for name, c, h in zip(fleet.names, centre, yaw):
+            lines.append(
+                f"{e},{float(t)!r},{name},{float(c[0])!r},{float(c[1])!r},{float(c[2])!r},"
+                f"{float(h)!r}\n"
+            )
+    return "".join(lines)
+
+
+def _scene_name(scene: Scene) -> str:
+    """``meta.json`` ``scene``: the scene file's name."""
+    return Path(scene.source).name or "scene"
+
+
+def dataset_files(
+    scene: Scene,
+    cfg: DatasetConfig,
+    measured: Measurements,
+    *,
+    inputs: SceneMetadata | None = None,
+    fleet: Fleet | None = None,
+) -> dict[str, str]:
+    """The files of one dataset: file name -> text.
+
+    Parameters
+    ----------
+    scene : Scene, with base stations and points in its metadata (their order is the rows')
+    cfg : DatasetConfig
+    measured : Measurements of every epoch of ``cfg`` (0 .. n - 1, in order), made by
+        ``cfg.model()`` on the scene's paths: (n_epochs, points, base stations)
+    inputs : SceneMetadata of the scene, optional (read from the scene otherwise)
+    fleet : Fleet, the forklifts (semi-dynamic only: ``forklifts.csv``)
+
+    Returns
+    -------
+    dict: ``toa.csv``, ``meta.json`` and, for semi-dynamic, ``forklifts.csv``
+    """
+    parts = dataset_parts(scene, cfg, measured, inputs=inputs, fleet=fleet)
+    return {k: v if isinstance(v, str) else "".join(v) for k, v in parts.items()}
+
+
+def dataset_parts(
+    scene: Scene,
+    cfg: DatasetConfig,
+    measured: Measurements,
+    *,
+    inputs: SceneMetadata | None = None,
+    fleet: Fleet | None = None,
+    facts: SceneFacts | None = None,
+) -> dict[str, str | Iterable[str]]:
+    """:func:`dataset_files` with ``toa.csv`` as an iterable of text blocks (streamed);
+    ``facts``: the scene's, when the caller has read them."""
+    band = cfg.validate()
+    inputs = inputs if inputs is not None else SceneMetadata.from_scene(scene, require=True)
+    facts = facts if facts is not None else SceneFacts.of(scene, inputs.block)
+    times = cfg.times_s
+    shape = (len(times), len(inputs.point_names), len(inputs.bs_names))
+    if measured.toa_s.shape != shape:
+        raise HallrayError(
+            f"measurements of shape {measured.toa_s.shape} do not fit the dataset's "
+            f"(epochs, points, base stations) = {shape}"
+        )
+    if not np.array_equal(measured.epochs, np.arange(len(times))):
+        raise HallrayError("a dataset's measurements are of its epochs 0 .. n - 1, in order")
+    if (cfg.scenario == "semi-dynamic") != (fleet is not None):
+        raise HallrayError("a semi-dynamic dataset needs its forklift fleet, a static one none")
+    meta = _meta(cfg, band, facts, inputs, measured, _scene_name(scene))
+    files = {
+        "toa.csv": _toa_csv_blocks(inputs, times, measured),
+        "meta.json": json.dumps(meta, indent=1, sort_keys=False) + "\n",
+    }
+    if fleet is not None:
+        files["forklifts.csv"] = _forklift_csv(fleet, times)
+    return files
+
+
+def write_files(directory: Path, files: Mapping[str, str | Iterable[str]]) -> None:
+    """Write each file's text (or text blocks, streamed) into ``directory``, inside a staged
+    directory (whole or not at all)."""
+    directory.mkdir(exist_ok=True)
+    for name, text in files.items():
+        with (directory / name).open("w", encoding="utf-8", newline="") as fh:
+            for block in [text] if isinstance(text, str) else text:
+                fh.write(block)
+
+
+def write_dataset(
+    out_dir: str | os.PathLike[str],
+    scene: Scene,
+    cfg: DatasetConfig,
+    measured: Measurements,
+    *,
+    fleet: Fleet | None = None,
+    force: bool = False,
+) -> Path:
+    """Write one dataset from measurements already made (:func:`dataset_files`) to ``out_dir``.
+
+    The files are those :func:`make_dataset` writes for the same scene and configuration (the
+    same formatting code). Written to a temporary directory beside ``out_dir`` and renamed when
+    complete; ``force`` replaces a non-empty ``out_dir``.
+
+    Returns
+    -------
+    Path, the dataset directory
+    """
+    files = dataset_files(scene, cfg, measured, fleet=fleet)
+    out = Path(out_dir)
+    tmp = stage_output(out, force)
+    try:
+        write_files(tmp, files)
+        commit_output(tmp, out)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return out

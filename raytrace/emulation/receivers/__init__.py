@@ -1,0 +1,53 @@
+"""The ToA receivers: the first-lobe receiver (:mod:`.first_lobe`, the realistic one, evaluated
+in a window) and every estimator behind one interface (:mod:`.receiver`, :class:`Receiver`).
+"""
+
+from .first_lobe import (
+    MIN_CROSSING,
+    NEGLIGIBLE_DB,
+    NOISE_GUARD_T,
+    POST_T,
+    SURE_CROSSING,
+    TABLE_PER_T,
+    TOP_PATHS,
+    FirstLobeSettings,
+    LobeMeasurement,
+    LobePlan,
+    cfar_factor,
+    isolated_half_width_t,
+    measure_first_lobe,
+    precursor_extent_t,
+    prepare_first_lobe,
+)
+from .receiver import (
+    DEFAULT_TOA_METHOD,
+    TOA_METHODS,
+    PreparedLinks,
+    Receiver,
+    ToAEstimate,
+    estimate_toa,
+)
+
+__all__ = [
+    "DEFAULT_TOA_METHOD",
+    "MIN_CROSSING",
+    "NEGLIGIBLE_DB",
+    "NOISE_GUARD_T",
+    "POST_T",
+    "SURE_CROSSING",
+    "TABLE_PER_T",
+    "TOP_PATHS",
+    "FirstLobeSettings",
+    "LobeMeasurement",
+    "LobePlan",
+    "PreparedLinks",
+    "Receiver",
+    "TOA_METHODS",
+    "ToAEstimate",
+    "cfar_factor",
+    "estimate_toa",
+    "isolated_half_width_t",
+    "measure_first_lobe",
+    "precursor_extent_t",
+    "prepare_first_lobe",
+]

@@ -1,0 +1,166 @@
+"""A map's files: ``map.npz`` (:func:`positioning.fingerprint.write_map`), its CSV companion
+``map.csv`` and the PNG heatmaps, written into a staged directory (no partial output).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import warnings
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from positioning.fingerprint import write_map
+
+from ...core.errors import HallrayError
+from ...core.fileio import write_atomic
+from ...scene.model import Scene
+from .compute import AccuracyMap
+
+#: The CSV companion of map.npz: its schema name and version (first line of the file).
+CSV_SCHEMA, CSV_VERSION = "hallray-accuracy-map-csv", 1
+
+
+def csv_columns(bs_names: Sequence[str], methods: Sequence[str]) -> list[str]:
+    """Columns of map.csv (one row per cell; docs/accuracy_map.md)."""
+    head = ["cell", "i", "j", "x_m", "y_m", "z_m", "n_los", "gdop"]
+    for b in bs_names:
+        head += [f"{b}:{k}" for k in ("los", "first_kind", "excess_m", "toa_s", "toa_std_s",
+                                      "detected_fraction")]  # fmt: skip
+    for m in methods:
+        head += [f"{m}:{k}" for k in ("err_p90_m", "err_mean_m", "availability")]
+    return head
+
+
+def map_csv(amap: AccuracyMap) -> bytes:
+    """map.csv: a ``# hallray-accuracy-map-csv v1 ...`` line, the header, one row per cell."""
+    f, g = amap.fmap, amap.grid
+    buf = io.StringIO()
+    buf.write(f"# {CSV_SCHEMA} v{CSV_VERSION}; one row per cell; units SI (m, s); "
+              "columns BS:quantity per base station, METHOD:quantity per method; "
+              "see docs/accuracy_map.md\n")  # fmt: skip
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(csv_columns(list(f.bs_names), list(f.methods)))
+    n_los = f.n_los()
+    for n in range(f.n_cells):
+        row: list[Any] = [n, *g.ij[n].tolist(), *(f"{v:.4f}" for v in f.cell_xyz[n]),
+                          int(n_los[n]), _num(f.gdop[n])]  # fmt: skip
+        for b in range(f.n_bs):
+            row += [int(f.los[n, b]), f.first_kind[n, b], _num(f.excess_m[n, b]),
+                    _num(f.toa_s[n, b], 12), _num(f.toa_std_s[n, b], 12),
+                    _num(f.detected_fraction[n, b])]  # fmt: skip
+        for m in range(len(f.methods)):
+            row += [_num(f.err_p90_m[m, n]), _num(f.err_mean_m[m, n]), _num(f.availability[m, n])]
+        w.writerow(row)
+    return buf.getvalue().encode("utf-8")
+
+
+def _num(v: float, digits: int = 6) -> str:
+    """A number for the CSV, ``nan`` for NaN."""
+    return "nan" if not np.isfinite(v) else f"{float(v):.{digits}g}"
+
+
+def check_output(out_dir: str | Path, force: bool) -> None:
+    """Refuse, before any work, an output path :func:`write_outputs` would refuse."""
+    out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise HallrayError(f"output path {out} exists and is not a directory")
+    if out.is_dir() and any(out.iterdir()) and not force:
+        raise HallrayError(f"output directory {out} is not empty (use --force to replace it)")
+    if not out.resolve().parent.is_dir():
+        raise HallrayError(f"parent directory of {out} does not exist")
+
+
+def write_outputs(
+    out_dir: str | Path, scene: Scene, amap: AccuracyMap, *, force: bool = False,
+    pictures: bool = True,
+) -> list[Path]:  # fmt: skip
+    """Write DIR/map.npz (:func:`positioning.fingerprint.write_map`), DIR/map.csv and the PNG
+    heatmaps into a temporary directory beside ``out_dir``, renamed when complete (no partial
+    output). Returns the files' final paths."""
+    import shutil
+
+    from ...emulation.dataset.staging import commit_output, stage_output
+
+    out = Path(out_dir)
+    tmp = stage_output(out, force)
+    committed = False
+    try:
+        write_map(tmp / "map.npz", amap.fmap)
+        write_atomic(tmp / "map.csv", map_csv(amap))
+        names = ["map.npz", "map.csv"]
+        if pictures:
+            for name, png in map_pictures(scene, amap):
+                write_atomic(tmp / name, png)
+                names.append(name)
+        commit_output(tmp, out)
+        committed = True
+    finally:
+        if not committed:
+            shutil.rmtree(tmp, ignore_errors=True)
+    return [out / n for n in names]
+
+
+#: Lower end of the error pictures' log colour scale, m.
+ERR_FLOOR_M = 0.01
+#: Pictures of a map: (file, quantity, colour-bar label, colour map, discrete).
+PICTURES = (
+    ("n_los.png", "n_los", "base stations in line of sight", "viridis", True),
+    (
+        "n_detected.png",
+        "n_detected",
+        "base stations detected (noiseless receiver)",
+        "viridis",
+        True,
+    ),
+    ("gdop.png", "gdop", "GDOP (2D, TDoA)", "magma_r", False),
+    (
+        "excess_worst_m.png",
+        "excess_worst",
+        "largest first-arrival excess delay over BS, m",
+        "inferno_r",
+        False,
+    ),
+)
+
+
+def map_pictures(scene: Scene, amap: AccuracyMap) -> list[tuple[str, bytes]]:
+    """The map's PNG heatmaps: :data:`PICTURES`, then ``err_p90_<method>.png`` and
+    ``availability_<method>.png`` per method."""
+    from ...viz.heatmap import footprints, heatmap_png
+
+    f, g = amap.fmap, amap.grid
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # cells with no arrival at all
+        per_cell = {
+            "n_los": f.n_los().astype(float),
+            "n_detected": np.isfinite(f.toa_s).sum(axis=1).astype(float),
+            "gdop": np.where(np.isfinite(f.gdop), f.gdop, np.nan),
+            "excess_worst": np.nanmax(f.excess_m, axis=1),
+        }
+    jobs = [(name, per_cell[key], label, cmap, disc, 0.0 if disc else None,
+             float(f.n_bs) if disc else None, False)
+            for name, key, label, cmap, disc in PICTURES]  # fmt: skip
+    for k, m in enumerate(f.methods):
+        err = f.err_p90_m[k]  # centimetres to tens of metres: a log scale from 1 cm
+        top = float(np.nanmax(err)) if np.isfinite(err).any() else 1.0
+        jobs.append((f"err_p90_{m}.png", err, f"p90 2D error, {m}, m (log scale)", "turbo",
+                     False, ERR_FLOOR_M, max(top, 10 * ERR_FLOOR_M), True))  # fmt: skip
+        jobs.append((f"availability_{m}.png", f.availability[k],
+                     f"share of draws with a fix, {m}", "cividis", False, 0.0, 1.0, False))  # fmt: skip
+    outlines = footprints(scene)
+    pts = np.asarray(g.test_xyz, dtype=float).reshape(-1, 3)[:, :2]
+    meta = f.meta
+    sub = (f"{meta.get('scene', '')} {meta.get('band', '')}, receiver {meta.get('receiver', '')}, "
+           f"step {g.step_m:g} m, h {meta.get('height_m', 0):g} m")  # fmt: skip
+    out = []
+    for name, vals, label, cmap, disc, vmin, vmax, log in jobs:
+        png = heatmap_png(scene, g.raster(vals), g.origin_xy, g.step_m, title=f"{label}\n{sub}",
+                          label=label, bs_xyz=f.bs_xyz, bs_names=list(f.bs_names), points_xy=pts,
+                          cmap=cmap, vmin=vmin, vmax=vmax, discrete=disc, log=log,
+                          outlines=outlines)  # fmt: skip
+        out.append((name, png))
+    return out
