@@ -10,7 +10,7 @@ from __future__ import annotations
 from importlib import import_module
 from typing import TYPE_CHECKING, Any
 
-#: Where each public name lives. Imported on first use (PEP 562): ``positioning.command``,
+#: Where each public name lives. Imported on first use (PEP 562): ``hallray.harness``,
 #: which every command-line tool's harness imports, must not pull in the estimators (scipy.stats
 #: alone is 0.45 s of a ``trace-scene`` start).
 _WHERE = {

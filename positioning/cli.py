@@ -1,6 +1,6 @@
 """Command-line tools ``estimate-positions`` and ``accuracy-report``.
 
-Both run through the one harness :func:`positioning.command.run_command`: bad input gives a
+Both run through the one harness :func:`hallray.harness.run_command`: bad input gives a
 one-line ``error: ...`` on stderr and exit status 2, never a traceback and never a half-written
 output file (outputs go to a temporary file first and are renamed at the end). A run in which no
 fix is trustworthy (every fix unsolved, not converged, ill-conditioned or outside the service
@@ -18,8 +18,9 @@ from pathlib import Path
 
 import numpy as np
 
+from hallray.harness import OneLineParser, run_command
+
 from .api import METHODS, OUTSIDE_CHOICES, method_names, resolve_params
-from .command import OneLineParser, run_command
 from .dataset import ToaDataset, load_dataset
 from .errors import PositioningError
 from .fixes import Fixes, Status, status_label
@@ -302,7 +303,8 @@ def _estimate_parser() -> OneLineParser:
 
 
 def _estimate(args: argparse.Namespace) -> int:
-    from .output import STDOUT, check_output, write_file
+    from hallray.safe_output import STDOUT, check_output, write_file
+
     from .report import solve_dataset
     from .sanity import check_height, check_trustworthy, trust_counts
 
@@ -372,7 +374,8 @@ def _report_parser() -> OneLineParser:
 
 
 def _report(args: argparse.Namespace) -> int:
-    from .output import check_output, output_dir
+    from hallray.safe_output import check_output, output_dir
+
     from .report import evaluate, is_report_dir, write_report
     from .sanity import check_height, check_trustworthy, trust_counts
 

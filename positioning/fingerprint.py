@@ -67,8 +67,9 @@ from typing import Any
 
 import numpy as np
 
+from hallray.safe_output import write_file
+
 from .errors import PositioningError
-from .output import write_file
 
 SCHEMA = "hallray-accuracy-map"
 SCHEMA_VERSION = 2
@@ -234,7 +235,7 @@ def _check_arrays(
 
 def write_map(path: str | Path, fmap: FingerprintMap) -> Path:
     """Write ``fmap`` to ``path`` (``.npz``) through the one safe output layer
-    (:func:`positioning.output.write_file`: temporary file in the folder, then rename; symlinks
+    (:func:`hallray.safe_output.write_file`: temporary file in the folder, then rename; symlinks
     followed, special files refused, umask respected).
 
     Returns the path written. The file loads with :func:`read_map` and ``numpy.load`` without

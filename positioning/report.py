@@ -67,8 +67,8 @@ def band_label(band: str) -> str:
 
 def atomic_write(path: str | Path, write: Callable[[Any], None], *, binary: bool = False) -> None:
     """Call ``write(fh)`` on a temporary file beside ``path``, then rename it to ``path``
-    (:func:`positioning.output.replace_atomic`: the umask's mode, symlinks followed)."""
-    from .output import replace_atomic
+    (:func:`hallray.safe_output.replace_atomic`: the umask's mode, symlinks followed)."""
+    from hallray.safe_output import replace_atomic
 
     real = Path(os.path.realpath(path))
     replace_atomic(real, write if binary else lambda fh: _write_text(fh, write))

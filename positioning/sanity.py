@@ -1,9 +1,9 @@
 """Sanity of a ToA dataset before any solve: the scale rule, and the geometry of the fixes.
 
-The scale rule is the ray tracer's (:mod:`raytrace.core.scale`; the constants are repeated here
-because ``positioning`` never imports ``raytrace``): a hall spans metres to a few hundred metres,
-never more than :data:`MAX_SCENE_M`. Values beyond it are refused with the unit mistake that
-most likely explains them: base stations in millimetres, ToAs in milliseconds, a height in mm.
+The scale rule is the one of :mod:`hallray.units`, shared with the ray tracer: a hall spans
+metres to a few hundred metres, never more than :data:`~hallray.units.MAX_SCENE_M`. Values beyond
+it are refused with the unit mistake that most likely explains them: base stations in
+millimetres, ToAs in milliseconds, a height in mm.
 
 The geometry check flags fixes whose base stations cannot determine the position: collinear
 stations in 2D (a mirror image), stations all at one height in 3D (z is ambiguous).
@@ -11,15 +11,14 @@ stations in 2D (a mirror image), stations all at one height in 3D (z is ambiguou
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import numpy as np
 
+from hallray.units import MAX_SCENE_M, likely_length_unit, likely_time_unit
+
 from .errors import PositioningError
 
-#: Largest hall or span of base stations, m (= ``raytrace.core.scale.MAX_SCENE_M``).
-MAX_SCENE_M = 5000.0
 #: Speed of light, m/s.
 C0 = 299_792_458.0
 #: Smallest ratio of the station spread's last to first singular value for a usable geometry.
@@ -27,19 +26,17 @@ MIN_SPREAD_RATIO = 0.05
 #: ToA-difference ranges beyond this many station spans (and beyond 1 km) mean a unit mistake.
 RANGE_SPANS = 10.0
 
-_LENGTH_UNITS = ((1000.0, "millimetres"), (100.0, "centimetres"))
-_TIME_UNITS = ((1e3, "milliseconds"), (1e6, "microseconds"), (1e9, "nanoseconds"))
-
 
 class ScaleError(PositioningError):
     """Values beyond what a hall can be: most likely a unit mistake (one-line message)."""
 
 
 def _length_hint(size_m: float) -> str:
-    for factor, unit in _LENGTH_UNITS:
-        if 1.0 <= size_m / factor <= MAX_SCENE_M:
-            return f"probably in {unit} (x{factor:g}): give metres"
-    return "give metres"
+    found = likely_length_unit(size_m)
+    if found is None:
+        return "give metres"
+    factor, unit = found
+    return f"probably in {unit} (x{factor:g}): give metres"
 
 
 def check_stations(bs_xyz: np.ndarray, where: str) -> None:
@@ -75,7 +72,7 @@ def check_toa_scale(toa_s: np.ndarray, bs_xyz: np.ndarray, where: str) -> None:
     span = max(float(np.linalg.norm(np.ptp(bs_xyz, axis=0))), 1.0)
     if typical > max(RANGE_SPANS * span, 1000.0):
         ratio = typical / span
-        factor, unit = min(_TIME_UNITS, key=lambda fu: abs(math.log10(fu[0]) - math.log10(ratio)))
+        factor, unit = likely_time_unit(ratio)
         raise ScaleError(
             f"{where}: the ToA differences imply range differences of {typical:,.0f} m (median) "
             f"between base stations {span:,.0f} m apart: the ToAs are probably in {unit} "

@@ -22,8 +22,8 @@ import trimesh
 sys.path.insert(0, str(Path(__file__).parent / "positioning"))
 from pos_synth import write_dataset  # noqa: E402
 
+from hallray.safe_output import output_dir, output_lock, write_file  # noqa: E402
 from positioning.cli import accuracy_report_main, estimate_positions_main  # noqa: E402
-from positioning.output import output_dir, output_lock, write_file  # noqa: E402
 from raytrace.cli.make_dataset import make_dataset_main  # noqa: E402
 from raytrace.cli.make_hall import format_los_report, hall_los_check_main, make_hall_main  # noqa: E402
 from raytrace.cli.render_scene import render_scene_main  # noqa: E402

@@ -32,8 +32,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from hallray.harness import OneLineParser, run_command  # noqa: E402
 from positioning import C0, METHODS, error_2d, locate, summarize  # noqa: E402
-from positioning.command import OneLineParser, run_command  # noqa: E402
 from positioning.errors import PositioningError  # noqa: E402
 
 BS = np.array([[0.0, 0.0, 4.0], [29.0, 0.0, 4.0], [29.0, 25.0, 4.0], [0.0, 25.0, 4.0]])

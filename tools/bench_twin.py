@@ -24,8 +24,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from hallray.harness import OneLineParser, run_command  # noqa: E402
 from positioning import api  # noqa: E402
-from positioning.command import OneLineParser, run_command  # noqa: E402
 from positioning.dataset import load_dataset  # noqa: E402
 from positioning.errors import PositioningError  # noqa: E402
 from positioning.metrics import error_2d  # noqa: E402

@@ -5,6 +5,9 @@ Fails (exit 1, one line per violation) on:
 
 * an import that goes against the arrows between raytrace's subpackages (``LAYERS`` below);
 * ``positioning`` importing ``raytrace``, or anything importing ``raytrace.cli``;
+* ``hallray`` (the commands' shared infrastructure) importing ``raytrace`` or ``positioning``
+  (only its future console command, ``hallray.main`` / ``hallray.cli``, may; nothing imports
+  that);
 * a solver stage module imported by anything but the tracer;
 * an import cycle between our modules (module-level and function-local imports together);
 * a function-local import of our own module that would close a cycle if it were at module level
@@ -28,7 +31,10 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 # the tools' harness (one-line errors, exit status 2 on bad input): standard library only
-from positioning.command import OneLineParser, run_command  # noqa: E402
+from hallray.harness import OneLineParser, run_command  # noqa: E402
+
+#: Our packages, checked together (an import between them counts like one within).
+PACKAGES = ("raytrace", "positioning", "hallray")
 
 
 class LayerCheckError(Exception):
@@ -49,6 +55,8 @@ LAYERS: dict[str, set[str]] = {
 }
 #: The package's own __init__ re-exports the public API from these.
 TOP_ALLOWED = {"core", "physics", "scene", "solver", "emulation"}
+#: Modules of hallray that may import the two packages (the future ``hallray`` console command).
+HALLRAY_COMMAND = ("hallray.main", "hallray.cli")
 #: Solver modules that only the tracer may import (the stages and their back end).
 STAGES = {"raytrace.solver.specular", "raytrace.solver.diffraction", "raytrace.solver.evaluate"}
 STAGE_IMPORTERS = {"raytrace.solver.tracer"} | STAGES
@@ -104,10 +112,29 @@ def layer_of(mod: str) -> str | None:
     return parts[1] if len(parts) > 1 and parts[1] in LAYERS else ""
 
 
+def in_package(mod: str, pkg: str) -> bool:
+    """Whether ``mod`` is the module or package ``pkg`` or inside it."""
+    return mod == pkg or mod.startswith(f"{pkg}.")
+
+
+def allowed_hallray(src: str, dst: str) -> bool | None:
+    """The rules of hallray's imports and of imports of hallray (None: not concerned)."""
+    if any(in_package(dst, c) for c in HALLRAY_COMMAND):
+        return any(in_package(src, c) for c in HALLRAY_COMMAND)  # nothing imports the command
+    if in_package(src, "hallray") and not any(in_package(src, c) for c in HALLRAY_COMMAND):
+        return not (in_package(dst, "raytrace") or in_package(dst, "positioning"))
+    if in_package(dst, "hallray"):
+        return True  # the commands' infrastructure is below every layer of both packages
+    return None
+
+
 def allowed(src: str, dst: str) -> bool:
-    s, d = layer_of(src), layer_of(dst)
+    verdict = allowed_hallray(src, dst)
+    if verdict is not None:
+        return verdict
     if src.startswith("positioning"):
         return not dst.startswith("raytrace")
+    s, d = layer_of(src), layer_of(dst)
     if s is None or d is None:
         return True  # positioning targets are checked by the raytrace side below
     if d == "":  # raytrace/__init__ (the public API, __version__)
@@ -184,7 +211,7 @@ def reachable(edges: dict[str, set[str]], a: str, b: str) -> bool:
 
 def check(root: Path) -> list[str]:
     files = {}
-    for pkg in ("raytrace", "positioning"):
+    for pkg in PACKAGES:
         for path in sorted((root / pkg).rglob("*.py")):
             files[module_name(root, path)] = path
     known = set(files)
@@ -226,7 +253,7 @@ def parser() -> argparse.ArgumentParser:
 
 def _main(args: argparse.Namespace) -> int:
     root = args.root
-    missing = [pkg for pkg in ("raytrace", "positioning") if not (root / pkg).is_dir()]
+    missing = [pkg for pkg in PACKAGES if not (root / pkg).is_dir()]
     if missing:
         raise LayerCheckError(f"{root}: no {' or '.join(missing)} package in it (not a checkout)")
     problems = check(root)

@@ -24,7 +24,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from positioning.command import OneLineParser, run_command  # noqa: E402
+from hallray.harness import OneLineParser, run_command  # noqa: E402
 from positioning.dataset import load_dataset  # noqa: E402
 from positioning.errors import PositioningError  # noqa: E402
 from positioning.fingerprint import read_map, write_map  # noqa: E402

@@ -25,7 +25,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import trimesh  # noqa: E402
 
-from positioning.output import check_output  # noqa: E402
+from hallray.safe_output import check_output  # noqa: E402
 from raytrace.cli.harness import OneLineParser, run_tool  # noqa: E402
 from raytrace.core.errors import HallrayError  # noqa: E402
 from raytrace.core.fileio import write_atomic  # noqa: E402

@@ -21,7 +21,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from positioning.output import check_output  # noqa: E402
+from hallray.safe_output import check_output  # noqa: E402
 from raytrace import TraceConfig, load_scene, trace  # noqa: E402
 from raytrace.cli.harness import OneLineParser, run_tool  # noqa: E402
 from raytrace.core.errors import HallrayError  # noqa: E402

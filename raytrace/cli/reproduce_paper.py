@@ -87,7 +87,7 @@ def reproduce_paper_main(argv: Sequence[str] | None = None) -> int:
 
 
 def _main(args: argparse.Namespace) -> int:
-    from positioning.output import output_dir
+    from hallray.safe_output import output_dir
 
     from ..emulation.receivers import DEFAULT_TOA_METHOD, TOA_METHODS
 

@@ -44,6 +44,8 @@ from typing import Any
 
 import numpy as np
 
+from hallray.safe_output import commit_dir
+
 from ..core.errors import HallrayError, SceneError
 from ..scene.io import load_scene
 from ..scene.metadata import SceneMetadata
@@ -460,7 +462,7 @@ def write_dataset(
     tmp = _prepare_output(out, force)
     try:
         _write_files(tmp, files)
-        _commit_output(tmp, out)
+        commit_dir(tmp, out)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
@@ -481,17 +483,6 @@ def _prepare_output(out: Path, force: bool) -> Path:
     os.umask(umask)
     os.chmod(tmp, 0o777 & ~umask)  # mkdtemp makes 0700: a dataset is for others to read too
     return tmp
-
-
-def _commit_output(tmp: Path, out: Path) -> None:
-    """Move the finished temporary directory to ``out`` (replacing it)."""
-    if out.exists():
-        old = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".old", dir=tmp.parent))
-        os.rename(out, old / "previous")
-        os.rename(tmp, out)
-        shutil.rmtree(old, ignore_errors=True)
-    else:
-        os.rename(tmp, out)
 
 
 # --------------------------------------------------------------------------------------------
@@ -752,7 +743,7 @@ def make_datasets(
         single dataset, directly in ``out_dir``
     staging : bool, build in a temporary directory and rename it (True), or write straight into
         ``out_dir``, an empty directory the caller stages itself (False: the command-line tools,
-        through :mod:`positioning.output`)
+        through :mod:`hallray.safe_output`)
 
     Returns
     -------
@@ -816,7 +807,7 @@ def make_datasets(
                     }
                 )
         if staging:
-            _commit_output(tmp, out)
+            commit_dir(tmp, out)
         committed = True
     finally:
         if not committed and staging:

@@ -1,4 +1,4 @@
-"""The command-line harness shared by every tool (positioning.command)."""
+"""The command-line harness shared by every tool (hallray.harness)."""
 
 from __future__ import annotations
 
@@ -10,7 +10,8 @@ import textwrap
 
 import pytest
 
-from positioning.command import (
+from hallray.errors import InputError
+from hallray.harness import (
     EXIT_BAD_INPUT,
     EXIT_BROKEN_PIPE,
     EXIT_INTERRUPTED,
@@ -48,6 +49,7 @@ def test_usage_errors_are_one_line(capsys):
     "exc, code, text",
     [
         (PositioningError("bad\nthing"), EXIT_BAD_INPUT, "error: bad thing\n"),
+        (InputError("any package's bad input"), EXIT_BAD_INPUT, "error: any package's bad input\n"),
         (_Custom("custom input error"), EXIT_BAD_INPUT, "error: custom input error\n"),
         (FileNotFoundError(2, "No such file or directory", "x.csv"), EXIT_BAD_INPUT,
          "error: No such file or directory: x.csv\n"),
@@ -72,7 +74,7 @@ def test_other_exceptions_are_not_hidden():
 
 def _script(body: str) -> str:
     """A Python program running ``main`` (whose body is given) under the harness."""
-    head = "import sys, time\nfrom positioning.command import OneLineParser, run_command\n"
+    head = "import sys, time\nfrom hallray.harness import OneLineParser, run_command\n"
     main = "def main(args):\n" + textwrap.indent(textwrap.dedent(body).strip("\n"), "    ")
     tail = '\nsys.exit(run_command(main, OneLineParser(prog="t"), []))\n'
     return head + main + tail
