@@ -97,7 +97,7 @@ def hall_map_file(folder: str) -> str:
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "positioning"))
     from pos_synth import synth_map
 
-    from positioning.fingerprint import write_map
+    from positioning.twin.fingerprint import write_map
 
     fmap = synth_map(BS, area=(42.0, 46.0), bias=lambda xy: np.zeros((len(xy), len(BS))))
     return str(write_map(Path(folder) / "hall-map.npz", fmap))
@@ -110,8 +110,8 @@ def hall_map_v2_file(folder: str, k: int = 16) -> str:
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "positioning"))
     from pos_synth import CBAND_MODEL, synth_map, two_ray_paths
 
-    from positioning.fingerprint import FingerprintMap, write_map
-    from positioning.lobe import LobeReceiver
+    from positioning.twin.fingerprint import FingerprintMap, write_map
+    from positioning.twin.lobe import LobeReceiver
 
     model = LobeReceiver.from_meta(CBAND_MODEL)  # C-band, as accuracy-map writes it
     base = synth_map(BS, area=(42.0, 46.0), bias=lambda xy: np.zeros((len(xy), len(BS))))
@@ -145,7 +145,7 @@ def run(n_epochs: int = 20000, seed: int = 0, clock=time.perf_counter) -> dict[s
         locate(toa[:10], BS, m, tx_offsets_s=off, height_m=1.0, **kw)  # load the map
         if name == "twin-v2 cold":
             # the raster holds nothing yet: every fix near a new place re-synthesises its tiles
-            from positioning.twin import load
+            from positioning.twin.lattice import load
 
             load(kw["map"])[1].rasters.clear()
             t0 = clock()
@@ -158,7 +158,7 @@ def run(n_epochs: int = 20000, seed: int = 0, clock=time.perf_counter) -> dict[s
             locate(toa[:n], BS, m, tx_offsets_s=off, height_m=p[:n, 2], **kw)
             best = min(best, clock() - t0)
         out[name] = n / best
-    from positioning.twin import load, prepare
+    from positioning.twin.lattice import load, prepare
 
     load(v2["map"])[1].rasters.clear()
     t0 = clock()

@@ -26,11 +26,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from hallray.harness import OneLineParser, run_command  # noqa: E402
 from positioning import api  # noqa: E402
-from positioning.dataset import load_dataset  # noqa: E402
 from positioning.errors import PositioningError  # noqa: E402
-from positioning.metrics import error_2d  # noqa: E402
-from positioning.report import dataset_problem  # noqa: E402
-from positioning.twin import load  # noqa: E402
+from positioning.evaluation.metrics import error_2d  # noqa: E402
+from positioning.io.dataset import load_dataset  # noqa: E402
+from positioning.io.prepare import dataset_problem  # noqa: E402
+from positioning.twin.lattice import load  # noqa: E402
 
 SETUPS = "static-c-band,static-mmwave,semi-dynamic-c-band,semi-dynamic-mmwave"
 

@@ -36,7 +36,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from hallray.safe_output import check_output  # noqa: E402
-from positioning.fingerprint import FingerprintMap, write_map  # noqa: E402
+from positioning.twin.fingerprint import FingerprintMap, write_map  # noqa: E402
 from raytrace.cli.harness import OneLineParser, run_tool  # noqa: E402
 from raytrace.core.errors import HallrayError  # noqa: E402
 from raytrace.emulation.bands import get_band  # noqa: E402

@@ -3,11 +3,15 @@
 
 Fails (exit 1, one line per violation) on:
 
-* an import that goes against the arrows between raytrace's subpackages (``LAYERS`` below);
+* an import that goes against the arrows between raytrace's subpackages (``LAYERS`` below) or
+  between positioning's (``POSITIONING_LAYERS``);
 * ``positioning`` importing ``raytrace``, or anything importing ``raytrace.cli``;
 * ``hallray`` (the commands' shared infrastructure) importing ``raytrace`` or ``positioning``
   (only its future console command, ``hallray.main`` / ``hallray.cli``, may; nothing imports
   that);
+* a raytrace layer below ``studies`` importing ``positioning``, or any module importing an old
+  (deprecated) path of positioning: a top-level module of it other than the package itself
+  and ``positioning.errors``;
 * a solver stage module imported by anything but the tracer;
 * an import cycle between our modules (module-level and function-local imports together);
 * a function-local import of our own module that would close a cycle if it were at module level
@@ -55,6 +59,27 @@ LAYERS: dict[str, set[str]] = {
 }
 #: The package's own __init__ re-exports the public API from these.
 TOP_ALLOWED = {"core", "physics", "scene", "solver", "emulation"}
+#: The raytrace layers that may import positioning (its public API and its subpackages).
+USES_POSITIONING = {"studies", "cli"}
+
+#: Subpackage of positioning -> the subpackages of positioning it may import (itself included),
+#: along the flow ToA -> problem -> estimate -> evaluate -> report. Every module may also import
+#: ``positioning.errors``; positioning's top-level modules (the lazy public API in ``__init__``,
+#: the old paths' shims) may import any of it.
+POSITIONING_LAYERS: dict[str, set[str]] = {
+    "model": {"model"},
+    "io": {"model", "io"},
+    "estimators": {"model", "estimators"},
+    "twin": {"model", "estimators", "twin"},
+    "evaluation": {"model", "estimators", "evaluation"},
+    "methods": {"model", "estimators", "twin", "evaluation", "methods"},
+    "report": {"model", "io", "estimators", "twin", "evaluation", "methods", "report"},
+    "cli": {"model", "io", "estimators", "twin", "evaluation", "methods", "report", "cli"},
+}
+#: Top-level modules of positioning that are not old paths: the public API and the error type.
+POSITIONING_CURRENT = {"positioning", "positioning.errors"}
+#: The one-release forwarding helper of the old paths (imported by the shims only).
+POSITIONING_SHIM_HELPER = "positioning.deprecated"
 #: Modules of hallray that may import the two packages (the future ``hallray`` console command).
 HALLRAY_COMMAND = ("hallray.main", "hallray.cli")
 #: Solver modules that only the tracer may import (the stages and their back end).
@@ -117,6 +142,12 @@ def in_package(mod: str, pkg: str) -> bool:
     return mod == pkg or mod.startswith(f"{pkg}.")
 
 
+def positioning_layer(mod: str) -> str:
+    """The subpackage of positioning that ``mod`` is in ("" for a top-level module)."""
+    parts = mod.split(".")
+    return parts[1] if len(parts) > 2 or (len(parts) == 2 and parts[1] in POSITIONING_LAYERS) else ""
+
+
 def allowed_hallray(src: str, dst: str) -> bool | None:
     """The rules of hallray's imports and of imports of hallray (None: not concerned)."""
     if any(in_package(dst, c) for c in HALLRAY_COMMAND):
@@ -128,12 +159,31 @@ def allowed_hallray(src: str, dst: str) -> bool | None:
     return None
 
 
+def allowed_positioning(src: str, dst: str) -> bool | None:
+    """The rules of positioning's imports and of imports of positioning (None: not concerned)."""
+    if not in_package(dst, "positioning"):
+        return False if in_package(src, "positioning") and in_package(dst, "raytrace") else None
+    d = positioning_layer(dst)
+    if d == "" and dst not in POSITIONING_CURRENT:
+        # an old path (a shim forwarding for one release) or the shims' helper
+        return dst == POSITIONING_SHIM_HELPER and src.count(".") == 1
+    if in_package(src, "raytrace"):
+        return layer_of(src) in USES_POSITIONING
+    if not in_package(src, "positioning"):
+        return None
+    s = positioning_layer(src)
+    if s == "" or dst == "positioning.errors":
+        return True  # the lazy public API, the shims; the error type for all
+    if d == "":
+        return False  # the package's public API is for its users, not its layers
+    return d in POSITIONING_LAYERS[s]
+
+
 def allowed(src: str, dst: str) -> bool:
-    verdict = allowed_hallray(src, dst)
-    if verdict is not None:
-        return verdict
-    if src.startswith("positioning"):
-        return not dst.startswith("raytrace")
+    for rule in (allowed_hallray, allowed_positioning):
+        verdict = rule(src, dst)
+        if verdict is not None:
+            return verdict
     s, d = layer_of(src), layer_of(dst)
     if s is None or d is None:
         return True  # positioning targets are checked by the raytrace side below

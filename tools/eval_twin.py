@@ -25,13 +25,13 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from hallray.harness import OneLineParser, run_command  # noqa: E402
-from positioning.dataset import load_dataset  # noqa: E402
 from positioning.errors import PositioningError  # noqa: E402
-from positioning.fingerprint import read_map, write_map  # noqa: E402
-from positioning.fixes import Status  # noqa: E402
-from positioning.metrics import error_2d  # noqa: E402
-from positioning.report import evaluate  # noqa: E402
-from positioning.twin import clamp_to_polygon  # noqa: E402
+from positioning.estimators.fixes import Status  # noqa: E402
+from positioning.evaluation.metrics import error_2d  # noqa: E402
+from positioning.io.dataset import load_dataset  # noqa: E402
+from positioning.report.runs import evaluate  # noqa: E402
+from positioning.twin.estimator import clamp_to_polygon  # noqa: E402
+from positioning.twin.fingerprint import read_map, write_map  # noqa: E402
 
 SINGLE = ("irls", "nlos-aware", "twin")
 TRACKED = tuple(f"{m}+track" for m in SINGLE)

@@ -35,7 +35,7 @@ from typing import Any
 
 import numpy as np
 
-from positioning.fingerprint import FingerprintMap, write_map
+from positioning.twin.fingerprint import FingerprintMap, write_map
 
 from ..core.constants import C0
 from ..core.errors import HallrayError
@@ -771,7 +771,9 @@ def write_outputs(
     output). Returns the files' final paths."""
     import shutil
 
-    from ..emulation.dataset import _commit_output, _prepare_output
+    from hallray.safe_output import commit_dir
+
+    from ..emulation.dataset import _prepare_output
 
     out = Path(out_dir)
     tmp = _prepare_output(out, force)
@@ -784,7 +786,7 @@ def write_outputs(
             for name, png in map_pictures(scene, amap):
                 write_atomic(tmp / name, png)
                 names.append(name)
-        _commit_output(tmp, out)
+        commit_dir(tmp, out)
         committed = True
     finally:
         if not committed:

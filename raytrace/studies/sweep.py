@@ -625,7 +625,7 @@ def _write_dataset(
 ) -> float:
     """Write the cell's dataset from its measurements; return max |file ToA - measured ToA| (s),
     inf if the file's detected ToAs are not the measured ones."""
-    from positioning.dataset import load_dataset
+    from positioning.io.dataset import load_dataset
 
     from ..emulation.dataset import write_dataset
 

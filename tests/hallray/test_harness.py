@@ -119,31 +119,3 @@ def test_closed_stdout_is_quiet():
     _, err = proc.communicate(timeout=20)
     assert proc.returncode == EXIT_BROKEN_PIPE
     assert err == b""
-
-
-def test_the_package_loads_its_estimators_on_first_use():
-    """Every command-line tool's harness imports ``positioning.command``: that must not load the
-    estimators (and scipy.stats with them); the public names and the submodules still resolve."""
-    import subprocess
-    import sys
-
-    code = (
-        "import sys\n"
-        "import raytrace.cli.trace_scene\n"
-        "assert 'positioning.api' not in sys.modules and 'scipy.stats' not in sys.modules\n"
-        "import positioning\n"
-        "from positioning import locate, Fixes, C0\n"
-        "assert locate.__module__ == 'positioning.api' and C0 == 299792458.0\n"
-        "assert positioning.twin.__name__ == 'positioning.twin'\n"
-        "assert set(positioning.__all__) <= set(dir(positioning))\n"
-        "try:\n"
-        "    positioning.no_such_thing\n"
-        "except AttributeError as e:\n"
-        "    assert 'no_such_thing' in str(e)\n"
-        "else:\n"
-        "    raise SystemExit('no AttributeError')\n"
-        "print('ok')\n"
-    )
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
-    assert out.returncode == 0, out.stderr[-2000:]
-    assert out.stdout.strip() == "ok"

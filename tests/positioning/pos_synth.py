@@ -122,7 +122,7 @@ def synth_map(
     """A fingerprint map of the synthetic hall: cells on a ``step`` lattice offset by half a step
     over ``area`` (x, y from 0), first arrival = straight distance + ``bias(xy)``, service area the
     rectangle."""
-    from positioning.fingerprint import FingerprintMap
+    from positioning.twin.fingerprint import FingerprintMap
 
     xs = np.arange(step / 2, area[0], step)
     ys = np.arange(step / 2, area[1], step)
@@ -199,8 +199,8 @@ def two_ray_map(step: float = 0.5, area: tuple[float, float] = (29.0, 25.0)):
     """A schema-v2 map of the synthetic hall with :func:`two_ray_paths` per cell and ``toa_s``
     from the first-lobe receiver on them (the overlap of the two rays biases it by up to
     decimetres, changing within a cell)."""
-    from positioning.fingerprint import FingerprintMap
-    from positioning.lobe import LobeReceiver
+    from positioning.twin.fingerprint import FingerprintMap
+    from positioning.twin.lobe import LobeReceiver
 
     base = synth_map(step=step, area=area, bias=lambda xy: np.zeros((len(xy), len(PAPER_BS))))
     delay, gain, u, radius = two_ray_paths(base.cell_xyz)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from positioning import PositioningError
-from positioning.fingerprint import SCHEMA_VERSION, FingerprintMap, read_map, write_map
+from positioning.twin.fingerprint import SCHEMA_VERSION, FingerprintMap, read_map, write_map
 
 
 def _map(n: int = 6, b: int = 4, m: int = 2) -> FingerprintMap:

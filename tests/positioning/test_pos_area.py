@@ -6,9 +6,10 @@ import numpy as np
 import pytest
 
 from positioning import PositioningError, Status, locate, method_names
-from positioning.area import ServiceArea, area_from_meta
-from positioning.bounded import bounded_refit, concentrated_cost
-from positioning.tdoa import C0, make_problem
+from positioning.estimators.bounded import bounded_refit, concentrated_cost
+from positioning.model.area import ServiceArea, area_from_meta
+from positioning.model.problem import make_problem
+from positioning.model.tdoa import C0
 
 BOX = ServiceArea.box((0.0, 0.0), (30.0, 26.0))
 #: An L-shaped hall: the square (12, 12)-(30, 26) is not floor.

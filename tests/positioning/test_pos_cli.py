@@ -15,11 +15,9 @@ sys.path.insert(0, str(Path(__file__).parent))
 from pos_synth import write_dataset  # noqa: E402
 
 from positioning import METHODS, error_2d, method_names, summarize  # noqa: E402
-from positioning.cli import (  # noqa: E402
-    FIXES_COLUMNS,
-    accuracy_report_main,
-    estimate_positions_main,
-)
+from positioning.cli.accuracy import accuracy_report_main
+from positioning.cli.estimate import estimate_positions_main
+from positioning.report.fixes_file import FIXES_COLUMNS
 
 #: Coordinates are written with 6 decimals (micrometres).
 CSV_TOL_M = 2e-6

@@ -15,10 +15,12 @@ sys.path.insert(0, str(Path(__file__).parent))
 from pos_synth import PAPER_BS, write_dataset  # noqa: E402
 
 from positioning import Status, locate  # noqa: E402
-from positioning.area import ServiceArea  # noqa: E402
-from positioning.cli import FIXES_COLUMNS, estimate_positions_main  # noqa: E402
-from positioning.noise import FLOOR_FIRST_LOBE  # noqa: E402
-from positioning.tdoa import C0, LinkInfo  # noqa: E402
+from positioning.cli.estimate import estimate_positions_main  # noqa: E402
+from positioning.model.area import ServiceArea  # noqa: E402
+from positioning.model.noise import FLOOR_FIRST_LOBE  # noqa: E402
+from positioning.model.problem import LinkInfo  # noqa: E402
+from positioning.model.tdoa import C0  # noqa: E402
+from positioning.report.fixes_file import FIXES_COLUMNS  # noqa: E402
 
 #: mmWave-like band: 400 MHz, 28 GHz; link budget offset so that the free-space SNR at 20 m is
 #: about 12 dB (as in the bundled hall).
@@ -158,7 +160,12 @@ def test_cli_bad_alert_limit(tmp_path, capsys, bad):
 
 
 def test_link_reports_and_area_from_a_dataset(tmp_path):
-    from positioning.dataset import dataset_area, link_budget_offset_db, link_reports, load_dataset
+    from positioning.io.dataset import (
+        dataset_area,
+        link_budget_offset_db,
+        link_reports,
+        load_dataset,
+    )
 
     meta = {
         "toa_method": "first-lobe",

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from positioning import C0, Status, andrews_weight, error_2d, locate, make_problem
-from positioning.irls import irls, uncertainties
+from positioning.estimators.irls import irls, uncertainties
 
 #: Absolute tolerance of hand-computed weights.
 WEIGHT_TOL = 1e-12
@@ -234,7 +234,7 @@ def test_irls_stays_in_the_region_when_every_reference_diverges():
     """A 6 m NLoS excess on one of 4 base stations: every per-reference least squares runs off
     hundreds of km; IRLS must return a bounded, flagged estimate."""
     import positioning
-    from positioning.tdoa import C0 as C
+    from positioning.model.tdoa import C0 as C
 
     bs = np.array([[7.5, 6.0, 7.5], [22.5, 6.0, 7.5], [7.5, 18.0, 7.5], [22.5, 18.0, 7.5]])
     ranges = np.array([27.7857, 15.5070, 16.6372, 6.4333])

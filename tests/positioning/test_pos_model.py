@@ -17,8 +17,8 @@ from positioning import (
     range_differences,
     signed_tdoa,
 )
-from positioning.api import method_names
-from positioning.tdoa import first_valid, linear_start
+from positioning.estimators.solver import first_valid, linear_start
+from positioning.methods.registry import method_names
 
 #: Methods that need no fingerprint map (``twin`` has its own tests).
 MAP_FREE = method_names(include_map=False)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from positioning import C0, Status, error_2d, locate, make_problem
-from positioning.robust import (
+from positioning.estimators.robust import (
     HUBER_C,
     TUKEY_C,
     m_estimator,

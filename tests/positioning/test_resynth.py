@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from positioning.lobe import C0, LobeReceiver, move_paths
+from positioning.model.tdoa import C0
+from positioning.twin.lobe import LobeReceiver, move_paths
 
 F = 3.5e9
 LAM = C0 / F
@@ -87,7 +88,7 @@ def test_twin_with_paths_removes_the_overlap_bias_the_cell_model_keeps():
     from pos_synth import PAPER_BS, two_ray_map
 
     from positioning import locate
-    from positioning.metrics import error_2d
+    from positioning.evaluation.metrics import error_2d
 
     fmap = two_ray_map()
     rng = np.random.default_rng(5)
@@ -127,7 +128,7 @@ def test_resynth_in_blocks_equals_all_at_once(monkeypatch):
     block size (one fix per block, a block that does not divide the fixes, all at once)."""
     from pos_synth import PAPER_BS, two_ray_map
 
-    import positioning.twin as tw
+    import positioning.twin.estimator as tw
     from positioning import locate
 
     fmap = two_ray_map()
@@ -147,8 +148,8 @@ def test_resynth_in_blocks_equals_all_at_once(monkeypatch):
 def _raster_and_map(h: float = 0.05):
     from pos_synth import two_ray_map
 
-    import positioning.twin as tw
-    from positioning.resynth import PathMap, ToaRaster
+    import positioning.twin.lattice as tw
+    from positioning.twin.resynth import PathMap, ToaRaster
 
     fmap = two_ray_map(step=0.5, area=(6.0, 5.0))
     _, lat = tw.load(fmap)
@@ -211,7 +212,7 @@ def test_twin_on_the_raster_matches_the_exact_resynthesis():
     from pos_synth import PAPER_BS, two_ray_map
 
     from positioning import locate
-    from positioning.metrics import error_2d
+    from positioning.evaluation.metrics import error_2d
 
     fmap = two_ray_map()
     rng = np.random.default_rng(8)
@@ -232,11 +233,12 @@ def test_window_match_grouped_equals_per_fix(monkeypatch):
     candidates and misfits (the misfit's expansion is centred: rho carries a clock offset)."""
     from pos_synth import PAPER_BS, synth_map, synth_toa
 
-    import positioning.twin as tw
-    from positioning.tdoa import make_problem
+    import positioning.twin.match as tw
+    from positioning.model.problem import make_problem
+    from positioning.twin.lattice import load
 
     fmap = synth_map()
-    _, lat = tw.load(fmap)
+    _, lat = load(fmap)
     toa, xyz = synth_toa(200)
     toa = toa + 1e-3  # a large common clock offset
     prob = make_problem(toa, PAPER_BS, None, np.full(len(toa), 1.0))
@@ -252,7 +254,7 @@ def test_window_match_grouped_equals_per_fix(monkeypatch):
 
 def test_normal_step_is_the_damped_least_squares_solution():
     """The closed-form 2 x 2 step equals numpy's solve of the damped normal equations."""
-    from positioning.resynth import normal_step
+    from positioning.twin.resynth import normal_step
 
     rng = np.random.default_rng(2)
     J, r = rng.normal(size=(50, 4, 2)), rng.normal(size=(50, 4))
@@ -268,9 +270,9 @@ def test_prepare_fills_the_raster_and_later_fixes_only_look_up(tmp_path):
     import pytest
     from pos_synth import PAPER_BS, two_ray_map
 
-    import positioning.twin as tw
+    import positioning.twin.lattice as tw
     from positioning import PositioningError, locate
-    from positioning.fingerprint import write_map
+    from positioning.twin.fingerprint import write_map
 
     fmap = two_ray_map(step=0.5, area=(8.0, 6.0))
     eager = write_map(tmp_path / "eager.npz", fmap)
@@ -308,7 +310,7 @@ def test_raster_solution_is_the_best_sample_near_gauss_newton(monkeypatch):
     SNAP samples of the Gauss-Newton solution (SNAP = 0), checked by exhaustive look-ups."""
     from pos_synth import PAPER_BS
 
-    import positioning.resynth as rs
+    import positioning.twin.resynth as rs
 
     r, pmap, _ = _raster_and_map()
     rng = np.random.default_rng(9)
@@ -329,7 +331,7 @@ def test_raster_solution_is_the_best_sample_near_gauss_newton(monkeypatch):
     best = np.full(n, np.inf)
     for dx in range(-2, 3):
         for dy in range(-2, 3):
-            best = np.minimum(best, rs._rms(rho, valid, r.nearest(r.sample_xy(k0x + dx, k0y + dy))))
+            best = np.minimum(best, rs.residual_rms(rho, valid, r.nearest(r.sample_xy(k0x + dx, k0y + dy))))
     np.testing.assert_allclose(rms, best, rtol=0, atol=1e-12)
 
 
@@ -338,17 +340,17 @@ def test_rasters_kept_per_map_are_bounded_least_recently_used_first(monkeypatch)
     with a loaded map, the least recently used dropped first; a kept one is reused as it is."""
     from pos_synth import two_ray_map
 
-    import positioning.twin as tw
-    from positioning.resynth import PathMap
+    import positioning.twin.lattice as tw
+    from positioning.twin.resynth import PathMap
 
     monkeypatch.setattr(tw, "MAX_RASTERS", 3)
     fmap = two_ray_map(step=0.5, area=(8.0, 6.0))
     _, lat = tw.load(fmap)
     pmap = PathMap.from_map(fmap, None)
-    first = tw._raster(lat, pmap, None, 0.05, 1000)
+    first = tw.raster_for(lat, pmap, None, 0.05, 1000)
     for h_mm in (1100, 1200):
-        tw._raster(lat, pmap, None, 0.05, h_mm)
-    assert tw._raster(lat, pmap, None, 0.05, 1000) is first  # reused, now the most recent
-    tw._raster(lat, pmap, None, 0.05, 1300)  # a fourth: the least recently used (1100) goes
+        tw.raster_for(lat, pmap, None, 0.05, h_mm)
+    assert tw.raster_for(lat, pmap, None, 0.05, 1000) is first  # reused, now the most recent
+    tw.raster_for(lat, pmap, None, 0.05, 1300)  # a fourth: the least recently used (1100) goes
     assert sorted(k[2] for k in lat.rasters) == [1000, 1200, 1300]
-    assert tw._raster(lat, pmap, None, 0.05, 1000) is first
+    assert tw.raster_for(lat, pmap, None, 0.05, 1000) is first

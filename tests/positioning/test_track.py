@@ -7,7 +7,7 @@ import pytest
 
 from positioning import Status, locate
 from positioning.errors import PositioningError
-from positioning.track import (
+from positioning.estimators.track import (
     DEFAULT_DT_S,
     RESTART_AFTER,
     check_params,

@@ -14,10 +14,12 @@ sys.path.insert(0, str(Path(__file__).parent))
 from pos_synth import PAPER_BS, nlos_bias, synth_map, synth_toa, write_dataset  # noqa: E402
 
 from positioning import METHODS, Status, error_2d, locate  # noqa: E402
-from positioning.cli import accuracy_report_main, estimate_positions_main  # noqa: E402
+from positioning.cli.accuracy import accuracy_report_main  # noqa: E402
+from positioning.cli.estimate import estimate_positions_main  # noqa: E402
 from positioning.errors import PositioningError  # noqa: E402
-from positioning.fingerprint import write_map  # noqa: E402
-from positioning.twin import clamp_to_polygon, interp_bias  # noqa: E402
+from positioning.twin.estimator import clamp_to_polygon  # noqa: E402
+from positioning.twin.fingerprint import write_map  # noqa: E402
+from positioning.twin.lattice import interp_bias  # noqa: E402
 
 #: Range noise of the synthetic data (m) and what the twin must reach: with the bias known,
 #: the error is the noise's (p90 about 2.5 sigma times the geometry's dilution, ~1.5 here).
@@ -33,7 +35,7 @@ def fmap():
 
 
 def test_bilinear_bias_is_exact_for_a_linear_field(fmap):
-    from positioning.twin import load
+    from positioning.twin.lattice import load
 
     _, lat = load(fmap)
     xy = np.array([[3.3, 4.1], [17.77, 20.02], [10.0, 10.0]])

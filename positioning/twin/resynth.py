@@ -347,7 +347,7 @@ def refine_resynth(
             J = U
         # the iterate's misfit; the best iterate is kept (the receiver's bias is not smooth, so
         # a Gauss-Newton step may go uphill)
-        rms = _rms(rho, valid, pred[0])
+        rms = residual_rms(rho, valid, pred[0])
         better = rms < best_rms
         best_xy[better], best_rms[better] = xy[better], rms[better]
         if last:
@@ -374,7 +374,7 @@ def refine_resynth(
         sx = (kx[:, None] + gx.ravel()[None]).ravel()
         sy = (ky[:, None] + gy.ravel()[None]).ravel()
         pts = raster.sample_xy(sx, sy)
-        rms = _rms(rho[:, None], valid[:, None], raster.nearest(pts).reshape(A, S, -1))
+        rms = residual_rms(rho[:, None], valid[:, None], raster.nearest(pts).reshape(A, S, -1))
         j = np.argmin(rms, axis=1)
         pick = np.isfinite(rms[np.arange(A), j])
         best_xy = np.where(pick[:, None], pts.reshape(A, S, 2)[np.arange(A), j], best_xy)
@@ -396,8 +396,10 @@ def normal_step(J: np.ndarray, r: np.ndarray, damping: float) -> np.ndarray:
         return np.column_stack([(d * g0 - b * g1) / det, (a * g1 - b * g0) / det])
 
 
-def _rms(rho: np.ndarray, valid: np.ndarray, pred: np.ndarray) -> np.ndarray:
-    """(...,) RMS residual about the offset, m, of the received base stations (last axis;
+def residual_rms(rho: np.ndarray, valid: np.ndarray, pred: np.ndarray) -> np.ndarray:
+    """The misfit :func:`refine_resynth` minimises and judges its solutions by.
+
+    (...,) RMS residual about the offset, m, of the received base stations (last axis;
     ``rho``, ``valid`` broadcast against ``pred``); plus :data:`MISSING_PENALTY_M` where the
     prediction misses one; inf with fewer than 3."""
     use = valid & np.isfinite(pred)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .errors import PositioningError
+from ..errors import PositioningError
 
 
 def error_2d(estimate_xyz: np.ndarray, true_xyz: np.ndarray) -> np.ndarray:

@@ -23,9 +23,9 @@ from typing import Any
 
 import numpy as np
 
-from .area import ServiceArea, area_from_meta
-from .errors import PositioningError
-from .tdoa import LinkInfo
+from ..errors import PositioningError
+from ..model.area import ServiceArea, area_from_meta
+from ..model.problem import LinkInfo
 
 REQUIRED_COLUMNS = ("epoch", "point", "bs", "toa_s", "x_true", "y_true", "z_true")
 
@@ -234,7 +234,7 @@ def load_dataset(directory: str | Path) -> ToaDataset:
         toa_s=np.array(toa_rows, dtype=float),
         tx_offset_s=off_arr,
     )
-    from .sanity import check_dataset
+    from .scale import check_dataset
 
     check_dataset(ds)  # the scale rule: stations in mm, ToAs in ms
     return ds

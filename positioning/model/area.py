@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from .errors import PositioningError
+from ..errors import PositioningError
 
 #: A point this close to the outline (m) counts as inside: projections land on the outline up to
 #: rounding, and must count as inside.

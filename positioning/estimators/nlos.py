@@ -22,8 +22,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from .fixes import Status
-from .noise import (
+from ..model.noise import (
     WIDE_PULSES,
     late_mean_excess,
     link_sigma,
@@ -31,8 +30,12 @@ from .noise import (
     pulse_width_m,
     shares,
 )
-from .robust import REGION_MARGIN, REJECT_WEIGHT, _candidates
-from .tdoa import Problem, levenberg_marquardt, pseudorange_model, ranges_and_units
+from ..model.problem import Problem
+from ..model.residuals import pseudorange_model
+from ..model.tdoa import ranges_and_units
+from .fixes import Status
+from .robust import REGION_MARGIN, REJECT_WEIGHT, candidates
+from .solver import levenberg_marquardt
 
 #: Grid starts are at least this many grid pitches apart (distinct basins).
 SEPARATION_PITCHES = 2.0
@@ -169,9 +172,9 @@ def _starts(
     prob: Problem, rows: np.ndarray, max_drop: int, margin: float, grid_m: float, n_grid: int
 ) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """(epochs, theta0 (E, k), ill-conditioned (E,)) of every start: the hypothesis fits of
-    :func:`positioning.robust._candidates`, then the grid starts."""
+    :func:`positioning.estimators.robust.candidates`, then the grid starts."""
     E = prob.n_epochs
-    starts = [(sub, s.theta, s.ill) for _, sub, s in _candidates(prob, rows, max_drop, margin)]
+    starts = [(sub, s.theta, s.ill) for _, sub, s in candidates(prob, rows, max_drop, margin)]
     if grid_m > 0 and starts:
         for th0 in grid_starts(prob, rows, grid_m, n_grid):
             ok = rows & np.isfinite(th0).all(axis=1)

@@ -69,7 +69,7 @@ import numpy as np
 
 from hallray.safe_output import write_file
 
-from .errors import PositioningError
+from ..errors import PositioningError
 
 SCHEMA = "hallray-accuracy-map"
 SCHEMA_VERSION = 2

@@ -28,20 +28,17 @@ station is biased). In 2D (known height) that is N >= 5, in 3D N >= 6.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from itertools import combinations
 
 import numpy as np
 from scipy.stats import chi2
 
+from ..model.problem import Problem
+from ..model.residuals import pseudorange_model, pseudorange_residuals
 from .fixes import Status
 from .irls import plausible
-from .tdoa import (
-    Problem,
-    levenberg_marquardt,
-    pseudorange_model,
-    pseudorange_residuals,
-    solve_pseudorange,
-)
+from .solver import Solution, levenberg_marquardt, solve_pseudorange
 
 #: Tukey biweight tuning constant (95 % efficiency under Gaussian noise).
 TUKEY_C = 4.685
@@ -156,11 +153,26 @@ def _finish(
     return {"xyz": xyz, "status": status, "iterations": iterations, "weights": weights}
 
 
-def _candidates(prob: Problem, rows: np.ndarray, max_drop: int, margin: float):
-    """Yield ``(drop, sub, Solution)`` for the all-base-station fit and every subset leaving out
-    1..``max_drop`` received base stations with at least ``dims + 1`` remaining. ``sub`` (E,) marks
-    the epochs where the hypothesis applies (for a proper subset also: its fit is
-    :func:`plausible`)."""
+def candidates(
+    prob: Problem, rows: np.ndarray, max_drop: int, margin: float
+) -> Iterator[tuple[tuple[int, ...], np.ndarray, Solution]]:
+    """The hypothesis fits the robust estimators start from (``m-estimator``, ``nlos-aware``,
+    ``nlos-map``): the least-squares pseudo-range fit of all received base stations and of every
+    subset leaving out 1..``max_drop`` of them with at least ``dims + 1`` remaining.
+
+    Parameters
+    ----------
+    prob : Problem
+    rows : (E,) bool, the epochs to solve
+    max_drop : int, most base stations left out
+    margin : float, the plausible region's growth (:func:`~positioning.estimators.irls.plausible`)
+
+    Yields
+    ------
+    ``(drop, sub, solution)``: the left-out base stations (a tuple of indices, empty for the fit of
+    all), ``sub`` (E,) bool, the epochs where the hypothesis applies (for a proper subset also: its
+    fit is plausible), and the :class:`~positioning.estimators.solver.Solution`.
+    """
     E, N = prob.rho.shape
     k = prob.dims + 1
     valid = prob.valid & rows[:, None]
@@ -230,7 +242,7 @@ def m_estimator(
     best = np.full(E, np.inf)
     theta = np.full((E, k), np.nan)
     ill = np.zeros(E, dtype=bool)
-    for drop, sub, s in _candidates(prob, rows, 1, region_margin):
+    for drop, sub, s in candidates(prob, rows, 1, region_margin):
         if drop:
             sub = sub & robust_rows
         r = pseudorange_residuals(prob, s.theta)
@@ -435,7 +447,7 @@ def nlos_aware(
     best_score = np.full(E, np.inf)
     theta = np.full((E, kk), np.nan)
     ill = np.zeros(E, dtype=bool)
-    for _, sub, s in _candidates(prob, rows, max_drop, region_margin):
+    for _, sub, s in candidates(prob, rows, max_drop, region_margin):
         z = pseudorange_residuals(prob, s.theta) / sigma_m
         score = np.sum(np.where(valid, nlos_loss(np.where(valid, z, 0.0), k), 0.0), axis=1)
         score = np.where(sub & np.isfinite(score), score, np.inf)

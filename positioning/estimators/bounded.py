@@ -22,7 +22,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from .tdoa import Problem, _safe_solve, pseudorange_model, ranges_and_units
+from ..model.problem import Problem
+from ..model.residuals import pseudorange_model
+from ..model.tdoa import ranges_and_units
+from .solver import safe_solve
 
 #: Pitch of the interior grid of the global search, metres (1 m: a cost basin of the LS problem
 #: is at least a range resolution wide, c/B = 0.75-3 m).
@@ -109,7 +112,7 @@ def projected_lm(
         A = np.matmul(JW.transpose(0, 2, 1), J[act])
         g = np.matmul(JW.transpose(0, 2, 1), r[act][..., None])
         A[:, diag, diag] += lam[act, None] * A[:, diag, diag] + 1e-12
-        delta, _ = _safe_solve(A, g)
+        delta, _ = safe_solve(A, g)
         delta = np.where(np.isfinite(delta[..., 0]), delta[..., 0], 0.0)
         th = theta[act] + delta
         th[:, :2] = area.project(th[:, :2])

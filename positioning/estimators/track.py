@@ -38,7 +38,7 @@ from typing import Any
 
 import numpy as np
 
-from .errors import PositioningError
+from ..errors import PositioningError
 from .fixes import Fixes, Status
 
 #: Suffix that turns a single-epoch method into its tracked form (``irls+track``).

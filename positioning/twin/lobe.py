@@ -41,9 +41,8 @@ from typing import Any
 
 import numpy as np
 
-from .errors import PositioningError
-
-C0 = 299_792_458.0
+from ..errors import PositioningError
+from ..model.tdoa import C0
 
 #: Quartic through samples -2..2: coefficient rows (c0..c4) from the five values.
 _QUARTIC = np.linalg.inv(np.vander(np.arange(-2.0, 3.0), 5, increasing=True))

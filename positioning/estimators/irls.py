@@ -8,8 +8,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..model.problem import Problem
 from .fixes import Status
-from .tdoa import Problem, first_valid, solve_tdoa
+from .solver import first_valid, solve_tdoa
 
 
 def plausible(prob: Problem, xyz: np.ndarray, margin: float) -> np.ndarray:

@@ -26,9 +26,12 @@ from __future__ import annotations
 import numpy as np
 from scipy.stats import chi2
 
-from .fixes import Status
-from .noise import NARROW_LOBE, WIDE_PULSES, link_sigma, pulse_width_m
-from .tdoa import Problem, pseudorange_model, ranges_and_units, solve_pseudorange
+from ..estimators.fixes import Status
+from ..estimators.solver import solve_pseudorange
+from ..model.noise import NARROW_LOBE, WIDE_PULSES, link_sigma, pulse_width_m
+from ..model.problem import Problem
+from ..model.residuals import pseudorange_model
+from ..model.tdoa import ranges_and_units
 
 #: Multiplier of the standard deviations (noise of the excluded measurement, fit's horizontal
 #: spread): 3 sigma, a 0.3 % two-sided miss per Gaussian figure.

@@ -25,7 +25,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.special import log_ndtr
 
-from .tdoa import C0, LinkInfo
+from .problem import LinkInfo
+from .tdoa import C0
 
 #: Noise floor of a first-lobe (band-limited) ToA in units of the range resolution c/B: the
 #: measured spread of LoS range errors whose lobe is a lone pulse (lobe_width 0.95-1.05) is
