@@ -1,0 +1,20 @@
+"""Deprecated: ``positioning.lobe`` moved to :mod:`positioning.model.tdoa`,
+:mod:`positioning.twin.lobe`.
+
+Its names forward to their new modules for one release, with a :class:`DeprecationWarning`.
+"""
+
+from __future__ import annotations
+
+from .deprecated import forward
+
+#: Old name -> its new module.
+MOVED = {
+    "C0": "positioning.model.tdoa",
+    "LobeReceiver": "positioning.twin.lobe",
+    "TABLE_PER_T": "positioning.twin.lobe",
+    "move_paths": "positioning.twin.lobe",
+    "raised_cosine": "positioning.twin.lobe",
+}
+
+__getattr__, __dir__ = forward(__name__, MOVED)
