@@ -139,105 +139,115 @@ def load_dataset(directory: str | Path) -> ToaDataset:
     meta = _read_meta(d / "meta.json")
     bs_names = [b["name"] for b in meta["base_stations"]]
     bs_xyz = np.array([[float(v) for v in b["xyz"]] for b in meta["base_stations"]])
-    col = {n: i for i, n in enumerate(bs_names)}
-    schedule = meta.get("schedule_s") or {}
     csv_path = d / "toa.csv"
     if not csv_path.is_file():
         raise PositioningError(f"{csv_path}: file not found")
-    fixes: dict[tuple[int, str], int] = {}
-    epochs: list[int] = []
-    times: list[float] = []
-    points: list[str] = []
-    truth: list[tuple[float, float, float]] = []
-    toa_rows: list[list[float]] = []
-    off_rows: list[list[float]] = []
-    seen: set[tuple[int, int]] = set()
+    rows = _Rows(bs_names, meta.get("schedule_s") or {})
     try:
         with csv_path.open(newline="", encoding="utf-8-sig") as fh:  # a BOM is fine
-            reader = csv.reader(fh)
-            header = next(reader, None)
-            if header is None:
-                raise PositioningError(f"{csv_path}: empty file")
-            header = [h.strip() for h in header]
-            missing = [c for c in REQUIRED_COLUMNS if c not in header]
-            if missing:
-                raise PositioningError(f"{csv_path}: missing columns: {', '.join(missing)}")
-            ix = {h: i for i, h in enumerate(header)}
-            i_time = ix.get("time_s")
-            i_off = ix.get("tx_offset_s")
-            for line, row in enumerate(reader, start=2):
-                if not row or all(not c.strip() for c in row):
-                    continue
-                if len(row) != len(header):
-                    raise PositioningError(
-                        f"toa.csv line {line}: {len(row)} fields, header has {len(header)}"
-                    )
-                try:
-                    ep = int(row[ix["epoch"]].strip())
-                except ValueError:
-                    raise PositioningError(
-                        f"toa.csv line {line}: bad epoch {row[ix['epoch']]!r}"
-                    ) from None
-                pt = row[ix["point"]].strip()
-                bsn = row[ix["bs"]].strip()
-                if bsn not in col:
-                    raise PositioningError(
-                        f"toa.csv line {line}: base station {bsn!r} is not in meta.json"
-                    )
-                toa = _float(row[ix["toa_s"]], "toa_s", line, allow_empty=True)
-                off = math.nan
-                if i_off is not None:
-                    off = _float(row[i_off], "tx_offset_s", line, allow_empty=True)
-                if math.isnan(off):
-                    off = float(schedule.get(bsn, 0.0))
-                key = (ep, pt)
-                f = fixes.get(key)
-                if f is not None:
-                    _check_truth(truth[f], row, ix, line, key)
-                if f is None:
-                    f = fixes[key] = len(epochs)
-                    epochs.append(ep)
-                    t = math.nan
-                    if i_time is not None:
-                        t = _float(row[i_time], "time_s", line, allow_empty=True)
-                    times.append(t)
-                    points.append(pt)
-                    truth.append(
-                        tuple(_float(row[ix[c]], c, line) for c in ("x_true", "y_true", "z_true"))
-                    )
-                    toa_rows.append([math.nan] * len(bs_names))
-                    off_rows.append([0.0] * len(bs_names))
-                j = col[bsn]
-                if (f, j) in seen:
-                    raise PositioningError(
-                        f"toa.csv line {line}: duplicate row for epoch {ep}, point {pt!r}, "
-                        f"bs {bsn!r}"
-                    )
-                seen.add((f, j))
-                toa_rows[f][j] = toa
-                off_rows[f][j] = off
+            rows.read(csv.reader(fh), csv_path)
     except (OSError, UnicodeDecodeError, csv.Error) as exc:
         raise PositioningError(f"{csv_path}: cannot read ({exc})") from None
-    if not epochs:
+    if not rows.epochs:
         raise PositioningError(f"{csv_path}: no data rows")
-    _check_row_count(meta, len(seen), csv_path)
-    off_arr = np.array(off_rows, dtype=float)
+    _check_row_count(meta, len(rows.seen), csv_path)
     ds = ToaDataset(
         path=d,
         meta=meta,
         bs_names=bs_names,
         bs_xyz=bs_xyz,
-        epoch=np.array(epochs, dtype=np.int64),
-        time_s=np.array(times, dtype=float),
-        point=np.array(points, dtype=object),
-        true_xyz=np.array(truth, dtype=float),
-        toa_s=np.array(toa_rows, dtype=float),
-        tx_offset_s=off_arr,
+        epoch=np.array(rows.epochs, dtype=np.int64),
+        time_s=np.array(rows.times, dtype=float),
+        point=np.array(rows.points, dtype=object),
+        true_xyz=np.array(rows.truth, dtype=float),
+        toa_s=np.array(rows.toa, dtype=float),
+        tx_offset_s=np.array(rows.offsets, dtype=float),
     )
     from .scale import check_dataset
 
     check_dataset(ds)  # the scale rule: stations in mm, ToAs in ms
     return ds
+
+
+class _Rows:
+    """The rows of ``toa.csv`` pivoted to one row per fix while they are read (:meth:`read`)."""
+
+    def __init__(self, bs_names: list[str], schedule: dict[str, Any]) -> None:
+        self.col = {n: i for i, n in enumerate(bs_names)}
+        self.n_bs = len(bs_names)
+        self.schedule = schedule
+        self.fixes: dict[tuple[int, str], int] = {}
+        self.epochs: list[int] = []
+        self.times: list[float] = []
+        self.points: list[str] = []
+        self.truth: list[tuple[float, ...]] = []
+        self.toa: list[list[float]] = []
+        self.offsets: list[list[float]] = []
+        self.seen: set[tuple[int, int]] = set()
+
+    def read(self, reader: Any, csv_path: Path) -> None:
+        """Check the header, then add every non-empty row."""
+        header = next(reader, None)
+        if header is None:
+            raise PositioningError(f"{csv_path}: empty file")
+        header = [h.strip() for h in header]
+        missing = [c for c in REQUIRED_COLUMNS if c not in header]
+        if missing:
+            raise PositioningError(f"{csv_path}: missing columns: {', '.join(missing)}")
+        ix = {h: i for i, h in enumerate(header)}
+        for line, row in enumerate(reader, start=2):
+            if not row or all(not c.strip() for c in row):
+                continue
+            if len(row) != len(header):
+                raise PositioningError(
+                    f"toa.csv line {line}: {len(row)} fields, header has {len(header)}"
+                )
+            self.add(row, ix, line)
+
+    def add(self, row: list[str], ix: dict[str, int], line: int) -> None:
+        """One measurement: its fix (a new one at the first row of an (epoch, point)), its ToA
+        and schedule offset."""
+        i_time = ix.get("time_s")
+        i_off = ix.get("tx_offset_s")
+        try:
+            ep = int(row[ix["epoch"]].strip())
+        except ValueError:
+            raise PositioningError(f"toa.csv line {line}: bad epoch {row[ix['epoch']]!r}") from None
+        pt = row[ix["point"]].strip()
+        bsn = row[ix["bs"]].strip()
+        if bsn not in self.col:
+            raise PositioningError(f"toa.csv line {line}: base station {bsn!r} is not in meta.json")
+        toa = _float(row[ix["toa_s"]], "toa_s", line, allow_empty=True)
+        off = math.nan
+        if i_off is not None:
+            off = _float(row[i_off], "tx_offset_s", line, allow_empty=True)
+        if math.isnan(off):
+            off = float(self.schedule.get(bsn, 0.0))
+        key = (ep, pt)
+        f = self.fixes.get(key)
+        if f is not None:
+            _check_truth(self.truth[f], row, ix, line, key)
+        if f is None:
+            f = self.fixes[key] = len(self.epochs)
+            self.epochs.append(ep)
+            t = math.nan
+            if i_time is not None:
+                t = _float(row[i_time], "time_s", line, allow_empty=True)
+            self.times.append(t)
+            self.points.append(pt)
+            self.truth.append(
+                tuple(_float(row[ix[c]], c, line) for c in ("x_true", "y_true", "z_true"))
+            )
+            self.toa.append([math.nan] * self.n_bs)
+            self.offsets.append([0.0] * self.n_bs)
+        j = self.col[bsn]
+        if (f, j) in self.seen:
+            raise PositioningError(
+                f"toa.csv line {line}: duplicate row for epoch {ep}, point {pt!r}, bs {bsn!r}"
+            )
+        self.seen.add((f, j))
+        self.toa[f][j] = toa
+        self.offsets[f][j] = off
 
 
 #: ``meta.json`` ``schema_version`` values this reader understands (absent: hand-made, fine).

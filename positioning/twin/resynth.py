@@ -2,10 +2,11 @@
 
 A map of version 2 stores per cell and base station the K strongest paths. Within a cell the
 paths' delays change smoothly with the position ``p`` (each path's wave is spherical about its
-virtual source, :func:`positioning.lobe.move_paths`), while the first-lobe receiver's ToA does
+virtual source, :func:`positioning.twin.lobe.move_paths`), while the first-lobe receiver's ToA does
 not: paths that overlap within one pulse move its lobe by up to a pulse width, and that bias
 changes within centimetres. So the twin does not interpolate the receiver's ToA; it moves the
-nearest cell's paths to ``p`` and re-runs the receiver (:class:`positioning.lobe.LobeReceiver`):
+nearest cell's paths to ``p`` and re-runs the receiver
+(:class:`positioning.twin.lobe.LobeReceiver`):
 
     rho_n = c toa_n(p) + beta + e_n,    toa_n(p) = receiver(paths of cell(p), moved to p)
 
@@ -26,12 +27,13 @@ bilinearly; the bias gradient of the Jacobian is the raster's slope, and the sol
 raster sample of least exact misfit within :data:`SNAP` samples of Gauss-Newton's (the blend
 between samples misses the ToA's structure finer than 5 cm at mmWave). Tiles of the raster are
 re-synthesised on first use and kept with the loaded map, so fixes near cells visited before
-cost only look-ups (over 10 000 fixes per CPU second); :func:`positioning.twin.prepare` fills
-the whole raster up front.
+cost only look-ups (over 10 000 fixes per CPU second); :func:`positioning.twin.lattice.prepare`
+fills the whole raster up front.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -297,27 +299,8 @@ def refine_resynth(
         return np.where(c >= 0, c, sc)
 
     if search_m > 0 and search_n > 1:
-        off = np.linspace(-search_m, search_m, int(search_n))
-        gx, gy = np.meshgrid(off, off, indexing="ij")
-        grid = np.column_stack([gx.ravel(), gy.ravel()])  # (G, 2)
-        G = len(grid)
-        cand_xy = np.clip((xy[:, None, :] + grid[None]).reshape(-1, 2),
-                          np.repeat(centre - box_m, G, 0), np.repeat(centre + box_m, G, 0))  # fmt: skip
-        rep = np.repeat(np.arange(A), G)
-        if raster is not None:
-            pred = raster.predict(cand_xy, grad=False)[0]
-        else:
-            cell = cells_at_rep = nearest_cell(cand_xy) if nearest_cell is not None else sc[rep]
-            cell = np.where(cells_at_rep >= 0, cells_at_rep, sc[rep])
-            pred = pmap.predict(cell, np.column_stack([cand_xy, h[rep]]))
-        pred = pred.reshape(A, G, -1)
-        use = valid[:, None, :] & np.isfinite(pred)
-        res = np.where(use, rho[:, None, :] - pred, 0.0)
-        nu = use.sum(axis=2)
-        cost = np.einsum("agb,agb->ag", res, res) - res.sum(axis=2) ** 2 / np.maximum(nu, 1)
-        cost = cost + 1e6 * (nu < valid.sum(axis=1)[:, None])
-        best = np.argmin(cost, axis=1)
-        xy = cand_xy.reshape(A, G, 2)[np.arange(A), best]
+        xy = _search_start(rho, valid, h, pmap, nearest_cell, xy, sc, centre, box_m, search_m,
+                           search_n, raster)  # fmt: skip
     best_xy = xy.copy()
     best_rms = np.full(A, np.inf)
     for it in range(iters + 1):
@@ -326,25 +309,8 @@ def refine_resynth(
         R = np.linalg.norm(diff, axis=2)
         U = diff[..., :2] / np.maximum(R, 1e-12)[..., None]  # (A, B, 2)
         last = it == iters
-        if raster is not None:
-            val, grad = raster.predict(xy)
-            pred = val[None]
-            slope = grad - U
-            slope = np.where(np.isfinite(slope), np.clip(slope, -MAX_BIAS_SLOPE, MAX_BIAS_SLOPE),
-                             0.0)  # fmt: skip
-            J = U + slope if fd_jacobian else U
-        elif fd_jacobian and not last:
-            cell = cells_at(xy)
-            ev = np.concatenate([p, p + [FD_STEP_M, 0, 0], p + [0, FD_STEP_M, 0]])
-            pred = pmap.predict(np.tile(cell, 3), ev).reshape(3, A, -1)
-            slope = np.stack([(pred[1] - pred[0]) / FD_STEP_M,
-                              (pred[2] - pred[0]) / FD_STEP_M], -1) - U  # fmt: skip
-            slope = np.where(np.isfinite(slope), np.clip(slope, -MAX_BIAS_SLOPE, MAX_BIAS_SLOPE),
-                             0.0)  # fmt: skip
-            J = U + slope
-        else:
-            pred = pmap.predict(cells_at(xy), p)[None]
-            J = U
+        pred, J = _prediction(xy, p, U, pmap, cells_at, raster, fd_jacobian and not last,
+                              fd_jacobian)  # fmt: skip
         # the iterate's misfit; the best iterate is kept (the receiver's bias is not smooth, so
         # a Gauss-Newton step may go uphill)
         rms = residual_rms(rho, valid, pred[0])
@@ -364,22 +330,108 @@ def refine_resynth(
         step *= np.minimum(1.0, MAX_STEP_M / np.maximum(norm, 1e-12))
         xy = np.clip(xy + step, centre - box_m, centre + box_m)
     if raster is not None and SNAP > 0:
-        # the raster's samples are the receiver's exact output, its bilinear blend between them
-        # is not (at mmWave the ToA has structure finer than the samples): the solution is the
-        # best sample within SNAP samples of the Gauss-Newton result, by the exact misfit
-        k = np.arange(-SNAP, SNAP + 1)
-        gx, gy = np.meshgrid(k, k, indexing="ij")
-        S = gx.size
-        kx, ky = raster.sample_index(best_xy)
-        sx = (kx[:, None] + gx.ravel()[None]).ravel()
-        sy = (ky[:, None] + gy.ravel()[None]).ravel()
-        pts = raster.sample_xy(sx, sy)
-        rms = residual_rms(rho[:, None], valid[:, None], raster.nearest(pts).reshape(A, S, -1))
-        j = np.argmin(rms, axis=1)
-        pick = np.isfinite(rms[np.arange(A), j])
-        best_xy = np.where(pick[:, None], pts.reshape(A, S, 2)[np.arange(A), j], best_xy)
-        best_rms = np.where(pick, rms[np.arange(A), j], best_rms)
+        best_xy, best_rms = _snap(rho, valid, raster, best_xy, best_rms)
     return best_xy, np.where(ok_row, best_rms, np.inf)
+
+
+def _prediction(
+    xy: np.ndarray,
+    p: np.ndarray,
+    U: np.ndarray,
+    pmap: PathMap,
+    cells_at: Callable[[np.ndarray], np.ndarray],
+    raster: ToaRaster | None,
+    fd_step: bool,
+    fd_jacobian: bool,
+) -> tuple[np.ndarray, np.ndarray]:
+    """``c toa`` (1 or 3, A, B), m, re-synthesised at the iterate ``xy`` (A, 2) (``p`` (A, 3) with
+    its height) and the Jacobian (A, B, 2) of :func:`refine_resynth`: the geometric one ``U``
+    (A, B, 2), plus the bias gradient clipped to :data:`MAX_BIAS_SLOPE` where ``fd_jacobian`` --
+    the raster's slope, or (``fd_step``, no raster) finite differences of two more receiver runs
+    (the first row of the prediction is the iterate's own)."""
+    A = xy.shape[0]
+    if raster is not None:
+        val, grad = raster.predict(xy)
+        pred = val[None]
+        slope = grad - U
+        slope = np.where(np.isfinite(slope), np.clip(slope, -MAX_BIAS_SLOPE, MAX_BIAS_SLOPE),
+                         0.0)  # fmt: skip
+        return pred, (U + slope if fd_jacobian else U)
+    if fd_step:
+        cell = cells_at(xy)
+        ev = np.concatenate([p, p + [FD_STEP_M, 0, 0], p + [0, FD_STEP_M, 0]])
+        pred = pmap.predict(np.tile(cell, 3), ev).reshape(3, A, -1)
+        slope = np.stack([(pred[1] - pred[0]) / FD_STEP_M,
+                          (pred[2] - pred[0]) / FD_STEP_M], -1) - U  # fmt: skip
+        slope = np.where(np.isfinite(slope), np.clip(slope, -MAX_BIAS_SLOPE, MAX_BIAS_SLOPE),
+                         0.0)  # fmt: skip
+        return pred, U + slope
+    return pmap.predict(cells_at(xy), p)[None], U
+
+
+def _search_start(
+    rho: np.ndarray,
+    valid: np.ndarray,
+    h: np.ndarray,
+    pmap: PathMap,
+    nearest_cell: Callable[[np.ndarray], np.ndarray] | None,
+    xy: np.ndarray,
+    sc: np.ndarray,
+    centre: np.ndarray,
+    box_m: float,
+    search_m: float,
+    search_n: int,
+    raster: ToaRaster | None,
+) -> np.ndarray:
+    """(A, 2) start of :func:`refine_resynth`: the best point, by the re-synthesised misfit
+    about the offset, of a ``search_n`` x ``search_n`` grid spanning +-``search_m`` around
+    ``xy`` (A, 2), kept within ``box_m`` of the cell centres ``centre`` (A, 2); ``sc`` (A,) the
+    candidates' cells. A point whose prediction misses a received base station is not chosen."""
+    A = rho.shape[0]
+    off = np.linspace(-search_m, search_m, int(search_n))
+    gx, gy = np.meshgrid(off, off, indexing="ij")
+    grid = np.column_stack([gx.ravel(), gy.ravel()])  # (G, 2)
+    G = len(grid)
+    cand_xy = np.clip((xy[:, None, :] + grid[None]).reshape(-1, 2),
+                      np.repeat(centre - box_m, G, 0), np.repeat(centre + box_m, G, 0))  # fmt: skip
+    rep = np.repeat(np.arange(A), G)
+    if raster is not None:
+        pred = raster.predict(cand_xy, grad=False)[0]
+    else:
+        cell = cells_at_rep = nearest_cell(cand_xy) if nearest_cell is not None else sc[rep]
+        cell = np.where(cells_at_rep >= 0, cells_at_rep, sc[rep])
+        pred = pmap.predict(cell, np.column_stack([cand_xy, h[rep]]))
+    pred = pred.reshape(A, G, -1)
+    use = valid[:, None, :] & np.isfinite(pred)
+    res = np.where(use, rho[:, None, :] - pred, 0.0)
+    nu = use.sum(axis=2)
+    cost = np.einsum("agb,agb->ag", res, res) - res.sum(axis=2) ** 2 / np.maximum(nu, 1)
+    cost = cost + 1e6 * (nu < valid.sum(axis=1)[:, None])
+    best = np.argmin(cost, axis=1)
+    return cand_xy.reshape(A, G, 2)[np.arange(A), best]
+
+
+def _snap(
+    rho: np.ndarray, valid: np.ndarray, raster: ToaRaster, best_xy: np.ndarray, best_rms: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The raster's samples are the receiver's exact output, its bilinear blend between them is
+    not (at mmWave the ToA has structure finer than the samples): the solution is the best sample
+    within :data:`SNAP` samples of the Gauss-Newton result ``best_xy`` (A, 2), by the exact
+    misfit; where none has a finite misfit, ``best_xy`` and ``best_rms`` (A,) stay."""
+    A = rho.shape[0]
+    k = np.arange(-SNAP, SNAP + 1)
+    gx, gy = np.meshgrid(k, k, indexing="ij")
+    S = gx.size
+    kx, ky = raster.sample_index(best_xy)
+    sx = (kx[:, None] + gx.ravel()[None]).ravel()
+    sy = (ky[:, None] + gy.ravel()[None]).ravel()
+    pts = raster.sample_xy(sx, sy)
+    rms = residual_rms(rho[:, None], valid[:, None], raster.nearest(pts).reshape(A, S, -1))
+    j = np.argmin(rms, axis=1)
+    pick = np.isfinite(rms[np.arange(A), j])
+    best_xy = np.where(pick[:, None], pts.reshape(A, S, 2)[np.arange(A), j], best_xy)
+    best_rms = np.where(pick, rms[np.arange(A), j], best_rms)
+    return best_xy, best_rms
 
 
 def normal_step(J: np.ndarray, r: np.ndarray, damping: float) -> np.ndarray:
