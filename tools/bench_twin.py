@@ -25,11 +25,11 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from hallray.harness import OneLineParser, run_command  # noqa: E402
-from positioning import api  # noqa: E402
 from positioning.errors import PositioningError  # noqa: E402
 from positioning.evaluation.metrics import error_2d  # noqa: E402
 from positioning.io.dataset import load_dataset  # noqa: E402
 from positioning.io.prepare import dataset_problem  # noqa: E402
+from positioning.methods.registry import METHODS, resolve_params  # noqa: E402
 from positioning.twin.lattice import load  # noqa: E402
 
 SETUPS = "static-c-band,static-mmwave,semi-dynamic-c-band,semi-dynamic-mmwave"
@@ -77,16 +77,16 @@ def _main(a: argparse.Namespace) -> int:
         prob = dataset_problem(ds)
         mp = str(Path(a.maps) / band / "map.npz")
         for step in a.steps:
-            p = api.resolve_params("twin", {"map": mp, "resynth_step": step}, prob.n_bs)
+            p = resolve_params("twin", {"map": mp, "resynth_step": step}, prob.n_bs)
             load(mp)[1].rasters.clear()
             rate = []
             for _ in range(2):
                 t0 = time.process_time()
-                out = api.METHODS["twin"].func(prob, **p)
+                out = METHODS["twin"].run(prob, p)
                 rate.append(prob.n_epochs / (time.process_time() - t0))
                 if step == 0:
                     break  # nothing is kept between passes
-            e = error_2d(out["xyz"], ds.true_xyz)
+            e = error_2d(out.xyz, ds.true_xyz)
             warm = f"{rate[1]:.0f}" if len(rate) > 1 else "(as cold)"
             print(f"| {setup} | {step:g} | {np.percentile(e, 90):.2f} / {e.mean():.3f} | "
                   f"{rate[0]:.0f} | {warm} |", flush=True)  # fmt: skip

@@ -145,7 +145,8 @@ def in_package(mod: str, pkg: str) -> bool:
 def positioning_layer(mod: str) -> str:
     """The subpackage of positioning that ``mod`` is in ("" for a top-level module)."""
     parts = mod.split(".")
-    return parts[1] if len(parts) > 2 or (len(parts) == 2 and parts[1] in POSITIONING_LAYERS) else ""
+    inside = len(parts) > 2 or (len(parts) == 2 and parts[1] in POSITIONING_LAYERS)
+    return parts[1] if inside else ""
 
 
 def allowed_hallray(src: str, dst: str) -> bool | None:

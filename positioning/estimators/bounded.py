@@ -1,7 +1,7 @@
 """Bounded solve: a fix that left the service area is solved again inside it.
 
 Every method first solves without bounds. Where its fix is outside the problem's
-:class:`~positioning.area.ServiceArea` (or not finite), :func:`bounded_refit` minimises the
+:class:`~positioning.model.area.ServiceArea` (or not finite), :func:`bounded_refit` minimises the
 weighted pseudo-range least squares of that epoch::
 
     cost(p) = min_beta sum_n W_n (rho_n - |p - b_n| - beta)^2,      p_xy in the area

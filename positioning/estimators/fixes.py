@@ -1,8 +1,10 @@
-"""Result container of :func:`positioning.locate`: positions plus per-epoch diagnostics."""
+"""The one result type of every estimator and of :func:`positioning.locate`: :class:`Fixes`,
+positions plus per-epoch diagnostics (:class:`Status` flags)."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import warnings
+from dataclasses import dataclass, field, fields
 from enum import IntFlag
 from typing import Any
 
@@ -37,11 +39,13 @@ class Status(IntFlag):
         above 1e10, e.g. collinear base stations): the position is returned but unreliable.
     ``AREA_BOUND``
         The unbounded fix left the service area. With ``outside="constrain"`` (default) the
-        position is the method's best fit inside the area (:mod:`positioning.bounded`); with
-        ``outside="reject"`` the fix is also ``UNSOLVED`` (NaN).
+        position is the method's best fit inside the area
+        (:mod:`positioning.estimators.bounded`); with ``outside="reject"`` the fix is also
+        ``UNSOLVED`` (NaN).
     ``INTEGRITY``
-        The fix's horizontal protection level exceeds the alert limit (:mod:`positioning.integrity`):
-        the measurements cannot vouch for it to within the limit.
+        The fix's horizontal protection level exceeds the alert limit
+        (:mod:`positioning.evaluation.integrity`): the measurements cannot vouch for it to within
+        the limit.
     ``MAP_MISMATCH``
         ``twin``: the best map match fits poorly (a stale map, e.g. moved forklifts); the fix is
         the fallback map-free method's.
@@ -86,6 +90,10 @@ def status_label(code: int) -> str:
 class Fixes:
     """Positions and diagnostics of E epochs solved by one method.
 
+    Every estimator returns one (``method`` its name, ``params`` its config's fields);
+    :func:`positioning.methods.run.run_method` returns it bounded to the service area, with the
+    registered method's name and parameters and the integrity figures.
+
     Attributes
     ----------
     xyz : (E, 3) float, metres
@@ -107,8 +115,8 @@ class Fixes:
     params : dict
         The method parameters actually used (defaults filled in).
     hpl_m : (E,) float, metres
-        Horizontal protection level (:mod:`positioning.integrity`); NaN where unsolved or not
-        computed.
+        Horizontal protection level (:mod:`positioning.evaluation.integrity`); NaN where unsolved
+        or not computed.
     chi2n : (E,) float
         Normalised chi-square of the fix's pseudo-range residuals, ``SSE / sigma^2 / (n - k)``
         (about 1 for consistent LoS measurements; NaN without redundancy or unsolved).
@@ -117,6 +125,11 @@ class Fixes:
     extra : dict of str -> array
         Method-specific per-epoch outputs (e.g. ``twin``: ``nlos`` (E, N) bool, ``match_m`` (E,));
         empty for most methods.
+    fit_weights : (E, N) float or None
+        Measurement weights of the bounded re-solve inside the service area
+        (:mod:`positioning.estimators.bounded`) where they are not ``weights`` (``nlos-map``: its
+        final inverse-variance weights); None: the registry decides (``weights`` for a method whose
+        weights weight measurements, else every received measurement alike).
     """
 
     xyz: np.ndarray
@@ -130,6 +143,7 @@ class Fixes:
     chi2n: np.ndarray | None = None
     alert_limit_m: float = float("nan")
     extra: dict[str, np.ndarray] = field(default_factory=dict)
+    fit_weights: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         nan = np.full(self.xyz.shape[0], np.nan)
@@ -176,3 +190,28 @@ class Fixes:
     def labels(self) -> list[str]:
         """Per-epoch status as text (see :func:`status_label`)."""
         return [status_label(s) for s in self.status]
+
+    def __getitem__(self, key: str) -> np.ndarray:
+        """Deprecated: ``result["xyz"]``, the access to an estimator's result while it was a dict
+        of arrays; ``xyz``, ``status``, ``iterations``, ``weights`` and ``fit_weights`` are
+        attributes now, every other key is in :attr:`extra`. Works for one release, with a
+        :class:`DeprecationWarning`."""
+        attribute = key in _DICT_ATTRIBUTES
+        new = f"positioning.Fixes.{key}" if attribute else f"positioning.Fixes.extra[{key!r}]"
+        warnings.warn(
+            f"positioning.Fixes[{key!r}] moved to {new}; the old path goes away in the next "
+            "release",
+            DeprecationWarning,
+            stacklevel=2,
+        )
+        return getattr(self, key) if attribute else self.extra[key]
+
+
+#: The keys of the estimators' old dict results that are attributes of :class:`Fixes`.
+_DICT_ATTRIBUTES = ("xyz", "status", "iterations", "weights", "fit_weights")
+
+
+def config_params(config: Any) -> dict[str, Any]:
+    """The fields of a config dataclass as a dict, for :attr:`Fixes.params` (shallow: a field
+    holding a fingerprint map keeps that object, no copy)."""
+    return {f.name: getattr(config, f.name) for f in fields(config)}

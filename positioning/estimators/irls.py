@@ -1,15 +1,17 @@
 """The paper's estimators: reference-based least squares (eq. 7) and IRLS (Algorithm 1, eqs. 8-12).
 
-Both are batched over epochs. Results are returned as plain arrays; :func:`positioning.locate`
-wraps them in :class:`positioning.Fixes`.
+Both are batched over epochs and return :class:`~positioning.estimators.fixes.Fixes`; their
+settings are :class:`LsConfig` and :class:`IrlsConfig`.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from ..model.problem import Problem
-from .fixes import Status
+from .fixes import Fixes, Status, config_params
 from .solver import first_valid, solve_tdoa
 
 
@@ -90,58 +92,91 @@ def uncertainties(prob: Problem, q: np.ndarray) -> np.ndarray:
     return np.where(prob.valid, total / n_other, np.nan)
 
 
-def least_squares(
-    prob: Problem,
-    *,
-    reference: int | None = None,
-    tol_m: float = LS_TOL_M,
-    max_iter: int = LS_MAX_ITER,
-) -> dict[str, np.ndarray]:
-    """The paper's LS (eqs. 5-7): signed TDoAs against one reference base station.
+@dataclass(frozen=True)
+class LsConfig:
+    """Settings of the paper's LS (:func:`least_squares`).
 
-    Parameters
+    Attributes
     ----------
-    prob : Problem
-    reference : int, optional
+    reference : int or None
         Reference base station index. None: the first received base station of each epoch. If a
         named reference is not received in an epoch, that epoch falls back to its first received
         base station and is flagged ``REFERENCE_FALLBACK``.
-    tol_m, max_iter : Gauss-Newton/LM step tolerance (m) and iteration limit.
+    tol_m : float, m -- Gauss-Newton/LM step tolerance
+    max_iter : int -- Gauss-Newton/LM iteration limit
+    """
+
+    reference: int | None = None
+    tol_m: float = LS_TOL_M
+    max_iter: int = LS_MAX_ITER
+
+
+def least_squares(prob: Problem, config: LsConfig = LsConfig()) -> Fixes:
+    """The paper's LS (eqs. 5-7): signed TDoAs against one reference base station.
 
     Returns
     -------
-    dict with ``xyz`` (E, 3), ``status`` (E,), ``iterations`` (E,), ``weights`` (E, N).
+    :class:`Fixes` of method ``ls``: ``weights`` (E, N) 1 for a received base station of a solved
+    epoch, else 0.
     """
     E = prob.n_epochs
     rows = prob.solvable
     status = np.zeros(E, dtype=np.int64)
     ref = first_valid(prob.valid)
-    if reference is not None:
-        has = prob.valid[:, reference]
-        ref = np.where(has, reference, ref)
+    if config.reference is not None:
+        has = prob.valid[:, config.reference]
+        ref = np.where(has, config.reference, ref)
         status |= np.where(rows & ~has, int(Status.REFERENCE_FALLBACK), 0)
-    sol = solve_tdoa(prob, ref, rows, tol=tol_m, max_iter=max_iter)
+    sol = solve_tdoa(prob, ref, rows, tol=config.tol_m, max_iter=config.max_iter)
     status |= np.where(rows & ~sol.converged, int(Status.NOT_CONVERGED), 0)
     status |= np.where(rows & sol.ill, int(Status.ILL_CONDITIONED), 0)
     status |= np.where(rows, 0, int(Status.UNSOLVED))
-    return {
-        "xyz": sol.xyz,
-        "status": status,
-        "iterations": sol.iterations,
-        "weights": prob.valid.astype(float) * rows[:, None],
-    }
+    return Fixes(
+        xyz=sol.xyz,
+        status=status,
+        iterations=sol.iterations,
+        weights=prob.valid.astype(float) * rows[:, None],
+        n_used=prob.n_valid,
+        method="ls",
+        params=config_params(config),
+    )
 
 
-def irls(
-    prob: Problem,
-    *,
-    u_max: float = U_MAX_M,
-    epsilon: float = EPSILON_M,
-    max_iter: int = MAX_ITER,
-    ls_tol_m: float = LS_TOL_M,
-    ls_max_iter: int = LS_MAX_ITER,
-    region_margin: float = 1.0,
-) -> dict[str, np.ndarray]:
+@dataclass(frozen=True)
+class IrlsConfig:
+    """Settings of IRLS (:func:`irls`, the paper's Algorithm 1).
+
+    Attributes
+    ----------
+    u_max : float, metres
+        Cut-off of eq. 11 (default 3 m). ``u_e`` is a mean absolute TDoA misfit. With LoS noise
+        of standard deviation ``sigma`` per range it is about ``1.13 sigma`` (mean of ``|N(0,
+        2 sigma^2)|``), i.e. centimetres to a few decimetres at 400/100 MHz, where the weight stays
+        above 0.99. An NLoS excess ``b`` on the reference gives ``u_e ~ b`` (all terms of eq. 10
+        carry it) but only ``~ b / (N - 1)`` for the other references. 3 m (the range resolution
+        ``c / B`` at 100 MHz) therefore rejects a reference with a metre-scale NLoS bias (weight
+        0.39 at 1.5 m, 0 from 3 m) while a bias up to about ``(N - 1) u_max`` (9 m with 4 base
+        stations) does not drive every weight to zero.
+    epsilon : float, metres
+        Threshold on ``S`` of eq. 12 (default 1e-4 m: three orders of magnitude below the ranging
+        errors of either band, while the reweighting, a fixed-point iteration that converges only
+        linearly, needs about twice as many iterations for 1e-6 m).
+    max_iter : int
+        Maximum reweighting iterations (default 100; typically fewer than 10 are needed).
+    ls_tol_m, ls_max_iter : Gauss-Newton/LM settings of the N least-squares solves.
+    region_margin : float, plausible region of the per-reference estimates (default 1: the
+        base stations' box grown by one diagonal on every side)
+    """
+
+    u_max: float = U_MAX_M
+    epsilon: float = EPSILON_M
+    max_iter: int = MAX_ITER
+    ls_tol_m: float = LS_TOL_M
+    ls_max_iter: int = LS_MAX_ITER
+    region_margin: float = 1.0
+
+
+def irls(prob: Problem, config: IrlsConfig = IrlsConfig()) -> Fixes:
     """IRLS positioning, the paper's Algorithm 1.
 
     1. Every received base station ``e`` is the reference once: N position estimates ``q_e`` by
@@ -171,37 +206,51 @@ def irls(
       ``1/(N-1)`` becomes ``1/(N_e-1)``); epochs with fewer than ``dims + 1`` received base
       stations are ``UNSOLVED`` (NaN).
 
-    Parameters
-    ----------
-    prob : Problem
-    u_max : float, metres
-        Cut-off of eq. 11 (default 3 m). ``u_e`` is a mean absolute TDoA misfit. With LoS noise
-        of standard deviation ``sigma`` per range it is about ``1.13 sigma`` (mean of ``|N(0,
-        2 sigma^2)|``), i.e. centimetres to a few decimetres at 400/100 MHz, where the weight stays
-        above 0.99. An NLoS excess ``b`` on the reference gives ``u_e ~ b`` (all terms of eq. 10
-        carry it) but only ``~ b / (N - 1)`` for the other references. 3 m (the range resolution
-        ``c / B`` at 100 MHz) therefore rejects a reference with a metre-scale NLoS bias (weight
-        0.39 at 1.5 m, 0 from 3 m) while a bias up to about ``(N - 1) u_max`` (9 m with 4 base
-        stations) does not drive every weight to zero.
-    epsilon : float, metres
-        Threshold on ``S`` of eq. 12 (default 1e-4 m: three orders of magnitude below the ranging
-        errors of either band, while the reweighting, a fixed-point iteration that converges only
-        linearly, needs about twice as many iterations for 1e-6 m).
-    max_iter : int
-        Maximum reweighting iterations (default 100; typically fewer than 10 are needed).
-    ls_tol_m, ls_max_iter : Gauss-Newton/LM settings of the N least-squares solves.
-    region_margin : float, plausible region of the per-reference estimates (default 1: the
-        base stations' box grown by one diagonal on every side)
+    Returns
+    -------
+    :class:`Fixes` of method ``irls``: ``weights`` (E, N) the normalised eq. 9 weights of the
+    estimate referenced to each base station; ``extra["estimates"]`` (E, N, 3) the N
+    per-reference positions ``q_e`` (NaN where not received).
+    """
+    rows = prob.solvable
+    q, conv, ill = reference_estimates(prob, rows, config)
+    usable, ls_bad, nowhere = _usable_estimates(prob, q, conv, rows, config.region_margin)
+    Q, w_norm, iterations, zero_w, converged = reweight(prob, q, usable, rows, config)
+    if nowhere.any():
+        lo, hi = region_box(prob, config.region_margin)
+        Q[nowhere, :2] = np.clip(Q[nowhere, :2], lo, hi)
+    status = np.zeros(prob.n_epochs, dtype=np.int64)
+    status |= np.where(rows & zero_w, int(Status.ALL_WEIGHTS_ZERO), 0)
+    status |= np.where(rows & ~zero_w & ~converged, int(Status.NOT_CONVERGED), 0)
+    status |= np.where(rows & ls_bad, int(Status.NOT_CONVERGED), 0)
+    status |= np.where(rows & ill, int(Status.ILL_CONDITIONED), 0)
+    status |= np.where(rows, 0, int(Status.UNSOLVED))
+    Q[~rows] = np.nan
+    w_norm[~rows] = 0.0
+    return Fixes(
+        xyz=Q,
+        status=status,
+        iterations=iterations,
+        weights=w_norm,
+        n_used=prob.n_valid,
+        method="irls",
+        params=config_params(config),
+        extra={"estimates": q},
+    )
+
+
+def reference_estimates(
+    prob: Problem, rows: np.ndarray, config: IrlsConfig
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Step 1 of Algorithm 1: the least squares of eq. 7 with every received base station the
+    reference once, on the epochs ``rows`` (E,).
 
     Returns
     -------
-    dict with ``xyz`` (E, 3), ``status`` (E,), ``iterations`` (E,), ``weights`` (E, N) (the
-    normalised eq. 9 weights of the estimate referenced to each base station) and
-    ``estimates`` (E, N, 3) (the N per-reference positions ``q_e``, NaN where not received).
+    q : (E, N, 3) float, m, the per-reference positions (NaN where not received or not solved);
+    converged : (E, N) bool; ill : (E,) bool, some solve was ill-conditioned
     """
     E, N = prob.rho.shape
-    rows = prob.solvable
-    status = np.zeros(E, dtype=np.int64)
     q = np.full((E, N, 3), np.nan)
     conv = np.zeros((E, N), dtype=bool)
     ill = np.zeros(E, dtype=bool)
@@ -209,10 +258,19 @@ def irls(
         sub = rows & prob.valid[:, e]
         if not sub.any():
             continue
-        sol = solve_tdoa(prob, np.full(E, e), sub, tol=ls_tol_m, max_iter=ls_max_iter)
+        sol = solve_tdoa(prob, np.full(E, e), sub, tol=config.ls_tol_m, max_iter=config.ls_max_iter)
         q[sub, e] = sol.xyz[sub]
         conv[:, e] = sub & sol.converged
         ill |= sub & sol.ill
+    return q, conv, ill
+
+
+def _usable_estimates(
+    prob: Problem, q: np.ndarray, conv: np.ndarray, rows: np.ndarray, region_margin: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Which per-reference estimates take part (E, N), the epochs with an estimate that did not
+    converge (E,) and those without a plausible one (E,; their average is clamped)."""
+    E, N = conv.shape
     has_q = np.isfinite(q).all(axis=2)
     # A per-reference LS that did not converge has usually run off along a hyperbola asymptote
     # (an inconsistent TDoA set has its LS optimum at infinity); it takes no part unless no
@@ -225,33 +283,47 @@ def irls(
     for e in range(N):
         ok_e = has_q[:, e]
         far[ok_e, e] = ~plausible(prob, q[ok_e, e], region_margin)
-    conv &= ~far
+    conv = conv & ~far
     ls_bad = rows & (has_q & ~conv).any(axis=1)
     usable = has_q & conv
     plaus = has_q & ~far
     # nothing converged inside the region: the plausible ones; nothing plausible: all of them,
-    # and the result is clamped into the region below
+    # and the result is clamped into the region
     nowhere = rows & ~plaus.any(axis=1)
     has_q = np.where(
         usable.any(axis=1)[:, None], usable, np.where(plaus.any(axis=1)[:, None], plaus, has_q)
     )
+    return has_q, ls_bad, nowhere
+
+
+def reweight(
+    prob: Problem, q: np.ndarray, has_q: np.ndarray, rows: np.ndarray, config: IrlsConfig
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Steps 2 and 3 of Algorithm 1: the weighted average of the per-reference estimates ``q``
+    (E, N, 3) where ``has_q`` (E, N), reweighted by eqs. 9-11 until it moves by at most
+    ``epsilon`` (eq. 12).
+
+    Returns
+    -------
+    Q : (E, 3) float, m, the weighted average ``Q_WA``; w_norm : (E, N) float, the normalised
+    weights; iterations : (E,) int; all_zero : (E,) bool, every weight zero (the average before
+    is kept); converged : (E,) bool
+    """
+    E = prob.n_epochs
     q0 = np.where(has_q[..., None], q, 0.0)
-
-    def average(w: np.ndarray) -> np.ndarray:
-        return np.sum(w[..., None] * q0, axis=1) / np.maximum(np.sum(w, axis=1), 1e-300)[:, None]
-
     w_norm = has_q / np.maximum(has_q.sum(axis=1), 1)[:, None]
-    Q = average(has_q.astype(float))  # equal weights at iteration 0
+    w0 = has_q.astype(float)  # equal weights at iteration 0
+    Q = np.sum(w0[..., None] * q0, axis=1) / np.maximum(np.sum(w0, axis=1), 1e-300)[:, None]
     iterations = np.zeros(E, dtype=np.int64)
     act = np.flatnonzero(rows)
     zero_w = np.zeros(E, dtype=bool)
     converged = np.zeros(E, dtype=bool)
-    for _ in range(max_iter):
+    for _ in range(config.max_iter):
         if act.size == 0:
             break
         sub = prob.take(act)
         u = uncertainties(sub, Q[act])
-        w = andrews_weight(u, u_max) * has_q[act]
+        w = andrews_weight(u, config.u_max) * has_q[act]
         wsum = w.sum(axis=1)
         iterations[act] += 1
         dead = wsum <= 0.0
@@ -263,23 +335,7 @@ def irls(
         S = np.linalg.norm(Q_new - Q[live], axis=1)
         Q[live] = Q_new
         w_norm[live] = wl
-        done = S <= epsilon
+        done = S <= config.epsilon
         converged[live[done]] = True
         act = live[~done]
-    if nowhere.any():
-        lo, hi = region_box(prob, region_margin)
-        Q[nowhere, :2] = np.clip(Q[nowhere, :2], lo, hi)
-    status |= np.where(rows & zero_w, int(Status.ALL_WEIGHTS_ZERO), 0)
-    status |= np.where(rows & ~zero_w & ~converged, int(Status.NOT_CONVERGED), 0)
-    status |= np.where(rows & ls_bad, int(Status.NOT_CONVERGED), 0)
-    status |= np.where(rows & ill, int(Status.ILL_CONDITIONED), 0)
-    status |= np.where(rows, 0, int(Status.UNSOLVED))
-    Q[~rows] = np.nan
-    w_norm[~rows] = 0.0
-    return {
-        "xyz": Q,
-        "status": status,
-        "iterations": iterations,
-        "weights": w_norm,
-        "estimates": q,
-    }
+    return Q, w_norm, iterations, zero_w, converged

@@ -1,6 +1,6 @@
 """``nlos-map``: maximum a posteriori position under the physics of a band-limited ToA.
 
-Each measurement's range error is a mixture (:mod:`positioning.noise`): a noise core at the
+Each measurement's range error is a mixture (:mod:`positioning.model.noise`): a noise core at the
 link's Cramér-Rao bound plus floor, a two-sided overlap shift of up to about a pulse width, and a
 non-negative NLoS excess (NLoS only adds delay). The shares depend on what the receiver reports
 (SNR against the free-space SNR at the candidate position, first-lobe width and level), so the
@@ -18,7 +18,7 @@ between two hypotheses the data cannot separate.
 
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -33,7 +33,7 @@ from ..model.noise import (
 from ..model.problem import Problem
 from ..model.residuals import pseudorange_model
 from ..model.tdoa import ranges_and_units
-from .fixes import Status
+from .fixes import Fixes, Status, config_params
 from .robust import REGION_MARGIN, REJECT_WEIGHT, candidates
 from .solver import levenberg_marquardt
 
@@ -211,21 +211,11 @@ def posterior_mean(
     return xyz
 
 
-def nlos_map(
-    prob: Problem,
-    *,
-    estimate: str = "mean",
-    max_drop: int = 1,
-    grid_m: float = 2.0,
-    n_grid_starts: int = 3,
-    tol_m: float = 1e-4,
-    max_iter: int = 30,
-    gn_max_iter: int = 5,
-    region_margin: float = REGION_MARGIN,
-) -> dict[str, np.ndarray]:
-    """Physics-aware robust estimator (see the module docstring).
+@dataclass(frozen=True)
+class NlosMapConfig:
+    """Settings of ``nlos-map`` (:func:`nlos_map`).
 
-    Parameters
+    Attributes
     ----------
     estimate : "mean" (posterior mean of the distinct local optima, default) or "map" (the best).
     max_drop : most base stations left out in a start hypothesis (default 1).
@@ -236,22 +226,39 @@ def nlos_map(
     tol_m, max_iter, gn_max_iter : EM step tolerance (m), EM iterations, LM steps per M-step.
     region_margin : leave-one-out starts outside the base stations' box grown by this fraction
         of its diagonal are not used.
+    """
+
+    estimate: str = "mean"
+    max_drop: int = 1
+    grid_m: float = 2.0
+    n_grid_starts: int = 3
+    tol_m: float = 1e-4
+    max_iter: int = 30
+    gn_max_iter: int = 5
+    region_margin: float = REGION_MARGIN
+
+
+def nlos_map(prob: Problem, config: NlosMapConfig = NlosMapConfig()) -> Fixes:
+    """Physics-aware robust estimator (see the module docstring).
 
     Returns
     -------
-    dict with ``xyz`` (E, 3), ``status``, ``iterations``, ``weights`` (E, N) (the measurement's
-    final core-plus-wide responsibility, 0..1: low = treated as NLoS), ``fit_weights``.
+    :class:`Fixes` of method ``nlos-map``: ``weights`` (E, N) the measurement's final
+    core-plus-wide responsibility, 0..1 (low = treated as NLoS); ``fit_weights`` (E, N) the
+    final inverse-variance weights of the best start's EM (for the bounded re-solve).
     """
-    if estimate not in ("map", "mean"):
-        raise ValueError(f"unknown estimate {estimate!r}")
+    if config.estimate not in ("map", "mean"):
+        raise ValueError(f"unknown estimate {config.estimate!r}")
     E, N = prob.rho.shape
     rows = prob.solvable
-    starts = _starts(prob, rows, max_drop, region_margin, grid_m, n_grid_starts)
+    starts = _starts(prob, rows, config.max_drop, config.region_margin, config.grid_m,
+                     config.n_grid_starts)  # fmt: skip
     fits, scores, wts, its, ills = [], [], [], [], []
     for sub, th0, ill in starts:
         th, total, W, it = em_fit(
-            prob, th0, sub, tol_m=tol_m, max_iter=max_iter, gn_max_iter=gn_max_iter
-        )
+            prob, th0, sub, tol_m=config.tol_m, max_iter=config.max_iter,
+            gn_max_iter=config.gn_max_iter,
+        )  # fmt: skip
         fits.append(th)
         scores.append(total)
         wts.append(W)
@@ -259,12 +266,15 @@ def nlos_map(
         ills.append(ill)
     H = len(fits)
     if H == 0:  # no epoch has enough base stations
-        return {
-            "xyz": np.full((E, 3), np.nan),
-            "status": np.full(E, int(Status.UNSOLVED), dtype=np.int64),
-            "iterations": np.zeros(E, dtype=np.int64),
-            "weights": np.zeros((E, N)),
-        }
+        return Fixes(
+            xyz=np.full((E, 3), np.nan),
+            status=np.full(E, int(Status.UNSOLVED), dtype=np.int64),
+            iterations=np.zeros(E, dtype=np.int64),
+            weights=np.zeros((E, N)),
+            n_used=prob.n_valid,
+            method="nlos-map",
+            params=config_params(config),
+        )
     theta = np.stack(fits)  # (H, E, k)
     score = np.stack(scores)  # (H, E)
     xyz_h = np.stack([prob.position(np.nan_to_num(t), np.arange(E)) for t in fits])
@@ -275,7 +285,7 @@ def nlos_map(
     best = np.argmin(score, axis=0)
     ar = np.arange(E)
     xyz = xyz_h[best, ar].copy()
-    if estimate == "mean" and H > 1:
+    if config.estimate == "mean" and H > 1:
         xyz = posterior_mean(prob, xyz_h, score, best)
     W = np.stack(wts)[best, ar]
     sigma = link_sigma(prob.links, (E, N))
@@ -287,10 +297,13 @@ def nlos_map(
     status |= np.where(rows & rejected, int(Status.OUTLIER_REJECTED), 0)
     status |= np.where(rows, 0, int(Status.UNSOLVED))
     xyz[~rows] = np.nan
-    return {
-        "xyz": xyz,
-        "status": status,
-        "iterations": np.stack(its)[best, ar],
-        "weights": np.where(rows[:, None], trust, 0.0),
-        "fit_weights": W,
-    }
+    return Fixes(
+        xyz=xyz,
+        status=status,
+        iterations=np.stack(its)[best, ar],
+        weights=np.where(rows[:, None], trust, 0.0),
+        n_used=prob.n_valid,
+        method="nlos-map",
+        params=config_params(config),
+        fit_weights=W,
+    )

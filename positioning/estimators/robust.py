@@ -1,6 +1,6 @@
 """Estimators beyond the paper that remove the influence of NLoS base stations.
 
-All three work on the reference-free pseudo-range model (see :mod:`positioning.tdoa`)::
+All three work on the reference-free pseudo-range model (see :mod:`positioning.model.tdoa`)::
 
     rho_n = c (toa_n - delta_n) = |p - b_n| + beta + c e_n,     beta = c * (device clock offset)
 
@@ -29,6 +29,7 @@ station is biased). In 2D (known height) that is N >= 5, in 3D N >= 6.
 from __future__ import annotations
 
 from collections.abc import Iterator
+from dataclasses import dataclass
 from itertools import combinations
 
 import numpy as np
@@ -36,7 +37,7 @@ from scipy.stats import chi2
 
 from ..model.problem import Problem
 from ..model.residuals import pseudorange_model, pseudorange_residuals
-from .fixes import Status
+from .fixes import Fixes, Status, config_params
 from .irls import plausible
 from .solver import Solution, levenberg_marquardt, solve_pseudorange
 
@@ -143,14 +144,26 @@ def _finish(
     status: np.ndarray,
     iterations: np.ndarray,
     weights: np.ndarray,
-) -> dict[str, np.ndarray]:
+    method: str,
+    config: object,
+) -> Fixes:
+    """The :class:`Fixes` of a robust estimator: ``NO_REDUNDANCY`` and ``UNSOLVED`` flagged,
+    unsolved epochs NaN with zero weights."""
     k = prob.dims + 1
     status = status | np.where(rows & (prob.n_valid <= k), int(Status.NO_REDUNDANCY), 0)
     status |= np.where(rows, 0, int(Status.UNSOLVED))
     xyz = prob.position(theta, np.arange(prob.n_epochs)).copy()
     xyz[~rows] = np.nan
     weights = np.where(rows[:, None], weights, 0.0)
-    return {"xyz": xyz, "status": status, "iterations": iterations, "weights": weights}
+    return Fixes(
+        xyz=xyz,
+        status=status,
+        iterations=iterations,
+        weights=weights,
+        n_used=prob.n_valid,
+        method=method,
+        params=config_params(config),
+    )
 
 
 def candidates(
@@ -191,17 +204,31 @@ def candidates(
         yield drop, sub, s
 
 
-def m_estimator(
-    prob: Problem,
-    *,
-    loss: str = "tukey",
-    c: float | None = None,
-    scale_floor_m: float = SCALE_FLOOR_M,
-    tol_m: float = 1e-6,
-    max_iter: int = 50,
-    gn_max_iter: int = 10,
-    region_margin: float = REGION_MARGIN,
-) -> dict[str, np.ndarray]:
+@dataclass(frozen=True)
+class MEstimatorConfig:
+    """Settings of the ``m-estimator`` (:func:`m_estimator`).
+
+    Attributes
+    ----------
+    loss : "tukey" (default, redescending: gross outliers get weight 0) or "huber".
+    c : tuning constant in units of the scale (default 4.685 Tukey, 1.345 Huber; 95 % efficiency).
+    scale_floor_m : lower bound of the scale, metres (default 0.05 m), so that noise-free or very
+        clean data is not cut at a vanishing scale.
+    tol_m, max_iter, gn_max_iter : IRLS step tolerance (m), reweightings, LM steps per reweighting.
+    region_margin : float -- leave-one-out starts outside the :func:`plausible` region (base
+        stations' bounding box grown by this fraction of its diagonal, default 1) are discarded.
+    """
+
+    loss: str = "tukey"
+    c: float | None = None
+    scale_floor_m: float = SCALE_FLOOR_M
+    tol_m: float = 1e-6
+    max_iter: int = 50
+    gn_max_iter: int = 10
+    region_margin: float = REGION_MARGIN
+
+
+def m_estimator(prob: Problem, config: MEstimatorConfig = MEstimatorConfig()) -> Fixes:
     """Reference-free robust MM-estimator on the pseudo-range residuals.
 
     1. High-breakdown start (least median of squares over candidate fits): the least-squares
@@ -219,20 +246,11 @@ def m_estimator(
     has to be given. With fewer than two spare measurements (``N <= dims + 2``, e.g. 4 base
     stations in 2D) residuals cannot identify an outlier: the epoch gets the least-squares fit,
     flagged ``NO_REDUNDANCY``.
-
-    Parameters
-    ----------
-    loss : "tukey" (default, redescending: gross outliers get weight 0) or "huber".
-    c : tuning constant in units of the scale (default 4.685 Tukey, 1.345 Huber; 95 % efficiency).
-    scale_floor_m : lower bound of the scale, metres (default 0.05 m), so that noise-free or very
-        clean data is not cut at a vanishing scale.
-    tol_m, max_iter, gn_max_iter : IRLS step tolerance (m), reweightings, LM steps per reweighting.
-    region_margin : float -- leave-one-out starts outside the :func:`plausible` region (base
-        stations' bounding box grown by this fraction of its diagonal, default 1) are discarded.
     """
+    loss = config.loss
     if loss not in ("tukey", "huber"):
         raise ValueError(f"unknown loss {loss!r}")
-    cc = float(c) if c is not None else (TUKEY_C if loss == "tukey" else HUBER_C)
+    cc = float(config.c) if config.c is not None else (TUKEY_C if loss == "tukey" else HUBER_C)
     E, N = prob.rho.shape
     k = prob.dims + 1
     rows = prob.solvable
@@ -242,7 +260,7 @@ def m_estimator(
     best = np.full(E, np.inf)
     theta = np.full((E, k), np.nan)
     ill = np.zeros(E, dtype=bool)
-    for drop, sub, s in candidates(prob, rows, 1, region_margin):
+    for drop, sub, s in candidates(prob, rows, 1, config.region_margin):
         if drop:
             sub = sub & robust_rows
         r = pseudorange_residuals(prob, s.theta)
@@ -253,7 +271,7 @@ def m_estimator(
         theta[better] = s.theta[better]
         ill[better] = s.ill[better]
     scale = MAD_TO_SIGMA * (1.0 + 5.0 / np.maximum(n - k, 1)) * best
-    scale = np.maximum(np.where(np.isfinite(scale), scale, 0.0), scale_floor_m)
+    scale = np.maximum(np.where(np.isfinite(scale), scale, 0.0), config.scale_floor_m)
 
     def weight_fn(r: np.ndarray, valid_: np.ndarray, idx: np.ndarray) -> np.ndarray:
         z = np.where(valid_, r, 0.0) / scale[idx, None]
@@ -268,9 +286,9 @@ def m_estimator(
         theta,
         robust_rows,
         weight_fn,
-        tol_m=tol_m,
-        max_iter=max_iter,
-        gn_max_iter=gn_max_iter,
+        tol_m=config.tol_m,
+        max_iter=config.max_iter,
+        gn_max_iter=config.gn_max_iter,
     )
     weights = np.where(robust_rows[:, None], weights, valid.astype(float))
     converged |= rows & ~robust_rows
@@ -279,7 +297,7 @@ def m_estimator(
     status |= np.where(rows & ~robust_rows, int(Status.NO_REDUNDANCY), 0)
     rejected = (valid & (weights < REJECT_WEIGHT)).any(axis=1)
     status |= np.where(rows & rejected, int(Status.OUTLIER_REJECTED), 0)
-    return _finish(prob, theta, rows, status, iterations, weights)
+    return _finish(prob, theta, rows, status, iterations, weights, "m-estimator", config)
 
 
 def _sse(prob: Problem, theta: np.ndarray, use: np.ndarray) -> np.ndarray:
@@ -287,16 +305,29 @@ def _sse(prob: Problem, theta: np.ndarray, use: np.ndarray) -> np.ndarray:
     return np.sum(np.where(use & np.isfinite(r), r, 0.0) ** 2, axis=1)
 
 
-def subset(
-    prob: Problem,
-    *,
-    sigma_m: float = SIGMA_M,
-    alpha: float = 0.01,
-    max_drop: int | None = None,
-    tol_m: float = 1e-9,
-    max_iter: int = 50,
-    region_margin: float = REGION_MARGIN,
-) -> dict[str, np.ndarray]:
+@dataclass(frozen=True)
+class SubsetConfig:
+    """Settings of ``subset`` (:func:`subset`).
+
+    Attributes
+    ----------
+    sigma_m : float, metres -- 1-sigma pseudo-range noise of LoS measurements (default 0.1 m).
+    alpha : float -- false-alarm probability of the test (default 0.01).
+    max_drop : int or None -- most base stations to drop (None: as many as identifiable).
+    tol_m, max_iter : Gauss-Newton/LM settings.
+    region_margin : float -- leave-one-out fits outside the :func:`plausible` region are not
+        candidates (default 1).
+    """
+
+    sigma_m: float = SIGMA_M
+    alpha: float = 0.01
+    max_drop: int | None = None
+    tol_m: float = 1e-9
+    max_iter: int = 50
+    region_margin: float = REGION_MARGIN
+
+
+def subset(prob: Problem, config: SubsetConfig = SubsetConfig()) -> Fixes:
     """Subset-consistency search (fault detection and exclusion), reference-free.
 
     1. Least-squares pseudo-range fit with all received base stations.
@@ -311,22 +342,14 @@ def subset(
     all-base-station fit is returned, flagged ``INCONSISTENT`` (use ``nlos-aware`` there). A set
     still failing after the last possible drop is flagged ``INCONSISTENT`` as well.
 
-    Parameters
-    ----------
-    sigma_m : float, metres -- 1-sigma pseudo-range noise of LoS measurements (default 0.1 m).
-    alpha : float -- false-alarm probability of the test (default 0.01).
-    max_drop : int or None -- most base stations to drop (None: as many as identifiable).
-    tol_m, max_iter : Gauss-Newton/LM settings.
-    region_margin : float -- leave-one-out fits outside the :func:`plausible` region are not
-        candidates (default 1).
-
     ``iterations`` are the LM iterations of the final fit; ``weights`` 1 for used, 0 for dropped.
     """
     E, N = prob.rho.shape
     k = prob.dims + 1
     rows = prob.solvable
     use = prob.valid & rows[:, None]
-    sol = solve_pseudorange(prob, use.astype(float), rows, tol=tol_m, max_iter=max_iter)
+    sol = solve_pseudorange(prob, use.astype(float), rows, tol=config.tol_m,
+                            max_iter=config.max_iter)  # fmt: skip
     theta, iters, conv, ill = (
         sol.theta.copy(),
         sol.iterations.copy(),
@@ -335,12 +358,12 @@ def subset(
     )
     sse = _sse(prob, theta, use)
     n_drop = np.zeros(E, dtype=np.int64)
-    limit = N if max_drop is None else int(max_drop)
+    limit = N if config.max_drop is None else int(config.max_drop)
     inconsistent = np.zeros(E, dtype=bool)
 
     def failing(sse_: np.ndarray, use_: np.ndarray) -> np.ndarray:
         dof = use_.sum(axis=1) - k
-        thr = sigma_m**2 * chi2.ppf(1.0 - alpha, np.maximum(dof, 1))
+        thr = config.sigma_m**2 * chi2.ppf(1.0 - config.alpha, np.maximum(dof, 1))
         return rows & (dof >= 1) & (sse_ > thr)
 
     fail = failing(sse, use)
@@ -350,30 +373,7 @@ def subset(
         inconsistent |= fail & ~cand
         if not cand.any():
             break
-        best_sse = np.full(E, np.inf)
-        best_j = np.full(E, -1)
-        best = (
-            np.full_like(theta, np.nan),
-            np.zeros(E, np.int64),
-            np.zeros(E, bool),
-            np.zeros(E, bool),
-        )
-        for j in range(N):
-            sub = cand & use[:, j]
-            if not sub.any():
-                continue
-            use_j = use.copy()
-            use_j[:, j] = False
-            s = solve_pseudorange(prob, use_j.astype(float), sub, tol=tol_m, max_iter=max_iter)
-            sub = sub & plausible(prob, s.xyz, region_margin)
-            e_j = np.where(sub, _sse(prob, s.theta, use_j), np.inf)
-            better = e_j < best_sse
-            best_sse = np.where(better, e_j, best_sse)
-            best_j = np.where(better, j, best_j)
-            best[0][better] = s.theta[better]
-            best[1][better] = s.iterations[better]
-            best[2][better] = s.converged[better]
-            best[3][better] = s.ill[better]
+        best_sse, best_j, best = _best_drop(prob, use, cand, config)
         upd = cand & (best_j >= 0)
         use[upd, best_j[upd]] = False
         theta[upd], iters[upd], conv[upd], ill[upd] = (b[upd] for b in best)
@@ -385,7 +385,44 @@ def subset(
     status |= np.where(rows & (n_drop > 0), int(Status.OUTLIER_REJECTED), 0)
     status |= np.where(rows & inconsistent, int(Status.INCONSISTENT), 0)
     status |= np.where(rows & (prob.n_valid < k + 2), int(Status.NO_REDUNDANCY), 0)
-    return _finish(prob, theta, rows, status, iters, use.astype(float))
+    return _finish(prob, theta, rows, status, iters, use.astype(float), "subset", config)
+
+
+def _best_drop(
+    prob: Problem, use: np.ndarray, cand: np.ndarray, config: SubsetConfig
+) -> tuple[np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
+    """One step of :func:`subset` on the epochs ``cand`` (E,): fit every leave-one-out subset of
+    the base stations in ``use`` (E, N) and keep, per epoch, the plausible one of smallest SSE.
+
+    Returns its SSE (E,) (inf: none), the dropped base station (E,) (-1: none) and its fit
+    (theta (E, k), iterations, converged, ill-conditioned)."""
+    E, N = use.shape
+    best_sse = np.full(E, np.inf)
+    best_j = np.full(E, -1)
+    best = (
+        np.full((E, prob.dims + 1), np.nan),
+        np.zeros(E, np.int64),
+        np.zeros(E, bool),
+        np.zeros(E, bool),
+    )
+    for j in range(N):
+        sub = cand & use[:, j]
+        if not sub.any():
+            continue
+        use_j = use.copy()
+        use_j[:, j] = False
+        s = solve_pseudorange(prob, use_j.astype(float), sub, tol=config.tol_m,
+                              max_iter=config.max_iter)  # fmt: skip
+        sub = sub & plausible(prob, s.xyz, config.region_margin)
+        e_j = np.where(sub, _sse(prob, s.theta, use_j), np.inf)
+        better = e_j < best_sse
+        best_sse = np.where(better, e_j, best_sse)
+        best_j = np.where(better, j, best_j)
+        best[0][better] = s.theta[better]
+        best[1][better] = s.iterations[better]
+        best[2][better] = s.converged[better]
+        best[3][better] = s.ill[better]
+    return best_sse, best_j, best
 
 
 def nlos_loss(z: np.ndarray, k: float) -> np.ndarray:
@@ -404,17 +441,30 @@ def nlos_weights(z: np.ndarray, k: float) -> np.ndarray:
     return np.where(z <= k, 1.0, (k / np.maximum(z, k)) ** 2)
 
 
-def nlos_aware(
-    prob: Problem,
-    *,
-    sigma_m: float = SIGMA_M,
-    k: float = NLOS_K,
-    max_drop: int = 1,
-    tol_m: float = 1e-6,
-    max_iter: int = 50,
-    gn_max_iter: int = 10,
-    region_margin: float = REGION_MARGIN,
-) -> dict[str, np.ndarray]:
+@dataclass(frozen=True)
+class NlosAwareConfig:
+    """Settings of ``nlos-aware`` (:func:`nlos_aware`).
+
+    Attributes
+    ----------
+    sigma_m : float, metres -- 1-sigma pseudo-range noise of LoS measurements (default 0.1 m).
+    k : float -- quadratic range of the loss in units of sigma (default 2).
+    max_drop : int -- most base stations left out in a hypothesis (default 1).
+    tol_m, max_iter, gn_max_iter : IRLS step tolerance, reweightings, LM steps per reweighting.
+    region_margin : float -- subset hypotheses whose fit is outside the :func:`plausible` region
+        are not candidates (default 1).
+    """
+
+    sigma_m: float = SIGMA_M
+    k: float = NLOS_K
+    max_drop: int = 1
+    tol_m: float = 1e-6
+    max_iter: int = 50
+    gn_max_iter: int = 10
+    region_margin: float = REGION_MARGIN
+
+
+def nlos_aware(prob: Problem, config: NlosAwareConfig = NlosAwareConfig()) -> Fixes:
     """NLoS-aware estimator: hypotheses from subsets, one-sided robust loss, IRLS refinement.
 
     1. Candidates: the least-squares pseudo-range fit with all received base stations and with
@@ -430,16 +480,8 @@ def nlos_aware(
     the excess) prefers the one needing the smallest total NLoS excess. When the geometry is
     symmetric two hypotheses can fit equally well; then the data cannot decide and either may be
     picked.
-
-    Parameters
-    ----------
-    sigma_m : float, metres -- 1-sigma pseudo-range noise of LoS measurements (default 0.1 m).
-    k : float -- quadratic range of the loss in units of sigma (default 2).
-    max_drop : int -- most base stations left out in a hypothesis (default 1).
-    tol_m, max_iter, gn_max_iter : IRLS step tolerance, reweightings, LM steps per reweighting.
-    region_margin : float -- subset hypotheses whose fit is outside the :func:`plausible` region
-        are not candidates (default 1).
     """
+    sigma_m, k = config.sigma_m, config.k
     E, N = prob.rho.shape
     kk = prob.dims + 1
     rows = prob.solvable
@@ -447,7 +489,7 @@ def nlos_aware(
     best_score = np.full(E, np.inf)
     theta = np.full((E, kk), np.nan)
     ill = np.zeros(E, dtype=bool)
-    for _, sub, s in candidates(prob, rows, max_drop, region_margin):
+    for _, sub, s in candidates(prob, rows, config.max_drop, config.region_margin):
         z = pseudorange_residuals(prob, s.theta) / sigma_m
         score = np.sum(np.where(valid, nlos_loss(np.where(valid, z, 0.0), k), 0.0), axis=1)
         score = np.where(sub & np.isfinite(score), score, np.inf)
@@ -460,10 +502,11 @@ def nlos_aware(
         return nlos_weights(np.where(valid_, r, 0.0) / sigma_m, k) * valid_
 
     theta, weights, iterations, converged = _irls_loop(
-        prob, theta, rows, weight_fn, tol_m=tol_m, max_iter=max_iter, gn_max_iter=gn_max_iter
-    )
+        prob, theta, rows, weight_fn, tol_m=config.tol_m, max_iter=config.max_iter,
+        gn_max_iter=config.gn_max_iter,
+    )  # fmt: skip
     status = np.where(rows & ~converged, int(Status.NOT_CONVERGED), 0)
     status |= np.where(rows & ill, int(Status.ILL_CONDITIONED), 0)
     rejected = (prob.valid & (weights < REJECT_WEIGHT)).any(axis=1)
     status |= np.where(rows & rejected, int(Status.OUTLIER_REJECTED), 0)
-    return _finish(prob, theta, rows, status, iterations, weights)
+    return _finish(prob, theta, rows, status, iterations, weights, "nlos-aware", config)

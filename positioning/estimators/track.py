@@ -33,13 +33,14 @@ filter's own dynamics (see ``docs/positioning.md`` for the measured figures). Th
 
 from __future__ import annotations
 
-from dataclasses import replace
+from collections.abc import Mapping
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
 
 from ..errors import PositioningError
-from .fixes import Fixes, Status
+from .fixes import Fixes, Status, config_params
 
 #: Suffix that turns a single-epoch method into its tracked form (``irls+track``).
 SUFFIX = "+track"
@@ -65,6 +66,21 @@ PARAMS: dict[str, tuple[float, str]] = {
 }
 
 
+@dataclass(frozen=True)
+class TrackConfig:
+    """Settings of the filter (:func:`kalman_track`); the meaning of each is in :data:`PARAMS`.
+
+    Attributes
+    ----------
+    sigma_m : float, m; accel_psd : float, m^2/s^3; gate : float; restart_after : int
+    """
+
+    sigma_m: float = SIGMA_M
+    accel_psd: float = ACCEL_PSD
+    gate: float = GATE
+    restart_after: int = RESTART_AFTER
+
+
 def split_method(name: str) -> tuple[str, bool]:
     """``("irls", True)`` for ``"irls+track"``, ``("irls", False)`` for ``"irls"``."""
     if name.endswith(SUFFIX):
@@ -72,8 +88,10 @@ def split_method(name: str) -> tuple[str, bool]:
     return name, False
 
 
-def check_params(params: dict[str, Any]) -> dict[str, float]:
-    """Defaults filled in; each value a positive finite number (``restart_after`` an integer)."""
+def check_params(params: Mapping[str, Any]) -> TrackConfig:
+    """The :class:`TrackConfig` of parameters as given (``--param track:NAME=VALUE``, strings or
+    numbers): defaults filled in; each value a positive finite number (``restart_after`` an
+    integer), else a one-line :class:`PositioningError`."""
     unknown = sorted(set(params) - set(PARAMS))
     if unknown:
         raise PositioningError(
@@ -89,7 +107,10 @@ def check_params(params: dict[str, Any]) -> dict[str, float]:
         if not (np.isfinite(f) and f > 0) or (k == "restart_after" and not f.is_integer()):
             raise PositioningError(f"track parameter {k!r} must be positive, got {v!r}")
         out[k] = f
-    return out
+    return TrackConfig(
+        sigma_m=out["sigma_m"], accel_psd=out["accel_psd"], gate=out["gate"],
+        restart_after=int(out["restart_after"]),
+    )  # fmt: skip
 
 
 def _layout(device: np.ndarray, time_s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -120,11 +141,7 @@ def kalman_track(
     xy: np.ndarray,
     device: np.ndarray,
     time_s: np.ndarray | None = None,
-    *,
-    sigma_m: float = SIGMA_M,
-    accel_psd: float = ACCEL_PSD,
-    gate: float = GATE,
-    restart_after: int = RESTART_AFTER,
+    config: TrackConfig = TrackConfig(),
 ) -> tuple[np.ndarray, np.ndarray]:
     """Filter the fixes of every device (causal: each output uses that epoch and earlier ones).
 
@@ -134,7 +151,7 @@ def kalman_track(
     device : (F,) -- device (point) label of each fix
     time_s : (F,) float, seconds, optional -- fix times; None or NaN: the fix order within its
         device at :data:`DEFAULT_DT_S`
-    sigma_m, accel_psd, gate, restart_after : see :data:`PARAMS`
+    config : TrackConfig -- the filter's settings (:data:`PARAMS`)
 
     Returns
     -------
@@ -155,7 +172,7 @@ def kalman_track(
     live = np.zeros(D, dtype=bool)
     misses = np.zeros(D, dtype=np.int64)
     t_last = np.zeros(D)
-    R = sigma_m**2
+    R = config.sigma_m**2
     P0 = np.diag([R, R, V0_MPS**2, V0_MPS**2])
     for k in range(K):
         ok = idx[:, k] >= 0
@@ -166,17 +183,17 @@ def kalman_track(
         s[:, :2] += dt[:, None] * s[:, 2:]
         Fm = np.broadcast_to(np.eye(4), (D, 4, 4)).copy()
         Fm[:, 0, 2] = Fm[:, 1, 3] = dt
-        P = Fm @ P @ Fm.transpose(0, 2, 1) + _q_matrix(dt, accel_psd)
+        P = Fm @ P @ Fm.transpose(0, 2, 1) + _q_matrix(dt, config.accel_psd)
         t_last = np.where(ok, tt[:, k], t_last)
         # gate the fixes of live tracks
         nu = z - s[:, :2]
         S = P[:, :2, :2] + R * np.eye(2)
         Sinv = np.linalg.inv(S)
         d2 = np.einsum("di,dij,dj->d", nu, Sinv, nu)
-        use = has & live & (d2 <= gate)
+        use = has & live & (d2 <= config.gate)
         gated = has & live & ~use
         misses = np.where(gated, misses + 1, np.where(has, 0, misses))
-        restart = gated & (misses >= restart_after)
+        restart = gated & (misses >= config.restart_after)
         start = has & (~live | restart)
         # Kalman update of the accepted fixes
         Kg = P[:, :, :2] @ Sinv  # (D, 4, 2)
@@ -197,28 +214,27 @@ def kalman_track(
 
 
 def track_fixes(
-    fixes: Fixes, device: np.ndarray, time_s: np.ndarray | None = None, **params: Any
+    fixes: Fixes,
+    device: np.ndarray,
+    time_s: np.ndarray | None = None,
+    config: TrackConfig = TrackConfig(),
 ) -> Fixes:
     """The tracked version of a method's fixes: :func:`kalman_track` on their (x, y).
 
     The result is a new :class:`Fixes` named ``<method>+track``: x, y tracked, z the fix's own
     (the last solved one of the device where the fix is unsolved), status = the fix's status
-    plus the track's bits (``UNSOLVED`` only before the device's first solved fix).
+    plus the track's bits (``UNSOLVED`` only before the device's first solved fix); ``params``
+    the method's and the filter's (``config``, from :func:`check_params` for parameters as given
+    on the command line).
     """
-    p = check_params(params)
-    xy, st = kalman_track(
-        fixes.xyz[:, :2], device, time_s,
-        sigma_m=p["sigma_m"], accel_psd=p["accel_psd"], gate=p["gate"],
-        restart_after=int(p["restart_after"]),
-    )  # fmt: skip
+    xy, st = kalman_track(fixes.xyz[:, :2], device, time_s, config)
     z = _carry_z(fixes.xyz[:, 2], device, time_s)
     xyz = np.column_stack([xy, np.where(np.isfinite(xy[:, 0]), z, np.nan)])
     status = fixes.status | st
     solved = np.isfinite(xy).all(axis=1)
     status = np.where(solved, status & ~int(Status.UNSOLVED), status | int(Status.UNSOLVED))
-    return replace(
-        fixes, xyz=xyz, status=status, method=fixes.method + SUFFIX, params={**fixes.params, **p}
-    )
+    params = {**fixes.params, **config_params(config)}
+    return replace(fixes, xyz=xyz, status=status, method=fixes.method + SUFFIX, params=params)
 
 
 def _carry_z(z: np.ndarray, device: np.ndarray, time_s: np.ndarray | None) -> np.ndarray:
@@ -244,7 +260,7 @@ def step_response(
     n_after: int = 50,
     dt_s: float = DEFAULT_DT_S,
     tolerance_m: float = 0.1,
-    **params: Any,
+    config: TrackConfig = TrackConfig(),
 ) -> float:
     """Latency of the tracker for a noise-free step of ``step_m`` metres, seconds.
 
@@ -252,15 +268,10 @@ def step_response(
     is the time from the first fix after the step until the tracked position is within
     ``tolerance_m`` of the new position for good (inf if never within ``n_after`` epochs).
     """
-    p = check_params(params)
     n = n_before + n_after
     xy = np.zeros((n, 2))
     xy[n_before:, 0] = step_m
-    out, _ = kalman_track(
-        xy, np.zeros(n), np.arange(n) * dt_s,
-        sigma_m=p["sigma_m"], accel_psd=p["accel_psd"], gate=p["gate"],
-        restart_after=int(p["restart_after"]),
-    )  # fmt: skip
+    out, _ = kalman_track(xy, np.zeros(n), np.arange(n) * dt_s, config)
     err = np.hypot(out[n_before:, 0] - step_m, out[n_before:, 1])
     bad = np.flatnonzero(err > tolerance_m)
     if bad.size == 0:

@@ -4,8 +4,8 @@ For every method's fix, from the measurements alone (no truth):
 
 * ``chi2n = SSE / (n - k)`` with ``SSE = sum_n (r_n / sigma_n)^2`` the pseudo-range residuals at
   the fix (the clock term at its weighted best) over the noise core ``sigma_n`` of
-  :func:`positioning.noise.link_sigma`; ``n - k`` the redundancy (NaN without one). About 1 for
-  consistent LoS measurements.
+  :func:`positioning.model.noise.link_sigma`; ``n - k`` the redundancy (NaN without one). About 1
+  for consistent LoS measurements.
 * ``HPL``: the fix could be wrong because any one base station is biased (NLoS or overlap). Each
   fault hypothesis ``h`` -- none, or base station j excluded -- has its own least-squares fit
   ``p_h`` with horizontal standard deviation ``sigma_h`` (the largest eigenvalue of its

@@ -93,7 +93,7 @@ def check_height(height: str | float, bs_xyz: np.ndarray) -> None:
 
 
 def check_dataset(ds: Any) -> None:
-    """The scale rule on a loaded :class:`~positioning.dataset.ToaDataset` (stations, ToAs)."""
+    """The scale rule on a loaded :class:`~positioning.io.dataset.ToaDataset` (stations, ToAs)."""
     where = str(ds.path)
     check_stations(ds.bs_xyz, where)
     check_toa_scale(ds.toa_unscheduled_s, ds.bs_xyz, where)

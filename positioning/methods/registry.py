@@ -7,43 +7,41 @@ run_method`, :func:`~positioning.methods.run.locate`).
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from dataclasses import MISSING, dataclass, fields
 from typing import Any
 
 import numpy as np
 
 from ..errors import PositioningError
-from ..estimators import irls as _irls
-from ..estimators import nlos as _nlos
-from ..estimators import robust as _robust
+from ..estimators.fixes import Fixes
+from ..estimators.irls import IrlsConfig, LsConfig, irls, least_squares
+from ..estimators.nlos import NlosMapConfig, nlos_map
+from ..estimators.robust import (
+    MEstimatorConfig,
+    NlosAwareConfig,
+    SubsetConfig,
+    m_estimator,
+    nlos_aware,
+    subset,
+)
 from ..model.problem import Problem
-from ..twin import estimator as _twin
+from ..twin.estimator import TwinConfig, twin
 
 #: Sentinel kinds of method parameters (used to validate and to parse CLI ``k=v`` strings).
 _POS_FLOAT = "positive float"
-
-
 _POS_INT = "positive int"
-
-
 _OPT_INDEX = "base-station index or none"
-
-
 _OPT_COUNT = "non-negative int or none"
-
-
 _COUNT = "non-negative int"
-
-
 _PROB = "probability in (0, 1)"
-
-
 _MAP = "fingerprint map (file path)"
-
-
 #: Map-free methods a ``twin`` fix may fall back to.
 _FALLBACKS = ("nlos-aware", "irls", "ls", "m-estimator", "subset")
+
+#: How a registered method runs: ``run(problem, params) -> Fixes`` with its parameters resolved.
+Runner = Callable[[Problem, Mapping[str, Any]], Fixes]
 
 
 @dataclass(frozen=True)
@@ -53,7 +51,8 @@ class Method:
     Attributes
     ----------
     name : str -- registry key (``ls``, ``irls``, ...)
-    func : ``func(problem, **params) -> dict`` of arrays (see :mod:`positioning.irls`)
+    run : ``run(problem, params) -> Fixes`` with the parameters resolved
+        (:func:`resolve_params`): the estimator with its config built from them
     params : mapping name -> (default, kind) where kind is a validation rule or a tuple of choices
     summary : one-line description (shown by ``estimate-positions --list-methods``)
     paper : True for the paper's own methods (LS, IRLS)
@@ -63,123 +62,127 @@ class Method:
     """
 
     name: str
-    func: Callable[..., dict[str, np.ndarray]]
+    run: Runner
     params: Mapping[str, tuple[Any, Any]]
     summary: str
     paper: bool = False
     measurement_weights: bool = True
     needs_map: bool = False
 
+    @property
+    def func(self) -> Callable[..., Fixes]:
+        """Deprecated: ``func(problem, **params)``, the method as called before it took a config;
+        use :attr:`run`. Works for one release, with a :class:`DeprecationWarning`."""
+        warnings.warn(
+            f"positioning.Method.func moved to positioning.Method.run (method {self.name!r}, "
+            "run(problem, params)); the old path goes away in the next release",
+            DeprecationWarning,
+            stacklevel=2,
+        )
+        return lambda prob, **params: self.run(prob, params)
+
+
+def _params(config: type, kinds: Mapping[str, Any]) -> dict[str, tuple[Any, Any]]:
+    """The registry's parameters ``name -> (default, kind)`` of the config fields ``kinds`` names
+    (in its order), each default the config's own."""
+    defaults = {f.name: f.default for f in fields(config) if f.default is not MISSING}
+    return {name: (defaults[name], kind) for name, kind in kinds.items()}
+
+
+def _runner(estimator: Callable[[Problem, Any], Fixes], config: type) -> Runner:
+    """``run(problem, params)`` of an estimator whose config takes the parameters as fields."""
+    return lambda prob, params: estimator(prob, config(**params))
+
+
+def _run_twin(prob: Problem, params: Mapping[str, Any]) -> Fixes:
+    """``twin``: the ``map`` parameter is the config's fingerprint map; ``fallback`` names the
+    map-free method (run with its defaults) that the twin falls back to."""
+    p = dict(params)
+    fallback = _solver(p.pop("fallback"))
+    return twin(prob, TwinConfig(fingerprint_map=p.pop("map"), **p), fallback=fallback)
+
+
+_MARGIN = {"region_margin": _POS_FLOAT}
 
 METHODS: dict[str, Method] = {
     m.name: m
     for m in (
         Method(
             "ls",
-            _irls.least_squares,
-            {
-                "reference": (None, _OPT_INDEX),
-                "tol_m": (_irls.LS_TOL_M, _POS_FLOAT),
-                "max_iter": (_irls.LS_MAX_ITER, _POS_INT),
-            },
+            _runner(least_squares, LsConfig),
+            _params(LsConfig, {"reference": _OPT_INDEX, "tol_m": _POS_FLOAT,
+                               "max_iter": _POS_INT}),
             "paper eq. 7: least squares of signed TDoAs against one reference base station",
             paper=True,
             measurement_weights=False,
         ),
         Method(
             "irls",
-            _irls.irls,
-            {
-                "u_max": (_irls.U_MAX_M, _POS_FLOAT),
-                "epsilon": (_irls.EPSILON_M, _POS_FLOAT),
-                "max_iter": (_irls.MAX_ITER, _POS_INT),
-                "ls_tol_m": (_irls.LS_TOL_M, _POS_FLOAT),
-                "ls_max_iter": (_irls.LS_MAX_ITER, _POS_INT),
-            },
+            _runner(irls, IrlsConfig),
+            _params(IrlsConfig, {"u_max": _POS_FLOAT, "epsilon": _POS_FLOAT, "max_iter": _POS_INT,
+                                 "ls_tol_m": _POS_FLOAT, "ls_max_iter": _POS_INT}),
             "paper Algorithm 1: every base station the reference once, Andrews-sine weights",
             paper=True,
             measurement_weights=False,
         ),
         Method(
             "m-estimator",
-            _robust.m_estimator,
-            {
-                "loss": ("tukey", ("tukey", "huber")),
-                "c": (None, "positive float or none"),
-                "scale_floor_m": (_robust.SCALE_FLOOR_M, _POS_FLOAT),
-                "tol_m": (1e-6, _POS_FLOAT),
-                "max_iter": (50, _POS_INT),
-                "gn_max_iter": (10, _POS_INT),
-                "region_margin": (_robust.REGION_MARGIN, _POS_FLOAT),
-            },
+            _runner(m_estimator, MEstimatorConfig),
+            _params(MEstimatorConfig, {
+                "loss": ("tukey", "huber"), "c": "positive float or none",
+                "scale_floor_m": _POS_FLOAT, "tol_m": _POS_FLOAT, "max_iter": _POS_INT,
+                "gn_max_iter": _POS_INT, **_MARGIN,
+            }),
             "reference-free MM-estimator: least-median start over subsets, Tukey IRLS at robust scale",
         ),
         Method(
             "subset",
-            _robust.subset,
-            {
-                "sigma_m": (_robust.SIGMA_M, _POS_FLOAT),
-                "alpha": (0.01, _PROB),
-                "max_drop": (None, _OPT_COUNT),
-                "tol_m": (1e-9, _POS_FLOAT),
-                "max_iter": (50, _POS_INT),
-                "region_margin": (_robust.REGION_MARGIN, _POS_FLOAT),
-            },
+            _runner(subset, SubsetConfig),
+            _params(SubsetConfig, {
+                "sigma_m": _POS_FLOAT, "alpha": _PROB, "max_drop": _OPT_COUNT,
+                "tol_m": _POS_FLOAT, "max_iter": _POS_INT, **_MARGIN,
+            }),
             "chi-square consistency test, drop the base station whose removal fits best",
         ),
         Method(
             "nlos-aware",
-            _robust.nlos_aware,
-            {
-                "sigma_m": (_robust.SIGMA_M, _POS_FLOAT),
-                "k": (_robust.NLOS_K, _POS_FLOAT),
-                "max_drop": (1, _COUNT),
-                "tol_m": (1e-6, _POS_FLOAT),
-                "max_iter": (50, _POS_INT),
-                "gn_max_iter": (10, _POS_INT),
-                "region_margin": (_robust.REGION_MARGIN, _POS_FLOAT),
-            },
+            _runner(nlos_aware, NlosAwareConfig),
+            _params(NlosAwareConfig, {
+                "sigma_m": _POS_FLOAT, "k": _POS_FLOAT, "max_drop": _COUNT, "tol_m": _POS_FLOAT,
+                "max_iter": _POS_INT, "gn_max_iter": _POS_INT, **_MARGIN,
+            }),
             "one-sided loss (NLoS only delays): subset hypotheses scored, then IRLS",
         ),
         Method(
             "nlos-map",
-            _nlos.nlos_map,
-            {
-                "estimate": ("mean", ("mean", "map")),
-                "max_drop": (1, _COUNT),
-                "grid_m": (2.0, "non-negative float"),
-                "n_grid_starts": (3, _COUNT),
-                "tol_m": (1e-4, _POS_FLOAT),
-                "max_iter": (30, _POS_INT),
-                "gn_max_iter": (5, _POS_INT),
-                "region_margin": (_robust.REGION_MARGIN, _POS_FLOAT),
-            },
+            _runner(nlos_map, NlosMapConfig),
+            _params(NlosMapConfig, {
+                "estimate": ("mean", "map"), "max_drop": _COUNT, "grid_m": "non-negative float",
+                "n_grid_starts": _COUNT, "tol_m": _POS_FLOAT, "max_iter": _POS_INT,
+                "gn_max_iter": _POS_INT, **_MARGIN,
+            }),
             "physics mixture (noise, overlap, NLoS only delays; SNR and lobe shape), EM per start",
         ),
         Method(
             "twin",
-            lambda prob, *, fallback, **p: _twin.twin(prob, fallback=_solver(fallback), **p),
+            _run_twin,
             {
                 "map": (None, _MAP),
                 "fallback": ("nlos-aware", _FALLBACKS),
-                "fallback_m": (_twin.FALLBACK_M, _POS_FLOAT),
-                "prior_m": (None, "non-negative float or none"),
-                "top": (_twin.TOP, _POS_INT),
-                "bias": ("auto", ("auto", "cell", "interp", "resynth")),
-                "paths": (None, _OPT_COUNT),
-                "fd_jacobian": (True, "bool"),
-                "resynth_m": (_twin.RESYNTH_M, _POS_FLOAT),
-                "cells": ("nearest", ("nearest", "own")),
-                "resynth_top": (_twin.RESYNTH_TOP, _POS_INT),
-                "search_m": (_twin.SEARCH_M, "non-negative float"),
-                "resynth_step": (_twin.RASTER_STEP_M, "non-negative float"),
+                **_params(TwinConfig, {
+                    "fallback_m": _POS_FLOAT, "prior_m": "non-negative float or none",
+                    "top": _POS_INT, "bias": ("auto", "cell", "interp", "resynth"),
+                    "paths": _OPT_COUNT, "fd_jacobian": "bool", "resynth_m": _POS_FLOAT,
+                    "cells": ("nearest", "own"), "resynth_top": _POS_INT,
+                    "search_m": "non-negative float", "resynth_step": "non-negative float",
+                }),
             },
             "fingerprint-map match + refinement with the map's NLoS bias or, with a v2 map, "
             "its paths re-synthesised (--map MAP), 2D",
             needs_map=True,
         ),
     )
-}
+}  # fmt: skip
 
 
 def method_names(include_map: bool = True) -> list[str]:
@@ -258,6 +261,6 @@ def resolve_params(method: str, params: Mapping[str, Any], n_bs: int | None = No
     return out
 
 
-def _solver(method: str) -> Callable[[Problem], dict[str, np.ndarray]]:
-    """The registered ``method`` with its default parameters, as ``f(problem) -> dict``."""
-    return lambda prob: METHODS[method].func(prob, **resolve_params(method, {}, prob.n_bs))
+def _solver(method: str) -> Callable[[Problem], Fixes]:
+    """The registered ``method`` with its default parameters, as ``f(problem) -> Fixes``."""
+    return lambda prob: METHODS[method].run(prob, resolve_params(method, {}, prob.n_bs))

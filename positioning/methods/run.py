@@ -3,7 +3,7 @@ the integrity figures) and the public entry point :func:`locate`."""
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from dataclasses import replace
 from typing import Any, Literal, overload
 
 import numpy as np
@@ -19,17 +19,14 @@ from .registry import METHODS, resolve_params
 OUTSIDE_CHOICES = ("constrain", "reject")
 
 
-_FIXES_KEYS = ("xyz", "status", "iterations", "weights", "fit_weights")
-
-
 def apply_area(
-    prob: Problem, res: Mapping[str, np.ndarray], fit_weights: np.ndarray, outside: str
+    prob: Problem, res: Fixes, fit_weights: np.ndarray, outside: str
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Keep every solved fix inside ``prob.area`` (see :mod:`positioning.bounded`).
+    """Keep every solved fix inside ``prob.area`` (see :mod:`positioning.estimators.bounded`).
 
     Parameters
     ----------
-    res : a method's result (``xyz`` (E, 3), ``status`` (E,))
+    res : a method's fixes (``xyz`` (E, 3), ``status`` (E,) are used)
     fit_weights : (E, N) measurement weights of the bounded re-solve
     outside : "constrain" (re-solve inside, flag ``AREA_BOUND``) or "reject" (flag
         ``UNSOLVED | AREA_BOUND``, NaN position)
@@ -38,8 +35,8 @@ def apply_area(
     -------
     xyz (E, 3), status (E,) -- copies.
     """
-    xyz = np.array(res["xyz"], dtype=float)
-    status = np.asarray(res["status"], dtype=np.int64).copy()
+    xyz = np.array(res.xyz, dtype=float)
+    status = np.asarray(res.status, dtype=np.int64).copy()
     if prob.area is None:
         return xyz, status
     solved = (status & int(Status.UNSOLVED)) == 0
@@ -64,12 +61,13 @@ def run_method(
     alert_limit_m: float | None = None,
     **params: Any,
 ) -> Fixes:
-    """Solve a prepared :class:`~positioning.tdoa.Problem` with one registered method.
+    """Solve a prepared :class:`~positioning.model.problem.Problem` with one registered method.
 
     The method solves without bounds; fixes outside ``prob.area`` are then solved again inside it
     (``outside="constrain"``) or left unsolved (``"reject"``), both flagged ``AREA_BOUND``. With
-    ``alert_limit_m`` the integrity figures (:mod:`positioning.integrity`) are computed and fixes
-    whose protection level exceeds it are flagged ``INTEGRITY``.
+    ``alert_limit_m`` the integrity figures (:mod:`positioning.evaluation.integrity`) are
+    computed and fixes whose protection level exceeds it are flagged ``INTEGRITY``. The result is
+    the method's :class:`Fixes` with the registered name, the resolved parameters and these.
     """
     if outside not in OUTSIDE_CHOICES:
         raise PositioningError(
@@ -81,10 +79,10 @@ def run_method(
         )
     p = resolve_params(method, params, prob.n_bs)
     m = METHODS[method]
-    res = m.func(prob, **p)
-    fw = res.get("fit_weights")
+    res = m.run(prob, p)
+    fw = res.fit_weights
     if fw is None:
-        fw = res["weights"] if m.measurement_weights else prob.valid.astype(float)
+        fw = res.weights if m.measurement_weights else prob.valid.astype(float)
     xyz, status = apply_area(prob, res, np.asarray(fw, dtype=float), outside)
     hpl = chi2n = None
     limit = float("nan")
@@ -95,18 +93,17 @@ def run_method(
         limit = float(alert_limit_m)
         solved = (status & int(Status.UNSOLVED)) == 0
         status |= np.where(solved & ~(hpl <= limit), int(Status.INTEGRITY), 0)
-    return Fixes(
+    return replace(
+        res,
         xyz=xyz,
         status=status,
-        iterations=np.asarray(res["iterations"], dtype=np.int64),
-        weights=res["weights"],
+        iterations=np.asarray(res.iterations, dtype=np.int64),
         n_used=prob.n_valid,
         method=method,
         params=p,
         hpl_m=hpl,
         chi2n=chi2n,
         alert_limit_m=limit,
-        extra={k: v for k, v in res.items() if k not in _FIXES_KEYS},
     )
 
 

@@ -1,7 +1,7 @@
 """The service area: the floor polygon a device can be on (convex or not), and its geometry.
 
-A :class:`ServiceArea` is a simple polygon in the horizontal plane (metres). The positioning
-methods use it to keep a fix from running away (see :mod:`positioning.bounded`): a solve whose
+A :class:`ServiceArea` is a simple polygon in the horizontal plane (metres). The positioning methods
+use it to keep a fix from running away (see :mod:`positioning.estimators.bounded`): a solve whose
 result leaves the polygon is solved again inside it. The dataset's ``meta.json`` carries it as
 ``service_area: {polygon: [[x, y], ...], source}``; :func:`area_from_meta` falls back to the
 rectangle ``hall_xy`` and then to no area at all.

@@ -1,7 +1,7 @@
 """Per-measurement error model of a band-limited ToA: noise core, overlap spread, NLoS excess.
 
-Used by the ``nlos-map`` estimator (:mod:`positioning.nlos`) and the integrity figures
-(:mod:`positioning.integrity`). Every constant is derived from the receiver physics
+Used by the ``nlos-map`` estimator (:mod:`positioning.estimators.nlos`) and the integrity figures
+(:mod:`positioning.evaluation.integrity`). Every constant is derived from the receiver physics
 (``docs/channel.md``) or from the measured spread of line-of-sight range errors; see
 ``docs/positioning.md`` ("nlos-map").
 

@@ -8,8 +8,8 @@
 * :func:`pseudorange_residuals`: that model's residuals at given unknowns.
 
 Each model function is ``fun(theta (A, k), idx (A,)) -> (r (A, M), J (A, M, k))``, batched over
-the epochs ``idx`` (:data:`ModelFun`), which :func:`positioning.estimators.solver.levenberg_marquardt`
-takes.
+the epochs ``idx`` (:data:`ModelFun`), which
+:func:`positioning.estimators.solver.levenberg_marquardt` takes.
 """
 
 from __future__ import annotations

@@ -31,8 +31,6 @@ FIXES_COLUMNS = (
     "chi2n",
     "flagged",
 )
-
-
 #: Extra trailing columns of a ``twin`` method's fixes.csv.
 TWIN_COLUMNS = ("nlos_bs", "match_m")
 

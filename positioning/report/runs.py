@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 
 from ..estimators.fixes import Fixes
-from ..estimators.track import split_method, track_fixes
+from ..estimators.track import check_params, split_method, track_fixes
 from ..evaluation.integrity import ALERT_LIMIT_M
 from ..evaluation.metrics import error_2d, summarize
 from ..io.dataset import ToaDataset
@@ -20,14 +20,8 @@ from ..methods.run import run_method
 from ..model.problem import Problem
 
 _SCENARIO_ORDER = {"static": 0, "semi-dynamic": 1}
-
-
 _BAND_ORDER = {"c-band": 0, "mmwave": 1}
-
-
 _BAND_LABEL = {"c-band": "C-band", "mmwave": "mmWave"}
-
-
 _METHOD_LABEL = {"ls": "LS", "irls": "IRLS"}
 
 
@@ -70,14 +64,14 @@ def solve_dataset(
     the dataset's service area, with integrity figures at ``alert_limit_m``.
 
     ``METHOD+track``: the method's fixes tracked per point over time
-    (:func:`positioning.track.track_fixes` with the ``track`` parameters).
+    (:func:`positioning.estimators.track.track_fixes` with the ``track`` parameters).
     """
     base, tracked = split_method(method)
     if tracked:
         single = solve_dataset(
             ds, base, params, height, outside=outside, alert_limit_m=alert_limit_m, problem=problem
         )
-        return track_fixes(single, ds.point, ds.time_s, **(track or {}))
+        return track_fixes(single, ds.point, ds.time_s, check_params(track or {}))
     prob = problem if problem is not None else dataset_problem(ds, height)
     p = dict(params)
     if "reference" in p and isinstance(p["reference"], str) and p["reference"] in ds.bs_names:
@@ -113,7 +107,7 @@ def evaluate(
             )
         f = single[base]
         if tracked:
-            f = track_fixes(f, ds.point, ds.time_s, **params.get("track", {}))
+            f = track_fixes(f, ds.point, ds.time_s, check_params(params.get("track", {})))
         e = error_2d(f.xyz, ds.true_xyz)
         fixes[m], errors[m], summaries[m] = f, e, summarize(e)
         summaries[m]["availability_pct"] = 100.0 * f.availability

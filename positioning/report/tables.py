@@ -27,8 +27,6 @@ PAPER_TABLE2: dict[tuple[str, str], dict[str, dict[str, float]]] = {
         "p90": {"irls": 0.58, "ls": 0.62},
     },
 }
-
-
 METRICS = (
     ("mean", "mean_m", "mean [m]"),
     ("p90", "p90_m", "90th pct [m]"),

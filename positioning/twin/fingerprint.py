@@ -36,7 +36,7 @@ key                   shape, dtype meaning (SI units)
 has one, ``service_area`` (a list of ``[x, y]`` vertices).
 
 Schema version 2 adds the K strongest paths per cell and base station, so that the twin can move
-them to a position inside the cell and re-run the receiver (:mod:`positioning.lobe`) instead of
+them to a position inside the cell and re-run the receiver (:mod:`positioning.twin.lobe`) instead of
 interpolating its ToA (K paths, fewer padded):
 
 ===================== =============== ========================================================
@@ -53,7 +53,7 @@ key                   shape, dtype    meaning (SI units)
                                       diffracted paths
 ===================== =============== ========================================================
 
-and ``meta["receiver_model"]``, the settings of :class:`positioning.lobe.LobeReceiver` (the
+and ``meta["receiver_model"]``, the settings of :class:`positioning.twin.lobe.LobeReceiver` (the
 noiseless first-lobe receiver the map's ``toa_s`` came from). Version 1 maps are read as before
 (no paths); :func:`write_map` writes version 2 when the map has paths, else version 1.
 """

@@ -26,8 +26,6 @@ from .resynth import RASTER_STEP_M, PathMap, ToaRaster
 
 #: Largest distance between a map's and the dataset's base station, metres.
 BS_TOL_M = 0.01
-
-
 #: The coarse match uses a sub-lattice of at most this many cells (speed).
 COARSE_CELLS = 1200
 
@@ -172,7 +170,7 @@ def check_dataset(
 
 
 def prepare(
-    map: FingerprintMap | str | Path,  # noqa: A002 - the CLI's name for it
+    fingerprint_map: FingerprintMap | str | Path,
     height_m: float,
     *,
     paths: int | None = None,
@@ -180,14 +178,16 @@ def prepare(
     progress: Callable[[int, int], None] | None = None,
 ) -> int:
     """Re-synthesise a version-2 map's whole ToA raster at device height ``height_m`` now, so
-    that :func:`twin` answers every later fix with look-ups only (a server that must run at
-    full speed from its first fix; by default the raster fills lazily around the fixes).
+    that :func:`~positioning.twin.estimator.twin` answers every later fix with look-ups only (a
+    server that must run at full speed from its first fix; by default the raster fills lazily
+    around the fixes).
 
-    The raster is kept with the map loaded from ``map`` (a path: cached by path and mtime).
+    The raster is kept with the map loaded from ``fingerprint_map`` (a path: cached by path and
+    mtime).
     Returns the receiver runs (links) spent; ``progress(done, total)`` is called per batch of
     tiles.
     """
-    fmap, lat = load(map)
+    fmap, lat = load(fingerprint_map)
     if not fmap.has_paths:
         raise PositioningError("twin: prepare needs a map with paths (schema version 2)")
     if not (np.isfinite(resynth_step) and resynth_step > 0):

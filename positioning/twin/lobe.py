@@ -1,11 +1,11 @@
 """The first-lobe receiver without noise, vectorised over links: what the twin re-runs on paths.
 
-A fingerprint map of schema v2 (:mod:`positioning.fingerprint`) stores per cell and base station
-the K strongest paths (delay, complex gain, direction of arrival, wavefront radius) and, in its
-meta, the receiver's settings. The ``twin`` estimator moves those paths to a candidate position
-(:func:`move_paths`) and runs this receiver on them (:meth:`LobeReceiver.toa`): the ToA it
-predicts then includes the receiver's own bias from paths that overlap within one pulse, which
-changes within a grid cell and which no interpolation of the map's ToAs reproduces.
+A fingerprint map of schema v2 (:mod:`positioning.twin.fingerprint`) stores per cell and base
+station the K strongest paths (delay, complex gain, direction of arrival, wavefront radius) and, in
+its meta, the receiver's settings. The ``twin`` estimator moves those paths to a candidate position
+(:func:`move_paths`) and runs this receiver on them (:meth:`LobeReceiver.toa`): the ToA it predicts
+then includes the receiver's own bias from paths that overlap within one pulse, which changes within
+a grid cell and which no interpolation of the map's ToAs reproduces.
 
 This is an intended duplicate of the noiseless path of :mod:`raytrace.emulation.receivers`
 (``prepare_first_lobe`` + ``measure_first_lobe`` with ``rng=None``), because ``positioning``

@@ -21,12 +21,8 @@ from .resynth import normal_step
 #: :func:`window_match` groups the fixes by window centre when there are at least this many
 #: fixes per centre on average (matrix products per group; else one gather per fix).
 WINDOW_GROUP = 4
-
-
 #: Gauss-Newton iterations of the refinement.
 REFINE_ITER = 5
-
-
 #: The refined fix stays within this many grid steps of its cell centre (per coordinate).
 REFINE_BOX = 1.0
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from positioning import C0, Status, andrews_weight, error_2d, locate, make_problem
-from positioning.estimators.irls import irls, uncertainties
+from positioning.estimators.irls import IrlsConfig, irls, uncertainties
 
 #: Absolute tolerance of hand-computed weights.
 WEIGHT_TOL = 1e-12
@@ -146,11 +146,11 @@ def test_all_weights_zero_keeps_equal_weight_average():
     dev = devices(5, 10)
     t = measure(SQUARE, dev, 0.5, 11)
     prob = make_problem(t, SQUARE, height_m=1.0)
-    res = irls(prob, u_max=1e-3)
-    assert np.all(res["status"] & Status.ALL_WEIGHTS_ZERO)
-    np.testing.assert_allclose(res["xyz"], res["estimates"].mean(axis=1), atol=SAME_TOL_M)
-    assert np.all(res["weights"] == 0.0)
-    assert np.all(res["iterations"] == 1)
+    res = irls(prob, IrlsConfig(u_max=1e-3))
+    assert np.all(res.status & Status.ALL_WEIGHTS_ZERO)
+    np.testing.assert_allclose(res.xyz, res.extra["estimates"].mean(axis=1), atol=SAME_TOL_M)
+    assert np.all(res.weights == 0.0)
+    assert np.all(res.iterations == 1)
 
 
 def test_not_converged_returns_last_estimate():
@@ -159,16 +159,16 @@ def test_not_converged_returns_last_estimate():
     dev = devices(4, 12)
     t = measure(ring(5), dev, SIGMA_M, 13, np.array([0, 3.0, 0, 0, 0]))
     prob = make_problem(t, ring(5), height_m=1.0)
-    res = irls(prob, max_iter=1, epsilon=1e-12)
-    q = res["estimates"]
+    res = irls(prob, IrlsConfig(max_iter=1, epsilon=1e-12))
+    q = res.extra["estimates"]
     q0 = q.mean(axis=1)
     w = andrews_weight(uncertainties(prob, q0), 3.0)
     expect = np.sum((w / w.sum(axis=1, keepdims=True))[..., None] * q, axis=1)
-    np.testing.assert_allclose(res["xyz"], expect, atol=SAME_TOL_M)
-    assert np.all(res["status"] & Status.NOT_CONVERGED)
+    np.testing.assert_allclose(res.xyz, expect, atol=SAME_TOL_M)
+    assert np.all(res.status & Status.NOT_CONVERGED)
     full = irls(prob)
-    assert not np.any(full["status"] & Status.NOT_CONVERGED)
-    assert np.all(full["iterations"] > 1)
+    assert not np.any(full.status & Status.NOT_CONVERGED)
+    assert np.all(full.iterations > 1)
 
 
 def test_irls_with_missing_toas():
@@ -178,9 +178,9 @@ def test_irls_with_missing_toas():
     t[0, 1] = np.nan
     prob = make_problem(t, ring(5), height_m=1.0)
     res = irls(prob)
-    assert np.isnan(res["estimates"][0, 1]).all() and res["weights"][0, 1] == 0.0
-    np.testing.assert_allclose(res["weights"].sum(axis=1), 1.0, atol=WEIGHT_TOL)
-    np.testing.assert_allclose(res["xyz"], dev, atol=1e-6)
+    assert np.isnan(res.extra["estimates"][0, 1]).all() and res.weights[0, 1] == 0.0
+    np.testing.assert_allclose(res.weights.sum(axis=1), 1.0, atol=WEIGHT_TOL)
+    np.testing.assert_allclose(res.xyz, dev, atol=1e-6)
 
 
 def test_ls_not_converged_flag_and_iteration_count():
