@@ -18,17 +18,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 import trimesh
+from pos_synth import write_dataset
 
-sys.path.insert(0, str(Path(__file__).parent / "positioning"))
-from pos_synth import write_dataset  # noqa: E402
-
-from hallray.safe_output import output_dir, output_lock, write_file  # noqa: E402
-from positioning.cli.accuracy import accuracy_report_main  # noqa: E402
-from positioning.cli.estimate import estimate_positions_main  # noqa: E402
-from raytrace.cli.make_dataset import make_dataset_main  # noqa: E402
-from raytrace.cli.make_hall import format_los_report, hall_los_check_main, make_hall_main  # noqa: E402
-from raytrace.cli.render_scene import render_scene_main  # noqa: E402
-from raytrace.cli.trace_scene import trace_scene_main  # noqa: E402
+from hallray.safe_output import output_dir, output_lock, write_file
+from positioning.cli.accuracy import accuracy_report_main
+from positioning.cli.estimate import estimate_positions_main
+from raytrace.cli.make_dataset import make_dataset_main
+from raytrace.cli.make_hall import format_los_report, hall_los_check_main, make_hall_main
+from raytrace.cli.render_scene import render_scene_main
+from raytrace.cli.trace_scene import trace_scene_main
 
 ROOT = Path(__file__).resolve().parents[1]
 CANON = ROOT / "scenes" / "canonical"

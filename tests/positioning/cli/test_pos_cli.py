@@ -4,17 +4,13 @@ from __future__ import annotations
 
 import csv
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+from pos_synth import write_dataset
 
-sys.path.insert(0, str(Path(__file__).parent))
-
-from pos_synth import write_dataset  # noqa: E402
-
-from positioning import METHODS, error_2d, method_names, summarize  # noqa: E402
+from positioning import METHODS, error_2d, method_names, summarize
 from positioning.cli.accuracy import accuracy_report_main
 from positioning.cli.estimate import estimate_positions_main
 from positioning.report.fixes_file import FIXES_COLUMNS
@@ -237,3 +233,41 @@ def test_accuracy_report_bad_options(datasets, tmp_path, capsys):
     )
     assert "u_max" in line
     assert not out.exists()
+
+
+#: Three points for the service area's and the alert limit's checks.
+THREE_POINTS = np.array([[5.0, 6.0, 1.0], [14.0, 12.0, 1.0], [22.0, 19.0, 1.0]])
+
+
+def test_cli_area_counts_columns_and_untrustworthy_run(tmp_path, capsys):
+    # a service area that leaves P01 outside: its fixes are bounded, then rejected
+    area = {"polygon": [[10, 2], [28, 2], [28, 24], [10, 24]], "source": "test"}
+    ds = write_dataset(tmp_path / "d", points=THREE_POINTS, n_epochs=3, extra_meta={"service_area": area})
+    out = tmp_path / "f.csv"
+    assert estimate_positions_main([str(ds), "--method", "irls", "-o", str(out)]) == 0
+    line = capsys.readouterr().out
+    assert "availability 100.0 % (0 unsolved)" in line and "out of area 3" in line
+    assert "ill-conditioned 0, not converged 0" in line
+    with open(out, newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    assert tuple(rows[0]) == FIXES_COLUMNS and FIXES_COLUMNS[-3:] == ("hpl_m", "chi2n", "flagged")
+    p1 = [r for r in rows if r["point"] == "P01"]
+    assert all("area_bound" in r["status"] and float(r["x"]) >= 10.0 - 1e-6 for r in p1)
+    assert estimate_positions_main([str(ds), "--outside", "reject", "-o", str(out)]) == 0
+    assert "availability 66.7 % (3 unsolved)" in capsys.readouterr().out
+    # nothing inside: no trustworthy fix -> one-line error, exit 2, no file
+    far = {"polygon": [[100, 100], [110, 100], [110, 110]], "source": "test"}
+    ds2 = write_dataset(tmp_path / "e", points=THREE_POINTS, n_epochs=2, extra_meta={"service_area": far})
+    out2 = tmp_path / "g.csv"
+    for extra in ([], ["--outside", "reject"]):
+        assert estimate_positions_main([str(ds2), *extra, "-o", str(out2)]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "no trustworthy fix" in err[0], err
+        assert not out2.exists()
+
+
+@pytest.mark.parametrize("bad", ["0", "-1", "nan"])
+def test_cli_bad_alert_limit(tmp_path, capsys, bad):
+    ds = write_dataset(tmp_path / "d", points=THREE_POINTS, n_epochs=1)
+    assert estimate_positions_main([str(ds), "--alert-limit", bad, "-o", str(tmp_path / "x")]) == 2
+    assert "alert-limit" in capsys.readouterr().err

@@ -1,4 +1,5 @@
-"""Service area, bounded re-solve and the no-runaway guarantee (issue 13 item 4)."""
+"""The bounded re-solve inside the service area and the no-runaway guarantee (issue 13 item 4;
+positioning.estimators.bounded, applied by positioning.methods.run)."""
 
 from __future__ import annotations
 
@@ -7,7 +8,7 @@ import pytest
 
 from positioning import PositioningError, Status, locate, method_names
 from positioning.estimators.bounded import bounded_refit, concentrated_cost
-from positioning.model.area import ServiceArea, area_from_meta
+from positioning.model.area import ServiceArea
 from positioning.model.problem import make_problem
 from positioning.model.tdoa import C0
 
@@ -22,31 +23,8 @@ BS = np.array([[1.0, 1.0, 4.0], [29.0, 1.0, 6.0], [29.0, 11.0, 4.5], [1.0, 25.0,
 GRID_PITCH_M = 0.05
 
 
-def test_contains_and_project_closed_forms():
-    pts = np.array([[5, 5], [20, 20], [12, 12], [31, 5], [-1, -1], [20, 13], [np.nan, 1.0]])
-    assert L_SHAPE.contains(pts).tolist() == [True, False, True, False, False, False, False]
-    assert BOX.contains(pts).tolist() == [True, True, True, False, False, True, False]
-    proj = L_SHAPE.project(np.array([[20.0, 20.0], [-3.0, 5.0], [35.0, -4.0], [5.0, 5.0]]))
-    # (20, 20) is nearest to the inner edge x = 12 (8 m) and y = 12 (8 m): a tie, either is right
-    assert np.min(np.abs(proj[0] - [[12.0, 20.0], [20.0, 12.0]]).sum(axis=1)) < 1e-12
-    np.testing.assert_allclose(proj[1:], [[0.0, 5.0], [30.0, 0.0], [5.0, 5.0]], atol=1e-12)
-    assert L_SHAPE.contains(proj).all()
-    g = L_SHAPE.grid(1.0)
-    assert g.shape[0] == 30 * 12 + 12 * 14  # unit cells of the L: 360 + 168
 
 
-def test_area_from_meta_fallbacks():
-    poly = [[0, 0], [10, 0], [10, 5], [0, 5]]
-    a = area_from_meta(
-        {"service_area": {"polygon": poly, "source": "scene"}, "hall_xy": [[0, 0], [1, 1]]}
-    )
-    assert a is not None and a.source == "scene" and a.polygon.shape == (4, 2)
-    b = area_from_meta({"hall_xy": [[0, 0], [42, 46]]})
-    assert b is not None and b.contains(np.array([[41.9, 45.9]])).all()
-    assert area_from_meta({}) is None
-    for bad in ({"service_area": {"polygon": [[0, 0], [1, 1]]}}, {"hall_xy": [[0, 0]]}):
-        with pytest.raises(PositioningError):
-            area_from_meta(bad)
 
 
 def _junk(seed: int, n: int, area: ServiceArea, three_d: bool):

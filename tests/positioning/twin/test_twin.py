@@ -2,24 +2,19 @@
 
 from __future__ import annotations
 
-import sys
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 import pytest
+from pos_synth import PAPER_BS, nlos_bias, synth_map, synth_toa, write_dataset
 
-sys.path.insert(0, str(Path(__file__).parent))
-
-from pos_synth import PAPER_BS, nlos_bias, synth_map, synth_toa, write_dataset  # noqa: E402
-
-from positioning import METHODS, Status, error_2d, locate  # noqa: E402
-from positioning.cli.accuracy import accuracy_report_main  # noqa: E402
-from positioning.cli.estimate import estimate_positions_main  # noqa: E402
-from positioning.errors import PositioningError  # noqa: E402
-from positioning.twin.estimator import clamp_to_polygon  # noqa: E402
-from positioning.twin.fingerprint import write_map  # noqa: E402
-from positioning.twin.lattice import interp_bias  # noqa: E402
+from positioning import METHODS, Status, error_2d, locate
+from positioning.cli.accuracy import accuracy_report_main
+from positioning.cli.estimate import estimate_positions_main
+from positioning.errors import PositioningError
+from positioning.twin.estimator import clamp_to_polygon
+from positioning.twin.fingerprint import write_map
+from positioning.twin.lattice import interp_bias
 
 #: Range noise of the synthetic data (m) and what the twin must reach: with the bias known,
 #: the error is the noise's (p90 about 2.5 sigma times the geometry's dilution, ~1.5 here).
