@@ -78,6 +78,8 @@ def parse_params(items: Sequence[str], methods: Sequence[str]) -> dict[str, dict
 
 
 def height_mode(args: argparse.Namespace) -> str | float:
+    """The solve's heights from ``--3d`` / ``--height``: ``"3d"``, a known height in metres, or
+    ``"true"`` (each point's true z; :func:`positioning.io.prepare.heights_for`)."""
     if args.three_d:
         return "3d"
     if args.height is not None:
@@ -118,6 +120,7 @@ def summary_line(method: str, fixes: Fixes, err: np.ndarray) -> str:
 
 
 def no_trusted(ds: ToaDataset, fixes: Fixes) -> PositioningError:
+    """The one-line error of a run without a trustworthy fix, with the counts of why."""
     return PositioningError(
         f"{ds.path}: no trustworthy fix ({fixes.n_unsolved} unsolved, "
         f"{fixes.count(Status.NOT_CONVERGED)} not converged, "
@@ -128,6 +131,7 @@ def no_trusted(ds: ToaDataset, fixes: Fixes) -> PositioningError:
 
 
 def all_unsolved(ds: ToaDataset) -> PositioningError:
+    """The one-line error of a run in which no epoch had enough base stations."""
     return PositioningError(
         f"{ds.path}: no fix could be solved (every epoch has too few base stations with a ToA: "
         "at least 3 are needed in 2D, 4 in 3D)"
@@ -135,6 +139,8 @@ def all_unsolved(ds: ToaDataset) -> PositioningError:
 
 
 def add_common_args(p: argparse.ArgumentParser) -> None:
+    """The options both commands take: ``--height`` or ``--3d``, ``--outside``,
+    ``--alert-limit`` and ``--map``."""
     g = p.add_mutually_exclusive_group()
     g.add_argument(
         "--height",
@@ -205,6 +211,7 @@ def with_map(
 
 
 def alert_limit(args: argparse.Namespace) -> float:
+    """``--alert-limit`` in metres, checked: a positive finite number."""
     a = args.alert_limit
     if not (np.isfinite(a) and a > 0):
         raise PositioningError(f"--alert-limit must be a positive number of metres, got {a!r}")

@@ -33,6 +33,7 @@ def is_report_dir(path: Path) -> bool:
 
 
 def atomic_write_text(path: str | Path, text: str) -> None:
+    """Write ``text`` (UTF-8) to ``path`` through :func:`atomic_write`."""
     atomic_write(path, lambda fh: fh.write(text))
 
 

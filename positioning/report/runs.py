@@ -31,6 +31,7 @@ def method_label(name: str) -> str:
 
 
 def band_label(band: str) -> str:
+    """Display name of a band (``C-band``, ``mmWave``, others as given)."""
     return _BAND_LABEL.get(band, band)
 
 
