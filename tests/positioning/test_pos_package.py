@@ -79,3 +79,19 @@ def test_unknown_old_name_is_an_attribute_error():
         warnings.simplefilter("error")  # and no warning for a name that never existed
         with pytest.raises(AttributeError, match="no_such_name"):
             positioning.tdoa.no_such_name  # noqa: B018
+
+
+def test_console_scripts_use_the_new_paths():
+    """Every console script of pyproject.toml names a module that has its function, reached
+    without a DeprecationWarning (an old path would print one at every command's start)."""
+    tomllib = pytest.importorskip("tomllib")
+    from pathlib import Path
+
+    project = tomllib.loads((Path(__file__).parents[2] / "pyproject.toml").read_text())
+    scripts = project["project"]["scripts"]
+    assert {"estimate-positions", "accuracy-report"} <= set(scripts)
+    for name, target in scripts.items():
+        module, _, func = target.partition(":")
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", DeprecationWarning)
+            assert callable(getattr(importlib.import_module(module), func)), name
