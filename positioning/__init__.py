@@ -3,6 +3,12 @@
 Works on ToA arrays from any source (the ray tracer's datasets or a real device's logs); it never
 imports :mod:`raytrace`. Entry point: :func:`locate`. Methods: :data:`METHODS`. Fixes are kept
 inside a :class:`ServiceArea`; :class:`LinkInfo` carries the receiver's per-link reports.
+
+This module is the one stable public API; the code lives in layered subpackages along the flow
+ToA -> problem -> estimate -> evaluate -> report: ``model``, ``io``, ``estimators``, ``twin``,
+``evaluation``, ``methods``, ``report``, ``cli`` (docs/architecture.md). The modules of the flat
+package before (``positioning.tdoa``, ``positioning.irls``, ...) forward their names for one
+release with a :class:`DeprecationWarning`.
 """
 
 from __future__ import annotations
@@ -10,37 +16,34 @@ from __future__ import annotations
 from importlib import import_module
 from typing import TYPE_CHECKING, Any
 
-#: Where each public name lives. Imported on first use (PEP 562): ``positioning.command``,
-#: which every command-line tool's harness imports, must not pull in the estimators (scipy.stats
-#: alone is 0.45 s of a ``trace-scene`` start).
+#: Where each public name lives (module under ``positioning``). Imported on first use (PEP 562):
+#: importing ``positioning`` (or ``positioning.errors``, which every error path needs) must not
+#: pull in the estimators (scipy.stats alone is 0.45 s of a command's start).
 _WHERE = {
-    "METHODS": "api", "Method": "api", "locate": "api", "method_names": "api",
-    "resolve_params": "api", "run_method": "api",
-    "ServiceArea": "area", "area_from_meta": "area",
+    "METHODS": "methods.registry", "Method": "methods.registry",
+    "method_names": "methods.registry", "resolve_params": "methods.registry",
+    "locate": "methods.run", "run_method": "methods.run",
+    "ServiceArea": "model.area", "area_from_meta": "model.area",
     "PositioningError": "errors",
-    "Fixes": "fixes", "Status": "fixes", "status_label": "fixes",
-    "andrews_weight": "irls",
-    "cdf": "metrics", "error_2d": "metrics", "summarize": "metrics",
-    "C0": "tdoa", "LinkInfo": "tdoa", "Problem": "tdoa", "make_problem": "tdoa",
-    "pseudoranges": "tdoa", "range_differences": "tdoa", "signed_tdoa": "tdoa",
+    "Fixes": "estimators.fixes", "Status": "estimators.fixes", "status_label": "estimators.fixes",
+    "andrews_weight": "estimators.irls",
+    "cdf": "evaluation.metrics", "error_2d": "evaluation.metrics",
+    "summarize": "evaluation.metrics",
+    "C0": "model.tdoa", "pseudoranges": "model.tdoa", "range_differences": "model.tdoa",
+    "signed_tdoa": "model.tdoa",
+    "LinkInfo": "model.problem", "Problem": "model.problem", "make_problem": "model.problem",
 }  # fmt: skip
 
 if TYPE_CHECKING:
-    from .api import METHODS, Method, locate, method_names, resolve_params, run_method
-    from .area import ServiceArea, area_from_meta
     from .errors import PositioningError
-    from .fixes import Fixes, Status, status_label
-    from .irls import andrews_weight
-    from .metrics import cdf, error_2d, summarize
-    from .tdoa import (
-        C0,
-        LinkInfo,
-        Problem,
-        make_problem,
-        pseudoranges,
-        range_differences,
-        signed_tdoa,
-    )
+    from .estimators.fixes import Fixes, Status, status_label
+    from .estimators.irls import andrews_weight
+    from .evaluation.metrics import cdf, error_2d, summarize
+    from .methods.registry import METHODS, Method, method_names, resolve_params
+    from .methods.run import locate, run_method
+    from .model.area import ServiceArea, area_from_meta
+    from .model.problem import LinkInfo, Problem, make_problem
+    from .model.tdoa import C0, pseudoranges, range_differences, signed_tdoa
 
 
 def __getattr__(name: str) -> Any:

@@ -1,171 +1,26 @@
-"""Sanity of a ToA dataset before any solve: the scale rule, and the geometry of the fixes.
+"""Deprecated: ``positioning.sanity`` moved to :mod:`positioning.evaluation.trust`,
+:mod:`positioning.io.scale`, :mod:`positioning.model.tdoa`.
 
-The scale rule is the ray tracer's (:mod:`raytrace.core.scale`; the constants are repeated here
-because ``positioning`` never imports ``raytrace``): a hall spans metres to a few hundred metres,
-never more than :data:`MAX_SCENE_M`. Values beyond it are refused with the unit mistake that
-most likely explains them: base stations in millimetres, ToAs in milliseconds, a height in mm.
-
-The geometry check flags fixes whose base stations cannot determine the position: collinear
-stations in 2D (a mirror image), stations all at one height in 3D (z is ambiguous).
+Its names forward to their new modules for one release, with a :class:`DeprecationWarning`.
 """
 
 from __future__ import annotations
 
-import math
-from typing import Any
+from .deprecated import forward
 
-import numpy as np
+#: Old name -> its new module.
+MOVED = {
+    "MIN_SPREAD_RATIO": "positioning.evaluation.trust",
+    "check_trustworthy": "positioning.evaluation.trust",
+    "ill_conditioned": "positioning.evaluation.trust",
+    "trust_counts": "positioning.evaluation.trust",
+    "RANGE_SPANS": "positioning.io.scale",
+    "ScaleError": "positioning.io.scale",
+    "check_dataset": "positioning.io.scale",
+    "check_height": "positioning.io.scale",
+    "check_stations": "positioning.io.scale",
+    "check_toa_scale": "positioning.io.scale",
+    "C0": "positioning.model.tdoa",
+}
 
-from .errors import PositioningError
-
-#: Largest hall or span of base stations, m (= ``raytrace.core.scale.MAX_SCENE_M``).
-MAX_SCENE_M = 5000.0
-#: Speed of light, m/s.
-C0 = 299_792_458.0
-#: Smallest ratio of the station spread's last to first singular value for a usable geometry.
-MIN_SPREAD_RATIO = 0.05
-#: ToA-difference ranges beyond this many station spans (and beyond 1 km) mean a unit mistake.
-RANGE_SPANS = 10.0
-
-_LENGTH_UNITS = ((1000.0, "millimetres"), (100.0, "centimetres"))
-_TIME_UNITS = ((1e3, "milliseconds"), (1e6, "microseconds"), (1e9, "nanoseconds"))
-
-
-class ScaleError(PositioningError):
-    """Values beyond what a hall can be: most likely a unit mistake (one-line message)."""
-
-
-def _length_hint(size_m: float) -> str:
-    for factor, unit in _LENGTH_UNITS:
-        if 1.0 <= size_m / factor <= MAX_SCENE_M:
-            return f"probably in {unit} (x{factor:g}): give metres"
-    return "give metres"
-
-
-def check_stations(bs_xyz: np.ndarray, where: str) -> None:
-    """Refuse base stations spread over more than :data:`MAX_SCENE_M` (a unit mistake).
-
-    bs_xyz : (N, 3) float, metres; where : the file, for the message.
-    """
-    span = float(np.max(np.ptp(bs_xyz, axis=0))) if len(bs_xyz) else 0.0
-    if span > MAX_SCENE_M:
-        raise ScaleError(
-            f"{where}: the base stations span {span:,.0f} m, beyond the "
-            f"{MAX_SCENE_M / 1000:g} km a hall can span: coordinates {_length_hint(span)}"
-        )
-
-
-def check_toa_scale(toa_s: np.ndarray, bs_xyz: np.ndarray, where: str) -> None:
-    """Refuse ToAs whose differences between base stations imply ranges far beyond the stations.
-
-    Within one fix, ``c * |ToA_i - ToA_j|`` is at most the distance between stations i and j
-    (plus the multipath excess), whatever the device's clock offset. A median over the fixes far
-    beyond the stations' span is a time unit mistake (milliseconds read as seconds).
-
-    toa_s : (F, N) float, s, schedule removed, NaN = not received; bs_xyz : (N, 3) float, m.
-    """
-    with np.errstate(all="ignore"):
-        n_ok = np.isfinite(toa_s).sum(axis=1)
-        spread = C0 * (np.nanmax(toa_s, axis=1, initial=-np.inf, where=np.isfinite(toa_s))
-                       - np.nanmin(toa_s, axis=1, initial=np.inf, where=np.isfinite(toa_s)))  # fmt: skip
-    spread = spread[n_ok >= 2]
-    if spread.size == 0:
-        return
-    typical = float(np.median(spread))
-    span = max(float(np.linalg.norm(np.ptp(bs_xyz, axis=0))), 1.0)
-    if typical > max(RANGE_SPANS * span, 1000.0):
-        ratio = typical / span
-        factor, unit = min(_TIME_UNITS, key=lambda fu: abs(math.log10(fu[0]) - math.log10(ratio)))
-        raise ScaleError(
-            f"{where}: the ToA differences imply range differences of {typical:,.0f} m (median) "
-            f"between base stations {span:,.0f} m apart: the ToAs are probably in {unit} "
-            f"(x{factor:g}), give seconds"
-        )
-
-
-def check_height(height: str | float, bs_xyz: np.ndarray) -> None:
-    """Refuse a known device height (``--height``) far from the base stations' heights.
-
-    Allowed: within the stations' height range widened by their span (at least 100 m).
-    """
-    if isinstance(height, str):
-        return
-    z = bs_xyz[:, 2]
-    span = max(float(np.linalg.norm(np.ptp(bs_xyz, axis=0))), 100.0)
-    if not (z.min() - span <= height <= z.max() + span):
-        hint = _length_hint(abs(height)) if abs(height) > MAX_SCENE_M else "give metres"
-        raise ScaleError(
-            f"--height {height:g} m is far from the base stations' heights "
-            f"({z.min():.1f} .. {z.max():.1f} m): {hint}"
-        )
-
-
-def check_dataset(ds: Any) -> None:
-    """The scale rule on a loaded :class:`~positioning.dataset.ToaDataset` (stations, ToAs)."""
-    where = str(ds.path)
-    check_stations(ds.bs_xyz, where)
-    check_toa_scale(ds.toa_unscheduled_s, ds.bs_xyz, where)
-
-
-def ill_conditioned(received: np.ndarray, bs_xyz: np.ndarray, three_d: bool) -> np.ndarray:
-    """Fixes whose received base stations cannot determine the position.
-
-    2D (known height): the stations' horizontal positions are collinear. 3D: the stations lie in
-    one plane (e.g. all at one height), so the position and its mirror image fit alike. Measured
-    by the ratio of the last to the first singular value of the centred station positions
-    (< :data:`MIN_SPREAD_RATIO`).
-
-    Parameters
-    ----------
-    received : (F, N) bool, base stations with a ToA in each fix
-    bs_xyz : (N, 3) float, metres
-    three_d : bool, solving for x, y, z
-
-    Returns
-    -------
-    (F,) bool
-    """
-    dims = 3 if three_d else 2
-    out = np.zeros(len(received), dtype=bool)
-    patterns, inverse = np.unique(received, axis=0, return_inverse=True)
-    for k, mask in enumerate(patterns):
-        pts = bs_xyz[mask, :dims]
-        if len(pts) < dims:
-            continue  # too few stations: unsolved, counted as such
-        s = np.linalg.svd(pts - pts.mean(axis=0), compute_uv=False)
-        if s[0] <= 0 or s[dims - 1] / s[0] < MIN_SPREAD_RATIO:
-            out[np.ravel(inverse) == k] = True
-    return out
-
-
-def trust_counts(ds: Any, fixes: Any, height: str | float) -> dict[str, int]:
-    """Counts of a method's fixes: ``unsolved``, ``not_converged``, ``ill_conditioned`` (station
-    geometry, :func:`ill_conditioned`) and ``trustworthy`` (solved, converged, well
-    conditioned)."""
-    from .fixes import Status
-
-    ill = ill_conditioned(np.isfinite(ds.toa_s), ds.bs_xyz, height == "3d")
-    solved = np.asarray(fixes.solved)
-    not_conv = (np.asarray(fixes.status) & int(Status.NOT_CONVERGED)) != 0
-    return {
-        "unsolved": int(np.count_nonzero(~solved)),
-        "not_converged": int(np.count_nonzero(not_conv & solved)),
-        "ill_conditioned": int(np.count_nonzero(ill & solved)),
-        "trustworthy": int(np.count_nonzero(solved & ~not_conv & ~ill)),
-    }
-
-
-def check_trustworthy(counts: dict[str, int], where: str, height: str | float) -> None:
-    """Refuse a result without a single trustworthy fix (exit non-zero, nothing written)."""
-    if counts["trustworthy"] > 0:
-        return
-    why = (
-        "collinear base stations"
-        if height != "3d"
-        else "base stations in one plane (all at one height?): give --height"
-    )
-    raise PositioningError(
-        f"{where}: no trustworthy fix ({counts['ill_conditioned']} ill-conditioned by the "
-        f"geometry: {why}; {counts['not_converged']} not converged; {counts['unsolved']} "
-        "unsolved)"
-    )
+__getattr__, __dir__ = forward(__name__, MOVED)

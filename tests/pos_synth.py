@@ -14,6 +14,9 @@ from pathlib import Path
 
 import numpy as np
 
+from positioning.model.noise import FLOOR_FIRST_LOBE
+from positioning.model.problem import LinkInfo
+
 C0 = 299_792_458.0
 #: Base stations at the corners of a 29 m x 25 m area at 4 m, as in the paper.
 PAPER_BS = np.array([[0.0, 0.0, 4.0], [29.0, 0.0, 4.0], [29.0, 25.0, 4.0], [0.0, 25.0, 4.0]])
@@ -124,7 +127,7 @@ def synth_map(
     """A fingerprint map of the synthetic hall: cells on a ``step`` lattice offset by half a step
     over ``area`` (x, y from 0), first arrival = straight distance + ``bias(xy)``, service area the
     rectangle."""
-    from positioning.fingerprint import FingerprintMap
+    from positioning.twin.fingerprint import FingerprintMap
 
     xs = np.arange(step / 2, area[0], step)
     ys = np.arange(step / 2, area[1], step)
@@ -201,8 +204,8 @@ def two_ray_map(step: float = 0.5, area: tuple[float, float] = (29.0, 25.0)):
     """A schema-v2 map of the synthetic hall with :func:`two_ray_paths` per cell and ``toa_s``
     from the first-lobe receiver on them (the overlap of the two rays biases it by up to
     decimetres, changing within a cell)."""
-    from positioning.fingerprint import FingerprintMap
-    from positioning.lobe import LobeReceiver
+    from positioning.twin.fingerprint import FingerprintMap
+    from positioning.twin.lobe import LobeReceiver
 
     base = synth_map(step=step, area=area, bias=lambda xy: np.zeros((len(xy), len(PAPER_BS))))
     delay, gain, u, radius = two_ray_paths(base.cell_xyz)
@@ -212,3 +215,37 @@ def two_ray_map(step: float = 0.5, area: tuple[float, float] = (29.0, 25.0)):
     return FingerprintMap(**{**base.arrays(), "toa_s": toa},
                           meta={**base.meta, "receiver_model": CBAND_MODEL},
                           path_delay_s=delay, path_gain=gain, path_dir=u, path_radius_m=radius)  # fmt: skip
+
+
+#: mmWave-like band: 400 MHz, 28 GHz; link budget offset so that the free-space SNR at 20 m is
+#: about 12 dB (as in the bundled hall).
+BAND = {"bandwidth_hz": 400e6, "center_frequency_hz": 28e9, "subcarrier_spacing_hz": 120e3}
+SNR_OFFSET_DB = 99.4
+#: The noise core of nlos-map's error model in BAND (FLOOR_FIRST_LOBE c / B = 0.045 m).
+SIGMA_M = FLOOR_FIRST_LOBE * C0 / BAND["bandwidth_hz"]
+
+
+def nlos_scene(seed: int, n: int, bs: np.ndarray, n_nlos: int, excess=(5.0, 30.0)):
+    """ToAs and receiver reports of n devices: range noise SIGMA_M, ``n_nlos`` base stations per
+    epoch with a uniform excess and an SNR 15 dB under free space (a blocked link); LoS links
+    at their free-space SNR."""
+    rng = np.random.default_rng(seed)
+    dev = np.column_stack([rng.uniform(2, 27, n), rng.uniform(2, 23, n), np.full(n, 1.0)])
+    d = np.linalg.norm(dev[:, None] - bs[None], axis=2)
+    lam = C0 / BAND["center_frequency_hz"]
+    snr = SNR_OFFSET_DB + 20 * np.log10(lam / (4 * np.pi * d))
+    bias = np.zeros_like(d)
+    for i in range(n):
+        j = rng.choice(len(bs), n_nlos, replace=False)
+        bias[i, j] = rng.uniform(*excess, n_nlos)
+        snr[i, j] -= 15.0
+    toa = (d + bias + rng.normal(0, SIGMA_M, d.shape)) / C0 + rng.uniform(0, 1e-3, (n, 1))
+    links = LinkInfo(
+        snr_db=snr,
+        peak_ratio_db=np.zeros_like(d),
+        lobe_width=np.ones_like(d),
+        receiver="first-lobe",
+        snr_offset_db=SNR_OFFSET_DB,
+        **BAND,
+    )
+    return dev, toa, links

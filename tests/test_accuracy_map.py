@@ -8,7 +8,7 @@ import csv
 import numpy as np
 import pytest
 
-from positioning.fingerprint import read_map
+from positioning.twin.fingerprint import read_map
 from raytrace import HallrayError, load_scene
 from raytrace.cli.accuracy_map import accuracy_map_main
 from raytrace.core.constants import C0
@@ -224,8 +224,8 @@ def test_stored_paths_reproduce_the_maps_toa(tmp_path):
     """A first-lobe map with every path stored (schema v2): positioning's receiver model run on
     the stored paths of each cell gives the map's own toa_s (within 1e-4 T), the directions are
     unit vectors, and the file reads back as version 2."""
-    from positioning.fingerprint import write_map
-    from positioning.lobe import LobeReceiver
+    from positioning.twin.fingerprint import write_map
+    from positioning.twin.lobe import LobeReceiver
 
     sc = load_scene("canonical/shoebox")
     amap = compute_map(sc, _settings(receiver="first-lobe", paths=200), bs_xyz=SHOEBOX_BS,

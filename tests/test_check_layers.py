@@ -18,7 +18,8 @@ RULES = ("layers", "size", "private", "builtins", "syspath")
 
 
 def _write(root: Path, files: dict[str, str]) -> Path:
-    for rel, text in files.items():
+    """A checkout holding ``files`` and the three packages (the checker needs them)."""
+    for rel, text in {"hallray/__init__.py": "", **files}.items():
         path = root / rel
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(text, encoding="utf-8")

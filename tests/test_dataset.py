@@ -319,7 +319,7 @@ def test_meta_json_carries_the_parameters(tmp_path):
 
 
 def test_positioning_reads_the_dataset(tmp_path):
-    from positioning.dataset import load_dataset
+    from positioning.io.dataset import load_dataset
 
     sc = _scene()
     make_dataset(

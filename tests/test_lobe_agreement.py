@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from positioning.lobe import LobeReceiver
+from positioning.twin.lobe import LobeReceiver
 from raytrace.emulation.receivers import Receiver
 from raytrace.studies.accuracy_map import receiver_model_meta
 

@@ -60,7 +60,7 @@ def test_reproduce_paper_interrupted_in_the_report_says_so_once(tmp_path, capsys
     """Ctrl-C or SIGTERM while the accuracy report runs: the report does not turn it into an
     exit status of its own; reproduce-paper reports the interruption once, exits 130 and
     leaves no output."""
-    import positioning.cli
+    import positioning.cli.accuracy
     from raytrace.emulation.dataset import make as dataset
 
     def datasets(folder, pairs, **kw):
@@ -71,7 +71,7 @@ def test_reproduce_paper_interrupted_in_the_report_says_so_once(tmp_path, capsys
         raise KeyboardInterrupt
 
     monkeypatch.setattr(dataset, "make_datasets", datasets)
-    monkeypatch.setattr(positioning.cli, "_report", report)
+    monkeypatch.setattr(positioning.cli.accuracy, "_report", report)
     out = tmp_path / "run"
     assert reproduce_paper_main(["-o", str(out), "-q", "--map-step", "0"]) == 130
     err = capsys.readouterr().err

@@ -20,8 +20,9 @@ import pytest
 import trimesh
 from pos_synth import write_dataset
 
-from positioning.cli import accuracy_report_main, estimate_positions_main
-from positioning.output import output_dir, output_lock, write_file
+from hallray.safe_output import output_dir, output_lock, write_file
+from positioning.cli.accuracy import accuracy_report_main
+from positioning.cli.estimate import estimate_positions_main
 from raytrace.cli.make_dataset import make_dataset_main
 from raytrace.cli.make_hall import format_los_report, hall_los_check_main, make_hall_main
 from raytrace.cli.render_scene import render_scene_main
@@ -513,7 +514,7 @@ def test_fault_injection_accuracy_report(tmp_path):
     out.parent.mkdir()
     args = [str(d), "-o", str(out)]
     _kill_and_rerun(
-        "positioning.cli", "accuracy_report_main", args, out, random.Random(7), (1.0, 5.0),
+        "positioning.cli.accuracy", "accuracy_report_main", args, out, random.Random(7), (1.0, 5.0),
         whole=_whole_report,
     )
     assert (out / "table.md").is_file()

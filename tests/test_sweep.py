@@ -282,7 +282,7 @@ def test_datasets_are_the_dataset_writers_and_give_the_same_fixes(tmp_path):
     sweep's in-memory ones exactly, and positioning the dataset file gives the cell's errors. A
     missing dataset makes its cell count as not done."""
     from positioning import error_2d, locate, summarize
-    from positioning.dataset import load_dataset
+    from positioning.io.dataset import load_dataset
     from raytrace.studies.sweep import dataset_dir
 
     cfg = parse_sweep_config(small_config(grid={"profile": ["InF-SL", "InF-SH"]}, datasets=True))

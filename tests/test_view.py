@@ -218,7 +218,7 @@ def test_decimation_keeps_the_budget_and_the_shape():
 
 
 def _fake_map(scene, sha=None):
-    from positioning.fingerprint import FingerprintMap
+    from positioning.twin.fingerprint import FingerprintMap
 
     xs, ys = np.meshgrid(np.arange(1.0, 20.0, 2.0), np.arange(1.0, 16.0, 2.0))
     cells = np.column_stack([xs.ravel(), ys.ravel(), np.full(xs.size, 1.0)])

@@ -30,10 +30,10 @@ from pathlib import Path
 
 import numpy as np
 
+from hallray.harness import OneLineParser, run_command
 from positioning import C0, METHODS, error_2d, locate, summarize
-from positioning.command import OneLineParser, run_command
 from positioning.errors import PositioningError
-from positioning.fingerprint import FingerprintMap, write_map
+from positioning.twin.fingerprint import FingerprintMap, write_map
 
 BS = np.array([[0.0, 0.0, 4.0], [29.0, 0.0, 4.0], [29.0, 25.0, 4.0], [0.0, 25.0, 4.0]])
 
@@ -157,7 +157,7 @@ def hall_map_v2_file(folder: str, k: int = 16) -> str:
     """:func:`los_map` in schema version 2: per cell and base station the line-of-sight path and
     a floor reflection (coefficient -0.7), padded to ``k`` slots (:func:`two_ray_paths`), the
     C-band first-lobe receiver model, ``toa_s`` from that receiver; returns its path."""
-    from positioning.lobe import LobeReceiver
+    from positioning.twin.lobe import LobeReceiver
 
     model = LobeReceiver.from_meta(CBAND_MODEL)  # C-band, as accuracy-map writes it
     base = los_map()
@@ -190,7 +190,7 @@ def run(n_epochs: int = 20000, seed: int = 0, clock=time.perf_counter) -> dict[s
         locate(toa[:10], BS, m, tx_offsets_s=off, height_m=1.0, **kw)  # load the map
         if name == "twin-v2 cold":
             # the raster holds nothing yet: every fix near a new place re-synthesises its tiles
-            from positioning.twin import load
+            from positioning.twin.lattice import load
 
             load(kw["map"])[1].rasters.clear()
             t0 = clock()
@@ -203,7 +203,7 @@ def run(n_epochs: int = 20000, seed: int = 0, clock=time.perf_counter) -> dict[s
             locate(toa[:n], BS, m, tx_offsets_s=off, height_m=p[:n, 2], **kw)
             best = min(best, clock() - t0)
         out[name] = n / best
-    from positioning.twin import load, prepare
+    from positioning.twin.lattice import load, prepare
 
     load(v2["map"])[1].rasters.clear()
     t0 = clock()

@@ -22,13 +22,13 @@ from pathlib import Path
 
 import numpy as np
 
-from positioning import api
-from positioning.command import OneLineParser, run_command
-from positioning.dataset import load_dataset
+from hallray.harness import OneLineParser, run_command
 from positioning.errors import PositioningError
-from positioning.metrics import error_2d
-from positioning.report import dataset_problem
-from positioning.twin import load
+from positioning.evaluation.metrics import error_2d
+from positioning.io.dataset import load_dataset
+from positioning.io.prepare import dataset_problem
+from positioning.methods.registry import METHODS, resolve_params
+from positioning.twin.lattice import load
 
 SETUPS = "static-c-band,static-mmwave,semi-dynamic-c-band,semi-dynamic-mmwave"
 
@@ -75,16 +75,16 @@ def _main(a: argparse.Namespace) -> int:
         prob = dataset_problem(ds)
         mp = str(Path(a.maps) / band / "map.npz")
         for step in a.steps:
-            p = api.resolve_params("twin", {"map": mp, "resynth_step": step}, prob.n_bs)
+            p = resolve_params("twin", {"map": mp, "resynth_step": step}, prob.n_bs)
             load(mp)[1].rasters.clear()
             rate = []
             for _ in range(2):
                 t0 = time.process_time()
-                out = api.METHODS["twin"].func(prob, **p)
+                out = METHODS["twin"].run(prob, p)
                 rate.append(prob.n_epochs / (time.process_time() - t0))
                 if step == 0:
                     break  # nothing is kept between passes
-            e = error_2d(out["xyz"], ds.true_xyz)
+            e = error_2d(out.xyz, ds.true_xyz)
             warm = f"{rate[1]:.0f}" if len(rate) > 1 else "(as cold)"
             print(f"| {setup} | {step:g} | {np.percentile(e, 90):.2f} / {e.mean():.3f} | "
                   f"{rate[0]:.0f} | {warm} |", flush=True)  # fmt: skip

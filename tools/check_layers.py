@@ -4,9 +4,14 @@
 Rule groups (``--rules``, default all); each violation is one line ``path:line: what [rule]``:
 
 ``layers``
-    an import that goes against the arrows between raytrace's subpackages (``LAYERS`` below);
-    ``positioning`` importing ``raytrace``, or anything importing ``raytrace.cli``; a solver stage
-    module imported by anything but the tracer; an import cycle between our modules
+    an import that goes against the arrows between raytrace's subpackages (``LAYERS`` below) or
+    between positioning's (``POSITIONING_LAYERS``); ``positioning`` importing ``raytrace``, or
+    anything importing ``raytrace.cli``; ``hallray`` (the commands' shared infrastructure)
+    importing ``raytrace`` or ``positioning`` (only its console command, ``hallray.main`` /
+    ``hallray.cli``, may; nothing imports that); a raytrace layer below ``studies`` importing
+    ``positioning``, or any module importing an old (deprecated) path of positioning (a
+    top-level module of it other than the package itself and ``positioning.errors``); a solver
+    stage module imported by anything but the tracer; an import cycle between our modules
     (module-level and function-local imports together); a function-local import of our own
     module that would close a cycle if it were at module level (an import made only to dodge a
     cycle). Function-local imports that do not close a cycle are fine (lazy loading of heavy
@@ -50,7 +55,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 
 # the tools' harness (one-line errors, exit status 2 on bad input): standard library only
-from positioning.command import OneLineParser, run_command
+from hallray.harness import OneLineParser, run_command
 
 
 class LayerCheckError(Exception):
@@ -71,6 +76,29 @@ LAYERS: dict[str, set[str]] = {
 }
 #: The package's own __init__ re-exports the public API from these.
 TOP_ALLOWED = {"core", "physics", "scene", "solver", "emulation"}
+#: The raytrace layers that may import positioning (its public API and its subpackages).
+USES_POSITIONING = {"studies", "cli"}
+
+#: Subpackage of positioning -> the subpackages of positioning it may import (itself included),
+#: along the flow ToA -> problem -> estimate -> evaluate -> report. Every module may also import
+#: ``positioning.errors``; positioning's top-level modules (the lazy public API in ``__init__``,
+#: the old paths' shims) may import any of it.
+POSITIONING_LAYERS: dict[str, set[str]] = {
+    "model": {"model"},
+    "io": {"model", "io"},
+    "estimators": {"model", "estimators"},
+    "twin": {"model", "estimators", "twin"},
+    "evaluation": {"model", "estimators", "evaluation"},
+    "methods": {"model", "estimators", "twin", "evaluation", "methods"},
+    "report": {"model", "io", "estimators", "twin", "evaluation", "methods", "report"},
+    "cli": {"model", "io", "estimators", "twin", "evaluation", "methods", "report", "cli"},
+}
+#: Top-level modules of positioning that are not old paths: the public API and the error type.
+POSITIONING_CURRENT = {"positioning", "positioning.errors"}
+#: The one-release forwarding helper of the old paths (imported by the shims only).
+POSITIONING_SHIM_HELPER = "positioning.deprecated"
+#: Modules of hallray that may import the two packages (the future ``hallray`` console command).
+HALLRAY_COMMAND = ("hallray.main", "hallray.cli")
 #: Solver modules that only the tracer may import (the stages and their back end).
 STAGES = {"raytrace.solver.specular", "raytrace.solver.diffraction", "raytrace.solver.evaluate"}
 STAGE_IMPORTERS = {"raytrace.solver.tracer"} | STAGES
@@ -126,10 +154,55 @@ def layer_of(mod: str) -> str | None:
     return parts[1] if len(parts) > 1 and parts[1] in LAYERS else ""
 
 
+def in_package(mod: str, pkg: str) -> bool:
+    """Whether ``mod`` is the module or package ``pkg`` or inside it."""
+    return mod == pkg or mod.startswith(f"{pkg}.")
+
+
+def positioning_layer(mod: str) -> str:
+    """The subpackage of positioning that ``mod`` is in ("" for a top-level module)."""
+    parts = mod.split(".")
+    inside = len(parts) > 2 or (len(parts) == 2 and parts[1] in POSITIONING_LAYERS)
+    return parts[1] if inside else ""
+
+
+def allowed_hallray(src: str, dst: str) -> bool | None:
+    """The rules of hallray's imports and of imports of hallray (None: not concerned)."""
+    if any(in_package(dst, c) for c in HALLRAY_COMMAND):
+        return any(in_package(src, c) for c in HALLRAY_COMMAND)  # nothing imports the command
+    if in_package(src, "hallray") and not any(in_package(src, c) for c in HALLRAY_COMMAND):
+        return not (in_package(dst, "raytrace") or in_package(dst, "positioning"))
+    if in_package(dst, "hallray"):
+        return True  # the commands' infrastructure is below every layer of both packages
+    return None
+
+
+def allowed_positioning(src: str, dst: str) -> bool | None:
+    """The rules of positioning's imports and of imports of positioning (None: not concerned)."""
+    if not in_package(dst, "positioning"):
+        return False if in_package(src, "positioning") and in_package(dst, "raytrace") else None
+    d = positioning_layer(dst)
+    if d == "" and dst not in POSITIONING_CURRENT:
+        # an old path (a shim forwarding for one release) or the shims' helper
+        return dst == POSITIONING_SHIM_HELPER and src.count(".") == 1
+    if in_package(src, "raytrace"):
+        return layer_of(src) in USES_POSITIONING
+    if not in_package(src, "positioning"):
+        return None
+    s = positioning_layer(src)
+    if s == "" or dst == "positioning.errors":
+        return True  # the lazy public API, the shims; the error type for all
+    if d == "":
+        return False  # the package's public API is for its users, not its layers
+    return d in POSITIONING_LAYERS[s]
+
+
 def allowed(src: str, dst: str) -> bool:
+    for rule in (allowed_hallray, allowed_positioning):
+        verdict = rule(src, dst)
+        if verdict is not None:
+            return verdict
     s, d = layer_of(src), layer_of(dst)
-    if src.startswith("positioning"):
-        return not dst.startswith("raytrace")
     if s is None or d is None:
         return True  # positioning targets are checked by the raytrace side below
     if d == "":  # raytrace/__init__ (the public API, __version__)
@@ -206,7 +279,7 @@ def reachable(edges: dict[str, set[str]], a: str, b: str) -> bool:
 
 def check(root: Path) -> list[str]:
     files = {}
-    for pkg in ("raytrace", "positioning"):
+    for pkg in PACKAGES:
         for path in sorted((root / pkg).rglob("*.py")):
             files[module_name(root, path)] = path
     known = set(files)
@@ -516,7 +589,7 @@ def parser() -> argparse.ArgumentParser:
 
 def _main(args: argparse.Namespace) -> int:
     root = args.root
-    missing = [pkg for pkg in ("raytrace", "positioning") if not (root / pkg).is_dir()]
+    missing = [pkg for pkg in PACKAGES if not (root / pkg).is_dir()]
     if missing:
         raise LayerCheckError(f"{root}: no {' or '.join(missing)} package in it (not a checkout)")
     broken = set()

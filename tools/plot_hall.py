@@ -21,7 +21,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import trimesh
 
-from positioning.output import check_output
+from hallray.safe_output import check_output
 from raytrace.cli.harness import OneLineParser, run_tool
 from raytrace.core.errors import HallrayError
 from raytrace.core.fileio import write_atomic

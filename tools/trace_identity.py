@@ -17,7 +17,7 @@ import time
 
 import numpy as np
 
-from positioning.output import check_output
+from hallray.safe_output import check_output
 from raytrace import TraceConfig, load_scene, trace
 from raytrace.cli.harness import OneLineParser, run_tool
 from raytrace.core.errors import HallrayError

@@ -4,7 +4,7 @@
                  [--methods ls irls] [--draws 100] [--seed 1] [--workers N | --scheduler ADDR]
                  [--clearance 0.25] [--max-cells 20000] [--no-pictures] [--force] [-q] -o DIR
 
-Writes DIR/map.npz (schema ``hallray-accuracy-map`` v1, :mod:`positioning.fingerprint`),
+Writes DIR/map.npz (schema ``hallray-accuracy-map`` v1, :mod:`positioning.twin.fingerprint`),
 DIR/map.csv and PNG heatmaps (docs/accuracy_map.md). Bad input gives a one-line ``error: ...``
 on stderr and exit status 2 (:mod:`.harness`); DIR appears only when complete.
 """

@@ -64,7 +64,7 @@ def _is_export(d: Path) -> bool:
 
 def main(args: argparse.Namespace) -> int:
     """``hallray-export``: parse -> load -> export into a temporary directory -> rename."""
-    from positioning.output import check_output, output_dir
+    from hallray.safe_output import check_output, output_dir
 
     from ..emulation.bands import get_band
     from ..scene.bundled import resolve_scene

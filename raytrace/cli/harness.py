@@ -1,7 +1,7 @@
 """What every ray-tracer command shares: the harness (one-line errors, exit codes, signals) and the
 common option types.
 
-The harness itself is :mod:`positioning.command` (one for both packages); :func:`run_tool` runs a
+The harness itself is :mod:`hallray.harness` (one for both packages); :func:`run_tool` runs a
 raytrace tool with :class:`~raytrace.core.errors.HallrayError` as bad input. The command modules
 beside this one are thin: they parse, call the library, print or write.
 """
@@ -13,7 +13,7 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from positioning.command import EXIT_BAD_INPUT, OneLineParser, run_command
+from hallray.harness import EXIT_BAD_INPUT, OneLineParser, run_command
 
 from ..core.errors import HallrayError
 
@@ -34,7 +34,7 @@ def run_tool(
     *,
     interrupted: str = "interrupted",
 ) -> int:
-    """Run a raytrace command (:func:`positioning.command.run_command`); returns the exit status."""
+    """Run a raytrace command (:func:`hallray.harness.run_command`); returns the exit status."""
     return run_command(main, parser, argv, user_errors=(HallrayError,), interrupted=interrupted)
 
 

@@ -97,7 +97,7 @@ def make_dataset_main(argv: Sequence[str] | None = None) -> int:
 
 
 def _make_dataset(args: argparse.Namespace) -> int:
-    from positioning.output import output_dir
+    from hallray.safe_output import output_dir
 
     from ..emulation.dataset.config import ALL_DATASETS
 

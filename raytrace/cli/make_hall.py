@@ -82,7 +82,7 @@ def make_hall_main(argv: Sequence[str] | None = None) -> int:
 
 
 def _make_hall(args: argparse.Namespace) -> int:
-    from positioning.output import output_dir
+    from hallray.safe_output import output_dir
 
     # the three files appear together or not at all; a previous make-hall output is replaced,
     # any other non-empty directory refused

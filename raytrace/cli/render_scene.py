@@ -91,7 +91,7 @@ def _render_scene(args: argparse.Namespace) -> int:
         raise HallrayError(f"output {args.output} must end in .png")
     if args.dpi < 20 or args.dpi > 1200:
         raise HallrayError(f"--dpi must be 20..1200, got {args.dpi}")
-    from positioning.output import check_output
+    from hallray.safe_output import check_output
 
     check_output(args.output, inputs=[args.scene, args.materials, args.paths])
     scene = load_scene(args.scene, args.materials, default_material=args.default_material)

@@ -87,7 +87,7 @@ def reproduce_paper_main(argv: Sequence[str] | None = None) -> int:
 
 
 def _main(args: argparse.Namespace) -> int:
-    from positioning.output import output_dir
+    from hallray.safe_output import output_dir
 
     from ..emulation.receivers.receiver import DEFAULT_TOA_METHOD, TOA_METHODS
 
@@ -132,7 +132,7 @@ def _build(
     """Datasets of every receiver into ``tmp/datasets`` (one trace), a report per receiver, and
     ``tmp/paper.md``; returns the text of ``paper.md``."""
     from positioning import method_names
-    from positioning.cli import accuracy_report
+    from positioning.cli.accuracy import accuracy_report
 
     from ..emulation.dataset.make import make_datasets
     from ..studies.paper import costs_markdown, method_costs, write_comparison

@@ -99,7 +99,7 @@ def _scan_to_scene(args: argparse.Namespace) -> int:
     opt = ScanOptions(
         objects=args.objects, **{name: getattr(args, name) for _, name, _, _ in _OPTIONS}
     )
-    from positioning.output import check_output
+    from hallray.safe_output import check_output
 
     check_output(args.output, inputs=[args.cloud, args.materials, args.positions])
     summary = scan_to_scene(

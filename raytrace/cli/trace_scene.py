@@ -140,7 +140,7 @@ def _trace_scene(args: argparse.Namespace) -> int:
 
 def _check_outputs(args: argparse.Namespace) -> None:
     """Refuse, before any work, an output that is special, an input, or both outputs at once."""
-    from positioning.output import check_output
+    from hallray.safe_output import check_output
 
     inputs = [args.scene if args.scene != "hall" else None, args.materials]
     if args.output:

@@ -74,7 +74,7 @@ def view_main(argv: Sequence[str] | None = None) -> int:
 
 def main(args: argparse.Namespace) -> int:
     """``hallray-view``: check -> load -> paths (read or traced) -> figure -> one HTML file."""
-    from positioning.output import check_output, write_file
+    from hallray.safe_output import check_output, write_file
 
     from ..scene.bundled import resolve_scene
     from ..scene.io import load_scene
@@ -96,7 +96,12 @@ def main(args: argparse.Namespace) -> int:
     scene = load_scene(args.scene, args.materials, default_material=args.default_material)
     paths, links, names = _paths(args, scene)
     _say(args, "building the view")
-    fig = preview(scene, paths, links, accuracy_map=map_file, max_paths=args.max_paths,
+    fmap = None
+    if map_file is not None:
+        from positioning.twin.fingerprint import read_map
+
+        fmap = read_map(map_file)
+    fig = preview(scene, paths, links, accuracy_map=fmap, max_paths=args.max_paths,
                   max_triangles=args.max_triangles, title=args.title,
                   tx_names=names[0], rx_names=names[1])  # fmt: skip
     html = view_html(fig).encode("utf-8")

@@ -18,7 +18,7 @@ def write_atomic(path: str | os.PathLike[str], data: bytes) -> None:
     device node, FIFO, socket or directory there is refused. The file gets the mode an ordinary
     ``open()`` would give it (``0666 & ~umask``) or keeps the mode of the file it replaces; a
     missing directory is a one-line :class:`HallrayError`. (The command-line tools go through
-    :mod:`positioning.output`, which also refuses inputs and locks; this is the library's writer.)
+    :mod:`hallray.safe_output`, which also refuses inputs and locks; this is the library's writer.)
     """
     p = Path(os.path.realpath(os.fspath(path)))
     if p.exists() and not stat.S_ISREG(p.stat().st_mode):

@@ -1,23 +1,20 @@
 """The scale sanity rule: a factory hall is metres to a few hundred metres across, never km.
 
 One rule for every loader and tool (scenes, hall sizes, transmitter and receiver positions); the
-positioning package applies the same rule to datasets (:mod:`positioning.scale`, which holds the
-same constants because ``positioning`` never imports ``raytrace``). A size beyond
-:data:`MAX_SCENE_M` is refused before any heavy work, with the unit mistake that most likely
-explains it (millimetres or centimetres read as metres).
+positioning package applies the same rule to datasets (:mod:`positioning.io.scale`). Both take its
+constants from :mod:`hallray.units`. A size beyond :data:`MAX_SCENE_M` is refused before any heavy
+work, with the unit mistake that most likely explains it (millimetres or centimetres read as
+metres).
 """
 
 from __future__ import annotations
 
 import math
 
+from hallray.units import LENGTH_UNITS as UNIT_FACTORS
+from hallray.units import MAX_SCENE_M
+
 from .errors import HallrayError
-
-#: Largest scene, hall or distance between sites the tools accept, m ("a few km").
-MAX_SCENE_M = 5000.0
-
-#: Factors to try, largest first: what the value would be in metres had it been in this unit.
-UNIT_FACTORS = ((1000.0, "millimetres"), (100.0, "centimetres"))
 
 
 class ScaleError(HallrayError):

@@ -316,10 +316,11 @@ def method_costs(
     """
     import time
 
-    from positioning.api import METHODS, run_method
-    from positioning.dataset import load_dataset
-    from positioning.report import dataset_problem
-    from positioning.track import split_method, track_fixes
+    from positioning.estimators.track import split_method, track_fixes
+    from positioning.io.dataset import load_dataset
+    from positioning.io.prepare import dataset_problem
+    from positioning.methods.registry import METHODS
+    from positioning.methods.run import run_method
 
     ds = load_dataset(dataset_dir)
     prob = dataset_problem(ds)

@@ -359,25 +359,23 @@ def _map_quantities(fmap: Any) -> list[tuple[str, np.ndarray, str, tuple[float, 
     return out
 
 
-def read_accuracy_map(source: Any, scene: Scene) -> Any:
-    """A fingerprint map (``accuracy-map``'s directory, its ``map.npz``, or a loaded
-    :class:`positioning.fingerprint.FingerprintMap`), checked to be of this scene.
+def check_accuracy_map(fmap: Any, scene: Scene) -> Any:
+    """A loaded fingerprint map (:func:`positioning.twin.fingerprint.read_map` of
+    ``accuracy-map``'s ``map.npz``), checked to be of this scene. The viz layer does not read
+    the file itself: it may not import positioning (docs/architecture.md); ``hallray-view
+    --map`` reads it.
 
     Raises
     ------
     HallrayError
-        A missing map, or one computed for another scene (its ``scene_sha256``).
+        A path instead of a loaded map, or a map computed for another scene (its
+        ``scene_sha256``).
     """
-    from positioning.fingerprint import read_map
-
-    fmap = source
-    if isinstance(source, (str, os.PathLike)):
-        p = Path(source)
-        if p.is_dir():
-            p = p / "map.npz"
-        if not p.is_file():
-            raise HallrayError(f"accuracy map not found: {p} (give accuracy-map's DIR or map.npz)")
-        fmap = read_map(p)
+    if isinstance(fmap, (str, os.PathLike)):
+        raise HallrayError(
+            f"accuracy_map={fmap!s}: pass a loaded map "
+            "(positioning.twin.fingerprint.read_map(path)), not a path"
+        )
     want = fmap.meta.get("scene_sha256")
     if want and want != scene.content_hash():
         raise HallrayError(
@@ -490,8 +488,8 @@ def preview(
     paths : Paths, optional, traced paths (:func:`raytrace.trace`, ``Paths.load``)
     links : links of ``paths`` to draw: indices, ``"BS1,P07"`` or ``("BS1", "P07")``; default
         every link with a path
-    accuracy_map : ``accuracy-map``'s directory or ``map.npz``, or a loaded fingerprint map;
-        must be of this scene (its ``scene_sha256``)
+    accuracy_map : a loaded fingerprint map (``positioning.twin.fingerprint.read_map`` of
+        ``accuracy-map``'s ``map.npz``); must be of this scene (its ``scene_sha256``)
     tx_names, rx_names : names of the paths' transmitters and receivers (default: the scene's
         base stations and points where the positions match within 1 mm, else ``tx0``, ``rx0``)
     max_paths : paths per link besides the first arrival, strongest first (negative: all)
@@ -523,7 +521,7 @@ def preview(
     n_map = 0
     map_idx: list[int] = []
     if accuracy_map is not None:
-        fmap = read_accuracy_map(accuracy_map, scene)
+        fmap = check_accuracy_map(accuracy_map, scene)
         from ..halls.scan import floor_level
 
         first = len(traces)

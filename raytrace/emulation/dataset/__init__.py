@@ -2,7 +2,7 @@
 
 A dataset directory holds ``toa.csv`` (one row per epoch, point and base station) and
 ``meta.json`` (every parameter that produced it); the schema is in ``docs/dataset.md`` and is
-read by :mod:`positioning.dataset`. For the semi-dynamic scenario it also holds
+read by :mod:`positioning.io.dataset`. For the semi-dynamic scenario it also holds
 ``forklifts.csv`` (the forklift poses of every epoch).
 
 Measurements: :mod:`raytrace.emulation.measurement` (base station k transmits at ``k * delta``,

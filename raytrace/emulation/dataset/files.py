@@ -16,6 +16,8 @@ from typing import Any
 
 import numpy as np
 
+from hallray.safe_output import commit_dir
+
 from ...core.errors import HallrayError
 from ...scene.facts import SceneFacts
 from ...scene.metadata import SceneMetadata
@@ -24,7 +26,7 @@ from ...solver.incremental import Fleet
 from ..bands import Band
 from ..measurement import Measurements
 from .config import COLUMNS, SCHEMA_VERSION, DatasetConfig
-from .staging import commit_output, stage_output
+from .staging import stage_output
 
 
 def _num(values: np.ndarray, fmt: str) -> list[str]:
@@ -279,7 +281,7 @@ def write_dataset(
     tmp = stage_output(out, force)
     try:
         write_files(tmp, files)
-        commit_output(tmp, out)
+        commit_dir(tmp, out)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise

@@ -28,7 +28,7 @@ from ..receivers.receiver import DEFAULT_TOA_METHOD
 from .config import SCENARIOS, DatasetConfig
 from .epochs import ScenarioGroup, measure_group, scenario_group
 from .files import dataset_parts, dataset_summary, write_files
-from .staging import commit_output, stage_output
+from .staging import stage_output
 
 
 def _dataset_configs(
@@ -154,7 +154,7 @@ def make_datasets(
         single dataset, directly in ``out_dir``
     staging : bool, build in a temporary directory and rename it (True), or write straight into
         ``out_dir``, an empty directory the caller stages itself (False: the command-line tools,
-        through :mod:`positioning.output`)
+        through :mod:`hallray.safe_output`)
 
     Returns
     -------
@@ -197,7 +197,7 @@ def make_datasets(
                 summaries += _write_group(g, group, (sc, inputs, facts), tmp, out,
                                           subdirectories, methods[0], workers, progress)  # fmt: skip
         if staging:
-            commit_output(tmp, out)
+            commit_dir(tmp, out)
         committed = True
     finally:
         if not committed and staging:

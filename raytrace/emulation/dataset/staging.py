@@ -1,12 +1,11 @@
 """An output directory built whole or not at all: built in a temporary directory beside it
-(:func:`stage_output`) and renamed into place when complete (:func:`commit_output`). Datasets
-and accuracy maps are written this way.
+(:func:`stage_output`) and renamed into place when complete (:func:`hallray.safe_output.commit_dir`,
+the one rename of both packages). Datasets and accuracy maps are written this way.
 """
 
 from __future__ import annotations
 
 import os
-import shutil
 import tempfile
 from pathlib import Path
 
@@ -15,7 +14,7 @@ from ...core.errors import HallrayError
 
 def stage_output(out: Path, force: bool) -> Path:
     """Check an output directory and create the temporary one beside it, where the output is
-    built whole before :func:`commit_output` renames it into place (datasets, accuracy maps).
+    built whole before :func:`hallray.safe_output.commit_dir` renames it into place (datasets, accuracy maps).
 
     Parameters
     ----------
@@ -44,15 +43,3 @@ def stage_output(out: Path, force: bool) -> Path:
     os.umask(umask)
     os.chmod(tmp, 0o777 & ~umask)  # mkdtemp makes 0700: a dataset is for others to read too
     return tmp
-
-
-def commit_output(tmp: Path, out: Path) -> None:
-    """Move the finished temporary directory ``tmp`` of :func:`stage_output` to ``out``,
-    replacing what was there (the old directory is moved aside first, then removed)."""
-    if out.exists():
-        old = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".old", dir=tmp.parent))
-        os.rename(out, old / "previous")
-        os.rename(tmp, out)
-        shutil.rmtree(old, ignore_errors=True)
-    else:
-        os.rename(tmp, out)

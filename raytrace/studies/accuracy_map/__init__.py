@@ -12,8 +12,8 @@ excess delay, the receiver's noiseless ToA and, over ``draws`` noise epochs of t
 measurement model (:class:`raytrace.emulation.measurement.ToaModel`), the ToA spread and the
 detected fraction; per cell the GDOP of the TDoA fix and, per positioning method
 (:func:`positioning.locate`, 2D with the device height known), the p90 and mean 2D error and
-the share of draws with a fix. The result is a :class:`positioning.fingerprint.FingerprintMap`
-(schema ``hallray-accuracy-map`` v1), written only through :func:`positioning.fingerprint.write_map`.
+the share of draws with a fix. The result is a :class:`positioning.twin.fingerprint.FingerprintMap`
+(schema ``hallray-accuracy-map`` v1), written only through :func:`positioning.twin.fingerprint.write_map`.
 
 Work is split into chunks of cells (:func:`raytrace.solver.parallel.receiver_chunks`); each chunk
 is traced, measured and positioned on its own, in this process or on worker processes

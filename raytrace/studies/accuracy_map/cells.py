@@ -120,7 +120,7 @@ def path_table(paths: Paths, k: int) -> dict[str, np.ndarray]:
 
 def receiver_model_meta(receiver: Receiver) -> dict[str, Any]:
     """The settings the twin's copy of the noiseless first-lobe receiver
-    (:class:`positioning.lobe.LobeReceiver`) needs, as the map's ``meta["receiver_model"]``."""
+    (:class:`positioning.twin.lobe.LobeReceiver`) needs, as the map's ``meta["receiver_model"]``."""
     from ...emulation.receivers import first_lobe as rx_mod
     from ...emulation.receivers.first_lobe import cfar_factor
 

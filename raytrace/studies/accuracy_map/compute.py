@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from positioning.fingerprint import FingerprintMap
+from positioning.twin.fingerprint import FingerprintMap
 
 from ...core.errors import HallrayError
 from ...emulation.bands import get_band

@@ -1,4 +1,4 @@
-"""A map's files: ``map.npz`` (:func:`positioning.fingerprint.write_map`), its CSV companion
+"""A map's files: ``map.npz`` (:func:`positioning.twin.fingerprint.write_map`), its CSV companion
 ``map.csv`` and the PNG heatmaps, written into a staged directory (no partial output).
 """
 
@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from positioning.fingerprint import write_map
+from positioning.twin.fingerprint import write_map
 
 from ...core.errors import HallrayError
 from ...core.fileio import write_atomic
@@ -78,12 +78,14 @@ def write_outputs(
     out_dir: str | Path, scene: Scene, amap: AccuracyMap, *, force: bool = False,
     pictures: bool = True,
 ) -> list[Path]:  # fmt: skip
-    """Write DIR/map.npz (:func:`positioning.fingerprint.write_map`), DIR/map.csv and the PNG
+    """Write DIR/map.npz (:func:`positioning.twin.fingerprint.write_map`), DIR/map.csv and the PNG
     heatmaps into a temporary directory beside ``out_dir``, renamed when complete (no partial
     output). Returns the files' final paths."""
     import shutil
 
-    from ...emulation.dataset.staging import commit_output, stage_output
+    from hallray.safe_output import commit_dir
+
+    from ...emulation.dataset.staging import stage_output
 
     out = Path(out_dir)
     tmp = stage_output(out, force)
@@ -96,7 +98,7 @@ def write_outputs(
             for name, png in map_pictures(scene, amap):
                 write_atomic(tmp / name, png)
                 names.append(name)
-        commit_output(tmp, out)
+        commit_dir(tmp, out)
         committed = True
     finally:
         if not committed:

@@ -199,7 +199,7 @@ def simulate_cell(
     With ``dataset_dir``, the cell's ToA dataset (before injection) is also written there by
     :func:`raytrace.emulation.dataset.write_dataset` from these measurements (the files
     ``make-dataset`` writes for this hall and settings) and read back with
-    :func:`positioning.dataset.load_dataset`; ``CellData.dataset_max_diff_s`` is the largest
+    :func:`positioning.io.dataset.load_dataset`; ``CellData.dataset_max_diff_s`` is the largest
     difference between the file's ToAs and the in-memory ones (0 expected: a round trip).
     """
     from ...core.constants import C0
@@ -257,7 +257,7 @@ def _write_dataset(
 ) -> float:
     """Write the cell's dataset from its measurements; return max |file ToA - measured ToA| (s),
     inf if the file's detected ToAs are not the measured ones."""
-    from positioning.dataset import load_dataset
+    from positioning.io.dataset import load_dataset
 
     from ...emulation.dataset.files import write_dataset
 

@@ -99,7 +99,7 @@ def results_table_markdown(head: Sequence[str], rows: Sequence[Sequence[Any]]) -
     """Markdown of the sweep's results table (:func:`table_rows`: any header, one row per cell).
 
     Floats with 3 decimals (2 in the seconds columns, ``*_s``), lists as ``AxB`` (sizes,
-    grids), None as ``-``. Not :func:`positioning.report.table_markdown`, which writes the
+    grids), None as ``-``. Not :func:`positioning.report.tables.table_markdown`, which writes the
     paper's Table II (fixed columns: metric and dataset rows, the paper's values beside ours).
     """
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
@@ -111,7 +111,7 @@ def results_table_markdown(head: Sequence[str], rows: Sequence[Sequence[Any]]) -
 
 def results_table_csv(head: Sequence[str], rows: Sequence[Sequence[Any]]) -> str:
     """CSV of the sweep's results table: full precision, lists as ``AxB``, None empty (unlike
-    :func:`positioning.report.table_csv`, Table II's fixed columns at 6 significant digits)."""
+    :func:`positioning.report.tables.table_csv`, Table II's fixed columns at 6 significant digits)."""
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(head)

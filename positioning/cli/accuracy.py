@@ -1,0 +1,117 @@
+"""``accuracy-report``: Table II of the paper, the integrity table, CDF and top-view plots for
+ToA datasets (:mod:`positioning.report`)."""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Sequence
+from pathlib import Path
+
+from hallray.harness import OneLineParser, run_command
+
+from ..errors import PositioningError
+from ..estimators.fixes import Status
+from ..io.dataset import load_dataset
+from ..methods.registry import method_names
+from .options import (
+    add_common_args,
+    alert_limit,
+    all_unsolved,
+    base_method,
+    check_method_params,
+    height_mode,
+    methods_help,
+    no_trusted,
+    parse_params,
+    summary_line,
+    with_map,
+)
+
+
+def _report_parser() -> OneLineParser:
+    p = OneLineParser(
+        prog="accuracy-report",
+        description=(
+            "Table II of the paper (mean and 90th percentile of the 2D error) for every dataset "
+            "and method, CDF plots and a top view of the hall."
+        ),
+        epilog=methods_help(),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("datasets", nargs="+", metavar="DATASET_DIR")
+    p.add_argument("-o", "--output", required=True, metavar="OUT_DIR", help="output directory")
+    p.add_argument(
+        "--methods",
+        default=",".join(method_names(include_map=False)),
+        help=f"comma-separated methods, METHOD+track for tracked rows "
+        f"(default: {','.join(method_names(include_map=False))})",
+    )
+    p.add_argument(
+        "--param",
+        action="append",
+        default=[],
+        metavar="[METHOD:]NAME=VALUE",
+        help="method parameter, repeatable; without METHOD: it applies to every method having it",
+    )
+    add_common_args(p)
+    return p
+
+
+def _report(args: argparse.Namespace) -> int:
+    from hallray.safe_output import check_output, output_dir
+
+    from ..evaluation.trust import check_trustworthy, trust_counts
+    from ..io.scale import check_height
+    from ..report.files import is_report_dir
+    from ..report.runs import evaluate
+    from ..report.write import write_report
+
+    methods = [m.strip() for m in args.methods.split(",") if m.strip()]
+    if not methods:
+        raise PositioningError("--methods is empty")
+    for m in methods:
+        base_method(m)
+    methods = list(dict.fromkeys(methods))
+    out = Path(args.output)
+    check_output(out, inputs=args.datasets, directory=True)  # before any work
+    height = height_mode(args)
+    limit = alert_limit(args)
+    params = parse_params(args.param, methods)
+    datasets = [load_dataset(d) for d in args.datasets]
+    per_ds = [with_map(params, args.map, ds) for ds in datasets]
+    results = []
+    for ds, p in zip(datasets, per_ds, strict=True):
+        check_height(height, ds.bs_xyz)
+        check_method_params(p, ds)
+    for ds, p in zip(datasets, per_ds, strict=True):
+        r = evaluate(ds, methods, p, height, outside=args.outside, alert_limit_m=limit)
+        fx = list(r.fixes.values())
+        if all(f.n_unsolved == f.n_epochs and not f.count(Status.AREA_BOUND) for f in fx):
+            raise all_unsolved(ds)
+        counts = [trust_counts(ds, f, height) for f in fx]  # station geometry: names the cause
+        check_trustworthy(max(counts, key=lambda c: c["trustworthy"]), str(ds.path), height)
+        if not any(f.trusted.any() for f in fx):
+            raise no_trusted(ds, fx[0])
+        results.append(r)
+    # the report appears whole or not at all; a previous report there is replaced
+    with output_dir(out, inputs=args.datasets, replaceable=is_report_dir) as tmp:
+        md, written = write_report(results, methods, tmp)
+    print(md, end="")
+    print()
+    for r in results:
+        for m in methods:
+            print(f"{r.dataset.name} {summary_line(m, r.fixes[m], r.errors[m])}")
+    print(f"wrote {len(written)} files to {out}")
+    return 0
+
+
+def accuracy_report_main(argv: Sequence[str] | None = None) -> int:
+    """Console script ``accuracy-report``: Table II, CDF and top-view plots for datasets."""
+    return run_command(_report, _report_parser(), argv)
+
+
+def accuracy_report(argv: Sequence[str]) -> int:
+    """``accuracy-report`` without the command harness, for a command that runs it inside its
+    own (``reproduce-paper``): bad input and interruptions (Ctrl-C, SIGTERM) propagate to the
+    caller's harness as exceptions instead of becoming an exit status here."""
+    return int(_report(_report_parser().parse_args(list(argv))))
