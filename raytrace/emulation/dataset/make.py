@@ -13,6 +13,8 @@ from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
+from hallray.safe_output import commit_dir
+
 from ...core.errors import HallrayError, SceneError
 from ...scene.facts import SceneFacts
 from ...scene.io import load_scene
