@@ -23,7 +23,7 @@ plane in float64 (:func:`raytrace.solver.kernels.walk_hits`): the crossings do n
 the BVH, which differs between a static scene and a snapshot with forklifts.
 
 The equivalent slab thickness of a chord through a solid is the chord length times the cosine of
-the incidence angle on the more head-on of its entry and exit faces (:func:`kernels._more_head_on`):
+the incidence angle on the more head-on of its entry and exit faces (:func:`raytrace.solver.kernels.walk._more_head_on`):
 exact for a slab with parallel faces, an approximation for a chord that leaves through another
 face, and the same in both directions along the chord (reciprocity).
 """
@@ -68,7 +68,7 @@ class Crossings:
 #: Contact tolerance, in scene margins. A hit closer than this to an edge of its triangle may as
 #: well be on the neighbouring face across that edge (Embree's float32 answer for a ray through
 #: an edge depends on its BVH): the face is then chosen canonically. A ray whose line never gets
-#: deeper than this into a convex solid only touches it (:func:`raytrace.solver.kernels._contact`).
+#: deeper than this into a convex solid only touches it (:func:`raytrace.solver.kernels.walk._contact`).
 CONTACT_TOL_MARGINS = 1.0
 
 #: Below this cosine between a ray and a face, the float64 plane distance is not used in place of
@@ -117,7 +117,7 @@ class _Walk:
     ) -> None:
         """One penetration of object ``o`` entered at ``t_entry``, chord ``th`` (a sheet: its
         thickness), with the slab's face of unit normal ``fn`` (n, 3): a sheet's, or for a solid
-        the more head-on of its entry and exit faces (:func:`kernels._more_head_on`); a solid's
+        the more head-on of its entry and exit faces (:func:`raytrace.solver.kernels.walk._more_head_on`); a solid's
         equivalent slab is the chord times cos(incidence) on that face."""
         kernels.walk_record(carray(rows, np.int64), carray(t_entry), carray(o, np.int64),
                             carray(fn), carray(th), *self._state)  # fmt: skip
@@ -201,7 +201,7 @@ def flat_sheet_arrays(
     scene: Scene,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The open sheets that lie in one plane (a pane, a fence, a partition), as the kernels take
-    them (:func:`raytrace.solver.kernels._sheet_touch`); cached.
+    them (:func:`raytrace.solver.kernels.solids.sheet_touch1`); cached.
 
     Returns
     -------
