@@ -626,7 +626,7 @@ def test_a_crossing_on_a_shifted_stretch_is_placed_on_its_plane_whatever_the_bvh
         for fraction in (saved, np.inf):
             accel.EMBREE_SPLIT_FRACTION = fraction
             sc = make_scene(objs)
-            assert (len(sc._embree_meshes()[2][1]) > 2) == (fraction == saved)
+            assert (len(sc.embree_meshes()[2][1]) > 2) == (fraction == saved)
             cr = segment_crossings(sc, a, b, 1)
             assert not cr.exceeded.any() and np.all(cr.count == 1)
             assert np.all(cr.object[:, 0] == 2)

@@ -530,7 +530,7 @@ def _group_state(g: _Group) -> dict[str, Any]:
         "scenario": g.scenario,
         "models": g.models,
         "times_s": g.times_s,
-        "scene": dataclasses.replace(tr.scene, _embree=None),
+        "scene": dataclasses.replace(tr.scene),  # a copy without the Embree scene and caches
         "tx": tr.tx,
         "rx": tr.rx,
         "routes": tr.fleet.routes,
@@ -544,7 +544,7 @@ def _group_state(g: _Group) -> dict[str, Any]:
 
 def _init_worker(state: dict[str, Any]) -> None:
     scene = state["scene"]
-    scene._build_embree()
+    scene.build_embree()
     tracer = SnapshotTracer(
         scene,
         state["tx"],
