@@ -59,6 +59,23 @@ def _vertical_pol(dx, dy, dz):
     return vx / n, vy / n, vz / n
 
 
+@inline
+def _diffracted(e0, e1, e2, d_basis, d_matrix, d_amp, q):
+    """The field ``e`` after diffraction ``q`` of :func:`path_gains`:
+    ``[E_beta0, E_phi] = -D [e . beta0'_hat, e . phi'_hat] A`` on ``beta0_hat``, ``phi_hat``, in
+    :func:`raytrace.physics.utd.diffracted_field`'s order of operations (straight-line: its
+    arrays are read with no branch, :func:`raytrace.core.jit.inline`)."""
+    b = d_basis[q]
+    c0 = (e0 * b[0, 0] + e1 * b[0, 1]) + e2 * b[0, 2]
+    c1 = (e0 * b[1, 0] + e1 * b[1, 1]) + e2 * b[1, 2]
+    d = d_matrix[q]
+    o0 = -(d[0, 0] * c0 + d[0, 1] * c1)
+    o1 = -(d[1, 0] * c0 + d[1, 1] * c1)
+    amp = d_amp[q]
+    return ((o0 * b[2, 0] + o1 * b[3, 0]) * amp, (o0 * b[2, 1] + o1 * b[3, 1]) * amp,
+            (o0 * b[2, 2] + o1 * b[3, 2]) * amp)  # fmt: skip
+
+
 @kernel(
     "Tuple((c16[::1], f8[::1]))(f8[:, :, ::1], i1[:, ::1], i8[:, ::1], i8[:, ::1], "
     "f8[:, :, :, ::1], i8[:, :, ::1], f8[:, :, ::1], i8[::1], c16[::1], c16[::1], f8[::1], "
@@ -154,16 +171,7 @@ def path_gains(chain, kinds, elem, count, pen_normal, pen_obj, pen_thickness, ob
                 if not d_valid[q]:
                     e0, e1, e2 = 0j, 0j, 0j
                     continue
-                b = d_basis[q]
-                c0 = (e0 * b[0, 0] + e1 * b[0, 1]) + e2 * b[0, 2]
-                c1 = (e0 * b[1, 0] + e1 * b[1, 1]) + e2 * b[1, 2]
-                d = d_matrix[q]
-                o0 = -(d[0, 0] * c0 + d[0, 1] * c1)
-                o1 = -(d[1, 0] * c0 + d[1, 1] * c1)
-                amp = d_amp[q]
-                e0 = (o0 * b[2, 0] + o1 * b[3, 0]) * amp
-                e1 = (o0 * b[2, 1] + o1 * b[3, 1]) * amp
-                e2 = (o0 * b[2, 2] + o1 * b[3, 2]) * amp
+                e0, e1, e2 = _diffracted(e0, e1, e2, d_basis, d_matrix, d_amp, q)
         qx, qy, qz = _vertical_pol(dirs[k, 0], dirs[k, 1], dirs[k, 2])
         proj = (e0 * qx + e1 * qy) + e2 * qz
         # free-space spreading over the unfolded length (diffracted paths carry their own)

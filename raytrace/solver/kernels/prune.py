@@ -111,6 +111,59 @@ def _grown_pairs(out_e, out_f, out_w, out_img, out_lo, out_hi, need):
     return e2, f2, w2, img2, lo2, hi2
 
 
+@inline
+def _box_axis(a_c, b_c, i_c, u, cut_a, cut_b, k_a, k_b, lo_c, hi_c, s_in, s_out):
+    """One axis of :func:`_edge_span`: the edge ``a -> b`` (this axis' components), cut at ``u``
+    where ``cut_a`` / ``cut_b``, projected from the image ``i`` (at ``k_a``, ``k_b`` of the way
+    from it), clipped to the box's slab ``lo_c <= x <= hi_c``: the projected parameter range
+    ``[s_in, s_out]`` narrowed by this slab."""
+    p = a_c + u * (b_c - a_c)
+    if cut_a:
+        a_c = p
+    if cut_b:
+        b_c = p
+    qa = i_c + k_a * (a_c - i_c)
+    dq = i_c + k_b * (b_c - i_c) - qa
+    # parallel to a slab: +-huge (in or out of it) or 0 (on its boundary: in)
+    inv = 1.0 / (dq if dq != 0.0 else 1e-300)
+    t1 = (lo_c - qa) * inv
+    t2 = (hi_c - qa) * inv
+    return max(s_in, min(t1, t2)), min(s_out, max(t1, t2))
+
+
+@inline
+def _edge_span(ax, ay, az, bx, by, bz, ix, iy, iz, da, db, eps, h, lx, ly, lz, hx, hy, hz, length,
+               pad):  # fmt: skip
+    """Condition 4 of :func:`facet_wedge_pairs` for one (facet, wedge) pair, on scalars: the
+    edge ``a -> b`` (its ends ``da``, ``db`` m in front of the facet's plane, on the end's side),
+    clipped to the end's side (by ``eps``) and projected from the image ``i`` (``h`` m behind the
+    plane) onto the plane, meets the facet's box ``l``, ``h``: ``(True, lo, hi)``, the part of
+    the edge that does, metres from its start (of ``length``), padded by ``pad``; else
+    ``(False, 0, 0)``."""
+    # clip the edge to the end's side: the cut point at parameter u from the start
+    cut_a, cut_b = da <= eps, db <= eps
+    u = 0.0
+    if cut_a or cut_b:
+        u = (eps - da) / ((db - da) if db != da else 1.0)
+    # project from the image (distance h behind the plane): a point at distance s in front
+    # projects at h / (h + s) of the way from the image
+    d_a = h + max(da, eps)
+    d_b = h + max(db, eps)
+    k_a, k_b = h / d_a, h / d_b
+    s_in, s_out = _box_axis(ax, bx, ix, u, cut_a, cut_b, k_a, k_b, lx, hx, 0.0, 1.0)
+    s_in, s_out = _box_axis(ay, by, iy, u, cut_a, cut_b, k_a, k_b, ly, hy, s_in, s_out)
+    s_in, s_out = _box_axis(az, bz, iz, u, cut_a, cut_b, k_a, k_b, lz, hz, s_in, s_out)
+    if not s_in <= s_out:
+        return False, 0.0, 0.0
+    # the projection is a perspective map: projected parameter s is edge parameter
+    # s D_a / (s D_a + (1 - s) D_b)
+    lam_in = s_in * d_a / (s_in * d_a + (1 - s_in) * d_b)
+    lam_out = s_out * d_a / (s_out * d_a + (1 - s_out) * d_b)
+    t_a = u * length if cut_a else 0.0
+    t_b = u * length if cut_b else length
+    return True, t_a + lam_in * (t_b - t_a) - pad, t_a + lam_out * (t_b - t_a) + pad
+
+
 @kernel(_PAIRS_SIG)
 def facet_wedge_pairs(f_ok, sgn, h_f, img_c, axis_c, cos_a, sin_a, apex_in,
                       normal, offset, f_chosen, lo, hi,
@@ -189,45 +242,14 @@ def facet_wedge_pairs(f_ok, sgn, h_f, img_c, axis_c, cos_a, sin_a, apex_in,
                 if _inside(t0, n0, t_start, n_start, cos_n, sin_n, prunable, m2_coef, min_rho2,
                            w, ix, iy, iz):  # fmt: skip
                     continue
-                # clip the edge to the end's side: the cut point at parameter u from the start
-                cut_a, cut_b = da <= eps, db <= eps
-                u = 0.0
-                if cut_a or cut_b:
-                    u = (eps - da) / ((db - da) if db != da else 1.0)
-                # project from the image (distance h behind the plane): a point at distance s
-                # in front projects at h / (h + s) of the way from the image
-                d_a = h + max(da, eps)
-                d_b = h + max(db, eps)
-                k_a, k_b = h / d_a, h / d_b
-                s_in, s_out = 0.0, 1.0
-                for c in range(3):
-                    a_c, b_c, i_c = w_start[w, c], w_end[w, c], img_c[c, j]
-                    p = a_c + u * (b_c - a_c)
-                    if cut_a:
-                        a_c = p
-                    if cut_b:
-                        b_c = p
-                    qa = i_c + k_a * (a_c - i_c)
-                    dq = i_c + k_b * (b_c - i_c) - qa
-                    # parallel to a slab: +-huge (in or out of it) or 0 (on its boundary: in)
-                    inv = 1.0 / (dq if dq != 0.0 else 1e-300)
-                    t1 = (lo[f, c] - qa) * inv
-                    t2 = (hi[f, c] - qa) * inv
-                    s_in = max(s_in, min(t1, t2))
-                    s_out = min(s_out, max(t1, t2))
-                if not s_in <= s_out:
+                ok, t_lo, t_hi = _edge_span(ax, ay, az, bx, by, bz, ix, iy, iz, da, db, eps, h,
+                                            lo[f, 0], lo[f, 1], lo[f, 2], hi[f, 0], hi[f, 1],
+                                            hi[f, 2], w_length[w], pad)  # fmt: skip
+                if not ok:
                     continue
-                # the projection is a perspective map: projected parameter s is edge
-                # parameter s D_a / (s D_a + (1 - s) D_b)
-                lam_in = s_in * d_a / (s_in * d_a + (1 - s_in) * d_b)
-                lam_out = s_out * d_a / (s_out * d_a + (1 - s_out) * d_b)
-                length = w_length[w]
-                t_a = u * length if cut_a else 0.0
-                t_b = u * length if cut_b else length
                 out_e[m], out_f[m], out_w[m] = e, f, w
                 out_img[m, 0], out_img[m, 1], out_img[m, 2] = ix, iy, iz
-                out_lo[m] = t_a + lam_in * (t_b - t_a) - pad
-                out_hi[m] = t_a + lam_out * (t_b - t_a) + pad
+                out_lo[m], out_hi[m] = t_lo, t_hi
                 m += 1
     return out_e, out_f, out_w, out_img, out_lo, out_hi, m
 
