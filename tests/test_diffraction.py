@@ -18,6 +18,7 @@ from raytrace.core.constants import C0
 from raytrace.core.errors import TraceInputError
 from raytrace.physics import materials
 from raytrace.physics import utd as dif
+from raytrace.physics.utd.coefficients import utd_terms
 
 # -- tolerances (named; the reason is in the comment) ---------------------------------------------
 POINT_TOL_M = 1e-12  # closed-form point, float64 rounding on ~10 m coordinates
@@ -321,17 +322,17 @@ def test_transition_series_branch_agrees_with_the_faddeeva_form() -> None:
     the switch at X_SERIES is continuous to that accuracy."""
     from scipy.special import wofz
 
-    from raytrace.physics.utd import X_SERIES, _transition_over_sqrt
+    from raytrace.physics.utd.coefficients import X_SERIES, transition_over_sqrt
 
     x = np.concatenate([np.logspace(np.log10(X_SERIES), 8, 500), [X_SERIES]])
     faddeeva = np.sqrt(np.pi) * np.exp(0.25j * np.pi) * wofz(np.sqrt(x) * np.exp(0.75j * np.pi))
-    got = _transition_over_sqrt(x)
+    got = transition_over_sqrt(x)
     assert np.max(np.abs(got / faddeeva - 1)) < 1e-14
-    below, at = _transition_over_sqrt(np.array([np.nextafter(X_SERIES, 0), X_SERIES]))
+    below, at = transition_over_sqrt(np.array([np.nextafter(X_SERIES, 0), X_SERIES]))
     assert abs(at / below - 1) < 1e-14
     # shapes: a scalar and an empty array pass through
-    assert _transition_over_sqrt(np.float64(200.0)).shape == ()
-    assert _transition_over_sqrt(np.zeros((0, 4))).shape == (0, 4)
+    assert transition_over_sqrt(np.float64(200.0)).shape == ()
+    assert transition_over_sqrt(np.zeros((0, 4))).shape == (0, 4)
 
 
 def test_transition_function_small_x_form() -> None:
@@ -382,13 +383,13 @@ def test_coefficients_vs_textbook_kp() -> None:
 
 def test_boundary_limit_value_and_jump() -> None:
     # KP: cot(eps/2n) F(kL 2 sin^2(eps/2)) -> n [sqrt(2 pi kL) sgn(eps) - 2 kL eps e^{j pi/4}] e^{j pi/4}
-    from raytrace.physics.utd import _transition_over_sqrt, _wedge_factors
+    from raytrace.physics.utd.coefficients import transition_over_sqrt, wedge_factors
 
     n, kl = np.array([1.5, 2.0]), np.array([30.0, 300.0])
     for eps in (1e-3, -1e-3, 1e-6, -1e-6):
         beta = np.pi - eps  # a^- term with N = 0: eps = pi - beta (D2: beta = phi - phi')
-        x, f = _wedge_factors(n, np.full(2, beta), np.zeros(2), kl)
-        got = f[:, 1] * _transition_over_sqrt(x[:, 1])
+        x, f = wedge_factors(n, np.full(2, beta), np.zeros(2), kl)
+        got = f[:, 1] * transition_over_sqrt(x[:, 1])
         approx = (
             n
             * (np.sqrt(2 * np.pi * kl) * np.sign(eps) - 2 * kl * eps * np.exp(0.25j * np.pi))
@@ -416,14 +417,14 @@ def test_wedge_factor_is_cot_times_the_sine_everywhere() -> None:
     ``n sqrt(2kL)`` times ``sgn(eps)`` at eps -> 0: at eps = 0 the value of the side eps > 0
     (where the geometrical-optics field is), finite for eps down to the smallest normal numbers,
     over the whole range ``[-n pi, n pi]``."""
-    from raytrace.physics.utd import _wedge_factors
+    from raytrace.physics.utd.coefficients import wedge_factors
 
     for n in (1.5, 1.9, 2.0):
         eps = np.concatenate([np.linspace(-n * np.pi, n * np.pi, 2001),
                               [1e-3, -1e-7, 1e-12, 1e-300, -1e-300, 5e-324, 0.0]])  # fmt: skip
         kl = np.full(len(eps), 50.0)
         beta = np.pi - eps  # the a^- term with N = 0: eps = pi - beta
-        x, f = _wedge_factors(np.full(len(eps), n), beta, np.zeros(len(eps)), kl)
+        x, f = wedge_factors(np.full(len(eps), n), beta, np.zeros(len(eps)), kl)
         got = f[:, 1]
         assert np.all(np.isfinite(got)) and np.all(np.isfinite(x[:, 1]))
         e = np.pi - beta  # eps as the kernel computes it
@@ -1000,8 +1001,7 @@ def test_diffraction_matrix_composes_the_faces_matrices() -> None:
     got, _ = dif.diffraction_matrix(geo, 3.775e9, r_0=r_0, r_n=r_n)
     s_in, s_out = geo.s_in[ok], geo.s_out[ok]
     dist = s_in * s_out * geo.sin_beta0[ok] ** 2 / (s_in + s_out)
-    d12, d3, d4 = dif._utd_terms(geo.n[ok], geo.phi[ok], geo.phi_in[ok], geo.sin_beta0[ok],
-                                 dist, k)  # fmt: skip
+    d12, d3, d4 = utd_terms(geo.n[ok], geo.phi[ok], geo.phi_in[ok], geo.sin_beta0[ok], dist, k)
     cos_b = np.einsum("ij,ij->i", geo.s_hat_in[ok], geo.edge_dir[ok])
     t_0 = dif.face_reflection_matrix(r_0[0][ok], r_0[1][ok], cos_b, geo.psi_0[ok])
     t_n = dif.face_reflection_matrix(r_n[0][ok], r_n[1][ok], -cos_b, geo.psi_n[ok])

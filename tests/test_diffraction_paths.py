@@ -189,7 +189,7 @@ def _relabelled(sc):
     tn = np.where(half[:, None], w.face0_dir, tn)
     swapped = dataclasses.replace(w, normal0=w.normal1, normal1=w.normal0, face0_dir=tn)
     out = dataclasses.replace(sc, wedges=swapped)
-    out._build_embree()
+    out.build_embree()
     return out
 
 

@@ -29,7 +29,7 @@ CHECKOUT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(paral
 
 def _same(a, b) -> None:
     assert a.n_paths == b.n_paths
-    for k in a._PER_PATH:
+    for k in a.PER_PATH:
         np.testing.assert_array_equal(getattr(a, k), getattr(b, k), err_msg=k)
     np.testing.assert_array_equal(a.rx, b.rx)
 
@@ -498,7 +498,7 @@ def test_a_threaded_join_equals_the_serial_one(scene_links, monkeypatch):
     monkeypatch.setattr(memory, "SMALL_PAGES_BYTES", 1)
     for threads in (2, 3, 8):
         many = Paths.concatenate(pieces, threads=threads)
-        for k in Paths._PER_PATH:
+        for k in Paths.PER_PATH:
             np.testing.assert_array_equal(getattr(many, k), getattr(one, k))
     monkeypatch.setattr(tracer_mod, "JOIN_THREADS_PATHS", 1)
     _same(trace(sc, tx, rx, F_C, cfg, threads=1),

@@ -386,15 +386,16 @@ def test_off_the_solid_closed_form():
     """After touching a box's face y = 0 along it, the walk moves two contact tolerances out
     along that face's normal (across the ray) until the line leaves the box grown by one
     tolerance: x = 2 + tol, t = 3 + tol from a = (-1, 0, 0.5)."""
-    from raytrace.solver import kernels, penetration
+    from raytrace.solver import penetration
+    from raytrace.solver.kernels import walk
 
     sc = make_scene([("crate", box((0.0, 0.0, 0.0), (2.0, 1.0, 1.0)), "wood")])
     tol = penetration.CONTACT_TOL_MARGINS * sc.margin
     face = int(np.flatnonzero(np.all(np.isclose(sc.face_normal, [0.0, -1.0, 0.0]), axis=1))[0])
     # the walk's own compiled helper, called directly
-    *shift, t_end = kernels._off_the_solid(face, 0, -1.0, 0.0, 0.5, 1.0, 0.0, 0.0,
-                                           penetration._face_normals(sc),
-                                           *penetration.convex_plane_arrays(sc), tol)  # fmt: skip
+    *shift, t_end = walk._off_the_solid(face, 0, -1.0, 0.0, 0.5, 1.0, 0.0, 0.0,
+                                        penetration._face_normals(sc),
+                                        *penetration.convex_plane_arrays(sc), tol)  # fmt: skip
     np.testing.assert_allclose(shift, [0.0, -2 * tol, 0.0], atol=1e-15)
     np.testing.assert_allclose(t_end, 3.0 + tol, rtol=1e-12)
 
@@ -423,7 +424,8 @@ def test_a_hit_on_a_cube_edge_is_booked_on_the_face_met_most_head_on(leaving, st
     point Embree reports, the hit is booked on the lowest-index triangle of the face met most
     head-on that contains it, entering or leaving; a hit in the middle of a face keeps its
     face."""
-    from raytrace.solver import kernels, penetration
+    from raytrace.solver import penetration
+    from raytrace.solver.kernels import solids, walk
 
     sc = make_scene([("cube", box((0, 0, 0), (1, 1, 1)), "concrete")])
     tol = penetration.CONTACT_TOL_MARGINS * sc.margin
@@ -432,10 +434,10 @@ def test_a_hit_on_a_cube_edge_is_booked_on_the_face_met_most_head_on(leaving, st
     def booked(f, p, d):
         """The segment walk's handling of a hit on face f at p (kernels.walk_hits' helpers)."""
         a = p - 3.0 * d
-        *q, _, side, near = kernels._contact(f, *a, *d, 3.0, *arrays, tol)
-        touch = near and kernels._touches(0, *a, *d, *penetration.convex_plane_arrays(sc), tol)
-        return kernels._canonical(f, 0, *q, *d, side, *penetration._object_faces(sc), *arrays,
-                                  tol), touch  # fmt: skip
+        *q, _, side, near = walk._contact(f, *a, *d, 3.0, *arrays, tol)
+        touch = near and solids.touches1(0, *a, *d, *penetration.convex_plane_arrays(sc), tol)
+        return walk._canonical(f, 0, *q, *d, side, *penetration._object_faces(sc), *arrays,
+                               tol), touch  # fmt: skip
 
     hit = np.array([0.0, 0.37, 1.0])
     d = np.array([0.5, 0.0, -1.0] if steep else [1.0, 0.0, -0.5]) / np.sqrt(1.25)
@@ -624,7 +626,7 @@ def test_a_crossing_on_a_shifted_stretch_is_placed_on_its_plane_whatever_the_bvh
         for fraction in (saved, np.inf):
             accel.EMBREE_SPLIT_FRACTION = fraction
             sc = make_scene(objs)
-            assert (len(sc._embree_meshes()[2][1]) > 2) == (fraction == saved)
+            assert (len(sc.embree_meshes()[2][1]) > 2) == (fraction == saved)
             cr = segment_crossings(sc, a, b, 1)
             assert not cr.exceeded.any() and np.all(cr.count == 1)
             assert np.all(cr.object[:, 0] == 2)

@@ -57,7 +57,7 @@ def test_scalar_beam_sphere_test_equals_beam_reaches():
     ``facet_wedge_pairs`` applies to groups and edges and ``second_order_receivers`` to each
     second image (the receivers' bounding sphere) decides as numpy does, apex inside and target
     around the apex included."""
-    from raytrace.solver.kernels import _beam_reaches
+    from raytrace.solver.kernels.prune import beam_reaches1
 
     rng = np.random.default_rng(5)
     n = 3000
@@ -69,7 +69,7 @@ def test_scalar_beam_sphere_test_equals_beam_reaches():
     b = refl.beam(apex, centre, radius)
     want = refl.beam_reaches(b, target, t_radius)
     got = np.array([
-        _beam_reaches(*b.apex[i], *b.axis[i], b.cos_a[i], b.sin_a[i], b.apex_inside[i],
+        beam_reaches1(*b.apex[i], *b.axis[i], b.cos_a[i], b.sin_a[i], b.apex_inside[i],
                       *target[i], t_radius[i])
         for i in range(n)
     ])  # fmt: skip

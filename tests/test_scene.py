@@ -340,8 +340,8 @@ def test_first_hit_among_a_subset_of_objects():
         sc.first_hit_among([True, True], o, d, np.array([10.0, 0.0, 4.0])), [0, -1, 0]
     )
     # the cached subset scenes (native Embree objects) are left out of a pickled scene's state
-    assert "_subset_embree" in sc.__dict__
-    assert "_subset_embree" not in sc.__getstate__()
+    assert sc.caches.subset_embree
+    assert "caches" not in sc.__getstate__()
 
 
 def _ring_area(ring: np.ndarray) -> float:
@@ -531,7 +531,7 @@ def test_intersect_names_the_same_faces_with_large_objects_cut():
     for i, p in enumerate(rng.uniform([1, 1, 0], [59, 49, 3], (20, 3))):
         objs.append((f"b{i}", box(p, p + rng.uniform(0.2, 2.0, 3)), "metal"))
     cut = make_scene(objs)
-    assert [len(t) for _, t, _ in cut._embree_meshes()[:2]] != [12, 12]
+    assert [len(t) for _, t, _ in cut.embree_meshes()[:2]] != [12, 12]
     n = 4000
     o = rng.uniform([0.5, 0.5, 0.1], [59.5, 49.5, 8], (n, 3))
     d = rng.normal(size=(n, 3))
@@ -542,7 +542,7 @@ def test_intersect_names_the_same_faces_with_large_objects_cut():
     try:
         accel.EMBREE_SPLIT_FRACTION = np.inf
         whole = make_scene(objs)
-        assert [len(t) for _, t, _ in whole._embree_meshes()[:2]] == [12, 12]
+        assert [len(t) for _, t, _ in whole.embree_meshes()[:2]] == [12, 12]
         want = whole.intersect(o, d, 100.0)
         want_sub = whole.first_hit_among(np.arange(len(objs)) < 2, o, d, np.full(n, 100.0))
     finally:

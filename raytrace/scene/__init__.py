@@ -1,6 +1,7 @@
 """The scene layer: triangles, objects and materials, facets and wedges, Embree queries, moving
-objects, and the scene's deployment metadata (:mod:`raytrace.scene.model`, :mod:`.io`,
-:mod:`.elements`, :mod:`.accel`, :mod:`.dynamic`, :mod:`.motion`, :mod:`.metadata`)."""
+objects, and the scene's deployment metadata (:mod:`raytrace.scene.model`, :mod:`.construction`,
+:mod:`.queries`, :mod:`.caches`, :mod:`.io`, :mod:`.elements`, :mod:`.accel`, :mod:`.dynamic`,
+:mod:`.motion`, :mod:`.metadata`)."""
 
 from .elements import Facets, SceneObject, Wedges
 from .io import load_scene

@@ -94,13 +94,12 @@ def extend_scene(base: Scene, extra: Scene) -> Scene:
         facets=facets,
         wedges=wedges,
         n_degenerate_dropped=base.n_degenerate_dropped + extra.n_degenerate_dropped,
-        _embree=None,
     )
     if hasattr(base, "n_buried_wedges"):
         scene.n_buried_wedges = base.n_buried_wedges + getattr(extra, "n_buried_wedges", 0)
     # second-order reflections need the facet pair matrix: the static block is the base's
     facing_pairs(facets, known=facing_pairs(bf))
-    scene._build_embree()
+    scene.build_embree()
     return scene
 
 
@@ -164,7 +163,6 @@ def posed(template: Scene, rotation: np.ndarray, translation: np.ndarray) -> Sce
         face_normal=turn(template.face_normal, template.face_object),
         facets=facets,
         wedges=wedges,
-        _embree=None,
     )
 
 

@@ -64,6 +64,9 @@ class TraceContext:
     obj_material, obj_closed : (O,) per-object material index and closed-solid flag
     facet_mask, wedge_mask : (K,), (W,) bool or None, elements that may take part
     stats : dict, counters and stage times (``time_us[<stage>]``)
+    shadows : dict, ``"tx"`` / ``"rx"`` -> the facets and edges each end sees only through an
+        opaque solid, computed once per trace (:func:`raytrace.solver.shadow.shadows_of`)
+    shadows_lock : threading.Lock, held while one stage thread computes them
     """
 
     def __init__(
@@ -106,6 +109,8 @@ class TraceContext:
                 )
         self.stats: dict[str, int] = {}
         self._lock = threading.Lock()
+        self.shadows: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+        self.shadows_lock = threading.Lock()
 
     @property
     def n_links(self) -> int:

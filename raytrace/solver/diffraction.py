@@ -391,8 +391,8 @@ def _along_and_off(
     p: np.ndarray, start: np.ndarray, direction: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
     """Position along edge lines (m from ``start``) of the foot of points, and their distance
-    from the lines (m) (:func:`raytrace.solver.kernels.along_and_off`, which only prunes, within
-    :data:`SPAN_PAD_M`); components first: (3, ...) arrays, broadcasting over the rest."""
+    from the lines (m) (:func:`raytrace.solver.kernels.prune.along_and_off`, which only prunes,
+    within :data:`SPAN_PAD_M`); components first: (3, ...) arrays, broadcasting over the rest."""
     shape = np.broadcast_shapes(p.shape, start.shape, direction.shape)
     rows = [carray(np.moveaxis(np.broadcast_to(x, shape), 0, -1)).reshape(-1, 3)
             for x in (p, start, direction)]  # fmt: skip

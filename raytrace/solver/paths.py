@@ -78,7 +78,9 @@ class Paths:
     objects: np.ndarray
     elements: np.ndarray
 
-    _PER_PATH = (
+    #: The per-path arrays (one row per path): what concatenating, selecting and saving paths
+    #: carry row by row.
+    PER_PATH = (
         "link",
         "tx_index",
         "rx_index",
@@ -129,14 +131,14 @@ class Paths:
         padded = [p._padded(depth) for p in parts]
         first = parts[0]
         if threads <= 1 or len(padded) == 1:
-            kw = {k: np.concatenate([getattr(p, k) for p in padded]) for k in cls._PER_PATH}
+            kw = {k: np.concatenate([getattr(p, k) for p in padded]) for k in cls.PER_PATH}
             return cls(tx=first.tx, rx=first.rx, frequency_hz=first.frequency_hz, **kw)
         from concurrent.futures import ThreadPoolExecutor
 
         starts = np.concatenate([[0], np.cumsum([p.n_paths for p in padded])])
         kw = {}
         tasks = []  # (bytes, out, row, source)
-        for k in cls._PER_PATH:
+        for k in cls.PER_PATH:
             src = [getattr(p, k) for p in padded]
             # small pages: huge ones may stall the first writes in compaction (core.memory)
             out = fresh_empty((int(starts[-1]), *src[0].shape[1:]), dtype=src[0].dtype)
@@ -178,10 +180,10 @@ class Paths:
     def select(self, mask: np.ndarray) -> Paths:
         """The paths where ``mask`` (bool (P,), index array or slice) selects."""
         if isinstance(mask, slice):
-            kw = {k: getattr(self, k)[mask] for k in self._PER_PATH}
+            kw = {k: getattr(self, k)[mask] for k in self.PER_PATH}
         else:
             sel = index(mask)
-            kw = {k: take_rows(getattr(self, k), sel) for k in self._PER_PATH}
+            kw = {k: take_rows(getattr(self, k), sel) for k in self.PER_PATH}
         return Paths(tx=self.tx, rx=self.rx, frequency_hz=self.frequency_hz, **kw)
 
     def with_receivers(self, rx: np.ndarray, first: int) -> Paths:
@@ -189,7 +191,7 @@ class Paths:
         receivers start at index ``first`` (link indices renumbered ``tx * R + rx``)."""
         rx = np.asarray(rx, dtype=float)
         rx_index = self.rx_index + int(first)
-        kw = {k: getattr(self, k) for k in self._PER_PATH}
+        kw = {k: getattr(self, k) for k in self.PER_PATH}
         kw.update(rx_index=rx_index, link=self.tx_index * len(rx) + rx_index)
         return Paths(tx=self.tx, rx=rx, frequency_hz=self.frequency_hz, **kw)
 
@@ -337,7 +339,7 @@ class Paths:
                 frequency_hz=self.frequency_hz,
                 tx=self.tx,
                 rx=self.rx,
-                **{k: getattr(self, k) for k in self._PER_PATH},
+                **{k: getattr(self, k) for k in self.PER_PATH},
             )
             data = buf.getvalue()
         elif suffix == ".json":
@@ -358,7 +360,7 @@ class Paths:
             raise HallrayError(f"paths file not found: {p}")
         try:
             with np.load(p) as z:
-                kw = {k: z[k] for k in cls._PER_PATH}
+                kw = {k: z[k] for k in cls.PER_PATH}
                 paths = cls(tx=z["tx"], rx=z["rx"], frequency_hz=float(z["frequency_hz"]), **kw)
         except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, zlib.error) as exc:
             # a truncated or foreign file: one line, not a BadZipFile traceback

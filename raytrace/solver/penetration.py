@@ -23,7 +23,7 @@ plane in float64 (:func:`raytrace.solver.kernels.walk_hits`): the crossings do n
 the BVH, which differs between a static scene and a snapshot with forklifts.
 
 The equivalent slab thickness of a chord through a solid is the chord length times the cosine of
-the incidence angle on the more head-on of its entry and exit faces (:func:`kernels._more_head_on`):
+the incidence angle on the more head-on of its entry and exit faces (:func:`raytrace.solver.kernels.walk._more_head_on`):
 exact for a slab with parallel faces, an approximation for a chord that leaves through another
 face, and the same in both directions along the chord (reciprocity).
 """
@@ -68,7 +68,7 @@ class Crossings:
 #: Contact tolerance, in scene margins. A hit closer than this to an edge of its triangle may as
 #: well be on the neighbouring face across that edge (Embree's float32 answer for a ray through
 #: an edge depends on its BVH): the face is then chosen canonically. A ray whose line never gets
-#: deeper than this into a convex solid only touches it (:func:`raytrace.solver.kernels._contact`).
+#: deeper than this into a convex solid only touches it (:func:`raytrace.solver.kernels.walk._contact`).
 CONTACT_TOL_MARGINS = 1.0
 
 #: Below this cosine between a ray and a face, the float64 plane distance is not used in place of
@@ -117,7 +117,7 @@ class _Walk:
     ) -> None:
         """One penetration of object ``o`` entered at ``t_entry``, chord ``th`` (a sheet: its
         thickness), with the slab's face of unit normal ``fn`` (n, 3): a sheet's, or for a solid
-        the more head-on of its entry and exit faces (:func:`kernels._more_head_on`); a solid's
+        the more head-on of its entry and exit faces (:func:`raytrace.solver.kernels.walk._more_head_on`); a solid's
         equivalent slab is the chord times cos(incidence) on that face."""
         kernels.walk_record(carray(rows, np.int64), carray(t_entry), carray(o, np.int64),
                             carray(fn), carray(th), *self._state)  # fmt: skip
@@ -150,8 +150,9 @@ class _Walk:
 
 def _convex_planes(scene: Scene) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Facet planes of every convex closed object, padded: normals (O, K, 3), offsets (O, K)
-    (plane ``n . x = offset``, m) and valid (O, K) bool (none for other objects). Cached."""
-    cache = scene.__dict__.get("_convex_planes")
+    (plane ``n . x = offset``, m) and valid (O, K) bool (none for other objects). Cached
+    (``scene.caches.convex_planes``)."""
+    cache = scene.caches.convex_planes
     if cache is not None:
         return cache
     fc = scene.facets
@@ -169,7 +170,7 @@ def _convex_planes(scene: Scene) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     normal[obj, slot] = fc.normal[use][order]
     offset[obj, slot] = fc.offset[use][order]
     valid[obj, slot] = True
-    scene.__dict__["_convex_planes"] = (normal, offset, valid)
+    scene.caches.convex_planes = (normal, offset, valid)
     return normal, offset, valid
 
 
@@ -188,12 +189,12 @@ def _line_span(
 
 def convex_plane_arrays(scene: Scene) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`_convex_planes` as the kernels take them: normals (O, K, 3), offsets (O, K) and
-    each object's number of planes (O,) (cached)."""
-    cache = scene.__dict__.get("_convex_plane_arrays")
+    each object's number of planes (O,) (cached: ``scene.caches.convex_plane_arrays``)."""
+    cache = scene.caches.convex_plane_arrays
     if cache is None:
         normal, offset, valid = _convex_planes(scene)
-        cache = (normal, offset, valid.sum(axis=1).astype(np.int64))
-        scene.__dict__["_convex_plane_arrays"] = cache
+        cache = scene.caches.convex_plane_arrays = (normal, offset,
+                                                    valid.sum(axis=1).astype(np.int64))  # fmt: skip
     return cache
 
 
@@ -201,7 +202,8 @@ def flat_sheet_arrays(
     scene: Scene,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The open sheets that lie in one plane (a pane, a fence, a partition), as the kernels take
-    them (:func:`raytrace.solver.kernels._sheet_touch`); cached.
+    them (:func:`raytrace.solver.kernels.solids.sheet_touch1`); cached
+    (``scene.caches.flat_sheet_arrays``).
 
     Returns
     -------
@@ -211,7 +213,7 @@ def flat_sheet_arrays(
     edges : (E, 6) float, the outline's edges (the faces' edges that no other face of the sheet
         shares, corners welded by position): both ends, metres
     """
-    cache = scene.__dict__.get("_flat_sheet_arrays")
+    cache = scene.caches.flat_sheet_arrays
     if cache is not None:
         return cache
     n_obj = len(scene.objects)
@@ -248,13 +250,14 @@ def flat_sheet_arrays(
         total += len(ends)
         parts.append(ends)
     cache = (plane, reach, start, count, np.ascontiguousarray(np.concatenate(parts)))
-    scene.__dict__["_flat_sheet_arrays"] = cache
+    scene.caches.flat_sheet_arrays = cache
     return cache
 
 
 def coincident_faces(scene: Scene) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The faces of closed solids and of flat sheets that lie in one plane and overlap (a ceiling
-    board resting on a wall's top face, a pane on a frame), as the kernels take them; cached.
+    board resting on a wall's top face, a pane on a frame), as the kernels take them; cached
+    (``scene.caches.coincident_faces``).
 
     A segment crosses both at one point, and the walk steps over a boundary by the margin, so it
     would book whichever of the two Embree reports and miss the other (or, leaving a solid
@@ -269,7 +272,7 @@ def coincident_faces(scene: Scene) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     face : (C,) int, the coincident faces (of another object: a sheet for a solid's face, a
         solid's face for a sheet's)
     """
-    cache = scene.__dict__.get("_coincident_faces")
+    cache = scene.caches.coincident_faces
     if cache is not None:
         return cache
     n_f = len(scene.faces)
@@ -294,7 +297,7 @@ def coincident_faces(scene: Scene) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     count = np.bincount(pairs[:, 0], minlength=n_f).astype(np.int64)
     start = np.concatenate([[0], np.cumsum(count)[:-1]]).astype(np.int64)
     cache = (start, count, np.ascontiguousarray(pairs[:, 1]))
-    scene.__dict__["_coincident_faces"] = cache
+    scene.caches.coincident_faces = cache
     return cache
 
 
@@ -307,8 +310,8 @@ def _closed_solid_grid(scene: Scene) -> tuple:
     :func:`raytrace.solver.kernels.end_probes` takes it: origin ``x0, y0``, cell size, the
     number of cells ``nx, ny``, each cell's first item (nx ny + 1,) and the items (the solids
     whose bounding box meets the cell, grown by a margin), and every object's bounding box
-    ``lo, hi`` (O, 3), metres. Cached."""
-    cache = scene.__dict__.get("_closed_solid_grid")
+    ``lo, hi`` (O, 3), metres. Cached (``scene.caches.closed_solid_grid``)."""
+    cache = scene.caches.closed_solid_grid
     if cache is not None:
         return cache
     n_obj = len(scene.objects)
@@ -331,36 +334,37 @@ def _closed_solid_grid(scene: Scene) -> tuple:
     start = np.concatenate([[0], np.cumsum([len(c) for c in cells])]).astype(np.int64)
     items = np.array([o for c in cells for o in c], dtype=np.int64)
     cache = (float(b_lo[0]), float(b_lo[1]), cell, nx, ny, start, items, carray(lo), carray(hi))
-    scene.__dict__["_closed_solid_grid"] = cache
+    scene.caches.closed_solid_grid = cache
     return cache
 
 
 def _sheet_thickness(scene: Scene) -> np.ndarray:
     """Each object's material thickness (O,), metres, the slab of an open sheet, as the kernels
-    take it (cached)."""
-    cache = scene.__dict__.get("_sheet_thickness_c")
+    take it (cached: ``scene.caches.sheet_thickness``)."""
+    cache = scene.caches.sheet_thickness
     if cache is None:
         cache = carray(scene.material_thickness()[scene.object_material])
-        scene.__dict__["_sheet_thickness_c"] = cache
+        scene.caches.sheet_thickness = cache
     return cache
 
 
 def _object_faces(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
     """Each object's first face and number of faces, (O,) int each, as the kernels take them
-    (cached)."""
-    cache = scene.__dict__.get("_object_faces_c")
+    (cached: ``scene.caches.object_faces``)."""
+    cache = scene.caches.object_faces
     if cache is None:
         count = np.array([ob.face_count for ob in scene.objects], dtype=np.int64)
         cache = (carray(scene.object_face_start, np.int64), count)
-        scene.__dict__["_object_faces_c"] = cache
+        scene.caches.object_faces = cache
     return cache
 
 
 def _face_normals(scene: Scene) -> np.ndarray:
-    """The scene's face normals (F, 3) as the kernels take them (cached)."""
-    cache = scene.__dict__.get("_face_normals_c")
+    """The scene's face normals (F, 3) as the kernels take them (cached:
+    ``scene.caches.face_normals``)."""
+    cache = scene.caches.face_normals
     if cache is None:
-        cache = scene.__dict__["_face_normals_c"] = carray(scene.face_normal)
+        cache = scene.caches.face_normals = carray(scene.face_normal)
     return cache
 
 
@@ -384,8 +388,9 @@ def touches(
 
 def _edge_planes(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
     """Every face's corners (F, 3, 3) and the outward in-plane unit normals of its three edges
-    (F, 3, 3), edge ``i`` from corner ``i`` to corner ``i + 1``. Cached on the scene."""
-    cache = scene.__dict__.get("_edge_planes")
+    (F, 3, 3), edge ``i`` from corner ``i`` to corner ``i + 1``. Cached
+    (``scene.caches.edge_planes``)."""
+    cache = scene.caches.edge_planes
     if cache is not None:
         return cache
     tri = scene.vertices[scene.faces]
@@ -395,7 +400,7 @@ def _edge_planes(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
         v, w = tri[:, i, :], tri[:, (i + 1) % 3, :]
         e = np.cross(w - v, nrm)  # in-plane normal of the edge, outward (counter-clockwise)
         m[:, i] = e / np.maximum(np.linalg.norm(e, axis=-1, keepdims=True), 1e-300)
-    scene.__dict__["_edge_planes"] = (tri, m)
+    scene.caches.edge_planes = (tri, m)
     return tri, m
 
 

@@ -32,8 +32,6 @@ kept: the rule only prunes, and which paths are found does not depend on it.
 
 from __future__ import annotations
 
-import threading
-
 import numpy as np
 
 from ..core.jit import carray
@@ -57,8 +55,8 @@ ENDS_PER_QUERY = 256
 def _groups(scene: Scene) -> tuple[np.ndarray, ...]:
     """The scene's points (P, 3) and their groups: each facet's corners, then each edge's ends,
     as ``g_start, g_count`` (G,) into ``g_point`` (flat indices into the points), and each
-    group's own object (G,). Cached on the scene."""
-    cached = scene.__dict__.get("_shadow_groups")
+    group's own object (G,). Cached (``scene.caches.shadow_groups``)."""
+    cached = scene.caches.shadow_groups
     if cached is not None:
         return cached
     fc, w = scene.facets, scene.wedges
@@ -72,7 +70,7 @@ def _groups(scene: Scene) -> tuple[np.ndarray, ...]:
     start = (np.cumsum(count) - count).astype(np.int64)
     own = np.concatenate([fc.object, w.object if len(w) else np.zeros(0)]).astype(np.int64)
     cached = (carray(points), start, count, carray(g_point.reshape(-1), np.int64), own)
-    scene.__dict__["_shadow_groups"] = cached
+    scene.caches.shadow_groups = cached
     return cached
 
 
@@ -119,10 +117,10 @@ SHADOWS_KEPT = 16
 
 def _kept_or_new(ctx: TraceContext, ends: np.ndarray, which: str) -> tuple[np.ndarray, ...]:
     """:func:`shadowed` of the ends; the transmitters' kept on the scene (per position and
-    opaque objects) for the next trace with the same ones."""
+    opaque objects, ``scene.caches.kept_shadows``) for the next trace with the same ones."""
     if which != "tx":
         return shadowed(ctx.scene, ctx.opaque, ends)
-    kept = ctx.scene.__dict__.setdefault("_kept_shadows", {})
+    kept = ctx.scene.caches.kept_shadows
     key = (carray(ends).tobytes(), np.asarray(ctx.opaque, dtype=bool).tobytes())
     found = kept.get(key)
     if found is None:
@@ -144,10 +142,8 @@ def shadows_of(ctx: TraceContext, ends: np.ndarray) -> tuple[np.ndarray, np.ndar
     wedges : (E, W) bool, read-only
     """
     which = "tx" if ends is ctx.tx else "rx" if ends is ctx.rx else None
-    cache = ctx.__dict__.setdefault("_shadows", {})
-    lock = ctx.__dict__.setdefault("_shadows_lock", threading.Lock())
-    with lock:  # (the stages run on threads: one computes, the others wait for it)
-        found = cache.get(which) if which is not None else None
+    with ctx.shadows_lock:  # (the stages run on threads: one computes, the others wait for it)
+        found = ctx.shadows.get(which) if which is not None else None
         if found is None:
             if kernels.PRUNE and ctx.facet_mask is None:
                 found = _kept_or_new(ctx, ends, which)
@@ -157,7 +153,7 @@ def shadows_of(ctx: TraceContext, ends: np.ndarray) -> tuple[np.ndarray, np.ndar
             for x in found:
                 x.setflags(write=False)
             if which is not None:
-                cache[which] = found
+                ctx.shadows[which] = found
     return found
 
 

@@ -341,7 +341,7 @@ class _SharedPaths:
         """The paths' handle, or the paths themselves where there is no shared memory."""
         caller = caller_pid()
         arrays = None if caller is None else share(
-            {k: getattr(paths, k) for k in Paths._PER_PATH}, caller
+            {k: getattr(paths, k) for k in Paths.PER_PATH}, caller
         )
         if arrays is None:
             return paths

@@ -1,0 +1,184 @@
+"""What a :class:`~raytrace.scene.model.Scene` derives from its arrays and keeps: one
+:class:`SceneCaches` per scene, and the functions that build the scene layer's caches.
+
+A scene's geometry and objects do not change once it is built, and the tracer asks for the
+same derived arrays thousands of times per trace (the margin, the per-object flags), or pays
+milliseconds to build them (Embree's scenes, the convex solids' planes): each is built on first
+use and kept in a named field of ``scene.caches``. The caches are never pickled: a pickled scene
+(a worker's copy) carries its arrays only and rebuilds its intersector when unpickled, so that
+the bytes of a scene, and the digest its kept worker pool is found by
+(:mod:`raytrace.solver.parallel`), do not change once it has been traced. A scene made by
+``dataclasses.replace`` (a snapshot with moved objects) starts with empty caches.
+
+The scene layer builds its own fields (:func:`embree_meshes`, :func:`embree_scene`,
+:func:`subset_scene`, :func:`bounds_of`, :func:`margin_of`, :func:`convex_flags`; the getters
+are the scene's properties and methods). The solver's fields are built by the solver, which
+knows what its kernels take (:mod:`raytrace.solver.penetration`, :mod:`raytrace.solver.shadow`):
+the storage is here, the builders there, and the scene layer never imports the solver.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from . import accel
+from .elements import Facets, SceneObject
+
+__all__ = ["SceneCaches", "embree_meshes", "embree_scene", "subset_scene", "bounds_of",
+           "margin_of", "convex_flags"]
+
+
+@dataclass(eq=False, slots=True)
+class SceneCaches:
+    """The derived arrays of one scene, each built on first use (``None`` or empty until then).
+    Only these fields can be set (slots): a new cache is a new, documented field.
+
+    Scene layer (:mod:`raytrace.scene.model`, :mod:`raytrace.scene.queries`)
+    -------------------------------------------------------------------------
+    embree : embreex EmbreeScene, every object's triangles, geometry id = object index
+        (:meth:`~raytrace.scene.model.Scene.build_embree`, when the scene is built or unpickled)
+    prim_start : (O,) int, each object's first Embree primitive; prim_face : (T,) int, the
+        scene face of each Embree triangle (built with ``embree``)
+    embree_meshes : list of O ``(points (P, 3) float32, triangles (T, 3) int32, face (T,) int)``,
+        each object's triangles as Embree is given them (:func:`embree_meshes`)
+    subset_embree : dict, ``objects.tobytes()`` -> ``(EmbreeScene, members)``, the scenes of
+        :meth:`~raytrace.scene.model.Scene.first_hit_among` (:func:`subset_scene`)
+    bounds : (2, 3) float, read-only, metres (:func:`bounds_of`)
+    margin : float, metres (:func:`margin_of`)
+    object_closed : (O,) bool; object_material : (O,) int; object_face_start : (O,) int:
+        read-only per-object arrays
+    convex : (O,) bool, the convex closed solids (:func:`convex_flags`)
+
+    Solver (:mod:`raytrace.solver.penetration`, :mod:`raytrace.solver.shadow`)
+    ---------------------------------------------------------------------------
+    convex_planes : ``(normal (O, K, 3), offset (O, K), valid (O, K))``, the convex solids'
+        facet planes, padded
+    convex_plane_arrays : ``(normal, offset, count (O,))``, the same as the kernels take them
+    flat_sheet_arrays : ``(plane (O, 4), reach (O,), edge_start, edge_count (O,), edges
+        (E, 6))``, the open sheets that lie in one plane and their outlines
+    coincident_faces : ``(start, count (F,), face (C,))``, faces of solids and flat sheets in one
+        plane that overlap
+    closed_solid_grid : the closed solids by cell of a grid over the footprint, and every
+        object's bounding box
+    sheet_thickness : (O,) float, metres, each object's material thickness
+    object_faces : ``(face_start (O,), face_count (O,))``
+    face_normals : (F, 3) float, C-ordered
+    edge_planes : ``(corners (F, 3, 3), edge_normals (F, 3, 3))``
+    shadow_groups : the scene's facet corners and edge ends, grouped per facet and edge
+    kept_shadows : dict, (end positions, opaque flags) -> the transmitters' shadows, bounded
+        (:data:`raytrace.solver.shadow.SHADOWS_KEPT`)
+    """
+
+    embree: Any = None
+    prim_start: np.ndarray | None = None
+    prim_face: np.ndarray | None = None
+    embree_meshes: list[tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None
+    subset_embree: dict[bytes, tuple[Any, np.ndarray]] = field(default_factory=dict)
+    bounds: np.ndarray | None = None
+    margin: float | None = None
+    object_closed: np.ndarray | None = None
+    object_material: np.ndarray | None = None
+    object_face_start: np.ndarray | None = None
+    convex: np.ndarray | None = None
+    convex_planes: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+    convex_plane_arrays: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+    flat_sheet_arrays: tuple[np.ndarray, ...] | None = None
+    coincident_faces: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+    closed_solid_grid: tuple[Any, ...] | None = None
+    sheet_thickness: np.ndarray | None = None
+    object_faces: tuple[np.ndarray, np.ndarray] | None = None
+    face_normals: np.ndarray | None = None
+    edge_planes: tuple[np.ndarray, np.ndarray] | None = None
+    shadow_groups: tuple[np.ndarray, ...] | None = None
+    kept_shadows: dict[Any, Any] = field(default_factory=dict)
+
+
+def embree_meshes(
+    vertices: np.ndarray, faces: np.ndarray, objects: list[SceneObject], extent: float
+) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """Each object's triangles as Embree is given them (:func:`raytrace.scene.accel.embree_mesh`:
+    the objects as large as the scene, of bounding-box diagonal ``extent`` (m), cut smaller):
+    float32 points (P, 3), int32 triangles (T, 3) and the object's face (T,) each triangle is
+    part of."""
+    out = []
+    for obj in objects:
+        f = faces[obj.face_start : obj.face_start + obj.face_count]
+        n = accel.embree_split(vertices, f, extent)
+        out.append(accel.embree_mesh(vertices, f, n))
+    return out
+
+
+def embree_scene(
+    meshes: list[tuple[np.ndarray, np.ndarray, np.ndarray]], objects: list[SceneObject]
+) -> tuple[Any, np.ndarray, np.ndarray]:
+    """An Embree scene of every object's triangles (:func:`embree_meshes`), geometry id = object
+    index (the order of adding), so that a hit names its object; and ``prim_start`` (O,),
+    ``prim_face`` (T,): Embree's triangle primID of object g is face
+    ``prim_face[prim_start[g] + primID]``."""
+    from embreex import rtcore_scene as rtcs
+    from embreex.mesh_construction import TriangleMesh
+
+    es = rtcs.EmbreeScene()
+    for points, triangles, _ in meshes:
+        TriangleMesh(es, points, triangles)
+    counts = np.array([len(t) for _, t, _ in meshes], dtype=np.int64)
+    prim_start = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
+    prim_face = np.concatenate(
+        [np.zeros(0, dtype=np.int64)]
+        + [o.face_start + face for o, (_, _, face) in zip(objects, meshes, strict=True)]
+    )
+    return es, prim_start, prim_face
+
+
+def subset_scene(
+    meshes: list[tuple[np.ndarray, np.ndarray, np.ndarray]], objects: np.ndarray
+) -> tuple[Any, np.ndarray]:
+    """An Embree scene of some objects (``objects`` (O,) bool), the objects' triangles as in the
+    full scene (:func:`embree_meshes`), and the members (M,) int: geometry id = position in
+    ``members``."""
+    from embreex import rtcore_scene as rtcs
+    from embreex.mesh_construction import TriangleMesh
+
+    es = rtcs.EmbreeScene()
+    members = np.flatnonzero(objects)
+    for i in members:
+        points, triangles, _ = meshes[i]
+        TriangleMesh(es, points[triangles])
+    return es, members
+
+
+def bounds_of(vertices: np.ndarray) -> np.ndarray:
+    """(2, 3) float, the axis-aligned bounding box of ``vertices`` (V, 3), metres, read-only."""
+    out = np.stack([vertices.min(axis=0), vertices.max(axis=0)])
+    out.setflags(write=False)
+    return out
+
+
+def margin_of(extent: float) -> float:
+    """Offset (m) for rays that leave or end on a surface of a scene of bounding-box diagonal
+    ``extent`` (m): Embree works in float32."""
+    return max(1e-4, 2e-6 * extent)
+
+
+def convex_flags(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    objects: list[SceneObject],
+    facets: Facets,
+    closed: np.ndarray,
+    extent: float,
+) -> np.ndarray:
+    """(O,) bool: the closed solids (``closed`` (O,) bool) that are convex, every vertex on or
+    behind every facet plane of the object (within a rounding tolerance of the scene's
+    ``extent``, m)."""
+    tol = 1e-9 * max(extent, 1.0) + 1e-9
+    convex = closed.copy()
+    for o in np.flatnonzero(convex):
+        obj = objects[o]
+        v = vertices[np.unique(faces[obj.face_start : obj.face_start + obj.face_count])]
+        k = facets.object == o
+        convex[o] = bool(np.all(v @ facets.normal[k].T - facets.offset[k] <= tol))
+    return convex
