@@ -283,7 +283,7 @@ def test_command_traces_links_and_reads_paths(room_file, tmp_path, capsys):
 
 
 def _save_with_hash(paths, path, sha):
-    data = {k: getattr(paths, k) for k in paths._PER_PATH}
+    data = {k: getattr(paths, k) for k in paths.PER_PATH}
     np.savez(path, format_version=1, frequency_hz=paths.frequency_hz, tx=paths.tx, rx=paths.rx,
              scene_sha256=np.array(sha), **data)  # fmt: skip
 
