@@ -184,7 +184,8 @@ def test_files_round_trip_through_the_positioning_reader(shoebox_map, tmp_path):
         (["--clearance", "5"], "clearance"),
         (["--draws", "0"], "--draws"),
         (["--workers", "0"], "workers"),
-        (["--receiver", "leading-edge", "--paths", "16"], "--paths 16 needs --receiver first-lobe"),
+        (["--receiver", "leading-edge", "--paths", "16"],
+         "--paths-per-link 16 needs --receiver first-lobe"),
     ],
 )
 def test_bad_input_is_one_line_and_writes_nothing(tmp_path, capsys, extra, message):
