@@ -26,6 +26,7 @@ import sys
 import warnings
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
+from contextvars import ContextVar
 from typing import Any, NoReturn
 
 from .errors import InputError
@@ -38,6 +39,10 @@ EXIT_BROKEN_PIPE = 141
 #: Option values that start with '-' but are numbers or comma-separated numbers (``-1,2,1.5``):
 #: argparse would take them for an option.
 _NEGATIVE_VALUE = re.compile(r"^-(\d|\.\d)[\d.,eE+-]*$")
+
+#: The program name the next :func:`run_command` shows in its usage line (``hallray trace``
+#: when the ``hallray`` command runs a tool; None: the tool's own name).
+_PROG: ContextVar[str | None] = ContextVar("hallray_command_name", default=None)
 
 
 class OneLineParser(argparse.ArgumentParser):
@@ -82,6 +87,18 @@ def _sigterm_as_interrupt() -> Iterator[None]:
         signal.signal(signal.SIGTERM, previous)
 
 
+@contextmanager
+def command_name(prog: str) -> Iterator[None]:
+    """Run a tool under another program name: the first :func:`run_command` inside shows
+    ``prog`` in its usage and help (the ``hallray`` command's ``hallray trace`` for
+    ``trace-scene``); a tool that runs another tool inside keeps that one's own name."""
+    token = _PROG.set(prog)
+    try:
+        yield
+    finally:
+        _PROG.reset(token)
+
+
 def run_command(
     main: Callable[[argparse.Namespace], int],
     parser: argparse.ArgumentParser,
@@ -100,6 +117,10 @@ def run_command(
     user_errors : exception types that mean bad input (besides :class:`InputError`)
     interrupted : what to say after Ctrl-C or SIGTERM (e.g. what was kept)
     """
+    prog = _PROG.get()
+    if prog is not None:  # once: a tool run inside this one keeps its name
+        parser.prog = prog
+        _PROG.set(None)
     try:
         args = parser.parse_args(argv)
     except SystemExit as exc:  # --help (0) or a usage error (2, already printed)

@@ -32,6 +32,7 @@ _WHERE = {
     "C0": "model.tdoa", "pseudoranges": "model.tdoa", "range_differences": "model.tdoa",
     "signed_tdoa": "model.tdoa",
     "LinkInfo": "model.problem", "Problem": "model.problem", "make_problem": "model.problem",
+    "read_dataset": "io.frames", "read_fixes": "io.frames", "read_accuracy_map": "io.frames",
 }  # fmt: skip
 
 if TYPE_CHECKING:
@@ -39,6 +40,7 @@ if TYPE_CHECKING:
     from .estimators.fixes import Fixes, Status, status_label
     from .estimators.irls import andrews_weight
     from .evaluation.metrics import cdf, error_2d, summarize
+    from .io.frames import read_accuracy_map, read_dataset, read_fixes
     from .methods.registry import METHODS, Method, method_names, resolve_params
     from .methods.run import locate, run_method
     from .model.area import ServiceArea, area_from_meta
@@ -85,6 +87,9 @@ __all__ = [
     "method_names",
     "pseudoranges",
     "range_differences",
+    "read_accuracy_map",
+    "read_dataset",
+    "read_fixes",
     "resolve_params",
     "run_method",
     "signed_tdoa",

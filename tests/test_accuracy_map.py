@@ -4,6 +4,7 @@ the command's bad input."""
 from __future__ import annotations
 
 import csv
+import json
 
 import numpy as np
 import pytest
@@ -148,7 +149,7 @@ def test_hall_grid_records_the_test_points_distance():
 def test_files_round_trip_through_the_positioning_reader(shoebox_map, tmp_path):
     sc, amap = shoebox_map
     files = write_outputs(tmp_path / "map", sc, amap, pictures=False)  # pictures: slow test
-    assert [p.name for p in files] == ["map.npz", "map.csv"]
+    assert [p.name for p in files] == ["map.npz", "map.csv", "map.json"]
     back = read_map(tmp_path / "map" / "map.npz")
     for key, arr in amap.fmap.arrays().items():
         np.testing.assert_array_equal(getattr(back, key), arr, err_msg=key)
@@ -156,9 +157,12 @@ def test_files_round_trip_through_the_positioning_reader(shoebox_map, tmp_path):
                 "scene", "draws", "service_area", "test_points", "grid"):  # fmt: skip
         assert key in back.meta
     with open(tmp_path / "map" / "map.csv", newline="") as fh:
-        first = fh.readline()
-        rows = list(csv.DictReader(fh))
-    assert first.startswith(f"# {CSV_SCHEMA} v{CSV_VERSION};")
+        rows = list(csv.DictReader(fh))  # plain CSV: the header first
+    schema = json.loads((tmp_path / "map" / "map.json").read_text())
+    assert (schema["schema"], schema["schema_version"]) == (CSV_SCHEMA, CSV_VERSION) == (
+        "hallray-accuracy-map-csv", 2)
+    assert schema["columns"] == list(rows[0])
+    assert schema["map"]["band"] == back.meta["band"]
     assert len(rows) == back.n_cells
     np.testing.assert_array_equal([int(r["n_los"]) for r in rows], back.n_los())
     np.testing.assert_allclose([float(r["BS2:toa_s"]) for r in rows], back.toa_s[:, 1], rtol=1e-11)
@@ -180,7 +184,8 @@ def test_files_round_trip_through_the_positioning_reader(shoebox_map, tmp_path):
         (["--clearance", "5"], "clearance"),
         (["--draws", "0"], "--draws"),
         (["--workers", "0"], "workers"),
-        (["--receiver", "leading-edge", "--paths", "16"], "--paths 16 needs --receiver first-lobe"),
+        (["--receiver", "leading-edge", "--paths", "16"],
+         "--paths-per-link 16 needs --receiver first-lobe"),
     ],
 )
 def test_bad_input_is_one_line_and_writes_nothing(tmp_path, capsys, extra, message):

@@ -53,6 +53,14 @@ def _report_parser() -> OneLineParser:
         metavar="[METHOD:]NAME=VALUE",
         help="method parameter, repeatable; without METHOD: it applies to every method having it",
     )
+    p.add_argument(
+        "--workers",
+        type=int,
+        default=1,
+        metavar="N",
+        help="processes for the datasets, datasets with the same map together (default 1; the "
+        "report does not depend on it)",
+    )
     add_common_args(p)
     return p
 
@@ -63,7 +71,7 @@ def _report(args: argparse.Namespace) -> int:
     from ..evaluation.trust import check_trustworthy, trust_counts
     from ..io.scale import check_height
     from ..report.files import is_report_dir
-    from ..report.runs import evaluate
+    from ..report.pool import evaluate_all
     from ..report.write import write_report
 
     methods = [m.strip() for m in args.methods.split(",") if m.strip()]
@@ -72,6 +80,8 @@ def _report(args: argparse.Namespace) -> int:
     for m in methods:
         base_method(m)
     methods = list(dict.fromkeys(methods))
+    if args.workers < 1:
+        raise PositioningError(f"--workers must be at least 1, got {args.workers}")
     out = Path(args.output)
     check_output(out, inputs=args.datasets, directory=True)  # before any work
     height = height_mode(args)
@@ -83,8 +93,9 @@ def _report(args: argparse.Namespace) -> int:
     for ds, p in zip(datasets, per_ds, strict=True):
         check_height(height, ds.bs_xyz)
         check_method_params(p, ds)
-    for ds, p in zip(datasets, per_ds, strict=True):
-        r = evaluate(ds, methods, p, height, outside=args.outside, alert_limit_m=limit)
+    evaluated = evaluate_all(datasets, methods, per_ds, height, outside=args.outside,
+                             alert_limit_m=limit, workers=args.workers)  # fmt: skip
+    for ds, r in zip(datasets, evaluated, strict=True):
         fx = list(r.fixes.values())
         if all(f.n_unsolved == f.n_epochs and not f.count(Status.AREA_BOUND) for f in fx):
             raise all_unsolved(ds)

@@ -48,11 +48,16 @@ class Lattice:
     rasters: dict = field(default_factory=dict, compare=False, repr=False)
 
 
+#: Maps read from files kept loaded (with their lattices and rasters), least recently used
+#: dropped first: a report over both bands alternates between two maps, and dropping one
+#: dropped its ToA raster, re-synthesised again for the next dataset of that band.
+MAX_MAPS = 4
 _CACHE: dict[tuple[str, float], tuple[FingerprintMap, Lattice]] = {}
 
 
 def load(fmap: FingerprintMap | str | Path) -> tuple[FingerprintMap, Lattice]:
-    """The map (read and checked if a path; cached by path and mtime) and its lattice."""
+    """The map (read and checked if a path; cached by path and mtime, at most
+    :data:`MAX_MAPS`) and its lattice."""
     if isinstance(fmap, FingerprintMap):
         return fmap, _lattice(fmap)
     path = Path(fmap)
@@ -61,11 +66,16 @@ def load(fmap: FingerprintMap | str | Path) -> tuple[FingerprintMap, Lattice]:
     except OSError:
         key = None
     if key is not None and key in _CACHE:
-        return _CACHE[key]
+        out = _CACHE.pop(key)
+        _CACHE[key] = out  # last: the most recently used
+        return out
     m = read_map(path)
     out = (m, _lattice(m, str(path)))
     if key is not None:
-        _CACHE.clear()
+        for old in [k for k in _CACHE if k[0] == key[0]]:  # the file changed: its old map
+            del _CACHE[old]
+        while len(_CACHE) >= MAX_MAPS:
+            del _CACHE[next(iter(_CACHE))]
         _CACHE[key] = out
     return out
 

@@ -1,11 +1,13 @@
 """``accuracy-map``: the positioning-accuracy map of a hall from its digital twin.
 
     accuracy-map SCENE [--step 2] [--height H] [--band c-band] [--receiver first-lobe]
-                 [--methods ls irls] [--draws 100] [--seed 1] [--workers N | --scheduler ADDR]
-                 [--clearance 0.25] [--max-cells 20000] [--no-pictures] [--force] [-q] -o DIR
+                 [--methods ls irls] [--draws 100] [--seed 1] [--paths-per-link 16]
+                 [--workers N | --scheduler ADDR] [--clearance 0.25] [--max-cells 20000]
+                 [--no-pictures] [--force] [-q] -o DIR
 
-Writes DIR/map.npz (schema ``hallray-accuracy-map`` v1, :mod:`positioning.twin.fingerprint`),
-DIR/map.csv and PNG heatmaps (docs/accuracy_map.md). Bad input gives a one-line ``error: ...``
+(``hallray map``.) Writes DIR/map.npz (schema ``hallray-accuracy-map``,
+:mod:`positioning.twin.fingerprint`), DIR/map.csv with its schema in DIR/map.json, and PNG
+heatmaps (docs/accuracy_map.md). Bad input gives a one-line ``error: ...``
 on stderr and exit status 2 (:mod:`.harness`); DIR appears only when complete.
 """
 
@@ -31,7 +33,7 @@ def accuracy_map_parser() -> argparse.ArgumentParser:
         description=(
             "Per grid cell over the floor: base stations in LoS, first arrivals, predicted ToA "
             "and its spread, GDOP and the predicted 2D error of positioning methods "
-            "(DIR/map.npz, DIR/map.csv, PNG heatmaps; docs/accuracy_map.md)."
+            "(DIR/map.npz, DIR/map.csv with DIR/map.json, PNG heatmaps; docs/accuracy_map.md)."
         ),
     )
     add_scene_arguments(p)
@@ -43,11 +45,12 @@ def accuracy_map_parser() -> argparse.ArgumentParser:
     p.add_argument("--receiver", default=DEFAULT_TOA_METHOD,
                    help=f"ToA receiver: {', '.join(TOA_METHODS)} (default {DEFAULT_TOA_METHOD})")  # fmt: skip
     p.add_argument("--methods", nargs="+", default=list(am.DEFAULT_METHODS), metavar="METHOD",
-                   help="positioning methods (default: ls irls)")  # fmt: skip
+                   help="positioning methods, by spaces or commas (default: ls irls)")  # fmt: skip
     p.add_argument("--draws", type=int, default=am.DEFAULT_DRAWS, metavar="K",
                    help=f"noise draws per cell (default {am.DEFAULT_DRAWS})")  # fmt: skip
     p.add_argument("--seed", type=int, default=am.DEFAULT_SEED, help="random seed (default 1)")
-    p.add_argument("--paths", type=int, default=None, metavar="K",
+    p.add_argument("--paths-per-link", "--paths", dest="paths", type=int, default=None,
+                   metavar="K",
                    help="strongest paths stored per cell and base station for the twin's "
                    f"re-synthesis (schema v2; default {am.DEFAULT_PATHS} with the first-lobe "
                    "receiver, which is the one the twin re-synthesises, else 0: a v1 map)")  # fmt: skip
@@ -89,12 +92,12 @@ def _accuracy_map(args: argparse.Namespace) -> int:
         args.paths = DEFAULT_PATHS
     elif args.paths > 0 and args.receiver != "first-lobe":
         raise HallrayError(
-            f"--paths {args.paths} needs --receiver first-lobe (the twin re-synthesises that "
-            "receiver's ToA only); without --paths the map has none (schema v1)"
+            f"--paths-per-link {args.paths} needs --receiver first-lobe (the twin re-synthesises "
+            "that receiver's ToA only); without it the map has no paths (schema v1)"
         )
     settings = MapSettings(
         step_m=args.step, height_m=args.height, band=args.band, receiver=args.receiver,
-        methods=tuple(args.methods), draws=args.draws, seed=args.seed, paths=args.paths,
+        methods=tuple(m for item in args.methods for m in item.split(",") if m), draws=args.draws, seed=args.seed, paths=args.paths,
         clearance_m=args.clearance, max_cells=args.max_cells, trace=config_from_args(args),
     )  # fmt: skip
     settings.check()

@@ -2,7 +2,7 @@
 
     make-dataset --scenario static|semi-dynamic --band c-band|mmwave [--scene hall]
                  [--duration 60] [--rate 10] [--seed 1]
-                 [--toa-method first-lobe|first-path|peak|leading-edge]
+                 [--receiver first-lobe|first-path|peak|leading-edge]
                  [--relative-threshold-db -12] [--cfar-cells 64|none]
                  [--workers N] [--no-noise] [--force] [-q] -o DIR
     make-dataset --all [...] -o DIR      # DIR/static-c-band, DIR/static-mmwave,
@@ -46,7 +46,9 @@ def make_dataset_parser() -> argparse.ArgumentParser:
     p.add_argument("--rate", type=float, default=10.0, help="epochs per second (default 10)")
     p.add_argument("--seed", type=int, default=1, help="random seed (default 1)")
     p.add_argument(
-        "--toa-method",
+        "--receiver",
+        "--toa-method",  # its name before the hallray command: still accepted
+        dest="toa_method",
         default=DEFAULT_TOA_METHOD,
         help=(
             f"ToA receiver: {', '.join(TOA_METHODS)} (default {DEFAULT_TOA_METHOD}: the "

@@ -153,7 +153,7 @@ def hall_los_check_parser() -> argparse.ArgumentParser:
     p.add_argument("--points", type=int, default=200, help="points per generated hall [200]")
     _add_generator_options(p)
     p.add_argument("--bin", type=float, help="distance bin width, m [max(2, d_clutter / 2)]")
-    p.add_argument("--plot", metavar="PNG", help="write the comparison as a PNG")
+    p.add_argument("-o", "--plot", metavar="PNG", help="write the comparison as a PNG")
     p.add_argument("--json", action="store_true", help="print JSON instead of a table")
     return p
 

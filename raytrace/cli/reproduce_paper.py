@@ -156,7 +156,7 @@ def _build(
     for r in receivers:
         datasets[r] = [s["directory"] for s in summaries if s["toa_method"] == r]
         reports[r] = tmp / _report_name(r, receivers)
-        argv = [*datasets[r], "-o", str(reports[r])]
+        argv = [*datasets[r], "-o", str(reports[r]), "--workers", str(args.workers)]
         methods = method_names(include_map=False) + [
             m for m in EXTRA_METHODS if maps or "twin" not in m
         ]

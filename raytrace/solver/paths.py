@@ -19,8 +19,10 @@ import io
 import json
 import zipfile
 import zlib
+from collections.abc import Sequence
 from dataclasses import dataclass, fields
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -325,6 +327,97 @@ class Paths:
                 ("diffraction", diff),
             )
         }
+
+    # -- tables -------------------------------------------------------------------------------
+    def interaction_labels(self, object_names: Sequence[str] | None = None) -> np.ndarray:
+        """(P,) str, each path's interactions with their objects, in path order: ``LoS``, or
+        ``R(wall_north) D(machine_3)`` with ``object_names`` (``scene.object_names``), else
+        ``R(#12) D(#3)`` (object indices). R reflection, T penetration, D diffraction."""
+        if self.n_paths == 0:
+            return np.zeros(0, dtype=str)
+        names = None if object_names is None else list(object_names)
+        # few distinct (sequence, objects) rows: label each once
+        rows, inverse = np.unique(np.concatenate([self.interaction.astype(np.int64),
+                                                  self.objects.astype(np.int64)], axis=1),
+                                  axis=0, return_inverse=True)  # fmt: skip
+        depth = self.interaction.shape[1]
+        labels = []
+        for row in rows:
+            parts = []
+            for code, obj in zip(row[:depth], row[depth:]):
+                if code:
+                    ok = names is not None and 0 <= obj < len(names)
+                    parts.append(f"{_LETTER[int(code)]}({names[obj] if ok else f'#{obj}'})")
+            labels.append(" ".join(parts) or "LoS")
+        return np.array(labels)[inverse.reshape(-1)]
+
+    def to_pandas(
+        self,
+        object_names: Sequence[str] | None = None,
+        *,
+        tx_names: Sequence[str] | None = None,
+        rx_names: Sequence[str] | None = None,
+    ) -> Any:
+        """The paths as a pandas DataFrame, one row per path (pandas is an optional dependency:
+        ``pip install 'hallray[pandas]'``).
+
+        Parameters
+        ----------
+        object_names : sequence of str, optional, the scene's object names
+            (``scene.object_names``) for the ``interactions`` column
+        tx_names, rx_names : sequence of str, optional, names of the T transmitters and R
+            receivers for the ``tx`` and ``rx`` columns (default: their indices)
+
+        Returns
+        -------
+        pandas.DataFrame with the columns ``link, tx, rx, tx_index, rx_index`` (int, names);
+        ``kind`` (``LoS``, ``R``, ``DR``, ...) and ``interactions`` (:meth:`interaction_labels`),
+        str; ``delay_s``, ``excess_delay_s`` (over the straight line), seconds; ``length_m``,
+        metres; ``power_db``, dB; ``gain``, complex; ``n_reflections, n_penetrations,
+        n_diffractions``, int; ``first_arrival``, bool (the link's earliest path). The
+        interaction points stay in :attr:`points` (row ``i`` is path ``i``).
+        """
+        try:
+            import pandas as pd
+        except ImportError:
+            raise HallrayError(
+                "Paths.to_pandas needs pandas, an optional dependency: "
+                "pip install 'hallray[pandas]'"
+            ) from None
+        from ..core.constants import C0
+
+        def names(given: Sequence[str] | None, n: int, what: str) -> np.ndarray | None:
+            if given is None:
+                return None
+            arr = np.asarray(list(given), dtype=str)
+            if len(arr) != n:
+                raise HallrayError(f"{what} has {len(arr)} names for {n} positions")
+            return arr
+
+        txn = names(tx_names, len(self.tx), "tx_names")
+        rxn = names(rx_names, len(self.rx), "rx_names")
+        straight = np.linalg.norm(self.tx[self.tx_index] - self.rx[self.rx_index], axis=1) / C0
+        first = np.zeros(self.n_paths, dtype=bool)
+        f = self.first_arrival()
+        first[f[f >= 0]] = True
+        return pd.DataFrame({
+            "link": self.link.astype(np.int64),
+            "tx": self.tx_index if txn is None else txn[self.tx_index],
+            "rx": self.rx_index if rxn is None else rxn[self.rx_index],
+            "tx_index": self.tx_index.astype(np.int64),
+            "rx_index": self.rx_index.astype(np.int64),
+            "kind": self.kind_label,
+            "interactions": self.interaction_labels(object_names),
+            "delay_s": self.delay_s,
+            "excess_delay_s": self.delay_s - straight,
+            "length_m": self.length_m,
+            "power_db": self.power_db,
+            "gain": self.gain,
+            "n_reflections": self.n_reflections.astype(np.int64),
+            "n_penetrations": self.n_penetrations.astype(np.int64),
+            "n_diffractions": self.n_diffractions.astype(np.int64),
+            "first_arrival": first,
+        })  # fmt: skip
 
     # -- files --------------------------------------------------------------------------------
     def save(self, path: str | Path) -> None:

@@ -45,6 +45,7 @@ from .files import (
     check_output,
     csv_columns,
     map_csv,
+    map_csv_meta,
     map_pictures,
     write_outputs,
 )
@@ -93,6 +94,7 @@ __all__ = [
     "lattice_distance",
     "make_grid",
     "map_csv",
+    "map_csv_meta",
     "map_pictures",
     "measure_cells",
     "path_table",

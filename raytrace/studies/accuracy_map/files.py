@@ -1,11 +1,13 @@
 """A map's files: ``map.npz`` (:func:`positioning.twin.fingerprint.write_map`), its CSV companion
-``map.csv`` and the PNG heatmaps, written into a staged directory (no partial output).
+``map.csv`` with the schema and the map's meta in ``map.json`` beside it, and the PNG heatmaps,
+written into a staged directory (no partial output).
 """
 
 from __future__ import annotations
 
 import csv
 import io
+import json
 import warnings
 from collections.abc import Sequence
 from pathlib import Path
@@ -13,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from positioning.io.frames import MAP_CSV_SCHEMA, MAP_CSV_VERSION
 from positioning.twin.fingerprint import write_map
 
 from ...core.errors import HallrayError
@@ -20,8 +23,9 @@ from ...core.fileio import write_atomic
 from ...scene.model import Scene
 from .compute import AccuracyMap
 
-#: The CSV companion of map.npz: its schema name and version (first line of the file).
-CSV_SCHEMA, CSV_VERSION = "hallray-accuracy-map-csv", 1
+#: The CSV companion of map.npz: its schema name and version (in map.json; version 1 had them
+#: in a ``#`` line before the header, which spreadsheets and ``pandas.read_csv`` took for it).
+CSV_SCHEMA, CSV_VERSION = MAP_CSV_SCHEMA, MAP_CSV_VERSION
 
 
 def csv_columns(bs_names: Sequence[str], methods: Sequence[str]) -> list[str]:
@@ -35,13 +39,26 @@ def csv_columns(bs_names: Sequence[str], methods: Sequence[str]) -> list[str]:
     return head
 
 
+def map_csv_meta(amap: AccuracyMap) -> bytes:
+    """map.json: the schema of map.csv (name, version, columns) and the map's meta (band,
+    receiver, grid, ...; docs/accuracy_map.md)."""
+    f = amap.fmap
+    doc = {
+        "schema": CSV_SCHEMA,
+        "schema_version": CSV_VERSION,
+        "file": "map.csv",
+        "rows": "one per cell",
+        "units": "SI (m, s)",
+        "columns": csv_columns(list(f.bs_names), list(f.methods)),
+        "map": f.meta,
+    }
+    return (json.dumps(doc, indent=1) + "\n").encode("utf-8")
+
+
 def map_csv(amap: AccuracyMap) -> bytes:
-    """map.csv: a ``# hallray-accuracy-map-csv v1 ...`` line, the header, one row per cell."""
+    """map.csv: plain CSV, the header (:func:`csv_columns`), then one row per cell."""
     f, g = amap.fmap, amap.grid
     buf = io.StringIO()
-    buf.write(f"# {CSV_SCHEMA} v{CSV_VERSION}; one row per cell; units SI (m, s); "
-              "columns BS:quantity per base station, METHOD:quantity per method; "
-              "see docs/accuracy_map.md\n")  # fmt: skip
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(csv_columns(list(f.bs_names), list(f.methods)))
     n_los = f.n_los()
@@ -78,9 +95,9 @@ def write_outputs(
     out_dir: str | Path, scene: Scene, amap: AccuracyMap, *, force: bool = False,
     pictures: bool = True,
 ) -> list[Path]:  # fmt: skip
-    """Write DIR/map.npz (:func:`positioning.twin.fingerprint.write_map`), DIR/map.csv and the PNG
-    heatmaps into a temporary directory beside ``out_dir``, renamed when complete (no partial
-    output). Returns the files' final paths."""
+    """Write DIR/map.npz (:func:`positioning.twin.fingerprint.write_map`), DIR/map.csv, its schema
+    DIR/map.json and the PNG heatmaps into a temporary directory beside ``out_dir``, renamed when
+    complete (no partial output). Returns the files' final paths."""
     import shutil
 
     from hallray.safe_output import commit_dir
@@ -93,7 +110,8 @@ def write_outputs(
     try:
         write_map(tmp / "map.npz", amap.fmap)
         write_atomic(tmp / "map.csv", map_csv(amap))
-        names = ["map.npz", "map.csv"]
+        write_atomic(tmp / "map.json", map_csv_meta(amap))
+        names = ["map.npz", "map.csv", "map.json"]
         if pictures:
             for name, png in map_pictures(scene, amap):
                 write_atomic(tmp / name, png)

@@ -271,3 +271,29 @@ def test_cli_bad_alert_limit(tmp_path, capsys, bad):
     ds = write_dataset(tmp_path / "d", points=THREE_POINTS, n_epochs=1)
     assert estimate_positions_main([str(ds), "--alert-limit", bad, "-o", str(tmp_path / "x")]) == 2
     assert "alert-limit" in capsys.readouterr().err
+
+
+def test_accuracy_report_workers_bit_identical(datasets, tmp_path, capsys):
+    """The datasets solved on two spawned worker processes give the report of one process, byte
+    for byte (tables, integrity, the fixes in the figures), and the same printed lines."""
+    outs = {}
+    printed = {}
+    for n in (1, 2):
+        outs[n] = tmp_path / f"w{n}"
+        argv = [*map(str, datasets), "-o", str(outs[n]), "--workers", str(n)]
+        assert accuracy_report_main(argv) == 0
+        printed[n] = capsys.readouterr().out.replace(str(outs[n]), "OUT")
+    names = sorted(p.name for p in outs[1].iterdir())
+    assert names == sorted(p.name for p in outs[2].iterdir())
+    assert "table.csv" in names and "integrity.md" in names
+    for name in names:
+        assert (outs[1] / name).read_bytes() == (outs[2] / name).read_bytes(), name
+    assert printed[1] == printed[2]
+
+
+def test_accuracy_report_bad_workers(datasets, tmp_path, capsys):
+    out = tmp_path / "r"
+    line = run_error(accuracy_report_main, [str(datasets[0]), "-o", str(out), "--workers", "0"],
+                     capsys)  # fmt: skip
+    assert "--workers" in line
+    assert not out.exists()
