@@ -16,6 +16,7 @@ import numpy as np
 from ..core.jit import carray, helper, inline, kernel
 from ..core.vec import dot3
 from .elements import Facets, Wedges
+from .spatial import SphereTree, build_tree
 
 #: Barycentric tolerance of the point-in-triangle test (dimensionless): a point on the shared
 #: edge of two triangles of one facet must not fall through the crack.
@@ -227,6 +228,31 @@ def facet_spheres(facets: Facets) -> tuple[np.ndarray, np.ndarray]:
     radius.setflags(write=False)
     facets.cache["spheres"] = (centre, radius)
     return centre, radius
+
+
+def facet_tree(facets: Facets) -> SphereTree:
+    """A bounding-volume hierarchy over the facets' boxes (:func:`facet_boxes`, not grown) and
+    bounding spheres (:func:`facet_spheres`), for the spatial queries that replace scans of
+    every facet (:mod:`raytrace.scene.spatial`); cached."""
+    cached = facets.cache.get("tree")
+    if cached is None:
+        lo, hi = facet_boxes(facets, 0.0)
+        centre, radius = facet_spheres(facets)
+        cached = facets.cache["tree"] = build_tree(lo, hi, centre, radius)
+    return cached
+
+
+def wedge_tree(wedges: Wedges) -> SphereTree:
+    """A bounding-volume hierarchy over the edges: each edge's box and the sphere on its middle
+    through its ends (radius grown by a relative 1e-9, as :func:`wedge_groups`); cached."""
+    cached = wedges.cache.get("tree")
+    if cached is None:
+        a, b = wedges.start, wedges.end
+        centre = 0.5 * (a + b)
+        radius = 0.5 * np.linalg.norm(b - a, axis=1) * (1 + 1e-9) + 1e-9
+        cached = wedges.cache["tree"] = build_tree(np.minimum(a, b), np.maximum(a, b), centre,
+                                                   radius)  # fmt: skip
+    return cached
 
 
 def facing_pairs(facets: Facets, known: np.ndarray | None = None) -> np.ndarray:
