@@ -339,6 +339,8 @@ class EmbreeQueries:
             odd = k[c % 2 == 1]
             votes += np.isin(pair_key, odd)
         inside = votes >= 2
+        if not inside.any():  # points in boxes, none in a solid
+            return out
         # the lowest object index per point among its pairs inside
         order = np.lexsort((o_idx[inside], p_idx[inside]))
         pi, oi = p_idx[inside][order], o_idx[inside][order]
