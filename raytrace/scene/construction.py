@@ -21,14 +21,19 @@ from ..core.jit import carray, kernel
 from . import accel, spatial
 from .elements import Facets, SceneObject, Wedges
 
-__all__ = ["DEGENERATE_AREA_M2", "WEDGE_MIN_ANGLE_RAD", "BURIED_PROBE_M",
+__all__ = ["DEGENERATE_AREA_M2", "DEFAULT_SMOOTH_ANGLE_DEG", "WEDGE_MIN_ANGLE_RAD", "MAX_SMOOTH_ANGLE_DEG", "BURIED_PROBE_M",
            "JUNCTION_MIN_EXCESS_RAD", "scene_parts", "facets_of", "wedges_of", "buried_wedges",
-           "resolve_junctions"]
+           "resolve_junctions", "check_smooth_angle"]
 
 #: Triangles with an area below this (m^2) are degenerate and dropped.
 DEGENERATE_AREA_M2 = 1e-10
-#: Two adjacent faces whose normals differ by less than this (rad) are coplanar (no wedge).
-WEDGE_MIN_ANGLE_RAD = np.deg2rad(1.0)
+#: Default smooth angle: two adjacent faces whose normals differ by less than this (rad) meet
+#: at a smooth edge, not a wedge (``smooth_angle_deg`` of :func:`scene_parts` chooses another;
+#: docs/scene.md, "Smooth edges", has the measurement behind the default).
+DEFAULT_SMOOTH_ANGLE_DEG = 1.0
+WEDGE_MIN_ANGLE_RAD = np.deg2rad(DEFAULT_SMOOTH_ANGLE_DEG)
+#: Largest smooth angle accepted, degrees: beyond it a box's own corners would vanish.
+MAX_SMOOTH_ANGLE_DEG = 60.0
 #: Distance (m) from an edge along its outward bisector at which a wedge is probed for being
 #: buried in another solid (then it is not a free, diffracting edge).
 BURIED_PROBE_M = 5e-3
@@ -36,21 +41,28 @@ BURIED_PROBE_M = 5e-3
 JUNCTION_MIN_EXCESS_RAD = WEDGE_MIN_ANGLE_RAD
 
 
-def scene_parts(meshes: list[tuple[str, Any, str]], source: str = "") -> dict[str, Any]:
+def scene_parts(
+    meshes: list[tuple[str, Any, str]], source: str = "", smooth_angle_deg: float | None = None
+) -> dict[str, Any]:
     """The arrays of a scene built from ``(name, trimesh.Trimesh, material_name)`` triples, as
     :class:`~raytrace.scene.model.Scene`'s keyword arguments: ``vertices``, ``faces``,
     ``face_object``, ``face_normal``, ``objects``, ``material_names``, ``facets``, ``wedges``
     (before the buried and junction edges are resolved) and ``n_degenerate_dropped``.
 
     Closed (watertight) meshes are oriented outward; everything else is an open sheet.
-    Degenerate triangles are dropped and counted.
+    Degenerate triangles are dropped and counted. An edge whose two faces' normals differ by
+    less than ``smooth_angle_deg`` (default :data:`WEDGE_MIN_ANGLE_RAD`, 1 degree) is smooth: a
+    tessellated curve, not a diffracting wedge.
 
     Raises
     ------
     SceneError
-        No triangle in any mesh, or a NaN or infinite vertex.
+        No triangle in any mesh, a NaN or infinite vertex, or a smooth angle outside
+        [0, :data:`MAX_SMOOTH_ANGLE_DEG`] degrees.
     """
     import trimesh
+
+    smooth_rad = check_smooth_angle(smooth_angle_deg)
 
     verts, faces, face_obj, normals = [], [], [], []
     objects: list[SceneObject] = []
@@ -92,7 +104,7 @@ def scene_parts(meshes: list[tuple[str, Any, str]], source: str = "") -> dict[st
         face_obj.append(np.full(len(m.faces), obj_id, dtype=np.int64))
         normals.append(np.asarray(m.face_normals, dtype=np.float64))
         facet_parts.append(facets_of(m, obj_id, mat_id, closed))
-        wedge_parts.append(wedges_of(m, obj_id, mat_id, closed))
+        wedge_parts.append(wedges_of(m, obj_id, mat_id, closed, smooth_rad))
         v_offset += len(m.vertices)
         f_offset += len(m.faces)
     if not objects:
@@ -112,6 +124,8 @@ def scene_parts(meshes: list[tuple[str, Any, str]], source: str = "") -> dict[st
         "face_normal": np.concatenate(normals),
         "objects": objects,
         "material_names": material_names,
+        "smooth_angle_deg": DEFAULT_SMOOTH_ANGLE_DEG if smooth_angle_deg is None
+        else float(smooth_angle_deg),
         "facets": facets,
         "wedges": wedges,
         "n_degenerate_dropped": n_dropped,
@@ -321,8 +335,23 @@ def facets_of(mesh: Any, obj_id: int, mat_id: int, closed: bool) -> dict[str, np
     }
 
 
-def wedges_of(mesh: Any, obj_id: int, mat_id: int, closed: bool) -> dict[str, np.ndarray]:
-    """Convex edges of a closed solid, or free (boundary) edges of an open sheet.
+def check_smooth_angle(smooth_angle_deg: float | None) -> float:
+    """The smooth angle in radians (the default for None); SceneError outside [0, 60] degrees."""
+    if smooth_angle_deg is None:
+        return float(WEDGE_MIN_ANGLE_RAD)
+    a = float(smooth_angle_deg)
+    if not 0.0 <= a <= MAX_SMOOTH_ANGLE_DEG:  # also NaN
+        raise SceneError(
+            f"smooth angle must be between 0 and {MAX_SMOOTH_ANGLE_DEG:g} degrees, got {a:g}"
+        )
+    return float(np.deg2rad(a))
+
+
+def wedges_of(
+    mesh: Any, obj_id: int, mat_id: int, closed: bool, smooth_rad: float = WEDGE_MIN_ANGLE_RAD
+) -> dict[str, np.ndarray]:
+    """Convex edges of a closed solid, or free (boundary) edges of an open sheet; edges whose
+    faces bend by no more than ``smooth_rad`` (radians) are smooth, not wedges.
 
     Collinear pieces of one edge between the same two planes are merged into one wedge.
     """
@@ -339,7 +368,7 @@ def wedges_of(mesh: Any, obj_id: int, mat_id: int, closed: bool) -> dict[str, np
         angles = np.asarray(mesh.face_adjacency_angles)
         convex = np.asarray(mesh.face_adjacency_convex)
         # closed solids diffract at convex edges; a folded sheet wherever it bends
-        sel = angles > WEDGE_MIN_ANGLE_RAD
+        sel = angles > smooth_rad
         if closed:
             sel &= convex
         if sel.any():
