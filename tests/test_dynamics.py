@@ -452,3 +452,23 @@ def test_points_beside_a_forklift_are_not_inside_it():
     assert not st.boxes_at(37.9).contains(rx, grow=0.39).any()
     np.testing.assert_array_equal(snap.inside_solid(np.vstack([tx, rx])), -1)
     assert scene.inside_solid(np.array([[39.1965, 1.1965, 1.0]]))[0] == -1
+
+
+def test_a_posed_copy_does_not_share_the_templates_derived_arrays():
+    """Regression: ``posed`` copies the template's facets and wedges with
+    ``dataclasses.replace``, which shared their ``cache`` dicts, so the tree (and boxes, spheres)
+    of one pose answered for the next: a snapshot's full retrace lost 28 of 3856 paths."""
+    from raytrace.scene import accel
+
+    template = make_scene([("box", box((-1, -1, 0), (1, 1, 1)), "metal")])
+    first = accel.facet_tree(template.facets)
+    moved = posed(template, yaw_rotations(np.array([0.3])), np.array([[5.0, 2.0, 0.0]]))
+    assert moved.facets.cache is not template.facets.cache
+    assert moved.wedges.cache is not template.wedges.cache
+    tree = accel.facet_tree(moved.facets)
+    corners = moved.facets.triangles.reshape(-1, 3)
+    assert (tree.node_lo[0] <= corners.min(axis=0)).all()
+    assert (tree.node_hi[0] >= corners.max(axis=0)).all()
+    np.testing.assert_allclose(tree.node_centre[0][:2] - first.node_centre[0][:2], [5.0, 2.0],
+                               atol=0.5)  # fmt: skip
+    assert accel.facet_tree(template.facets) is first

@@ -561,7 +561,7 @@ def test_second_order_candidates_exact_tests_are_the_numpy_ones():
     ctx = TraceContext(scene, inp.bs_xyz, inp.point_xyz, 3.775e9, TraceConfig())
     fc = scene.facets
     side_t, img1, i1, f1, f2, img2, _, receiver_args, exact_args = specular._second_images(
-        ctx, 1, accel.facing_pairs(fc), np.zeros(len(fc), dtype=bool)
+        ctx, 1, np.zeros(len(fc), dtype=bool)
     )
     side_rx = carray(refl.reflecting_side(fc, ctx.rx), np.int8)
     centre = 0.5 * (ctx.rx.min(axis=0) + ctx.rx.max(axis=0))

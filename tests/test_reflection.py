@@ -82,6 +82,10 @@ def _fresh(facets: Facets) -> Facets:
 
 
 def test_facing_pairs_extended_equals_recomputed():
+    """A scene with moving objects joined to a static one: its facets' trees are the static
+    scene's and one over the added facets (no tree of the whole scene per snapshot), and beam
+    queries on them find what a tree over all of the joined facets finds. The pairwise facing
+    test is the (facets x facets) table's, pair by pair."""
     base = make_scene(
         [
             ("floor", quad((0, 0, 0), (10, 0, 0), (0, 10, 0)), "concrete"),
@@ -97,11 +101,27 @@ def test_facing_pairs_extended_equals_recomputed():
         ]
     )
     joined = extend_scene(base, extra)
-    got = accel.facing_pairs(joined.facets)  # filled by extend_scene from the base's block
-    want = accel.facing_pairs(_fresh(joined.facets))
-    assert got is not want
-    np.testing.assert_array_equal(got, want)
-    assert got[: len(base.facets), len(base.facets) :].any()
-    # symmetric, no facet faces itself
-    np.testing.assert_array_equal(got, got.T)
-    assert not got.diagonal().any()
+    forest = accel.facet_forest(joined.facets)
+    assert len(forest) == 2 and forest[0][0] is accel.facet_tree(base.facets)
+    fresh = _fresh(joined.facets)
+    rng = np.random.default_rng(7)
+    k = len(fresh)
+    centre, radius = accel.facet_spheres(fresh)
+    apex = rng.uniform(-2, 12, (300, 3))
+    through = rng.integers(0, k, 300)
+    b = refl.beam(apex, centre[through], radius[through])
+    side = rng.integers(-1, 2, 300).astype(np.int8)
+    args = (b, fresh.normal[through], fresh.offset[through], side)
+    got = accel.beam_facets(joined.facets, *args)
+    want = accel.beam_facets(fresh, *args)
+    assert len(got[0]) > 300 and (got[1] >= len(base.facets)).any()
+    order_g, order_w = np.lexsort(got[::-1]), np.lexsort(want[::-1])
+    np.testing.assert_array_equal(got[0][order_g], want[0][order_w])
+    np.testing.assert_array_equal(got[1][order_g], want[1][order_w])
+    # the pairwise test against the table
+    table = accel.facing_pairs(fresh)
+    i, j = np.divmod(np.arange(k * k), k)
+    np.testing.assert_array_equal(accel.facing(fresh, i, j), table[i, j])
+    assert table[: len(base.facets), len(base.facets) :].any()
+    np.testing.assert_array_equal(table, table.T)
+    assert not table.diagonal().any()

@@ -552,3 +552,17 @@ def test_intersect_names_the_same_faces_with_large_objects_cut():
     np.testing.assert_array_equal(got[2], want[2])
     np.testing.assert_allclose(got[0], want[0], rtol=1e-5)
     np.testing.assert_array_equal(sub, want_sub)
+
+
+def test_inside_solid_of_a_non_convex_solid_by_parity():
+    # a sphere with a dent (not convex): points in its box but outside it get -1, also when no
+    # point of the batch is inside (that batch was an IndexError)
+    ball = trimesh.creation.icosphere(2, 1.0)
+    top = int(np.argmax(ball.vertices[:, 2]))
+    ball.vertices[top] *= 0.3  # the dent
+    sc = make_scene([("ball", ball, "metal")])
+    assert not sc.convex_objects()[0]
+    outside = np.array([[0.9, 0.9, 0.9], [-0.9, 0.8, -0.85], [0.0, 0.0, 0.95]])  # last: in the dent
+    assert sc.inside_solid(outside).tolist() == [-1, -1, -1]
+    both = np.vstack([outside, [[0.0, 0.0, 0.0], [0.5, -0.3, 0.2]]])
+    assert sc.inside_solid(both).tolist() == [-1, -1, -1, 0, 0]

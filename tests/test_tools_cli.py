@@ -39,6 +39,9 @@ CASES: dict[str, tuple[str, list[str], str]] = {
     "bench_twin-bad-steps": (
         "bench_twin.py", ["--data", "{tmp}", "--maps", "{tmp}", "--steps", "0.05,abc"], "--steps"
     ),
+    "bench_scale-too-few-triangles": ("bench_scale.py", ["--max-triangles", "10"], "--max-triangles"),
+    "smooth_edges-bad-angles": ("smooth_edges.py", ["--angles", "2,abc"], "--angles"),
+    "smooth_edges-angle-out-of-range": ("smooth_edges.py", ["--angles", "120"], "smooth angle"),
     "build_scenes-exclusive-options": ("build_scenes.py", ["--check", "--los-table"], "not allowed"),
     "check_layers-missing-root": ("check_layers.py", ["{tmp}/no"], "no raytrace"),
     "check_reciprocity-not-an-integer": (

@@ -2,7 +2,8 @@
 """Benchmark: links traced per second on the bundled hall, and positions solved per second.
 
 Run from a checkout: ``python tools/bench.py [--json] [--repeat N] [--scene hall] [--snapshots N]
-[--grid-step 2] [--no-scaling | --only-scaling]``.
+[--grid-step 2] [--no-scaling | --only-scaling]``; ``--scene-scale 1e5`` runs the scene-scale
+section instead (``tools/bench_scale.py``: load, trace and memory from 10^3 triangles up).
 Also times the incremental retrace of forklift snapshots against a full retrace, and the scaling
 over cores: links/s and paths/s at 1, 2 and all cores (CPU affinity) on the hall's links and on a
 grid of receivers over its floor, the parallel efficiency, the serial part of a trace over worker
@@ -18,6 +19,7 @@ import contextlib
 import json
 import os
 import platform
+import subprocess
 import sys
 import time
 from pathlib import Path
@@ -359,6 +361,13 @@ def parser() -> argparse.ArgumentParser:
     scaling.add_argument("--no-scaling", action="store_true", help="skip the scaling over cores")
     scaling.add_argument("--only-scaling", action="store_true", help="only the scaling over cores")
     ap.add_argument("--json", action="store_true", help="print the figures as one JSON object")
+    ap.add_argument(
+        "--scene-scale",
+        metavar="MAX_TRIANGLES",
+        type=float,
+        help="only the scene-scale section (tools/bench_scale.py): the hall plus generated "
+        "machines up to this many triangles",
+    )
     return ap
 
 
@@ -378,6 +387,10 @@ def check_args(args: argparse.Namespace) -> None:
 
 def _main(args: argparse.Namespace) -> int:
     check_args(args)
+    if args.scene_scale is not None:  # its own tool, one fresh process per scene
+        cmd = [sys.executable, str(Path(__file__).with_name("bench_scale.py")),
+               "--max-triangles", repr(args.scene_scale)] + (["--json"] if args.json else [])  # fmt: skip
+        return subprocess.call(cmd)
     if args.only_scaling:
         sc = bench_scaling(args.scene, args.repeat, args.grid_step)
         if args.json:

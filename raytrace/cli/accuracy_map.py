@@ -22,7 +22,7 @@ import numpy as np
 from ..core.errors import HallrayError
 from ..emulation.receivers.receiver import DEFAULT_TOA_METHOD, TOA_METHODS
 from ..solver.config import add_trace_arguments
-from .harness import OneLineParser, add_scene_arguments, run_tool
+from .harness import OneLineParser, add_scene_arguments, run_tool, scene_options
 
 
 def accuracy_map_parser() -> argparse.ArgumentParser:
@@ -106,7 +106,7 @@ def _accuracy_map(args: argparse.Namespace) -> int:
     if args.scheduler is None and resolve_workers(args.workers, 2) > 1:
         # the workers' fork server imports its modules while this process loads the scene
         process_context(("raytrace.studies.accuracy_map",))
-    scene = load_scene(args.scene, args.materials, default_material=args.default_material)
+    scene = load_scene(args.scene, args.materials, **scene_options(args))
     amap = compute_map(scene, settings, scene_name=str(args.scene), workers=args.workers,
                        scheduler=args.scheduler, progress=not args.quiet)  # fmt: skip
     files = write_outputs(args.output, scene, amap, force=args.force,

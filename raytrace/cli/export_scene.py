@@ -16,7 +16,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from ..core.errors import HallrayError
-from .harness import OneLineParser, add_scene_arguments, run_tool
+from .harness import OneLineParser, add_scene_arguments, run_tool, scene_options
 
 
 def parser() -> argparse.ArgumentParser:
@@ -92,7 +92,7 @@ def main(args: argparse.Namespace) -> int:
     tty = not args.quiet and sys.stderr.isatty()  # progress lines for a person at a terminal
     if tty:
         print(f"loading {args.scene}...", file=sys.stderr, flush=True)
-    scene = load_scene(args.scene, args.materials, default_material=args.default_material)
+    scene = load_scene(args.scene, args.materials, **scene_options(args))
     if tty:
         print(f"writing {len(scene.objects)} meshes...", file=sys.stderr, flush=True)
     bar = None

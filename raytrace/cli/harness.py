@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 from collections.abc import Callable, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -57,6 +58,29 @@ def add_scene_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("scene", help="scene file (.glb .gltf .obj .ply .stl, Mitsuba XML) or 'hall'")
     p.add_argument("--materials", help="materials YAML (user materials, bind patterns, default)")
     p.add_argument("--default-material", help="material for objects no name or pattern binds")
+    p.add_argument(
+        "--smooth-angle",
+        type=float,
+        metavar="DEG",
+        help="edges bending less than this are smooth (a tessellated curve), not diffracting "
+        "wedges [1]",
+    )
+    p.add_argument(
+        "--no-scene-cache",
+        action="store_true",
+        help="neither read nor write the preprocessing cache beside a large scene "
+        "(.hallray-cache/)",
+    )
+
+
+def scene_options(args: argparse.Namespace) -> dict[str, Any]:
+    """Keyword arguments of :func:`~raytrace.scene.io.load_scene` from
+    :func:`add_scene_arguments`'s options (beyond SCENE and --materials)."""
+    return {
+        "default_material": args.default_material,
+        "smooth_angle_deg": args.smooth_angle,
+        "cache": False if args.no_scene_cache else None,
+    }
 
 
 def parse_links(items: list[str], tx_names: list[str], rx_names: list[str]) -> list[int]:

@@ -14,7 +14,14 @@ import numpy as np
 
 from ..core.errors import HallrayError
 from ..solver.config import add_trace_arguments, config_from_args
-from .harness import OneLineParser, add_scene_arguments, parse_links, parse_xyz, run_tool
+from .harness import (
+    OneLineParser,
+    add_scene_arguments,
+    parse_links,
+    parse_xyz,
+    run_tool,
+    scene_options,
+)
 
 
 def _size(text: str) -> tuple[int, int]:
@@ -94,7 +101,7 @@ def _render_scene(args: argparse.Namespace) -> int:
     from hallray.safe_output import check_output
 
     check_output(args.output, inputs=[args.scene, args.materials, args.paths])
-    scene = load_scene(args.scene, args.materials, default_material=args.default_material)
+    scene = load_scene(args.scene, args.materials, **scene_options(args))
     sites = SceneMetadata.from_scene(scene)
     bs_names, bs_xyz, pt_names, pt_xyz = (
         sites.bs_names,

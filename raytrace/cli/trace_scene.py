@@ -14,7 +14,14 @@ import numpy as np
 
 from ..core.errors import HallrayError
 from ..solver.config import add_trace_arguments
-from .harness import OneLineParser, add_scene_arguments, parse_links, parse_xyz, run_tool
+from .harness import (
+    OneLineParser,
+    add_scene_arguments,
+    parse_links,
+    parse_xyz,
+    run_tool,
+    scene_options,
+)
 
 
 # -- trace-scene ------------------------------------------------------------------------------
@@ -70,7 +77,7 @@ def _trace_scene(args: argparse.Namespace) -> int:
     from ..solver.tracer import check_positions, trace
 
     _check_outputs(args)
-    scene = load_scene(args.scene, args.materials, default_material=args.default_material)
+    scene = load_scene(args.scene, args.materials, **scene_options(args))
     summary = scene.summary()
     sites = SceneMetadata.from_scene(scene)
     tx_names, tx = sites.bs_names, sites.bs_xyz

@@ -20,7 +20,14 @@ import numpy as np
 
 from ..core.errors import HallrayError
 from ..solver.config import add_trace_arguments
-from .harness import OneLineParser, add_scene_arguments, parse_links, parse_xyz, run_tool
+from .harness import (
+    OneLineParser,
+    add_scene_arguments,
+    parse_links,
+    parse_xyz,
+    run_tool,
+    scene_options,
+)
 
 
 def parser() -> argparse.ArgumentParser:
@@ -93,7 +100,7 @@ def main(args: argparse.Namespace) -> int:
     if (args.tx or args.rx) and not args.link:
         raise HallrayError("--tx/--rx are for tracing links: add --link TX,RX")
     _say(args, f"loading {args.scene}")
-    scene = load_scene(args.scene, args.materials, default_material=args.default_material)
+    scene = load_scene(args.scene, args.materials, **scene_options(args))
     paths, links, names = _paths(args, scene)
     _say(args, "building the view")
     fmap = None

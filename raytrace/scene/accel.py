@@ -11,11 +11,14 @@ A facet of a closed solid reflects only on its outward side; a facet of an open 
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from ..core.jit import carray, helper, inline, kernel
 from ..core.vec import dot3
 from .elements import Facets, Wedges
+from .spatial import SphereTree, build_tree, query_beams
 
 #: Barycentric tolerance of the point-in-triangle test (dimensionless): a point on the shared
 #: edge of two triangles of one facet must not fall through the crack.
@@ -227,6 +230,149 @@ def facet_spheres(facets: Facets) -> tuple[np.ndarray, np.ndarray]:
     radius.setflags(write=False)
     facets.cache["spheres"] = (centre, radius)
     return centre, radius
+
+
+def facet_tree(facets: Facets) -> SphereTree:
+    """A bounding-volume hierarchy over the facets' boxes (:func:`facet_boxes`, not grown) and
+    bounding spheres (:func:`facet_spheres`), for the spatial queries that replace scans of
+    every facet (:mod:`raytrace.scene.spatial`); cached."""
+    cached = facets.cache.get("tree")
+    if cached is None:
+        lo, hi = facet_boxes(facets, 0.0)
+        centre, radius = facet_spheres(facets)
+        cached = facets.cache["tree"] = build_tree(lo, hi, centre, radius)
+    return cached
+
+
+def wedge_tree(wedges: Wedges) -> SphereTree:
+    """A bounding-volume hierarchy over the edges: each edge's box and the sphere on its middle
+    through its ends (radius grown by a relative 1e-9, as :func:`wedge_groups`); cached."""
+    cached = wedges.cache.get("tree")
+    if cached is None:
+        a, b = wedges.start, wedges.end
+        centre = 0.5 * (a + b)
+        radius = 0.5 * np.linalg.norm(b - a, axis=1) * (1 + 1e-9) + 1e-9
+        cached = wedges.cache["tree"] = build_tree(np.minimum(a, b), np.maximum(a, b), centre,
+                                                   radius)  # fmt: skip
+    return cached
+
+
+def facet_forest(facets: Facets) -> tuple[tuple[SphereTree, int], ...]:
+    """The facets' trees, each with the index of its first facet: one tree over all of them
+    (:func:`facet_tree`), or, for a scene with moving objects joined to a static one
+    (:func:`raytrace.scene.dynamic.extend_scene`), the static scene's tree and one over the
+    added facets, so that a snapshot builds a tree of its few moving facets only (cached)."""
+    cached = facets.cache.get("forest")
+    if cached is None:
+        cached = facets.cache["forest"] = ((facet_tree(facets), 0),)
+    return cached
+
+
+def wedge_forest(wedges: Wedges) -> tuple[tuple[SphereTree, int], ...]:
+    """The edges' trees, each with the index of its first edge: one tree over all of them
+    (:func:`wedge_tree`), or for a scene with moving objects the static scene's and the added
+    edges' (as :func:`facet_forest`; cached)."""
+    cached = wedges.cache.get("forest")
+    if cached is None:
+        cached = wedges.cache["forest"] = ((wedge_tree(wedges), 0),)
+    return cached
+
+
+def beam_facets(
+    facets: Facets,
+    beam: Any,
+    normal: np.ndarray,
+    offset: np.ndarray,
+    side: np.ndarray,
+    mask: np.ndarray | None = None,
+    masked: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """(query, facet) pairs, in query order: the facets whose bounding sphere each beam can
+    reach with some part strictly on its plane's ``side`` (:func:`raytrace.scene.spatial.
+    query_beams` on every tree of :func:`facet_forest`).
+
+    Parameters
+    ----------
+    beam : :class:`raytrace.solver.reflection.Beam` of Q beams (apex, axis, cos_a, sin_a,
+        apex_inside)
+    normal : (Q, 3) float, offset : (Q,) float, side : (Q,) int, each beam's plane and side
+    mask : (K,) bool, optional, facets that may take part (a trace of some objects only)
+    masked : (Q,) bool, with ``mask``: the beams from a facet that may take part; the others
+        are asked about the facets that may take part only (a tree over those, built here)
+
+    Returns
+    -------
+    q_idx, f_idx : (H,) int
+    """
+    args = (beam.apex, beam.axis, beam.cos_a, beam.sin_a, beam.apex_inside, normal, offset, side)
+    q_parts, f_parts = [], []
+
+    def ask(forest, rows: np.ndarray | None) -> None:
+        sub = args if rows is None else tuple(np.asarray(x)[rows] for x in args)
+        for tree, first in forest:
+            off, hits = query_beams(tree, *sub)
+            q = np.repeat(np.arange(len(off) - 1), np.diff(off))
+            q_parts.append(q if rows is None else rows[q])
+            f_parts.append(hits + first)
+
+    if mask is None:
+        ask(facet_forest(facets), None)
+    else:
+        ask(facet_forest(facets), np.flatnonzero(masked))
+        chosen = np.flatnonzero(mask)
+        others = np.flatnonzero(~masked)
+        if len(chosen) and len(others):
+            lo, hi = facet_boxes(facets, 0.0)
+            centre, radius = facet_spheres(facets)
+            tree = build_tree(lo[chosen], hi[chosen], centre[chosen], radius[chosen])
+            n0 = len(f_parts)
+            ask(((tree, 0),), others)
+            f_parts[n0:] = [chosen[f] for f in f_parts[n0:]]
+    if not q_parts:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    q_idx, f_idx = np.concatenate(q_parts), np.concatenate(f_parts)
+    order = np.argsort(q_idx, kind="stable")
+    return q_idx[order], f_idx[order]
+
+
+def facing(facets: Facets, i: np.ndarray, j: np.ndarray) -> np.ndarray:
+    """(n,) bool, per pair of facets ``i``, ``j`` (n,) int: each has some corner strictly on a
+    reflecting side of the other (closed solids reflect outward only), and they differ: the
+    necessary condition for exchanging a reflection, :func:`facing_pairs` for the given pairs
+    only (no (facets x facets) table)."""
+    if len(i) == 0:
+        return np.zeros(0, dtype=bool)
+    starts = carray(3 * (np.cumsum(facets.tri_count) - facets.tri_count), np.int64)
+    counts = carray(3 * facets.tri_count, np.int64)
+    return _facing(carray(i, np.int64), carray(j, np.int64), carray(facets.triangles.reshape(-1, 3)),
+                   starts, counts, carray(facets.normal), carray(facets.offset),
+                   carray(facets.two_sided, bool), PLANE_TOL_M)  # fmt: skip
+
+
+@helper
+def _sees(verts, start, count, nx, ny, nz, off, two_sided, tol):
+    """Some vertex ``verts[start:start + count]`` strictly in front of the plane (or behind it,
+    for a two-sided facet)."""
+    for k in range(start, start + count):
+        s = verts[k, 0] * nx + verts[k, 1] * ny + verts[k, 2] * nz - off
+        if s > tol or (two_sided and s < -tol):
+            return True
+    return False
+
+
+@kernel("b1[::1](i8[::1], i8[::1], f8[:, ::1], i8[::1], i8[::1], f8[:, ::1], f8[::1], b1[::1], f8)")
+def _facing(i, j, verts, starts, counts, normal, offset, two_sided, tol):
+    """:func:`facing` in one pass over the pairs."""
+    out = np.zeros(len(i), dtype=np.bool_)
+    for p in range(len(i)):
+        a, b = i[p], j[p]
+        if a == b:
+            continue
+        out[p] = _sees(verts, starts[a], counts[a], normal[b, 0], normal[b, 1], normal[b, 2],
+                       offset[b], two_sided[b], tol) and _sees(
+            verts, starts[b], counts[b], normal[a, 0], normal[a, 1], normal[a, 2], offset[a],
+            two_sided[a], tol)  # fmt: skip
+    return out
 
 
 def facing_pairs(facets: Facets, known: np.ndarray | None = None) -> np.ndarray:

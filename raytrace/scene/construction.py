@@ -17,17 +17,23 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import SceneError
-from . import accel
+from ..core.jit import carray, kernel
+from . import accel, spatial
 from .elements import Facets, SceneObject, Wedges
 
-__all__ = ["DEGENERATE_AREA_M2", "WEDGE_MIN_ANGLE_RAD", "BURIED_PROBE_M",
+__all__ = ["DEGENERATE_AREA_M2", "DEFAULT_SMOOTH_ANGLE_DEG", "WEDGE_MIN_ANGLE_RAD", "MAX_SMOOTH_ANGLE_DEG", "BURIED_PROBE_M",
            "JUNCTION_MIN_EXCESS_RAD", "scene_parts", "facets_of", "wedges_of", "buried_wedges",
-           "resolve_junctions"]
+           "resolve_junctions", "check_smooth_angle"]
 
 #: Triangles with an area below this (m^2) are degenerate and dropped.
 DEGENERATE_AREA_M2 = 1e-10
-#: Two adjacent faces whose normals differ by less than this (rad) are coplanar (no wedge).
-WEDGE_MIN_ANGLE_RAD = np.deg2rad(1.0)
+#: Default smooth angle: two adjacent faces whose normals differ by less than this (rad) meet
+#: at a smooth edge, not a wedge (``smooth_angle_deg`` of :func:`scene_parts` chooses another;
+#: docs/scene.md, "Smooth edges", has the measurement behind the default).
+DEFAULT_SMOOTH_ANGLE_DEG = 1.0
+WEDGE_MIN_ANGLE_RAD = np.deg2rad(DEFAULT_SMOOTH_ANGLE_DEG)
+#: Largest smooth angle accepted, degrees: beyond it a box's own corners would vanish.
+MAX_SMOOTH_ANGLE_DEG = 60.0
 #: Distance (m) from an edge along its outward bisector at which a wedge is probed for being
 #: buried in another solid (then it is not a free, diffracting edge).
 BURIED_PROBE_M = 5e-3
@@ -35,21 +41,28 @@ BURIED_PROBE_M = 5e-3
 JUNCTION_MIN_EXCESS_RAD = WEDGE_MIN_ANGLE_RAD
 
 
-def scene_parts(meshes: list[tuple[str, Any, str]], source: str = "") -> dict[str, Any]:
+def scene_parts(
+    meshes: list[tuple[str, Any, str]], source: str = "", smooth_angle_deg: float | None = None
+) -> dict[str, Any]:
     """The arrays of a scene built from ``(name, trimesh.Trimesh, material_name)`` triples, as
     :class:`~raytrace.scene.model.Scene`'s keyword arguments: ``vertices``, ``faces``,
     ``face_object``, ``face_normal``, ``objects``, ``material_names``, ``facets``, ``wedges``
     (before the buried and junction edges are resolved) and ``n_degenerate_dropped``.
 
     Closed (watertight) meshes are oriented outward; everything else is an open sheet.
-    Degenerate triangles are dropped and counted.
+    Degenerate triangles are dropped and counted. An edge whose two faces' normals differ by
+    less than ``smooth_angle_deg`` (default :data:`WEDGE_MIN_ANGLE_RAD`, 1 degree) is smooth: a
+    tessellated curve, not a diffracting wedge.
 
     Raises
     ------
     SceneError
-        No triangle in any mesh, or a NaN or infinite vertex.
+        No triangle in any mesh, a NaN or infinite vertex, or a smooth angle outside
+        [0, :data:`MAX_SMOOTH_ANGLE_DEG`] degrees.
     """
     import trimesh
+
+    smooth_rad = check_smooth_angle(smooth_angle_deg)
 
     verts, faces, face_obj, normals = [], [], [], []
     objects: list[SceneObject] = []
@@ -91,7 +104,7 @@ def scene_parts(meshes: list[tuple[str, Any, str]], source: str = "") -> dict[st
         face_obj.append(np.full(len(m.faces), obj_id, dtype=np.int64))
         normals.append(np.asarray(m.face_normals, dtype=np.float64))
         facet_parts.append(facets_of(m, obj_id, mat_id, closed))
-        wedge_parts.append(wedges_of(m, obj_id, mat_id, closed))
+        wedge_parts.append(wedges_of(m, obj_id, mat_id, closed, smooth_rad))
         v_offset += len(m.vertices)
         f_offset += len(m.faces)
     if not objects:
@@ -111,18 +124,21 @@ def scene_parts(meshes: list[tuple[str, Any, str]], source: str = "") -> dict[st
         "face_normal": np.concatenate(normals),
         "objects": objects,
         "material_names": material_names,
+        "smooth_angle_deg": DEFAULT_SMOOTH_ANGLE_DEG if smooth_angle_deg is None
+        else float(smooth_angle_deg),
         "facets": facets,
         "wedges": wedges,
         "n_degenerate_dropped": n_dropped,
     }
 
 
-def buried_wedges(w: Wedges, inside_solid: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:
+def buried_wedges(w: Wedges, inside_solid: Callable[..., np.ndarray]) -> np.ndarray:
     """(W,) bool: the edges that are not free: a convex edge whose outward bisector enters another
     solid right away (a box's bottom edges on a floor slab, racks side by side). The wedge
     there is really the concave junction of two objects, and nothing can reach its edge
     from outside. Half-plane edges of sheets are never buried. ``inside_solid`` is the scene's
-    :meth:`~raytrace.scene.model.Scene.inside_solid` (points (n, 3) -> solid index or -1)."""
+    :meth:`~raytrace.scene.model.Scene.inside_solid` (points (n, 3) -> solid index or -1), asked
+    whether each probe is in a solid other than its edge's own object (``exclude``)."""
     if len(w) == 0:
         return np.zeros(0, dtype=bool)
     bis = w.normal0 + w.normal1
@@ -132,7 +148,7 @@ def buried_wedges(w: Wedges, inside_solid: Callable[[np.ndarray], np.ndarray]) -
         return np.zeros(len(w), dtype=bool)
     mid = 0.5 * (w.start + w.end)
     probe = mid[probe_ok] + (BURIED_PROBE_M * bis[probe_ok] / nb[probe_ok, None])
-    inside = inside_solid(probe)
+    inside = inside_solid(probe, exclude=w.object[probe_ok])
     buried = np.zeros(len(w), dtype=bool)
     buried[np.flatnonzero(probe_ok)] = (inside >= 0) & (inside != w.object[probe_ok])
     return buried
@@ -285,11 +301,17 @@ def facets_of(mesh: Any, obj_id: int, mat_id: int, closed: bool) -> dict[str, np
     in_group = np.zeros(n_faces, dtype=bool)
     for g in groups:
         in_group[g] = True
-    groups += [np.array([i]) for i in np.flatnonzero(~in_group)]
-    groups.sort(key=lambda g: int(g.min()))
-    order = np.concatenate(groups)
-    counts = np.array([len(g) for g in groups], dtype=np.int64)
-    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    # trimesh's groups (their faces in its order), then the lone faces; in order of each group's
+    # lowest face (arrays, not a list of a million one-face arrays: a scanned mesh is mostly lone
+    # faces)
+    members = np.concatenate([*groups, np.flatnonzero(~in_group)]).astype(np.int64)
+    g_count = np.concatenate([[len(g) for g in groups], np.ones(int((~in_group).sum()))])
+    g_count = g_count.astype(np.int64)
+    g_start = np.concatenate([[0], np.cumsum(g_count)[:-1]]).astype(np.int64)
+    rank = np.argsort(np.minimum.reduceat(members, g_start), kind="stable")
+    counts = g_count[rank]
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
+    order = members[np.repeat(g_start[rank] - starts, counts) + np.arange(len(members))]
     fn = np.asarray(mesh.face_normals, dtype=float)
     areas = np.asarray(mesh.area_faces, dtype=float)
     # area-weighted normal of each facet (its faces are coplanar within trimesh's tolerance)
@@ -299,7 +321,7 @@ def facets_of(mesh: Any, obj_id: int, mat_id: int, closed: bool) -> dict[str, np
     centroid = np.add.reduceat(tris.mean(axis=1) * areas[order, None], starts, axis=0)
     farea = np.add.reduceat(areas[order], starts)
     centroid /= farea[:, None]
-    k = len(groups)
+    k = len(counts)
     return {
         "normal": normal,
         "offset": np.einsum("ij,ij->i", normal, centroid),
@@ -313,8 +335,23 @@ def facets_of(mesh: Any, obj_id: int, mat_id: int, closed: bool) -> dict[str, np
     }
 
 
-def wedges_of(mesh: Any, obj_id: int, mat_id: int, closed: bool) -> dict[str, np.ndarray]:
-    """Convex edges of a closed solid, or free (boundary) edges of an open sheet.
+def check_smooth_angle(smooth_angle_deg: float | None) -> float:
+    """The smooth angle in radians (the default for None); SceneError outside [0, 60] degrees."""
+    if smooth_angle_deg is None:
+        return float(WEDGE_MIN_ANGLE_RAD)
+    a = float(smooth_angle_deg)
+    if not 0.0 <= a <= MAX_SMOOTH_ANGLE_DEG:  # also NaN
+        raise SceneError(
+            f"smooth angle must be between 0 and {MAX_SMOOTH_ANGLE_DEG:g} degrees, got {a:g}"
+        )
+    return float(np.deg2rad(a))
+
+
+def wedges_of(
+    mesh: Any, obj_id: int, mat_id: int, closed: bool, smooth_rad: float = WEDGE_MIN_ANGLE_RAD
+) -> dict[str, np.ndarray]:
+    """Convex edges of a closed solid, or free (boundary) edges of an open sheet; edges whose
+    faces bend by no more than ``smooth_rad`` (radians) are smooth, not wedges.
 
     Collinear pieces of one edge between the same two planes are merged into one wedge.
     """
@@ -331,7 +368,7 @@ def wedges_of(mesh: Any, obj_id: int, mat_id: int, closed: bool) -> dict[str, np
         angles = np.asarray(mesh.face_adjacency_angles)
         convex = np.asarray(mesh.face_adjacency_convex)
         # closed solids diffract at convex edges; a folded sheet wherever it bends
-        sel = angles > WEDGE_MIN_ANGLE_RAD
+        sel = angles > smooth_rad
         if closed:
             sel &= convex
         if sel.any():
@@ -422,43 +459,46 @@ def _merge_collinear(
     )
     _, group = np.unique(key, axis=0, return_inverse=True)
     group = group.reshape(-1)
-    out_seg, out_n0, out_n1, out_c0 = [], [], [], []
     t0 = np.einsum("ij,ij->i", seg[:, 0], d)
     t1 = np.einsum("ij,ij->i", seg[:, 1], d)
     lo, hi = np.minimum(t0, t1), np.maximum(t0, t1)
     order = np.lexsort((lo, group))
-    g_sorted = group[order]
-    # walk groups; within a group join touching intervals (a small Python loop over edges of
-    # the scene at load time, not on the tracing path)
+    # within a group, touching intervals are joined (in order along the line)
+    first, run_lo, run_hi = _joined_runs(carray(order, np.int64), carray(group[order], np.int64),
+                                         carray(lo), carray(hi), 1e-6)  # fmt: skip
+    pf, df = p[first], d[first]
+    out_seg = np.stack([pf + run_lo[:, None] * df, pf + run_hi[:, None] * df], axis=1)
+    return out_seg, n0[first], n1[first], c0[first]
+
+
+@kernel("Tuple((i8[::1], f8[::1], f8[::1]))(i8[::1], i8[::1], f8[::1], f8[::1], f8)")
+def _joined_runs(order, g_sorted, lo, hi, gap):
+    """Runs of touching intervals: rows ``order`` sorted by group ``g_sorted`` then ``lo``; an
+    interval starting within ``gap`` of the run's end joins it. Returns each run's first row,
+    its start and its end (the largest ``hi`` of its rows)."""
+    n = len(order)
+    first = np.empty(n, np.int64)
+    run_lo = np.empty(n)
+    run_hi = np.empty(n)
+    m = 0
     i = 0
-    n_total = len(order)
-    while i < n_total:
-        j = i
-        while j < n_total and g_sorted[j] == g_sorted[i]:
-            j += 1
-        idx = order[i:j]
-        cur_lo, cur_hi = lo[idx[0]], hi[idx[0]]
-        first = idx[0]
-        for k in idx[1:]:
-            if lo[k] <= cur_hi + 1e-6:
+    while i < n:
+        k0 = order[i]
+        cur_lo, cur_hi, cur_first = lo[k0], hi[k0], k0
+        j = i + 1
+        while j < n and g_sorted[j] == g_sorted[i]:
+            k = order[j]
+            if lo[k] <= cur_hi + gap:
                 cur_hi = max(cur_hi, hi[k])
             else:
-                out_seg.append([p[first] + cur_lo * d[first], p[first] + cur_hi * d[first]])
-                out_n0.append(n0[first])
-                out_n1.append(n1[first])
-                out_c0.append(c0[first])
-                cur_lo, cur_hi, first = lo[k], hi[k], k
-        out_seg.append([p[first] + cur_lo * d[first], p[first] + cur_hi * d[first]])
-        out_n0.append(n0[first])
-        out_n1.append(n1[first])
-        out_c0.append(c0[first])
+                first[m], run_lo[m], run_hi[m] = cur_first, cur_lo, cur_hi
+                m += 1
+                cur_lo, cur_hi, cur_first = lo[k], hi[k], k
+            j += 1
+        first[m], run_lo[m], run_hi[m] = cur_first, cur_lo, cur_hi
+        m += 1
         i = j
-    return (
-        np.asarray(out_seg, dtype=float),
-        np.asarray(out_n0),
-        np.asarray(out_n1),
-        np.asarray(out_c0),
-    )
+    return first[:m].copy(), run_lo[:m].copy(), run_hi[:m].copy()
 
 
 def _lex_less_equal(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -484,11 +524,8 @@ def _junction_pieces(
     t_lo, t_hi : (M,) float, metres from the wedge's start
     cover : list of M int arrays; the facets covering each piece (empty: not covered)
     """
-    da = w.start @ fc.normal.T - fc.offset
-    db = w.end @ fc.normal.T - fc.offset
-    near = (np.abs(da) <= tol) & (np.abs(db) <= tol) & (w.object[:, None] != fc.object[None, :])
-    wi, fk = np.nonzero(near)
     empty = (np.zeros(0, np.int64), np.zeros(0), np.zeros(0), [])
+    wi, fk = _facets_near_edges(w, fc, tol)
     if len(wi) == 0:
         return empty
     # (pair, triangle) rows: clip the edge segment to each triangle in the facet's plane
@@ -546,6 +583,32 @@ def _junction_pieces(
             out_hi.append(p_hi)
             out_cover.append(np.array(key, dtype=np.int64))
     return np.array(out_w, dtype=np.int64), np.array(out_lo), np.array(out_hi), out_cover
+
+
+def _facets_near_edges(w: Wedges, fc: Facets, tol: float) -> tuple[np.ndarray, np.ndarray]:
+    """(wedge, facet) pairs, in (wedge, facet) order, where the edge lies in the plane of a
+    facet of another object (both end points within ``tol``, m).
+
+    The facets are found through the facets' tree (:func:`raytrace.scene.accel.facet_tree`):
+    only those whose box meets the edge's box grown by twice ``tol``. A facet farther than that
+    covers no part of the edge (the covered parts are clipped to its triangles within ``tol``),
+    so the pieces of :func:`_junction_pieces` are those of a scan of every pair, with memory and
+    time in the candidates found, not in wedges x facets.
+    """
+    if len(w) == 0 or len(fc) == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    grow = 2.0 * tol
+    lo = np.minimum(w.start, w.end) - grow
+    hi = np.maximum(w.start, w.end) + grow
+    offsets, hits = spatial.query_boxes(accel.facet_tree(fc), lo, hi)
+    wi = np.repeat(np.arange(len(w)), np.diff(offsets))
+    fk = hits
+    da = np.einsum("ij,ij->i", w.start[wi], fc.normal[fk]) - fc.offset[fk]
+    db = np.einsum("ij,ij->i", w.end[wi], fc.normal[fk]) - fc.offset[fk]
+    near = (np.abs(da) <= tol) & (np.abs(db) <= tol) & (w.object[wi] != fc.object[fk])
+    wi, fk = wi[near], fk[near]
+    order = np.lexsort((fk, wi))
+    return wi[order], fk[order]
 
 
 def _line_key(a: np.ndarray, b: np.ndarray) -> tuple:

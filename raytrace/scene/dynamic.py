@@ -21,7 +21,7 @@ import dataclasses
 import numpy as np
 
 from ..core.errors import SceneError
-from .accel import facing_pairs
+from .accel import facet_tree, wedge_tree
 from .elements import Facets, SceneObject, Wedges
 from .model import Scene
 
@@ -97,8 +97,12 @@ def extend_scene(base: Scene, extra: Scene) -> Scene:
     )
     if hasattr(base, "n_buried_wedges"):
         scene.n_buried_wedges = base.n_buried_wedges + getattr(extra, "n_buried_wedges", 0)
-    # second-order reflections need the facet pair matrix: the static block is the base's
-    facing_pairs(facets, known=facing_pairs(bf))
+    # the facets' trees: the static scene's (built once, kept on its facets) and one over the
+    # moving objects' few facets, so that a snapshot never builds a tree of the whole scene
+    facets.cache["forest"] = tuple((facet_tree(x), first)
+                                   for x, first in ((bf, 0), (ef, len(bf))) if len(x))  # fmt: skip
+    wedges.cache["forest"] = tuple((wedge_tree(x), first)
+                                   for x, first in ((bw, 0), (ew, len(bw))) if len(x))  # fmt: skip
     scene.build_embree()
     return scene
 

@@ -15,7 +15,9 @@ import numpy as np
 class _ElementArrays:
     """Structure-of-arrays behaviour shared by :class:`Facets` and :class:`Wedges`.
 
-    Every dataclass field but the trailing ``cache`` is an array with one row per element.
+    Every dataclass field but the trailing ``cache`` is an array with one row per element. The
+    cache is not an argument of the constructor, so a copy made by ``dataclasses.replace`` (a
+    posed snapshot's moved facets) starts with an empty one instead of sharing the original's.
     """
 
     def __len__(self) -> int:
@@ -63,7 +65,7 @@ class Facets(_ElementArrays):
     triangles: np.ndarray
     #: Derived arrays (bounding boxes, spheres, facing pairs), computed on first use by
     #: :mod:`raytrace.scene.accel`; never copied to another Facets.
-    cache: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)
+    cache: dict[str, Any] = field(default_factory=dict, init=False, repr=False, compare=False)
 
 
 @dataclass(frozen=True)
@@ -94,7 +96,7 @@ class Wedges(_ElementArrays):
     object: np.ndarray
     material: np.ndarray
     #: Derived arrays (groups by object), computed on first use by :mod:`raytrace.scene.accel`.
-    cache: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)
+    cache: dict[str, Any] = field(default_factory=dict, init=False, repr=False, compare=False)
 
 
 @dataclass

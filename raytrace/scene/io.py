@@ -13,6 +13,9 @@ import numpy as np
 from ..core.errors import SceneError
 from ..core.scale import check_size
 from ..physics.materials import MaterialLibrary
+from .budget import check_load
+from .construction import check_smooth_angle
+from .diskcache import cached_build
 from .model import Scene
 
 #: Mesh formats read through trimesh.
@@ -24,6 +27,8 @@ def load_scene(
     materials: MaterialLibrary | str | Path | dict[str, Any] | None = None,
     *,
     default_material: str | None = None,
+    smooth_angle_deg: float | None = None,
+    cache: bool | None = None,
 ) -> Scene:
     """Read a scene and bind a material to every object.
 
@@ -38,6 +43,15 @@ def load_scene(
         metadata are loaded first.
     default_material : str, optional
         Material of objects that no name or pattern binds (otherwise they are an error).
+    smooth_angle_deg : float, optional
+        Edges whose two faces bend by less than this (degrees; default 1) are smooth, not
+        diffracting wedges: the tessellated curves of scanned and CAD meshes (docs/scene.md,
+        "Smooth edges", measures the field error of larger angles).
+    cache : bool, optional
+        Keep the scene's preprocessing on disk beside the file (``.hallray-cache/``, keyed by
+        the content hash of the file, the materials and these options) and reuse it on the next
+        load: :mod:`raytrace.scene.diskcache`. Default (None): for scenes of at least
+        :data:`~raytrace.scene.diskcache.CACHE_MIN_TRIANGLES` triangles.
 
     Returns
     -------
@@ -46,7 +60,9 @@ def load_scene(
     Raises
     ------
     SceneError
-        Missing or unreadable file, empty mesh, NaN vertices, objects without a material.
+        Missing or unreadable file, empty mesh, NaN vertices, objects without a material, or
+        a scene too large for the memory available (estimated before it is built:
+        :func:`raytrace.scene.budget.check_load`).
     """
     from .bundled import resolve_scene
 
@@ -56,16 +72,36 @@ def load_scene(
     if p.is_dir():
         raise SceneError(f"scene path is a directory, not a file: {path}")
     suffix = p.suffix.lower()
-    if suffix == ".xml":
-        named, metadata, xml_materials = _read_mitsuba(p)
-    elif suffix in MESH_SUFFIXES:
-        named, metadata = _read_trimesh(p)
-        xml_materials = {}
-    else:
+    if suffix != ".xml" and suffix not in MESH_SUFFIXES:
         raise SceneError(
             f"unsupported scene format {suffix or '(none)'!r} for {p.name}; "
             f"use one of {', '.join(MESH_SUFFIXES)} or .xml"
         )
+    check_smooth_angle(smooth_angle_deg)
+    options = {"default_material": default_material, "smooth_angle_deg": smooth_angle_deg}
+    try:
+        scene = cached_build(
+            p.resolve(), materials, options,
+            lambda: _build(p, materials, default_material, smooth_angle_deg), cache,
+        )  # fmt: skip
+    except OSError as exc:  # a materials file or a mesh the XML names cannot be read
+        raise SceneError(f"cannot read {exc.filename or p.name}: {exc.strerror or exc}") from None
+    lo, hi = scene.bounds
+    check_size(float(np.max(hi - lo)), f"scene {p.name}")  # a hall in mm: refused before tracing
+    return scene
+
+
+def _build(
+    p: Path, materials: Any, default_material: str | None, smooth_angle_deg: float | None
+) -> Scene:
+    """:func:`load_scene` without the cache: read, estimate the memory, bind the materials,
+    build."""
+    if p.suffix.lower() == ".xml":
+        named, metadata, xml_materials = _read_mitsuba(p)
+    else:
+        named, metadata = _read_trimesh(p)
+        xml_materials = {}
+    check_load(sum(len(m.faces) for _, m, _ in named), p.name)
     library = MaterialLibrary.itu()
     meta_h = metadata.get("hallray", {}) if isinstance(metadata, dict) else {}
     if isinstance(meta_h, dict) and meta_h.get("materials"):
@@ -112,10 +148,8 @@ def load_scene(
             f"{len(unbound)} object(s) without a material: {shown}; name them after a material, "
             "add a 'bind' pattern, or give a default material"
         )
-    scene = Scene.from_meshes(bound, library, metadata=metadata, source=str(p))
-    lo, hi = scene.bounds
-    check_size(float(np.max(hi - lo)), f"scene {p.name}")  # a hall in mm: refused before tracing
-    return scene
+    return Scene.from_meshes(bound, library, metadata=metadata, source=str(p),
+                             smooth_angle_deg=smooth_angle_deg)  # fmt: skip
 
 
 def _read_trimesh(p: Path) -> tuple[list[tuple[str, Any, list[str]]], dict[str, Any]]:

@@ -30,7 +30,7 @@ import numpy as np
 
 from ..physics.materials import MaterialLibrary
 from .caches import SceneCaches, bounds_of, margin_of
-from .construction import buried_wedges, resolve_junctions, scene_parts
+from .construction import DEFAULT_SMOOTH_ANGLE_DEG, buried_wedges, resolve_junctions, scene_parts
 from .elements import Facets, SceneObject, Wedges
 from .queries import EmbreeQueries
 
@@ -73,6 +73,7 @@ class Scene(EmbreeQueries):
     n_buried_wedges: int = 0
     n_junction_wedges: int = 0
     n_composite_wedges: int = 0
+    smooth_angle_deg: float = 1.0
     caches: SceneCaches = field(default_factory=SceneCaches, init=False, repr=False,
                                 compare=False)
 
@@ -84,15 +85,17 @@ class Scene(EmbreeQueries):
         materials: MaterialLibrary,
         metadata: dict[str, Any] | None = None,
         source: str = "",
+        smooth_angle_deg: float | None = None,
     ) -> Scene:
         """Build a scene from ``(name, trimesh.Trimesh, material_name)`` triples.
 
         Closed (watertight) meshes are oriented outward; everything else is an open sheet.
-        Degenerate triangles are dropped and counted. The edges that are not free are dropped
+        Degenerate triangles are dropped and counted. Edges bending by less than
+        ``smooth_angle_deg`` (default 1 degree) are smooth, not wedges. The edges that are not free are dropped
         or resolved (:func:`raytrace.scene.construction.buried_wedges`,
         :func:`~raytrace.scene.construction.resolve_junctions`).
         """
-        parts = scene_parts(meshes, source)
+        parts = scene_parts(meshes, source, smooth_angle_deg)
         n_dropped = parts["n_degenerate_dropped"]
         if n_dropped:
             warnings.warn(
@@ -249,6 +252,10 @@ class Scene(EmbreeQueries):
         h.update(np.ascontiguousarray(self.vertices).tobytes())
         h.update(np.ascontiguousarray(self.faces).tobytes())
         h.update(json.dumps([(o.name, o.material, o.closed) for o in self.objects]).encode())
+        if self.smooth_angle_deg != DEFAULT_SMOOTH_ANGLE_DEG:
+            # another smooth angle is another set of wedges; the default's hash stays what
+            # datasets made before the option recorded
+            h.update(f"smooth {self.smooth_angle_deg!r}".encode())
         return h.hexdigest()
 
     def summary(self) -> dict[str, Any]:
@@ -273,6 +280,7 @@ class Scene(EmbreeQueries):
             "buried_wedges_dropped": self.n_buried_wedges,
             "junction_wedges_dropped": self.n_junction_wedges,
             "composite_wedges": self.n_composite_wedges,
+            "smooth_angle_deg": self.smooth_angle_deg,
         }
 
 

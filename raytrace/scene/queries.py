@@ -12,14 +12,15 @@ kept in the scene's caches (:class:`~raytrace.scene.caches.SceneCaches`: ``embre
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from ..core.errors import SceneError
 from ..core.jit import carray
 from . import accel
-from .caches import convex_flags, embree_meshes, embree_scene, subset_scene
+from .caches import convex_flags, embree_meshes, embree_scene, object_boxes, subset_scene
+from .spatial import build_tree, query_boxes
 
 if TYPE_CHECKING:
     from .caches import SceneCaches
@@ -245,7 +246,7 @@ class EmbreeQueries:
                                               self.object_closed, self.extent)  # fmt: skip
         return self.caches.convex
 
-    def inside_solid(self, points: np.ndarray) -> np.ndarray:
+    def inside_solid(self, points: np.ndarray, exclude: np.ndarray | None = None) -> np.ndarray:
         """Index of the closed solid that contains each point, or -1.
 
         Convex solids (boxes, prisms: all of a typical hall) are tested exactly: a point is inside
@@ -257,6 +258,9 @@ class EmbreeQueries:
         Parameters
         ----------
         points : (n, 3) float, metres
+        exclude : (n,) int, optional, an object per point that the crossings' test does not ask
+            about (a probe just outside its own object: whether it is in another): a point in
+            a convex solid still gets that solid's index, whichever it is
 
         Returns
         -------
@@ -279,34 +283,104 @@ class EmbreeQueries:
         if others.any():
             todo = np.flatnonzero(out < 0)
             if todo.size:
-                found = self._inside_by_parity(pts[todo], others)
+                skip = None if exclude is None else np.asarray(exclude, np.int64)[todo]
+                found = self._inside_by_parity(pts[todo], others, skip)
                 out[todo] = found
         return out
 
-    def _inside_by_parity(self, pts: np.ndarray, candidates: np.ndarray) -> np.ndarray:
+    def object_boxes(self) -> tuple[np.ndarray, np.ndarray]:
+        """Each object's bounding box, ``lo``, ``hi`` (O, 3), metres (cached)."""
+        if self.caches.object_boxes is None:
+            self.caches.object_boxes = object_boxes(self.vertices, self.faces, self.objects)
+        return self.caches.object_boxes
+
+    def _inside_by_parity(self, pts: np.ndarray, candidates: np.ndarray,
+                          exclude: np.ndarray | None = None) -> np.ndarray:  # fmt: skip
+        """:meth:`inside_solid` for the ``candidates`` (O,) bool objects that are not convex:
+        the first object (lowest index) whose bounding box holds the point and that an odd
+        number of crossings on at least two of three rays says the point is in.
+
+        Only (point, object) pairs with the point in the object's box are asked, and each ray
+        stops where it leaves the last of its point's boxes: the crossings of those objects are
+        all counted, none of any other (memory and time in the pairs and crossings, not in
+        points x objects)."""
         n = len(pts)
+        out = np.full(n, -1, dtype=np.int64)
+        lo, hi = self.object_boxes()
+        grow = self.margin
+        cand = np.flatnonzero(candidates & np.isfinite(lo[:, 0]))
+        if n == 0 or cand.size == 0:
+            return out
+        tree = build_tree(lo[cand] - grow, hi[cand] + grow, 0.5 * (lo[cand] + hi[cand]),
+                          0.5 * np.linalg.norm(hi[cand] - lo[cand], axis=1) + 2 * grow)  # fmt: skip
+        offsets, hits = query_boxes(tree, pts, pts)
+        p_idx = np.repeat(np.arange(n), np.diff(offsets))
+        o_idx = cand[hits]
+        if exclude is not None:
+            keep = o_idx != exclude[p_idx]
+            p_idx, o_idx = p_idx[keep], o_idx[keep]
+        if p_idx.size == 0:
+            return out
+        n_obj = len(self.objects)
+        pair_key = p_idx * n_obj + o_idx
+        votes = np.zeros(len(pair_key), dtype=np.int64)
         # component ratios golden (badly approximable by fractions), so that rays from points on
         # a decimetre grid do not pass exactly through edges of boxes on that grid
         g = 0.5 * (1.0 + np.sqrt(5.0))
         dirs = np.array([[1.0, g, g * g], [-g * g, 1.0, g], [g, -g * g, 1.0]])
-        votes = np.zeros((n, len(self.objects)), dtype=np.int64)
-        step = self.margin
+        ask = np.unique(p_idx)
         for d in dirs / np.linalg.norm(dirs, axis=1, keepdims=True):
-            counts = np.zeros((n, len(self.objects)), dtype=np.int64)
-            origin = pts.copy()
-            active = np.ones(n, dtype=bool)
-            for _ in range(4 * len(self.objects) + 8):
-                if not active.any():
-                    break
-                idx = np.flatnonzero(active)
-                t, _, obj = self.intersect(origin[idx], np.broadcast_to(d, (len(idx), 3)))
-                hit = obj >= 0
-                counts[idx[hit], obj[hit]] += 1
-                origin[idx[hit]] += (t[hit] + step)[:, None] * d
-                active[idx[~hit]] = False
-            votes += counts % 2
-        odd = (votes >= 2) & candidates[None, :]
-        return np.where(odd.any(axis=1), np.argmax(odd, axis=1), -1)
+            reach = np.zeros(n)
+            np.maximum.at(reach, p_idx, _box_exit(pts[p_idx], d, lo[o_idx] - grow,
+                                                  hi[o_idx] + grow))  # fmt: skip
+            crossed = _crossings(self, pts[ask], d, reach[ask] + grow, self.margin, n_obj)
+            key = ask[crossed[0]] * n_obj + crossed[1]
+            k, c = np.unique(key, return_counts=True)
+            odd = k[c % 2 == 1]
+            votes += np.isin(pair_key, odd)
+        inside = votes >= 2
+        if not inside.any():  # points in boxes, none in a solid
+            return out
+        # the lowest object index per point among its pairs inside
+        order = np.lexsort((o_idx[inside], p_idx[inside]))
+        pi, oi = p_idx[inside][order], o_idx[inside][order]
+        first = np.r_[True, pi[1:] != pi[:-1]]
+        out[pi[first]] = oi[first]
+        return out
+
+
+def _box_exit(p: np.ndarray, d: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """Distance (m) along the unit direction ``d`` (3,) from points ``p`` (n, 3) inside boxes
+    (``lo``, ``hi`` (n, 3)) to where the ray leaves them."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.where(d > 0, (hi - p) / d, np.where(d < 0, (lo - p) / d, np.inf))
+    return np.maximum(t.min(axis=1), 0.0)
+
+
+def _crossings(scene: Any, pts: np.ndarray, d: np.ndarray, reach: np.ndarray, step: float,
+               n_obj: int) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """Every surface crossing of rays from ``pts`` (n, 3) along ``d`` (3,) within ``reach`` (n,)
+    metres: ``(ray, object)`` per crossing, (H,) int each. Each round asks Embree for the next
+    hit of the rays still going and moves them past it by ``step`` metres."""
+    origin = pts.copy()
+    left = reach.astype(float).copy()
+    active = np.arange(len(pts))
+    rays, objs = [], []
+    for _ in range(4 * n_obj + 8):
+        if active.size == 0:
+            break
+        t, _, obj = scene.intersect(origin[active], np.broadcast_to(d, (len(active), 3)),
+                                    left[active])  # fmt: skip
+        hit = obj >= 0
+        rays.append(active[hit])
+        objs.append(obj[hit])
+        moved = active[hit]
+        origin[moved] += (t[hit] + step)[:, None] * d
+        left[moved] -= t[hit] + step
+        active = moved[left[moved] > 0]
+    if not rays:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    return np.concatenate(rays), np.concatenate(objs)
 
 
 def _rays(

@@ -18,7 +18,7 @@ bounding box. Every segment is then checked with Embree (penetrations allowed up
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 
 import numpy as np
 
@@ -35,6 +35,7 @@ from ..physics.utd import (
     wedge_frames,
 )
 from ..scene import accel
+from ..scene.spatial import build_tree
 from . import kernels, shadow
 from . import reflection as refl
 from .context import TraceContext
@@ -239,18 +240,9 @@ class _PairGeometry:
 def _facet_wedge_pairs(
     ctx: TraceContext, ends: np.ndarray, mixed_rdr: bool = False, keep: bool = False
 ) -> tuple[np.ndarray, ...]:
-    """(end point, facet, wedge) triples where a reflection in the facet can reach the edge.
-
-    ``ends`` are transmitters (for RD) or receivers (for DR); ``mixed_rdr`` keeps every pair (the
-    restriction to some objects is applied to the joined RDR triples instead). Exact necessary
-    conditions, cheapest first: per object, the bounding sphere of its edges must reach the end's
-    side of the facet plane and the beam from the end's image through the facet's bounding sphere;
-    per edge, the same with the edge's own sphere; the image must not be inside the wedge; then
-    the edge, clipped to the end's side and projected from the image onto the facet's plane, must
-    meet the facet's (slightly grown) bounding box (:func:`raytrace.solver.kernels.facet_wedge_pairs`,
-    one end at a time). With ``keep`` (the transmitters), each end's triples are kept on the
-    scene for the next trace with the same end, restriction and pruning
-    (:data:`END_PAIRS_KEPT`).
+    """(end point, facet, wedge) triples where a reflection in the facet can reach the edge:
+    every chunk of :func:`_triple_chunks` joined (the RDR stage joins the two sides' triples by
+    wedge).
 
     Returns
     -------
@@ -259,6 +251,32 @@ def _facet_wedge_pairs(
     t_lo, t_hi : (M,) float, metres from the wedge's start: the part of the edge seen from the
         image through the facet's bounding box, padded by :data:`SPAN_PAD_M`. A diffraction
         point of this reflection lies in it (necessary condition).
+    """
+    parts = list(_triple_chunks(ctx, ends, mixed_rdr, keep))
+    if not parts:
+        return tuple(x[:0] for x in _pair_buffers(0)[:-1])
+    return tuple(np.concatenate(x) for x in zip(*parts))
+
+
+def _triple_chunks(
+    ctx: TraceContext, ends: np.ndarray, mixed_rdr: bool = False, keep: bool = False
+) -> Iterator[tuple[np.ndarray, ...]]:
+    """The (end point, facet, wedge) triples of :func:`_facet_wedge_pairs`, in chunks of at most
+    about :data:`TRIPLE_CHUNK` (one end at a time: the triples of a wall and every edge of a
+    scanned machine are millions, and the stages expand and test each chunk before the next).
+
+    ``ends`` are transmitters (for RD) or receivers (for DR); ``mixed_rdr`` keeps every pair (the
+    restriction to some objects is applied to the joined RDR triples instead). Exact necessary
+    conditions, cheapest first: the bounding sphere of a group of edges (a node of the edges'
+    tree; with :data:`raytrace.solver.kernels.EXHAUSTIVE`, an object's edges) must reach the
+    end's side of the facet plane and the beam from the end's image through the facet's bounding
+    sphere; per edge, the same with the edge's own sphere; the image must not be inside the
+    wedge; then the edge, clipped to the end's side and projected from the image onto the
+    facet's plane, must meet the facet's (slightly grown) bounding box
+    (:func:`raytrace.solver.kernels.facet_wedge_pairs_tree`). With ``keep`` (the transmitters),
+    an end's triples, when at most :data:`KEEP_MAX_TRIPLES`, are kept on the scene for the next
+    trace with the same end, restriction and pruning (:data:`END_PAIRS_KEPT`), the ones every
+    path of which an opaque solid blocks dropped first.
     """
     fc = ctx.scene.facets
     side = shadow.reflecting_sides(ctx, ends)  # (E, K), none in a facet in the end's shadow
@@ -270,40 +288,57 @@ def _facet_wedge_pairs(
     else:
         f_chosen = np.ones(len(fc), dtype=bool)
         g_chosen = np.ones(len(geo.g_start), dtype=bool)
-    fixed = (*geo.facets[:2], f_chosen, *geo.facets[2:], *geo.groups, g_chosen, *geo.wedges,
-             *_wedge_frame(ctx).kernel_args, accel.PLANE_TOL_M, SPAN_PAD_M, kernels.PRUNE)  # fmt: skip
+    if kernels.EXHAUSTIVE:
+        fixed = (*geo.facets[:2], f_chosen, *geo.facets[2:], *geo.groups, g_chosen, *geo.wedges,
+                 *_wedge_frame(ctx).kernel_args, accel.PLANE_TOL_M, SPAN_PAD_M, kernels.PRUNE)  # fmt: skip
+    else:
+        fixed = _wedge_walks(ctx, geo, None if f_chosen.all() else f_chosen)
     if not keep:
-        # every end's triples written into one set of buffers, in end order
-        out = _pair_buffers(PAIRS_PER_END * max(len(ends), 1))
         for e in range(len(ends)):
-            out = _end_pairs(fc, geo, fixed, ends[e], side[e], e, out)
-        m = out[-1]
-        return tuple(x[:m] for x in out[:-1])
+            yield from _end_triples(fc, geo, fixed, ends[e], side[e], e)
+        return
     kept = ctx.scene.wedges.cache.setdefault("end_pairs", {})
     mask = (None if ctx.facet_mask is None or mixed_rdr
             else (ctx.facet_mask.tobytes(), ctx.wedge_mask.tobytes()))  # fmt: skip
-    outs = []
     for e in range(len(ends)):
         key = (ends[e].tobytes(), side[e].tobytes(), mask, kernels.PRUNE, float(ctx.scene.margin),
                ctx.opaque.tobytes())
         found = kept.get(key)
         if found is None:
-            *arrays, m = _end_pairs(fc, geo, fixed, ends[e], side[e], 0,
-                                    _pair_buffers(PAIRS_PER_END))  # fmt: skip
-            found = tuple(x[:m] for x in arrays[1:])
-            if kernels.PRUNE and ctx.facet_mask is None:
-                # triples whose every path is blocked by an opaque solid (shadow.py)
-                keep = ~shadow.triples_in_shadow(ctx.scene, ctx.opaque, ends[e], *found)
-                found = tuple(x[keep] for x in found)
-            found = tuple(x.copy() for x in found)
-            for x in found:
-                x.setflags(write=False)
+            found = yield from _kept_triples(ctx, fc, geo, fixed, ends[e], side[e], e)
+            if found is None:  # too many to keep: streamed already
+                continue
             keep_bounded(kept, key, found, END_PAIRS_KEPT)
         if len(found[0]):
-            outs.append((np.full(len(found[0]), e), *found))
-    if not outs:
-        return tuple(x[:0] for x in _pair_buffers(0)[:-1])
-    return tuple(np.concatenate(x) for x in zip(*outs))
+            yield (np.full(len(found[0]), e), *found)
+
+
+def _kept_triples(ctx: TraceContext, fc, geo: _PairGeometry, fixed: tuple, end: np.ndarray,
+                  side_e: np.ndarray, e: int):  # fmt: skip
+    """A transmitter's triples to keep (a generator): gathered while they are at most
+    :data:`KEEP_MAX_TRIPLES`, then returned (without the end index, read-only) for the caller
+    to keep and yield; beyond that, every chunk is yielded as it comes and None returned."""
+    held: list[tuple[np.ndarray, ...]] = []
+    n = 0
+    chunks = _end_triples(fc, geo, fixed, end, side_e, e)
+    for chunk in chunks:
+        held.append(chunk)
+        n += len(chunk[0])
+        if n > KEEP_MAX_TRIPLES:
+            yield from held
+            yield from chunks
+            return None
+    found = (tuple(np.concatenate(x) for x in zip(*held)) if held
+             else tuple(x[:0] for x in _pair_buffers(0)[:-1]))  # fmt: skip
+    found = found[1:]
+    if kernels.PRUNE and ctx.facet_mask is None:
+        # triples whose every path is blocked by an opaque solid (shadow.py)
+        keep = ~shadow.triples_in_shadow(ctx.scene, ctx.opaque, end, *found)
+        found = tuple(x[keep] for x in found)
+    found = tuple(x.copy() for x in found)
+    for x in found:
+        x.setflags(write=False)
+    return found
 
 
 #: End points (transmitters) whose (facet, wedge) triples are kept per scene: a grid is traced
@@ -312,6 +347,11 @@ END_PAIRS_KEPT = 16
 #: Rows of the triples' buffers per end point to start with (they double when full; an end of
 #: the hall has about 7 000 triples).
 PAIRS_PER_END = 8192
+#: Triples of one end in one chunk of :func:`_triple_chunks` (64 bytes each), about.
+TRIPLE_CHUNK = 1 << 20
+#: A transmitter's triples are kept for the next trace only when at most this many (an end of
+#: the hall has about 7 000; one of a hall with scanned machines, millions: streamed).
+KEEP_MAX_TRIPLES = 1 << 19
 
 
 def _pair_buffers(n: int) -> tuple:
@@ -321,10 +361,9 @@ def _pair_buffers(n: int) -> tuple:
     return i(), i(), i(), np.empty((n, 3)), np.empty(n), np.empty(n), 0
 
 
-def _end_pairs(fc, geo: _PairGeometry, fixed: tuple, end: np.ndarray, side_e: np.ndarray,
-               e: int, out: tuple) -> tuple:  # fmt: skip
-    """End point ``e``'s triples (:func:`_facet_wedge_pairs`) written after the rows already in
-    the buffers ``out`` (:func:`_pair_buffers`); returns the buffers and their rows."""
+def _end_triples(fc, geo: _PairGeometry, fixed: tuple, end: np.ndarray, side_e: np.ndarray,
+                 e: int) -> Iterator[tuple[np.ndarray, ...]]:  # fmt: skip
+    """End point ``e``'s triples (:func:`_triple_chunks`), in chunks."""
     f_ok = np.flatnonzero(side_e != 0)
     sgn = side_e[f_ok].astype(float)
     nrm, off = fc.normal[f_ok], fc.offset[f_ok]
@@ -333,17 +372,60 @@ def _end_pairs(fc, geo: _PairGeometry, fixed: tuple, end: np.ndarray, side_e: np
     # the beam from the image through each facet's bounding sphere
     f_beam = refl.beam(img_f, geo.f_centre[f_ok], geo.f_radius[f_ok])
     c = np.ascontiguousarray
-    return kernels.facet_wedge_pairs(
-        f_ok, sgn, h_f, c(img_f.T), c(f_beam.axis.T), f_beam.cos_a, f_beam.sin_a,
-        f_beam.apex_inside, *fixed, e, *out,
-    )  # fmt: skip
+    per_facet = (f_ok, sgn, h_f, c(img_f.T), c(f_beam.axis.T), f_beam.cos_a, f_beam.sin_a,
+                 f_beam.apex_inside)  # fmt: skip
+    if kernels.EXHAUSTIVE:
+        *arrays, m = kernels.facet_wedge_pairs(*per_facet, *fixed, e, *_pair_buffers(PAIRS_PER_END))
+        if m:
+            yield tuple(x[:m] for x in arrays)
+        return
+    walks, tail = fixed
+    for tree_args, asks in walks:
+        active = np.ones(len(f_ok), dtype=bool) if asks is None else c(asks[f_ok])
+        j = 0
+        while j < len(f_ok):
+            *arrays, m, j = kernels.facet_wedge_pairs_tree(
+                *per_facet, active, *geo.facets, *tree_args, *geo.wedges, *tail, e,
+                *_pair_buffers(PAIRS_PER_END)[:-1], 0, j, TRIPLE_CHUNK)  # fmt: skip
+            if m:
+                yield tuple(x[:m] for x in arrays)
+
+
+def _wedge_walks(ctx: TraceContext, geo: _PairGeometry,
+                 f_chosen: np.ndarray | None) -> tuple[list, tuple]:  # fmt: skip
+    """The trees of edges a facet's beam walks in :func:`_end_pairs` (the scene's, or for a
+    scene with moving objects the static scene's and the moving objects'), each with the facets
+    that ask it (None: all); with ``f_chosen`` (K,) bool (a trace of some objects only) the
+    chosen facets ask every tree and the others one over the chosen edges only. And what the
+    kernel takes after the edges (the wedge frames, tolerances, pruning)."""
+    w = ctx.scene.wedges
+    walks = []
+
+    def args(tree, w_of):
+        c = carray
+        return (c(tree.node_centre), c(tree.node_radius), c(tree.left, np.int64),
+                c(tree.right, np.int64), c(tree.start, np.int64), c(tree.count, np.int64),
+                c(tree.order, np.int64), c(w_of, np.int64))  # fmt: skip
+
+    if len(w):
+        for tree, first in accel.wedge_forest(w):
+            walks.append((args(tree, np.arange(tree.size) + first), f_chosen))
+        if f_chosen is not None:
+            chosen = np.flatnonzero(ctx.wedge_mask)
+            if len(chosen):
+                a, b = w.start[chosen], w.end[chosen]
+                tree = build_tree(np.minimum(a, b), np.maximum(a, b), 0.5 * (a + b),
+                                  0.5 * w.length[chosen] * (1 + 1e-9) + 1e-9)  # fmt: skip
+                walks.append((args(tree, chosen), ~f_chosen))
+    tail = (*_wedge_frame(ctx).kernel_args, accel.PLANE_TOL_M, SPAN_PAD_M, kernels.PRUNE)
+    return walks, tail
 
 
 def _one_reflection(ctx: TraceContext, before: bool) -> list[Paths]:
-    """RD (``before=True``: reflection at the transmitter's side) or DR paths."""
+    """RD (``before=True``: reflection at the transmitter's side) or DR paths, one chunk of
+    (end, facet, wedge) triples at a time (:func:`_triple_chunks`)."""
     fc, w = ctx.scene.facets, ctx.scene.wedges
     ends, others = (ctx.tx, ctx.rx) if before else (ctx.rx, ctx.tx)
-    e_idx, f_idx, w_idx, img, t_lo, t_hi = _facet_wedge_pairs(ctx, ends, keep=before)
     side_e = carray(refl.reflecting_side(fc, ends), np.int8)
     # Keller's point in scalar form (see keller_points): t = ts + (td - ts) rho_s / (rho_s + rho_d)
     # with the end's image (ts, rho_s) per triple and the other end (td, rho_d) per wedge, so
@@ -363,27 +445,29 @@ def _one_reflection(ctx: TraceContext, before: bool) -> list[Paths]:
              *accel.facet_test_arrays(fc), accel.BARY_TOL, accel.RECT_INSIDE_M, KELLER_TOL_M,
              carray(fr.edge_dir), carray(fr.face0_tangent), carray(fr.normal_0), carray(fr.n),
              before, kernels.PRUNE)  # fmt: skip
-    triples = (carray(e_idx, np.int64), carray(f_idx, np.int64), carray(w_idx, np.int64),
-               carray(img), carray(t_lo), carray(t_hi))  # fmt: skip
     out = []
     tx, rx = carray(ctx.tx), carray(ctx.rx)
     facet_obj = carray(fc.object, np.int64)
     wedge_obj = carray(w.object if len(w) else np.zeros(0), np.int64)
     n_o = len(others)
     step = max(1, CHUNK // max(n_o, 1))
-    for c0 in range(0, len(e_idx), step):
-        # the pruned pairs' exact tests, one pair at a time: Keller's point on the edge and on
-        # the end's side of the facet, the reflection point on the facet, a valid diffraction
-        q, o_idx, pts, n_pairs = kernels.reflection_edge_points(
-            c0, min(len(e_idx), c0 + step), *triples, *fixed
-        )  # fmt: skip
-        ctx.count("candidates_rd" if before else "candidates_dr", n_pairs)
-        if not len(q):
-            continue
-        cand = Candidates(*kernels.mixed_candidates(q, o_idx, pts, *triples[:3], tx, rx,
-                                                     facet_obj, wedge_obj, before,
-                                                     REFLECTION, DIFFRACTION))  # fmt: skip
-        out.append(evaluate(ctx, cand, diffraction=field_model(ctx)))
+    for e_idx, f_idx, w_idx, img, t_lo, t_hi in _triple_chunks(ctx, ends, keep=before):
+        triples = (carray(e_idx, np.int64), carray(f_idx, np.int64), carray(w_idx, np.int64),
+                   carray(img), carray(t_lo), carray(t_hi))  # fmt: skip
+        for c0 in range(0, len(e_idx), step):
+            # the pruned pairs' exact tests, one pair at a time: Keller's point on the edge and
+            # on the end's side of the facet, the reflection point on the facet, a valid
+            # diffraction
+            q, o_idx, pts, n_pairs = kernels.reflection_edge_points(
+                c0, min(len(e_idx), c0 + step), *triples, *fixed
+            )  # fmt: skip
+            ctx.count("candidates_rd" if before else "candidates_dr", n_pairs)
+            if not len(q):
+                continue
+            cand = Candidates(*kernels.mixed_candidates(q, o_idx, pts, *triples[:3], tx, rx,
+                                                         facet_obj, wedge_obj, before,
+                                                         REFLECTION, DIFFRACTION))  # fmt: skip
+            out.append(evaluate(ctx, cand, diffraction=field_model(ctx)))
     return out
 
 

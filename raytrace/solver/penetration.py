@@ -314,12 +314,7 @@ def _closed_solid_grid(scene: Scene) -> tuple:
     cache = scene.caches.closed_solid_grid
     if cache is not None:
         return cache
-    n_obj = len(scene.objects)
-    lo, hi = np.full((n_obj, 3), np.inf), np.full((n_obj, 3), -np.inf)
-    for i, obj in enumerate(scene.objects):
-        v = scene.vertices[scene.faces[obj.face_start : obj.face_start + obj.face_count]]
-        if v.size:
-            lo[i], hi[i] = v.reshape(-1, 3).min(axis=0), v.reshape(-1, 3).max(axis=0)
+    lo, hi = scene.object_boxes()
     pad = 10 * scene.margin
     b_lo, b_hi = scene.bounds
     cell = max(float((b_hi[:2] - b_lo[:2]).max()) / GRID_CELLS, 1e-3)

@@ -60,13 +60,17 @@ def _groups(scene: Scene) -> tuple[np.ndarray, ...]:
     if cached is not None:
         return cached
     fc, w = scene.facets, scene.wedges
-    corners = [np.unique(fc.triangles[s : s + n].reshape(-1, 3), axis=0)
-               for s, n in zip(fc.tri_start, fc.tri_count)]  # fmt: skip
-    ends = list(np.stack([w.start, w.end], axis=1))  # (2, 3) per edge
-    every = corners + ends
-    flat = np.concatenate(every) if every else np.zeros((0, 3))
+    # each facet's distinct corners, in its order (sorted by coordinates), as one unique over
+    # (facet, x, y, z) rows: a scanned machine has a facet per triangle, and a list of a
+    # million per-facet uniques costs seconds
+    # (a facet's triangles are contiguous, in facet order)
+    owner = np.repeat(np.arange(len(fc), dtype=np.float64), 3 * fc.tri_count)
+    rows = np.unique(np.column_stack([owner, fc.triangles.reshape(-1, 3)]), axis=0)
+    n_corners = np.bincount(rows[:, 0].astype(np.int64), minlength=len(fc))
+    ends = np.stack([w.start, w.end], axis=1).reshape(-1, 3)  # both ends of every edge
+    flat = np.concatenate([rows[:, 1:], ends])
     points, g_point = np.unique(flat, axis=0, return_inverse=True)
-    count = np.array([len(x) for x in every], dtype=np.int64)
+    count = np.concatenate([n_corners, np.full(len(w), 2)]).astype(np.int64)
     start = (np.cumsum(count) - count).astype(np.int64)
     own = np.concatenate([fc.object, w.object if len(w) else np.zeros(0)]).astype(np.int64)
     cached = (carray(points), start, count, carray(g_point.reshape(-1), np.int64), own)

@@ -59,10 +59,22 @@ def first_order(ctx: TraceContext) -> list[Paths]:
     # (a facet that an end sees only through an opaque solid reflects nothing of it)
     side_tx = shadow.reflecting_sides(ctx, ctx.tx)  # (T, K)
     side_rx = shadow.reflecting_sides(ctx, ctx.rx)  # (R, K)
-    ok_tkr = (side_tx[:, :, None] != 0) & (side_tx[:, :, None] == side_rx.T[None])
-    if ctx.facet_mask is not None:
-        ok_tkr &= ctx.facet_mask[None, :, None]
-    t_idx, k_idx, r_idx = np.nonzero(ok_tkr)
+    if kernels.EXHAUSTIVE:
+        ok_tkr = (side_tx[:, :, None] != 0) & (side_tx[:, :, None] == side_rx.T[None])
+        if ctx.facet_mask is not None:
+            ok_tkr &= ctx.facet_mask[None, :, None]
+        t_idx, k_idx, r_idx = np.nonzero(ok_tkr)
+    else:
+        # the triples whose receiver is in the beam from the image through the facet (no
+        # (transmitters x facets x receivers) table)
+        centre, radius = accel.facet_spheres(fc)
+        rx_centre = 0.5 * (ctx.rx.min(axis=0) + ctx.rx.max(axis=0))
+        rx_radius = float(np.sqrt(((ctx.rx - rx_centre) ** 2).sum(axis=1)).max()) * (1 + 1e-9)
+        chosen = np.ones(len(fc), bool) if ctx.facet_mask is None else ctx.facet_mask
+        t_idx, k_idx, r_idx = kernels.first_order_candidates(
+            carray(side_tx, np.int8), carray(side_rx, np.int8), carray(chosen, bool),
+            carray(ctx.tx), carray(ctx.rx), carray(fc.normal), carray(fc.offset), carray(centre),
+            carray(radius), *rx_centre, rx_radius + 1e-9, kernels.PRUNE)  # fmt: skip
     ctx.count("candidates_r1", len(t_idx))
     img = refl.mirror(ctx.tx[t_idx], fc.normal[k_idx], fc.offset[k_idx])
     u, p = refl.segment_plane_point(ctx.rx[r_idx], img, fc.normal[k_idx], fc.offset[k_idx])
@@ -74,14 +86,11 @@ def first_order(ctx: TraceContext) -> list[Paths]:
 
 
 def second_order(ctx: TraceContext) -> list[Paths]:
-    """Double reflections: images of images over the facet pairs that can exchange a reflection
-    (:func:`raytrace.scene.accel.facing_pairs`), pruned by beams through the facets' bounding
-    spheres, one transmitter at a time (the transmitter's side kept on the scene), the candidates
-    of all transmitters evaluated together."""
+    """Double reflections: images of images over the facet pairs that can exchange a reflection,
+    found by beam queries on the facets' trees (:func:`_second_images`), pruned by beams through
+    the facets' bounding spheres, one transmitter at a time (the transmitter's side kept on the
+    scene), the candidates of all transmitters evaluated together."""
     fc = ctx.scene.facets
-    pairs = accel.facing_pairs(fc)
-    if ctx.facet_mask is not None:
-        pairs = pairs & (ctx.facet_mask[:, None] | ctx.facet_mask[None, :])
     # (no second reflection in a facet the receiver sees only through an opaque solid)
     side_rx = shadow.reflecting_sides(ctx, ctx.rx)  # (R, K)
     rx_centre = 0.5 * (ctx.rx.min(axis=0) + ctx.rx.max(axis=0))
@@ -100,8 +109,7 @@ def second_order(ctx: TraceContext) -> list[Paths]:
 
     shadow_tx = shadow.shadows_of(ctx, ctx.tx)[0]
     for t in range(len(ctx.tx)):
-        _, _, _, f1a, f2, _, _, receiver_args, exact_args = _second_images(ctx, t, pairs,
-                                                                           shadow_tx[t])  # fmt: skip
+        _, _, _, f1a, f2, _, _, receiver_args, exact_args = _second_images(ctx, t, shadow_tx[t])
         if len(f1a) == 0:
             continue
         # receivers on the same side of the second facet as the first image, inside the
@@ -136,9 +144,7 @@ def second_order(ctx: TraceContext) -> list[Paths]:
 SECOND_IMAGES_KEPT = 16
 
 
-def _second_images(
-    ctx: TraceContext, t: int, pairs: np.ndarray, in_shadow: np.ndarray
-) -> tuple[np.ndarray, ...]:
+def _second_images(ctx: TraceContext, t: int, in_shadow: np.ndarray) -> tuple[np.ndarray, ...]:
     """Transmitter ``t``'s side of double reflections (cached on the facets, per transmitter
     position, facet restriction, facets in its shadow (``in_shadow`` (K,) bool: no first
     reflection there) and :data:`raytrace.solver.kernels.PRUNE`).
@@ -168,20 +174,29 @@ def _second_images(
     side_t = refl.reflecting_side(fc, ctx.tx[t : t + 1])[0]  # (K,)
     f1 = np.flatnonzero((side_t != 0) & ~in_shadow)
     img1 = refl.mirror(np.broadcast_to(ctx.tx[t], (len(f1), 3)), fc.normal[f1], fc.offset[f1])
-    # only first facets with some partner, and side tests only on possible partners
-    rows = pairs[f1].any(axis=1)
-    f1, img1 = f1[rows], img1[rows]
-    cols = np.flatnonzero(pairs[f1].any(axis=0))
-    # first images on a reflecting side of the second facet (exact necessary condition)
-    side_img = refl.reflecting_side(fc, img1, cols)  # (len(f1), len(cols))
-    a, jc = np.nonzero((side_img != 0) & pairs[f1][:, cols])
-    f2 = cols[jc]
+    # the second facets: those whose sphere the rays from the first image through the first
+    # facet's sphere can reach, with some part on the transmitter's side of the first facet
+    # (a query on the facets' trees, output-sensitive: no (facets x facets) table)
+    b1 = refl.beam(img1, centre[f1], radius[f1])
+    # (for the paths of some objects only: a first facet on them, or a second one)
+    if kernels.EXHAUSTIVE:  # every pair of the (facets x facets) table
+        a, f2 = _table_pairs(fc, f1, ctx.facet_mask)
+    else:
+        a, f2 = accel.beam_facets(fc, b1, fc.normal[f1], fc.offset[f1], side_t[f1],
+                                  ctx.facet_mask,
+                                  None if ctx.facet_mask is None else ctx.facet_mask[f1])  # fmt: skip
+    # the pairs that can exchange a reflection (facing each other, not the same plane), the
+    # first image on a reflecting side of the second facet (exact necessary conditions)
+    s_img = refl.side_of(fc, img1[a], f2)
+    ok = (s_img != 0) & accel.facing(fc, f1[a], f2)
+    a, f2, s_img = a[ok], f2[ok], s_img[ok]
     # beam test: the second facet must meet the rays from the first image through the
     # first facet (bounding spheres: a necessary condition)
     beam = refl.cone_reaches(img1[a], centre[f1[a]], radius[f1[a]], centre[f2], radius[f2])
-    a, f2, jc = a[beam], f2[beam], jc[beam]
+    a, f2, s_img = a[beam], f2[beam], s_img[beam]
+    order = np.lexsort((f2, a))  # in (first image, second facet) order, as a table would give
+    a, f2, s_img = a[order], f2[order], s_img[order]
     img2 = refl.mirror(img1[a], fc.normal[f2], fc.offset[f2])
-    s_img = side_img[a, jc]
     b2 = refl.beam(img2, centre[f2], radius[f2])
     b1 = refl.beam(img1[a], centre[f1[a]], radius[f1[a]])
     receiver_args = (f2, s_img, *_beam_args(b2), b2.sin_a, *_beam_args(b1), fc.normal[f2],
@@ -194,6 +209,16 @@ def _second_images(
     for x in found:
         x.setflags(write=False)
     return keep(kept, key, (*found, receiver_args, exact_args), SECOND_IMAGES_KEPT)
+
+
+def _table_pairs(fc, f1: np.ndarray, mask: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """(row of ``f1``, second facet) pairs of the facets' pair table
+    (:func:`raytrace.scene.accel.facing_pairs`, restricted to pairs with a chosen facet): the
+    exhaustive path of :data:`raytrace.solver.kernels.EXHAUSTIVE`, for small scenes."""
+    pairs = accel.facing_pairs(fc)[f1]
+    if mask is not None:
+        pairs = pairs & (mask[f1][:, None] | mask[None, :])
+    return np.nonzero(pairs)
 
 
 def _beam_args(b: refl.Beam) -> tuple[np.ndarray, ...]:

@@ -25,11 +25,13 @@ from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any
+from pathlib import Path
 
 import numpy as np
 
 from ..core.errors import TraceInputError
 from ..core.scale import MAX_SCENE_M, unit_hint
+from ..scene.budget import CHECK_MIN_TRIANGLES, check_trace
 from ..scene.model import Scene
 from . import diffraction, specular
 from .config import MIN_POWER_DB, TraceConfig
@@ -364,6 +366,8 @@ def _checked(
     tx = check_positions(scene, tx, "transmitter")
     rx = check_positions(scene, rx, "receiver")
     check_distinct(tx, rx)
+    if len(scene.faces) >= CHECK_MIN_TRIANGLES:  # a small scene's trace fits anywhere
+        check_trace(len(scene.faces), Path(scene.source).name or "in memory")
     return cfg, f, tx, rx
 
 

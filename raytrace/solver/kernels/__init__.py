@@ -40,11 +40,12 @@ from .prune import (
     second_order_candidates,
     surely_inside,
 )
+from .reach import facet_wedge_pairs_tree, first_order_candidates
 from .sequences import interaction_sequences
 from .solids import edge_distance, line_span, shadowed_groups, shadowed_triples, touch_rows
 from .walk import end_probes, entry_points, unseen_entries, walk_hits, walk_rays, walk_record
 
-__all__ = ["PRUNE", "surely_inside", "facet_wedge_pairs", "expand_over_others",
+__all__ = ["PRUNE", "EXHAUSTIVE", "surely_inside", "facet_wedge_pairs", "facet_wedge_pairs_tree", "first_order_candidates", "expand_over_others",
            "reflection_edge_points", "along_and_off_rows", "second_order_candidates", "line_span",
            "shadowed_groups", "shadowed_triples", "edge_distance",
            "opaque_blocks", "touch_rows", "entry_points", "end_probes",
@@ -55,3 +56,10 @@ __all__ = ["PRUNE", "surely_inside", "facet_wedge_pairs", "expand_over_others",
 #: then return every candidate that satisfies the rules, with unbounded spans), so that a trace
 #: with it set shows that the pruning loses no path (the tests do; it is far slower).
 PRUNE = True
+
+#: True: the stages enumerate their candidates by scanning every element as before the scene's
+#: trees (every facet pair's table for double reflections, every object's edges for the mixed
+#: stages): the exhaustive path, kept as the tests' oracle on small scenes. False (the default):
+#: the candidates come from queries on the trees (:mod:`raytrace.scene.spatial`), with the same
+#: exact tests after them, so the paths are the same.
+EXHAUSTIVE = False

@@ -22,12 +22,13 @@ from ...core.jit import helper, inline, kernel
 from ...core.vec import dot3
 from ...scene.accel import FACET_TEST_SIG, facet_box_test, in_triangles
 
-__all__ = ["surely_inside", "beam_reaches1", "facet_wedge_pairs", "along_and_off",
+__all__ = ["surely_inside", "inside1", "beam_reaches1", "facet_wedge_pairs", "grown_pairs",
+           "edge_span", "FRAME_SIG", "PAIRS_OUT_SIG", "along_and_off",
            "along_and_off_rows", "in_span", "expand_over_others", "second_order_candidates"]
 
 
 @inline
-def _inside(t0, n0, t_start, n_start, cos_n, sin_n, prunable, m2_coef, min_rho2, w, px, py, pz):
+def inside1(t0, n0, t_start, n_start, cos_n, sin_n, prunable, m2_coef, min_rho2, w, px, py, pz):
     """One point against one wedge: see :func:`surely_inside`. (Every array is read before the
     first branch: see :func:`raytrace.scene.accel.facet_box_test`.)"""
     ok, cn, sn = prunable[w], cos_n[w], sin_n[w]
@@ -41,10 +42,11 @@ def _inside(t0, n0, t_start, n_start, cos_n, sin_n, prunable, m2_coef, min_rho2,
     return r2 > min_rho2 and y < 0 and y * y > m2 and side_n > 0 and side_n * side_n > m2
 
 
-_FRAME = "f8[:, ::1], f8[:, ::1], f8[::1], f8[::1], f8[::1], f8[::1], b1[::1], f8, f8"
+#: The numba signature of a wedge frame as the kernels take it (:func:`surely_inside`).
+FRAME_SIG = "f8[:, ::1], f8[:, ::1], f8[::1], f8[::1], f8[::1], f8[::1], b1[::1], f8, f8"
 
 
-@kernel(f"b1[::1]({_FRAME}, i8[::1], f8[::1], f8[::1], f8[::1])")
+@kernel(f"b1[::1]({FRAME_SIG}, i8[::1], f8[::1], f8[::1], f8[::1])")
 def surely_inside(t0, n0, t_start, n_start, cos_n, sin_n, prunable, m2_coef, min_rho2,
                   wi, px, py, pz):  # fmt: skip
     """(n,) bool: points ``(px, py, pz)`` (n,) m inside wedges ``wi`` (n,) by a margin.
@@ -57,7 +59,7 @@ def surely_inside(t0, n0, t_start, n_start, cos_n, sin_n, prunable, m2_coef, min
     """
     out = np.empty(len(wi), dtype=np.bool_)
     for i in range(len(wi)):
-        out[i] = _inside(t0, n0, t_start, n_start, cos_n, sin_n, prunable, m2_coef, min_rho2,
+        out[i] = inside1(t0, n0, t_start, n_start, cos_n, sin_n, prunable, m2_coef, min_rho2,
                          wi[i], px[i], py[i], pz[i])  # fmt: skip
     return out
 
@@ -79,11 +81,12 @@ def beam_reaches1(ax, ay, az, ux, uy, uz, cos_a, sin_a, inside, cx, cy, cz, radi
     return dot >= cos_a * np.sqrt(dt2 - r2) - sin_a * min(radius, dt) - 1e-7 * dt
 
 
-_PAIRS_OUT = "i8[::1], i8[::1], i8[::1], f8[:, ::1], f8[::1], f8[::1]"
+#: The numba signature of the (end, facet, wedge, image, span lo, hi) triples' buffers.
+PAIRS_OUT_SIG = "i8[::1], i8[::1], i8[::1], f8[:, ::1], f8[::1], f8[::1]"
 
 
 _PAIRS_SIG = (
-    f"Tuple(({_PAIRS_OUT}, i8))("
+    f"Tuple(({PAIRS_OUT_SIG}, i8))("
     # per facet of the end (F,): indices, side sign, end's distance from the plane, image
     # components (3, F), beam axis components (3, F), cos, sin of its half-angle, apex inside
     "i8[::1], f8[::1], f8[::1], f8[:, ::1], f8[:, ::1], f8[::1], f8[::1], b1[::1], "
@@ -95,12 +98,12 @@ _PAIRS_SIG = (
     "f8[:, ::1], f8[:, ::1], f8[:, ::1], f8[::1], f8[::1], "
     # the end's index, the output buffers (end, facet, wedge, image (n, 3), span lo, hi) and
     # the rows already in them
-    f"{_FRAME}, f8, f8, b1, i8, {_PAIRS_OUT}, i8)"
+    f"{FRAME_SIG}, f8, f8, b1, i8, {PAIRS_OUT_SIG}, i8)"
 )
 
 
 @helper
-def _grown_pairs(out_e, out_f, out_w, out_img, out_lo, out_hi, need):
+def grown_pairs(out_e, out_f, out_w, out_img, out_lo, out_hi, need):
     """:func:`facet_wedge_pairs`' output buffers, at least twice as long and ``need`` rows, with
     their rows copied."""
     n = len(out_e)
@@ -113,7 +116,7 @@ def _grown_pairs(out_e, out_f, out_w, out_img, out_lo, out_hi, need):
 
 @inline
 def _box_axis(a_c, b_c, i_c, u, cut_a, cut_b, k_a, k_b, lo_c, hi_c, s_in, s_out):
-    """One axis of :func:`_edge_span`: the edge ``a -> b`` (this axis' components), cut at ``u``
+    """One axis of :func:`edge_span`: the edge ``a -> b`` (this axis' components), cut at ``u``
     where ``cut_a`` / ``cut_b``, projected from the image ``i`` (at ``k_a``, ``k_b`` of the way
     from it), clipped to the box's slab ``lo_c <= x <= hi_c``: the projected parameter range
     ``[s_in, s_out]`` narrowed by this slab."""
@@ -132,7 +135,7 @@ def _box_axis(a_c, b_c, i_c, u, cut_a, cut_b, k_a, k_b, lo_c, hi_c, s_in, s_out)
 
 
 @inline
-def _edge_span(ax, ay, az, bx, by, bz, ix, iy, iz, da, db, eps, h, lx, ly, lz, hx, hy, hz, length,
+def edge_span(ax, ay, az, bx, by, bz, ix, iy, iz, da, db, eps, h, lx, ly, lz, hx, hy, hz, length,
                pad):  # fmt: skip
     """Condition 4 of :func:`facet_wedge_pairs` for one (facet, wedge) pair, on scalars: the
     edge ``a -> b`` (its ends ``da``, ``db`` m in front of the facet's plane, on the end's side),
@@ -218,7 +221,7 @@ def facet_wedge_pairs(f_ok, sgn, h_f, img_c, axis_c, cos_a, sin_a, apex_in,
             # room for every wedge of the group, made here and not per triple: the check and
             # call in the inner loop cost 11 % of this kernel's time on the 2 m grid
             if m + g_count[g] > len(out_e):
-                out_e, out_f, out_w, out_img, out_lo, out_hi = _grown_pairs(
+                out_e, out_f, out_w, out_img, out_lo, out_hi = grown_pairs(
                     out_e, out_f, out_w, out_img, out_lo, out_hi, m + g_count[g])  # fmt: skip
             for k in range(g_start[g], g_start[g] + g_count[g]):
                 w = g_order[k]
@@ -239,10 +242,10 @@ def facet_wedge_pairs(f_ok, sgn, h_f, img_c, axis_c, cos_a, sin_a, apex_in,
                 if not beam_reaches1(ix, iy, iz, ux, uy, uz, ca, sa, ai,
                                      w_mid[w, 0], w_mid[w, 1], w_mid[w, 2], w_half[w]):  # fmt: skip
                     continue
-                if _inside(t0, n0, t_start, n_start, cos_n, sin_n, prunable, m2_coef, min_rho2,
+                if inside1(t0, n0, t_start, n_start, cos_n, sin_n, prunable, m2_coef, min_rho2,
                            w, ix, iy, iz):  # fmt: skip
                     continue
-                ok, t_lo, t_hi = _edge_span(ax, ay, az, bx, by, bz, ix, iy, iz, da, db, eps, h,
+                ok, t_lo, t_hi = edge_span(ax, ay, az, bx, by, bz, ix, iy, iz, da, db, eps, h,
                                             lo[f, 0], lo[f, 1], lo[f, 2], hi[f, 0], hi[f, 1],
                                             hi[f, 2], w_length[w], pad)  # fmt: skip
                 if not ok:

@@ -1,0 +1,99 @@
+"""Memory a scene will take, estimated before it is built or traced, against what the machine
+(and the process's limit) can give: a scene too large stops with one line that names its size
+and the estimate, instead of a numpy traceback or a machine swapping to death.
+
+The estimates are linear in the triangles: since the scene layer and the tracer hold no array
+whose size is a product of two scene counts (issue 36), memory is O(triangles + candidates +
+paths). The coefficients are measured peaks (``tools/bench.py --scene-scale``; docs/tracing.md,
+"Scene scale") with a margin: 2 cores, the bundled hall plus noisy metal spheres.
+
+=============  ===========  ============  =====================
+triangles      load peak    first trace   (92 links, default)
+=============  ===========  ============  =====================
+21 760         0.35 GB      0.74 GB
+83 200         0.50 GB      1.7 GB
+984 320        2.1 GB
+=============  ===========  ============  =====================
+"""
+
+from __future__ import annotations
+
+import os
+import resource
+
+from ..core.errors import SceneError
+
+__all__ = ["CHECK_MIN_TRIANGLES", "available_bytes", "load_bytes", "trace_bytes", "check_load", "check_trace"]
+
+#: Traces of scenes below this many triangles are not estimated (they fit anywhere).
+CHECK_MIN_TRIANGLES = 20_000
+#: Load: the interpreter with numpy, trimesh, numba and Embree, bytes.
+LOAD_BASE_B = 400e6
+#: Load: bytes per triangle (measured 1.8 kB: trimesh's processing, facets, wedges, trees).
+LOAD_PER_TRIANGLE_B = 2.5e3
+#: Trace: bytes per triangle on top of the loaded scene (measured 15 kB at 83 200 triangles:
+#: candidate lists of the ends, trees, Embree's build).
+TRACE_PER_TRIANGLE_B = 20e3
+
+
+def available_bytes() -> float:
+    """Bytes this process may still allocate: the smaller of the machine's available memory
+    (``MemAvailable``) and the headroom under the process's address-space limit
+    (``RLIMIT_AS``, as ``ulimit -v`` or a batch system sets it). Infinite when neither is
+    known."""
+    avail = float("inf")
+    try:
+        with open("/proc/meminfo") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    avail = float(line.split()[1]) * 1024
+                    break
+    except OSError:
+        pass
+    soft, _ = resource.getrlimit(resource.RLIMIT_AS)
+    if soft != resource.RLIM_INFINITY:
+        try:
+            with open(f"/proc/{os.getpid()}/statm") as fh:
+                used = float(fh.read().split()[0]) * os.sysconf("SC_PAGE_SIZE")
+        except (OSError, ValueError):
+            used = 0.0
+        avail = min(avail, max(float(soft) - used, 0.0))
+    return avail
+
+
+def load_bytes(n_triangles: int) -> float:
+    """Estimated peak bytes of loading a scene of ``n_triangles`` triangles."""
+    return LOAD_BASE_B + LOAD_PER_TRIANGLE_B * n_triangles
+
+
+def trace_bytes(n_triangles: int) -> float:
+    """Estimated bytes a trace adds to a loaded scene of ``n_triangles`` triangles."""
+    return TRACE_PER_TRIANGLE_B * n_triangles
+
+
+def _gb(b: float) -> str:
+    return f"{b / 1e9:.1f} GB"
+
+
+def check_load(n_triangles: int, name: str, available: float | None = None) -> None:
+    """SceneError (one line) when loading ``n_triangles`` needs more than is available."""
+    need = load_bytes(n_triangles)
+    have = available_bytes() if available is None else available
+    if need > have:
+        raise SceneError(
+            f"scene {name} has {n_triangles:,} triangles: loading it needs about {_gb(need)}, "
+            f"this process can allocate {_gb(have)}; free memory, raise the limit, or simplify "
+            "the mesh (fewer triangles)"
+        )
+
+
+def check_trace(n_triangles: int, name: str, available: float | None = None) -> None:
+    """SceneError (one line) when a trace of the scene needs more than is available."""
+    need = trace_bytes(n_triangles)
+    have = available_bytes() if available is None else available
+    if need > have:
+        raise SceneError(
+            f"scene {name} has {n_triangles:,} triangles: tracing it needs about {_gb(need)} "
+            f"more, this process can allocate {_gb(have)}; free memory, raise the limit, or "
+            "simplify the mesh (fewer triangles)"
+        )

@@ -1,0 +1,144 @@
+#!/usr/bin/env python3
+"""Benchmark of scene scale: load, first and warm trace of the hall's 92 links, peak memory and
+paths, for the bundled hall plus generated metal machines from 10^3 to 10^6 triangles
+(:mod:`raytrace.halls.machines`), and the log-log slope of time against triangles.
+
+Run from a checkout: ``python tools/bench_scale.py [--max-triangles 1e6] [--dir DIR] [--json]``
+(``python tools/bench.py --scene-scale`` runs it). Each scene is measured in a fresh process (its
+own peak memory, a cold load with the disk cache off, then the first trace: trees and candidates
+built, then a warm trace). Generated scenes are kept in ``--dir`` for the next run.
+``--scene FILE`` adds a scene of your own (a public city mesh). Not a test: it asserts nothing.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from raytrace.cli.harness import OneLineParser, run_tool
+from raytrace.core.errors import HallrayError
+
+
+def measure_one(path: str, f_hz: float) -> dict:
+    """Load (no disk cache), first and warm trace of the scene's links (the bundled hall's when
+    the scene carries none) in this process; peak RSS."""
+    from raytrace import load_scene, trace
+    from raytrace.scene.metadata import SceneMetadata
+
+    t0 = time.perf_counter()
+    scene = load_scene(path, cache=False, default_material="metal")
+    load_s = time.perf_counter() - t0
+    inp = SceneMetadata.from_scene(scene)
+    if not len(inp.bs_xyz):
+        inp = SceneMetadata.from_scene(load_scene("hall"))
+    tx, rx = inp.bs_xyz, inp.point_xyz
+    t0 = time.perf_counter()
+    paths = trace(scene, tx, rx, f_hz)
+    first_s = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    trace(scene, tx, rx, f_hz)
+    warm_s = time.perf_counter() - t0
+    return {
+        "scene": Path(path).name, "triangles": int(len(scene.faces)), "wedges": len(scene.wedges),
+        "links": len(tx) * len(rx), "load_s": load_s, "first_trace_s": first_s,
+        "warm_trace_s": warm_s, "paths": int(paths.n_paths),
+        "peak_gb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6,
+    }  # fmt: skip
+
+
+def slope(rows: list[dict], key: str, from_triangles: float = 1e4) -> float | None:
+    """Least-squares slope of log(time) against log(triangles) over scenes from 10^4 up."""
+    pts = [(r["triangles"], r[key]) for r in rows if r["triangles"] >= from_triangles and r[key] > 0]
+    if len(pts) < 2:
+        return None
+    x, y = np.log([p[0] for p in pts]), np.log([p[1] for p in pts])
+    return float(np.polyfit(x, y, 1)[0])
+
+
+def parser() -> argparse.ArgumentParser:
+    ap = OneLineParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--max-triangles", type=float, default=1e5,
+                    help="largest generated scene, triangles (1e6 runs the million) [1e5]")  # fmt: skip
+    ap.add_argument("--dir", help="where generated scenes are kept [a temporary folder]")
+    ap.add_argument("--scene", action="append", default=[], help="another scene (repeatable)")
+    ap.add_argument("--frequency-hz", type=float, default=3.775e9, help="carrier [3.775e9]")
+    ap.add_argument("--timeout", type=float, default=3600, help="seconds per scene [3600]")
+    ap.add_argument("--json", action="store_true", help="print one JSON object")
+    ap.add_argument("--one", help=argparse.SUPPRESS)  # the child process: measure this scene
+    return ap
+
+
+def _child(path: str, f_hz: float, timeout: float) -> dict:
+    cmd = [sys.executable, __file__, "--one", path, "--frequency-hz", repr(f_hz)]
+    try:
+        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout)
+    except subprocess.TimeoutExpired:
+        return {"scene": Path(path).name, "error": f"over {timeout:g} s"}
+    if proc.returncode != 0:
+        lines = (proc.stderr or proc.stdout).strip().splitlines() or ["no output"]
+        return {"scene": Path(path).name, "error": lines[-1]}
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+def _main(args: argparse.Namespace) -> int:
+    from raytrace.halls.machines import SCALE_STEPS, write_hall_with_machines
+    from raytrace.scene.bundled import resolve_scene
+
+    if args.one:
+        print(json.dumps(measure_one(args.one, args.frequency_hz)))
+        return 0
+    if not args.max_triangles >= 1e3:
+        raise HallrayError(f"--max-triangles must be at least 1e3, got {args.max_triangles:g}")
+    work = Path(args.dir) if args.dir else Path(tempfile.mkdtemp(prefix="hallray-scale-"))
+    work.mkdir(parents=True, exist_ok=True)
+    files = []
+    for n, sub in SCALE_STEPS:
+        if 1280 + n * 20 * 4**sub > args.max_triangles:
+            break
+        f = work / f"hall_{n}x{sub}.glb"
+        if not f.exists():
+            if n:
+                write_hall_with_machines(f, n, sub)
+            else:  # the bundled hall itself
+                f.write_bytes(Path(resolve_scene("hall")).read_bytes())
+        files.append(str(f))
+    rows = []
+    for f in files + list(args.scene):
+        r = _child(f, args.frequency_hz, args.timeout)
+        rows.append(r)
+        if not args.json:
+            _print_row(r)
+    ok = [r for r in rows if "error" not in r]
+    out = {"rows": rows, "slope_load": slope(ok, "load_s"), "slope_first_trace": slope(ok, "first_trace_s"),
+           "slope_warm_trace": slope(ok, "warm_trace_s")}  # fmt: skip
+    if args.json:
+        print(json.dumps(out, indent=1))
+    else:
+        print("log-log slope from 10^4 triangles: " + ", ".join(
+            f"{k[6:]} {v:.2f}" for k, v in out.items() if k.startswith("slope") and v is not None))  # fmt: skip
+    return 0
+
+
+def _print_row(r: dict) -> None:
+    if "error" in r:
+        print(f"{r['scene']:>22}: {r['error']}")
+        return
+    print(f"{r['scene']:>22} {r['triangles']:>9,} tri {r['wedges']:>8,} wedges  load {r['load_s']:6.1f} s  "
+          f"first {r['first_trace_s']:6.1f} s  warm {r['warm_trace_s']:6.1f} s  {r['paths']:>7,} paths  "
+          f"peak {r['peak_gb']:.2f} GB", flush=True)  # fmt: skip
+
+
+def main(argv: list[str] | None = None) -> int:
+    return run_tool(_main, parser(), argv)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
