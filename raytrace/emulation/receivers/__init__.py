@@ -2,13 +2,14 @@
 in a window) and every estimator behind one interface (:mod:`.receiver`, :class:`Receiver`).
 """
 
+from positioning.model.pulse import TABLE_PER_T, precursor_extent_t
+
 from .first_lobe import (
     MIN_CROSSING,
     NEGLIGIBLE_DB,
     NOISE_GUARD_T,
     POST_T,
     SURE_CROSSING,
-    TABLE_PER_T,
     TOP_PATHS,
     FirstLobeSettings,
     LobeMeasurement,
@@ -16,7 +17,6 @@ from .first_lobe import (
     cfar_factor,
     isolated_half_width_t,
     measure_first_lobe,
-    precursor_extent_t,
     prepare_first_lobe,
 )
 from .receiver import (

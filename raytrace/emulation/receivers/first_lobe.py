@@ -47,6 +47,14 @@ from functools import lru_cache
 import numpy as np
 from scipy.optimize import brentq
 
+from positioning.model.pulse import (
+    envelope_table,
+    precursor_extent_t,
+    pulse_at,
+    pulse_table,
+    quartic_top,
+)
+
 from ...core.constants import linear_power_to_db
 from ...core.errors import HallrayError
 from ..bands import Band
@@ -120,58 +128,10 @@ def cfar_factor(false_alarm_probability: float, cells: int | None) -> float:
 
 
 @lru_cache(maxsize=32)
-def _envelope_table(
-    roll_off: float, span: int, oversampling: int = 64
-) -> tuple[np.ndarray, np.ndarray]:
-    """``x`` (in T) and ``max_{|u| >= x} |h(u T)| T`` on a fine grid up to ``span``."""
-    x = np.arange(0, span * oversampling + 1) / oversampling
-    h = np.abs(raised_cosine(x, 1.0, roll_off))
-    return x, np.maximum.accumulate(h[::-1])[::-1]
-
-
-def precursor_extent_t(roll_off: float, rho: float, span: int) -> int:
-    """Whole periods before a path beyond which the pulse stays below ``rho / 4`` of its peak.
-
-    The window starts this many T before the earliest path that may cross the threshold: a
-    path's precursor ringing earlier than that is 12 dB below any threshold at least ``rho``
-    times the strongest peak.
-    """
-    x, env = _envelope_table(float(roll_off), int(span))
-    below = np.flatnonzero(env < 0.25 * rho)
-    return int(max(2, math.ceil(x[below[0]]))) if below.size else int(span)
-
-
-@lru_cache(maxsize=32)
 def isolated_half_width_t(roll_off: float) -> float:
     """Half-amplitude full width of the raised cosine, in T (1.22 T for beta = 0.25)."""
     half = brentq(lambda t: raised_cosine(t, 1.0, roll_off) - 0.5, 0.0, 1.0, xtol=1e-14)
     return 2.0 * float(half)
-
-
-#: Samples per T of the tabulated pulse (linear interpolation error below 1.1e-7 of its peak).
-TABLE_PER_T = 2048
-
-
-@lru_cache(maxsize=32)
-def _pulse_table(roll_off: float, span: int) -> tuple[np.ndarray, np.ndarray]:
-    """``h(x T) T`` for ``x = 0, 1/R, ..., span`` (R = :data:`TABLE_PER_T`), zero-padded, and
-    its forward differences (for linear interpolation with one gather)."""
-    x = np.arange(0, span * TABLE_PER_T + 1) / TABLE_PER_T
-    value = np.concatenate([raised_cosine(x, 1.0, roll_off), [0.0, 0.0]])
-    return value, np.append(np.diff(value), 0.0)
-
-
-def _pulse(lag: np.ndarray, period: float, table: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
-    """``T h(lag)`` (dimensionless) by linear interpolation in ``table``; 0 beyond its span."""
-    value, step = table
-    u = np.abs(lag)
-    u *= TABLE_PER_T / period
-    np.minimum(u, value.size - 2, out=u)
-    i = u.astype(np.intp)
-    u -= i
-    u *= step[i]
-    u += value[i]
-    return u
 
 
 def _response(
@@ -188,7 +148,7 @@ def _response(
     b = np.searchsorted(delay, t.max() + half_width, side="right")
     if b <= a:
         return np.zeros(t.size, dtype=complex)
-    h = _pulse(t[None, :] - delay[a:b, None], period, table)
+    h = pulse_at(t[None, :] - delay[a:b, None], period, table)
     g = gain[a:b] / period
     ri = np.stack([g.real, g.imag]) @ h  # two real products, no complex copy of h
     return ri[0] + 1j * ri[1]
@@ -342,7 +302,7 @@ def prepare_first_lobe(
     if m == 0:
         return LobePlan(n_links, links, np.zeros(0), links, np.zeros((0, 0), complex),
                         np.zeros(0, complex), np.zeros(0), *fixed)  # fmt: skip
-    table = _pulse_table(float(pulse.roll_off), int(pulse.span))
+    table = pulse_table(float(pulse.roll_off), int(pulse.span))
     pre = precursor_extent_t(pulse.roll_off, rho, pulse.span) * period
     gamma_noise = noise_std * math.sqrt(alpha)
     whole = np.zeros(m, dtype=bool) if full is None else np.asarray(full, dtype=bool)[links]
@@ -386,28 +346,6 @@ def prepare_first_lobe(
     return LobePlan(n_links, links, t0, n_samples, signal, peak_signal, t_peak, *fixed)
 
 
-#: Quartic through samples -2..2: coefficient rows (c0..c4) from the five values.
-_QUARTIC = np.linalg.inv(np.vander(np.arange(-2.0, 3.0), 5, increasing=True))
-
-
-def _quartic_top(y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Sub-sample offset (in samples, |u| <= 1) and value of the maximum of the quartic through
-    ``y (n, 5)`` at -2..2 (Newton on its derivative from the parabola's vertex)."""
-    c = y @ _QUARTIC.T  # (n, 5): c0 + c1 u + c2 u^2 + c3 u^3 + c4 u^4
-    curv = y[:, 1] - 2.0 * y[:, 2] + y[:, 3]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        u = np.where(curv < 0, 0.5 * (y[:, 1] - y[:, 3]) / curv, 0.0)
-    u = np.clip(u, -1.0, 1.0)
-    for _ in range(4):
-        d1 = c[:, 1] + 2 * c[:, 2] * u + 3 * c[:, 3] * u**2 + 4 * c[:, 4] * u**3
-        d2 = 2 * c[:, 2] + 6 * c[:, 3] * u + 12 * c[:, 4] * u**2
-        with np.errstate(divide="ignore", invalid="ignore"):
-            step = np.where(d2 < 0, d1 / d2, 0.0)
-        u = np.clip(u - step, -1.0, 1.0)
-    value = c[:, 0] + c[:, 1] * u + c[:, 2] * u**2 + c[:, 3] * u**3 + c[:, 4] * u**4
-    return u, value
-
-
 def _scan(
     amp: np.ndarray, n_samples: np.ndarray, thr: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -429,7 +367,7 @@ def _scan(
     ok = has & (cross > 0) & (top >= 2) & (top <= n_samples - 3)
     rows = np.arange(m)
     k5 = np.clip(top[:, None] + np.arange(-2, 3)[None, :], 0, w - 1)
-    u, peak = _quartic_top(amp[rows[:, None], k5])
+    u, peak = quartic_top(amp[rows[:, None], k5])
     return top, u, peak, ok
 
 
@@ -467,8 +405,8 @@ def _lobe_path(plan: LobePlan, link: np.ndarray, t: np.ndarray) -> np.ndarray:
     start, stop = _paths_near(key, base, stride, link, t - period, t + period)
     idx = concat_ranges(start, stop - start)
     row = np.repeat(np.arange(link.size), stop - start)
-    table = _pulse_table(float(plan.pulse.roll_off), int(plan.pulse.span))
-    val = np.abs(cir.gain[idx] * _pulse(t[row] - cir.delay_s[idx], period, table))
+    table = pulse_table(float(plan.pulse.roll_off), int(plan.pulse.span))
+    val = np.abs(cir.gain[idx] * pulse_at(t[row] - cir.delay_s[idx], period, table))
     order = np.lexsort((-val, row))
     first = np.ones(order.size, dtype=bool)
     first[1:] = row[order][1:] != row[order][:-1]
@@ -495,7 +433,7 @@ def _measure_rows(
     # Thresholds per sample: the noise (CFAR), rho times the strongest peak, and before the
     # strongest peak its own pulse's precursor envelope plus the noise margin, so that neither
     # its sidelobes nor noise on them pass for an earlier path.
-    x, env = _envelope_table(float(plan.pulse.roll_off), int(plan.pulse.span))
+    x, env = envelope_table(float(plan.pulse.roll_off), int(plan.pulse.span))
     t_k = plan.t0_s[rows, None] + np.arange(sig.shape[1])[None, :] * plan.dt_s
     lead = (plan.peak_time_s[rows, None] - t_k) / plan.period_s
     side = np.where(lead > 0, np.interp(lead, x, env, right=0.0), 0.0)
