@@ -38,15 +38,11 @@ import numpy as np
 
 from hallray.harness import OneLineParser, run_command
 from hallray.safe_output import write_file
-from positioning.cli.accuracy import accuracy_report_main
 from raytrace.core.constants import C0
 from raytrace.core.errors import HallrayError
-from raytrace.emulation.dataset import make_datasets
-from raytrace.emulation.dataset.config import DatasetConfig
-from raytrace.emulation.dataset.epochs import scenario_group
-from raytrace.emulation.receivers import TOA_METHODS
-from raytrace.scene.io import load_scene
-from raytrace.scene.metadata import SceneMetadata
+
+# the tracer, the datasets and positioning are imported where used: --help and bad input answer
+# without compiling the kernels
 
 #: The receivers compared by default (the realistic ones and the ideal reference).
 RECEIVERS = ("first-lobe", "first-lobe-cfr", "search-back", "super-res", "first-path")
@@ -123,6 +119,11 @@ def accuracy(datasets: list[dict[str, Any]], by_scenario: bool) -> list[dict[str
 
 def receiver_cost(receivers: list[str], repeats: int = 3) -> list[dict[str, Any]]:
     """Microseconds per link of each receiver on the static hall: prepare, one epoch's measure."""
+    from raytrace.emulation.dataset.config import DatasetConfig
+    from raytrace.emulation.dataset.epochs import scenario_group
+    from raytrace.scene.io import load_scene
+    from raytrace.scene.metadata import SceneMetadata
+
     sc = load_scene("hall")
     inputs = SceneMetadata.from_scene(sc, require=True)
     out = []
@@ -152,6 +153,8 @@ def receiver_cost(receivers: list[str], repeats: int = 3) -> list[dict[str, Any]
 
 def table_two(ds_dir: Path, out_dir: Path, receivers: list[str]) -> list[dict[str, Any]]:
     """Mean and p90 2D error of ``ls`` and ``irls`` on each receiver's four datasets."""
+    from positioning.cli.accuracy import accuracy_report_main
+
     rows = []
     for method in receivers:
         suffix = "" if method == receivers[0] else f"-{method}"
@@ -212,6 +215,9 @@ def parser() -> OneLineParser:
 
 
 def _main(args: Any) -> int:
+    from raytrace.emulation.dataset import make_datasets
+    from raytrace.emulation.receivers import TOA_METHODS
+
     receivers = [r.strip() for r in args.receivers.split(",") if r.strip()]
     bad = [r for r in receivers if r not in TOA_METHODS]
     if bad or not receivers:
