@@ -1,6 +1,7 @@
 """All ToA estimators behind one interface: :class:`Receiver` (``first-lobe``, the
 realistic receiver of :mod:`.first_lobe`; ``first-path``, the paper's eq. 3 model; ``peak`` and
-``leading-edge`` on the whole response) and :func:`estimate_toa`.
+``leading-edge`` on the whole response; ``first-lobe-cfr``, ``search-back`` and ``super-res`` on
+the PRS CFR) and :func:`estimate_toa`.
 """
 
 from __future__ import annotations
@@ -120,6 +121,11 @@ class Receiver:
     ``leading-edge``
         First sample of the whole response at or above ``max(peak * 10**(leading_edge_db/20),
         noise threshold)`` (noise power known), then the top of that lobe (:func:`pulse_toa`).
+    ``first-lobe-cfr``, ``search-back``, ``super-res``
+        On the delay profile of the PRS channel frequency response
+        (:mod:`raytrace.emulation.channel.cfr`): the first-lobe rule; the first lobe and a
+        sidelobe-aware search for an earlier arrival (:mod:`.search_back`); a sparse fit of the
+        first lobe's region (:mod:`.super_res`).
 
     Parameters
     ----------
