@@ -1,7 +1,8 @@
-"""The twin's receiver model (positioning.lobe) against the tracer's first-lobe receiver.
+"""The twin's receiver model (positioning.twin.lobe) against the tracer's first-lobe receiver.
 
-positioning must not import raytrace, so the noiseless first-lobe receiver exists twice (an
-intended duplicate, docs/architecture.md). This test, outside both packages, runs both on the
+positioning must not import raytrace, so the window and threshold rules of the noiseless
+first-lobe receiver are written twice (the pulse, its table and the peak fit are one module,
+positioning.model.pulse, that both use). This test, outside both packages, runs both on the
 same random path sets and requires the same detections and ToAs within ``TOL_T`` pulse periods.
 """
 
@@ -14,8 +15,8 @@ from positioning.twin.lobe import LobeReceiver
 from raytrace.emulation.receivers import Receiver
 from raytrace.studies.accuracy_map import receiver_model_meta
 
-#: Largest ToA difference, in pulse periods T: the tracer's receiver interpolates the pulse in a
-#: table (error below 1.1e-7 of its peak), this one evaluates it in closed form.
+#: Largest ToA difference, in pulse periods T: both interpolate the same table
+#: (positioning.model.pulse); the two implementations differ in the order of their sums.
 TOL_T = 1e-4
 
 

@@ -32,6 +32,12 @@ CASES: dict[str, tuple[str, list[str], str]] = {
     "bench-zero-epochs": ("bench.py", ["--epochs", "0", "--no-scaling"], "--epochs"),
     "bench_positioning-not-an-integer": ("bench_positioning.py", ["abc"], "invalid int value"),
     "bench_positioning-zero-epochs": ("bench_positioning.py", ["0"], "n_epochs"),
+    "bench_receivers-unknown-receiver": (
+        "bench_receivers.py", ["-o", "{tmp}/out", "--receivers", "first-lobe,nope"], "unknown receiver"
+    ),
+    "bench_receivers-zero-duration": (
+        "bench_receivers.py", ["-o", "{tmp}/out", "--duration", "0"], "--duration"
+    ),
     "bench_scan-zero-points": ("bench_scan.py", ["--points", "0"], "--points"),
     "bench_twin-missing-dataset": (
         "bench_twin.py", ["--data", "{tmp}/no", "--maps", "{tmp}/no"], "dataset directory not found"

@@ -9,7 +9,7 @@ Rule groups (``--rules``, default all); each violation is one line ``path:line: 
     anything importing ``raytrace.cli``; ``hallray`` (the commands' shared infrastructure)
     importing ``raytrace`` or ``positioning`` (only its console command, ``hallray.main`` /
     ``hallray.cli``, may; nothing imports that); a raytrace layer below ``studies`` importing
-    ``positioning``, or any module importing an old (deprecated) path of positioning (a
+    ``positioning`` (``emulation`` may import ``positioning.model``, the pure model floor), or any module importing an old (deprecated) path of positioning (a
     top-level module of it other than the package itself and ``positioning.errors``); a solver
     stage module imported by anything but the tracer; an import cycle between our modules
     (module-level and function-local imports together); a function-local import of our own
@@ -78,6 +78,9 @@ LAYERS: dict[str, set[str]] = {
 TOP_ALLOWED = {"core", "physics", "scene", "solver", "emulation"}
 #: The raytrace layers that may import positioning (its public API and its subpackages).
 USES_POSITIONING = {"studies", "cli"}
+#: The raytrace layers below those that may import positioning's first floor, ``positioning.model``
+#: (pure numpy: the pulse and peak fit that the tracer's receivers share with the twin's).
+USES_POSITIONING_MODEL = {"emulation"}
 
 #: Subpackage of positioning -> the subpackages of positioning it may import (itself included),
 #: along the flow ToA -> problem -> estimate -> evaluate -> report. Every module may also import
@@ -186,7 +189,9 @@ def allowed_positioning(src: str, dst: str) -> bool | None:
         # an old path (a shim forwarding for one release) or the shims' helper
         return dst == POSITIONING_SHIM_HELPER and src.count(".") == 1
     if in_package(src, "raytrace"):
-        return layer_of(src) in USES_POSITIONING
+        return layer_of(src) in USES_POSITIONING or (
+            d == "model" and layer_of(src) in USES_POSITIONING_MODEL
+        )
     if not in_package(src, "positioning"):
         return None
     s = positioning_layer(src)

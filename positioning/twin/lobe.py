@@ -7,9 +7,11 @@ its meta, the receiver's settings. The ``twin`` estimator moves those paths to a
 then includes the receiver's own bias from paths that overlap within one pulse, which changes within
 a grid cell and which no interpolation of the map's ToAs reproduces.
 
-This is an intended duplicate of the noiseless path of :mod:`raytrace.emulation.receivers`
-(``prepare_first_lobe`` + ``measure_first_lobe`` with ``rng=None``), because ``positioning``
-never imports ``raytrace`` (docs/architecture.md). Same rules, in the same order:
+This is the vectorised twin of the noiseless path of :mod:`raytrace.emulation.receivers`
+(``prepare_first_lobe`` + ``measure_first_lobe`` with ``rng=None``): ``positioning`` never imports
+``raytrace`` (docs/architecture.md), so the window and threshold rules are written here again,
+while the pulse, its tabulation and the peak fit are the same code in both
+(:mod:`positioning.model.pulse`). Same rules, in the same order:
 
 1. paths whose own peak ``|A| / T`` is :attr:`LobeReceiver.negligible_db` below the noise std are
    dropped;
@@ -27,63 +29,22 @@ never imports ``raytrace`` (docs/architecture.md). Same rules, in the same order
    quartic through the five samples around the top; a lobe that does not fit the window is
    measured again on the link's whole response.
 
-The raised cosine is tabulated and interpolated linearly as in the tracer's receiver (error below
-1.1e-7 of its peak); ``tests/test_lobe_agreement.py`` checks that both give the same ToA on
-random path sets.
+The raised cosine is tabulated at ``T / 2048`` and interpolated linearly
+(:func:`positioning.model.pulse.pulse_at`, error below 1.1e-7 of its peak);
+``tests/test_lobe_agreement.py`` checks that both receivers give the same ToA on random path sets.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass, fields
-from functools import lru_cache
 from typing import Any
 
 import numpy as np
 
 from ..errors import PositioningError
+from ..model.pulse import envelope_table, precursor_extent_t, pulse_at, pulse_table, quartic_top
 from ..model.tdoa import C0
-
-#: Quartic through samples -2..2: coefficient rows (c0..c4) from the five values.
-_QUARTIC = np.linalg.inv(np.vander(np.arange(-2.0, 3.0), 5, increasing=True))
-
-
-def raised_cosine(x: np.ndarray, roll_off: float) -> np.ndarray:
-    """``T h(x T)``: the raised cosine of eq. 2 at ``x`` periods (dimensionless, 1 at 0).
-
-    ``sinc(x) cos(pi beta x) / (1 - (2 beta x)^2)``, the factor written as
-    ``sin(pi e / 2) / (e (2 - e))`` with ``e = 1 - |2 beta x|`` (limit ``pi / 4`` at ``e = 0``).
-    """
-    x = np.asarray(x, dtype=float)
-    out = np.sinc(x)
-    if roll_off == 0.0:
-        return out
-    e = 1.0 - np.abs(2.0 * roll_off * x)
-    denom = e * (2.0 - e)
-    factor = np.divide(np.sin(0.5 * np.pi * e), denom, out=np.full_like(e, np.pi / 4), where=e != 0)
-    return out * factor
-
-
-@lru_cache(maxsize=8)
-def _envelope(roll_off: float, span: int, oversampling: int = 64) -> tuple[np.ndarray, np.ndarray]:
-    """``x`` (periods) and ``max_{|u| >= x} |h(u)|`` on a grid of ``1 / oversampling``."""
-    x = np.arange(0, span * oversampling + 1) / oversampling
-    h = np.abs(raised_cosine(x, roll_off))
-    return x, np.maximum.accumulate(h[::-1])[::-1]
-
-
-#: Samples per T of the tabulated pulse (linear interpolation error below 1.1e-7 of its peak, as
-#: in the tracer's receiver).
-TABLE_PER_T = 2048
-
-
-@lru_cache(maxsize=8)
-def _pulse_table(roll_off: float, span: int) -> tuple[np.ndarray, np.ndarray]:
-    """``T h(x T)`` at ``x = 0, 1/R, ..., span`` (R = :data:`TABLE_PER_T`), zero-padded, and
-    its forward differences."""
-    x = np.arange(0, span * TABLE_PER_T + 1) / TABLE_PER_T
-    value = np.concatenate([raised_cosine(x, roll_off), [0.0, 0.0]])
-    return value, np.append(np.diff(value), 0.0)
 
 
 @dataclass(frozen=True)
@@ -155,23 +116,14 @@ class LobeReceiver:
     @property
     def precursor_t(self) -> int:
         """Whole periods before a path beyond which the pulse stays below ``rho / 4``."""
-        x, env = _envelope(float(self.roll_off), int(self.span))
-        below = np.flatnonzero(env < 0.25 * self.rho)
-        return int(max(2, math.ceil(x[below[0]]))) if below.size else int(self.span)
+        return precursor_extent_t(self.roll_off, self.rho, self.span)
 
     # ------------------------------------------------------------------------------------------
     def _response(self, t: np.ndarray, delay: np.ndarray, gain: np.ndarray) -> np.ndarray:
         """``s(t)`` (A, W) complex, 1/s, of links with paths ``delay, gain`` (A, K) at ``t``
         (A, W); padded paths have gain 0."""
-        value, step = _pulse_table(float(self.roll_off), int(self.span))
-        u = np.abs(t[:, :, None] - delay[:, None, :])
-        u *= TABLE_PER_T / self.period_s
-        np.minimum(u, value.size - 2, out=u)
-        i = u.astype(np.intp)
-        u -= i
-        u *= step[i]
-        u += value[i]
-        h = u
+        table = pulse_table(float(self.roll_off), int(self.span))
+        h = pulse_at(t[:, :, None] - delay[:, None, :], self.period_s, table)
         g = gain / self.period_s
         return np.einsum("awk,ak->aw", h, g.real) + 1j * np.einsum("awk,ak->aw", h, g.imag)
 
@@ -286,7 +238,7 @@ class LobeReceiver:
         inside = idx < n[:, None]
         tk = t0[:, None] + idx * dt
         amp = np.where(inside, np.abs(self._response(tk, d, g)), 0.0)
-        x, env = _envelope(float(self.roll_off), int(self.span))
+        x, env = envelope_table(float(self.roll_off), int(self.span))
         lead = (t_peak[:, None] - tk) / T
         side = np.where(lead > 0, np.interp(lead, x, env, right=0.0), 0.0)
         thr = np.maximum(np.maximum(gamma, self.rho * pmax)[:, None],
@@ -300,24 +252,8 @@ class LobeReceiver:
         ok = live & has & (cross > 0) & (top >= 2) & (top <= n - 3)
         k5 = np.clip(top[:, None] + np.arange(-2, 3)[None, :], 0, max(W - 1, 0))
         y = np.take_along_axis(amp, k5, axis=1)
-        u = _quartic_top(y)
+        u, _ = quartic_top(y)
         return t0 + (top + u) * dt, ok
-
-
-def _quartic_top(y: np.ndarray) -> np.ndarray:
-    """Sub-sample offset (|u| <= 1) of the maximum of the quartic through ``y (n, 5)``."""
-    c = y @ _QUARTIC.T
-    curv = y[:, 1] - 2.0 * y[:, 2] + y[:, 3]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        u = np.where(curv < 0, 0.5 * (y[:, 1] - y[:, 3]) / curv, 0.0)
-    u = np.clip(u, -1.0, 1.0)
-    for _ in range(4):
-        d1 = c[:, 1] + 2 * c[:, 2] * u + 3 * c[:, 3] * u**2 + 4 * c[:, 4] * u**3
-        d2 = 2 * c[:, 2] + 6 * c[:, 3] * u + 12 * c[:, 4] * u**2
-        with np.errstate(divide="ignore", invalid="ignore"):
-            step = np.where(d2 < 0, d1 / d2, 0.0)
-        u = np.clip(u - step, -1.0, 1.0)
-    return u
 
 
 def move_paths(

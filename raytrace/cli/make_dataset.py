@@ -2,8 +2,9 @@
 
     make-dataset --scenario static|semi-dynamic --band c-band|mmwave [--scene hall]
                  [--duration 60] [--rate 10] [--seed 1]
-                 [--receiver first-lobe|first-path|peak|leading-edge]
-                 [--relative-threshold-db -12] [--cfar-cells 64|none]
+                 [--receiver first-lobe|first-path|peak|leading-edge|first-lobe-cfr|
+                             search-back|super-res]
+                 [--relative-threshold-db -12] [--cfar-cells 64|none] [--comb 1|2|4|6|12]
                  [--workers N] [--no-noise] [--force] [-q] -o DIR
     make-dataset --all [...] -o DIR      # DIR/static-c-band, DIR/static-mmwave,
                                          # DIR/semi-dynamic-c-band, DIR/semi-dynamic-mmwave
@@ -19,6 +20,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from ..core.errors import HallrayError
+from ..emulation.channel.cfr import PrsSettings
 from ..emulation.receivers.first_lobe import FirstLobeSettings
 from ..emulation.receivers.receiver import DEFAULT_TOA_METHOD, TOA_METHODS
 from ..solver.config import add_trace_arguments
@@ -68,6 +70,14 @@ def make_dataset_parser() -> argparse.ArgumentParser:
         metavar="M",
         help="first-lobe: CA-CFAR reference cells, or 'none' for a known noise power (default 64)",
     )
+    p.add_argument(
+        "--comb",
+        type=int,
+        default=1,
+        metavar="N",
+        help="receivers on the PRS CFR: the PRS comb, 1 (every subcarrier), 2, 4, 6 or 12 "
+        "(default 1)",
+    )
     p.add_argument("--workers", type=int, default=1, help="processes for the snapshots (default 1)")
     p.add_argument(
         "--no-noise", action="store_true", help="no estimation noise (first-path: exact delays)"
@@ -111,6 +121,7 @@ def _make_dataset(args: argparse.Namespace) -> int:
         if not args.scenario or not args.band:
             raise HallrayError("give --scenario and --band, or --all")
         pairs, subdirs = [(args.scenario, args.band)], False
+    PrsSettings(comb=args.comb)  # an unknown comb is refused before any work
     scene = None if args.scene == "hall" else args.scene
     # built in a temporary directory beside the output, renamed when whole; locked against a
     # second writer
@@ -144,6 +155,7 @@ def _make(args: argparse.Namespace, tmp: Path, pairs: list, subdirs: bool) -> li
         seed=args.seed,
         toa_method=args.toa_method,
         first_lobe=FirstLobeSettings(args.relative_threshold_db, _cells(args.cfar_cells)),
+        prs=PrsSettings(comb=args.comb),
         trace_settings=config_from_args(args),
         noise=not args.no_noise,
         workers=args.workers,

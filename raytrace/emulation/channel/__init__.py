@@ -22,10 +22,12 @@ Model, in one paragraph (details and reasons in ``docs/channel.md``):
   :mod:`raytrace.emulation.receivers`.
 
 Modules: :mod:`.budget` (noise and link budget, eq. 3), :mod:`.pulse` (the raised cosine, eq. 2),
-:mod:`.cir` (path arrays per link), :mod:`.response` (the sampled response and its ToA).
+:mod:`.cir` (path arrays per link), :mod:`.response` (the sampled response and its ToA),
+:mod:`.cfr` (the PRS channel frequency response and its delay profile).
 """
 
 from .budget import LinkBudget, detection_snr_db, thermal_noise_power_w, toa_std_eq3_s
+from .cfr import PRS_COMBS, PrsSettings, cfr_delay_profile, prs_cfr
 from .cir import DiscreteCIR, check_paths, discrete_cir, first_detectable_path
 from .pulse import DEFAULT_ROLL_OFF, PulseShape, raised_cosine, raised_cosine_spectrum
 from .response import (
@@ -38,17 +40,21 @@ from .response import (
 
 __all__ = [
     "DEFAULT_ROLL_OFF",
+    "PRS_COMBS",
+    "PrsSettings",
     "DiscreteCIR",
     "LinkBudget",
     "PulseShape",
     "SampledResponse",
     "band_limited_response",
+    "cfr_delay_profile",
     "check_paths",
     "concat_ranges",
     "correlator_noise",
     "detection_snr_db",
     "discrete_cir",
     "first_detectable_path",
+    "prs_cfr",
     "pulse_toa",
     "raised_cosine",
     "raised_cosine_spectrum",

@@ -8,6 +8,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from positioning.model.pulse import raised_cosine as periods_raised_cosine
+
 from ...core.errors import HallrayError
 from ..bands import Band
 
@@ -18,10 +20,10 @@ DEFAULT_ROLL_OFF = 0.25
 def raised_cosine(t: np.ndarray | float, period_s: float, roll_off: float) -> np.ndarray:
     """Raised-cosine pulse of eq. 2: ``(1/T) sinc(t/T) cos(pi beta t/T) / (1 - (2 beta t/T)^2)``.
 
-    The factor ``cos(pi u / 2) / (1 - u^2)`` with ``u = 2 beta t / T`` is evaluated as
-    ``sin(pi e / 2) / (e (2 - e))`` with ``e = 1 - |u|``, the same function written without the
-    cancellation near ``|u| = 1``; at ``t = +-T/(2 beta)`` exactly it takes its limit ``pi/4``, so
-    ``h = (pi / (4 T)) sinc(1 / (2 beta))`` there.
+    :func:`positioning.model.pulse.raised_cosine` at ``t / T`` periods (the one implementation,
+    shared with the twin's receiver): the factor ``cos(pi u / 2) / (1 - u^2)``, ``u = 2 beta t / T``,
+    is evaluated without the cancellation near ``|u| = 1``; at ``t = +-T/(2 beta)`` exactly it
+    takes its limit ``pi/4``, so ``h = (pi / (4 T)) sinc(1 / (2 beta))`` there.
 
     Parameters
     ----------
@@ -37,14 +39,7 @@ def raised_cosine(t: np.ndarray | float, period_s: float, roll_off: float) -> np
     (...) float, 1/s
         ``h(0) = 1/T``; the pulse integrates to 1 (its spectrum is 1 at f = 0).
     """
-    x = np.asarray(t, dtype=float) / period_s
-    out = np.sinc(x) / period_s
-    if roll_off == 0.0:
-        return out
-    e = 1.0 - np.abs(2.0 * roll_off * x)
-    denom = e * (2.0 - e)
-    factor = np.divide(np.sin(0.5 * np.pi * e), denom, out=np.full_like(e, np.pi / 4), where=e != 0)
-    return out * factor
+    return periods_raised_cosine(np.asarray(t, dtype=float) / period_s, roll_off, period_s)
 
 
 def raised_cosine_spectrum(f: np.ndarray | float, period_s: float, roll_off: float) -> np.ndarray:

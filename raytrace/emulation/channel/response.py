@@ -43,14 +43,17 @@ def _noise_spectrum(
     period: float,
     roll_off: float,
     noise_std: float,
+    power: int = 1,
 ) -> tuple[np.ndarray, int, np.ndarray]:
     """Frequency-domain draw of correlator-output noise on ``rows`` grids of ``length`` samples.
 
     The noise after correlation (matched filtering) is complex Gaussian with power spectrum
     proportional to the pulse's, so its autocorrelation is the pulse itself and samples T apart
-    are uncorrelated. Returns the FFT bins it occupies (ascending signed frequency), the signed
-    number of the first, and the ``(rows, n_bins)`` coefficients ``X``, scaled so that
-    ``E|n_k|^2 = noise_std^2`` for ``n = ifft(X)`` (``n = (1/L) sum X e^{...}``).
+    are uncorrelated (``power = 1``). ``power = 2``: the spectrum squared, the noise of a white
+    channel-frequency-response estimate weighted by the pulse's spectrum as a window
+    (:mod:`raytrace.emulation.channel.cfr`). Returns the FFT bins it occupies (ascending signed
+    frequency), the signed number of the first, and the ``(rows, n_bins)`` coefficients ``X``,
+    scaled so that ``E|n_k|^2 = noise_std^2`` for ``n = ifft(X)`` (``n = (1/L) sum X e^{...}``).
     """
     freq = np.fft.fftfreq(length, dt)
     spec = raised_cosine_spectrum(freq, period, roll_off)
@@ -61,6 +64,8 @@ def _noise_spectrum(
     bins = bins[order]
     shape = (rows, bins.size)
     white = (rng.standard_normal(shape) + 1j * rng.standard_normal(shape)) / math.sqrt(2.0)
+    if power != 1:
+        spec = spec**power
     scale = noise_std * length / math.sqrt(float(spec[bins].sum()))
     return bins, int(signed[order][0]), scale * np.sqrt(spec[bins]) * white
 
@@ -75,6 +80,7 @@ def correlator_noise(
     noise_std: float,
     *,
     guard: int = 0,
+    power: int = 1,
 ) -> np.ndarray:
     """Correlator-output noise on ``rows`` windows of ``width`` samples ``dt`` apart.
 
@@ -89,13 +95,14 @@ def correlator_noise(
     dt, period : float, seconds, sample spacing and pulse period T
     roll_off : float
     noise_std : float, per-sample standard deviation (units of the response, 1/s)
+    power : int, the noise spectrum is the pulse's to this power (2: a windowed CFR's noise)
 
     Returns
     -------
     (rows, width) complex
     """
     length = scipy.fft.next_fast_len(int(width + guard))
-    bins, _, x = _noise_spectrum(rng, rows, length, dt, period, roll_off, noise_std)
+    bins, _, x = _noise_spectrum(rng, rows, length, dt, period, roll_off, noise_std, power)
     full = np.zeros((rows, length), dtype=complex)
     full[:, bins] = x
     return scipy.fft.ifft(full, axis=1)[:, :width]

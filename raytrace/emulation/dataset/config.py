@@ -14,10 +14,13 @@ from ...scene.motion import FORKLIFT_CLEARANCE_M, snapshot_times
 from ...solver.config import TraceConfig
 from ..bands import Band, get_band
 from ..channel.budget import LinkBudget
+from ..channel.cfr import PrsSettings
 from ..channel.pulse import PulseShape
 from ..measurement import CLOCK_OFFSET_MAX_S, DELTA_S, ToaModel
 from ..receivers.first_lobe import FirstLobeSettings
 from ..receivers.receiver import DEFAULT_TOA_METHOD, TOA_METHODS, Receiver
+from ..receivers.search_back import SearchBackSettings
+from ..receivers.super_res import SuperResSettings
 
 #: Version of the dataset schema (``meta.json`` ``schema_version``).
 SCHEMA_VERSION = 2
@@ -65,15 +68,20 @@ class DatasetConfig:
     duration_s : float, seconds of emulation (the paper: 60 s)
     rate_hz : float, snapshots (epochs) per second
     seed : int
-    toa_method : ToA estimator, one of :data:`raytrace.emulation.receivers.TOA_METHODS`:
-        "first-lobe" (default, the realistic receiver), "first-path" (ideal, the paper's eq. 3
-        model), "peak" or "leading-edge"
+    toa_method : ToA estimator, one of :data:`raytrace.emulation.receivers.TOA_METHODS`
+        (default :data:`raytrace.emulation.receivers.DEFAULT_TOA_METHOD`): "first-lobe",
+        "first-lobe-cfr", "search-back" and "super-res" (realistic receivers), "first-path"
+        (ideal, the paper's eq. 3 model), "peak" or "leading-edge"
     noise : bool, estimation noise on (False: no noise; ``first-path`` gives exact delays)
     delta_s : float, seconds between two base stations' transmissions
     clock_offset_max_s : float, device clock offsets are uniform in [0, this)
     budget : LinkBudget
     pulse : PulseShape
-    first_lobe : FirstLobeSettings, settings of the first-lobe receiver
+    first_lobe : FirstLobeSettings, settings of the first-lobe receiver (and of the first lobe
+        of the receivers on the PRS CFR)
+    prs : PrsSettings, the PRS CFR the receivers on it see (comb, timing offsets)
+    search_back : SearchBackSettings, settings of ``search-back``
+    super_res : SuperResSettings, settings of ``super-res``
     trace : TraceConfig, the tracer limits
     clearance_m : float, forklift underside above the floor
     """
@@ -90,6 +98,9 @@ class DatasetConfig:
     budget: LinkBudget = field(default_factory=LinkBudget)
     pulse: PulseShape = field(default_factory=PulseShape)
     first_lobe: FirstLobeSettings = field(default_factory=FirstLobeSettings)
+    prs: PrsSettings = field(default_factory=PrsSettings)
+    search_back: SearchBackSettings = field(default_factory=SearchBackSettings)
+    super_res: SuperResSettings = field(default_factory=SuperResSettings)
     trace: TraceConfig = field(default_factory=TraceConfig)
     clearance_m: float = FORKLIFT_CLEARANCE_M
 
@@ -122,7 +133,8 @@ class DatasetConfig:
         """The dataset's ToA receiver (checks the settings first)."""
         band = self.validate()
         return Receiver(self.toa_method, band, budget=self.budget, pulse=self.pulse,
-                        first_lobe=self.first_lobe)  # fmt: skip
+                        first_lobe=self.first_lobe, prs=self.prs, search_back=self.search_back,
+                        super_res=self.super_res)  # fmt: skip
 
     def model(self) -> ToaModel:
         """The measurement model of this dataset (receiver, seed, schedule, clock offsets)."""

@@ -25,6 +25,7 @@ from ...scene.model import Scene
 from ...solver.incremental import Fleet
 from ..bands import Band
 from ..measurement import Measurements
+from ..receivers.receiver import CFR_METHODS
 from .config import COLUMNS, SCHEMA_VERSION, DatasetConfig
 from .staging import stage_output
 
@@ -149,6 +150,7 @@ def _meta(
         "link_budget": dataclasses.asdict(cfg.budget),
         "pulse": dataclasses.asdict(cfg.pulse),
         "first_lobe": dataclasses.asdict(cfg.first_lobe),
+        **_receiver_settings(cfg),
         "trace": dataclasses.asdict(cfg.trace),
         "forklifts": {"clearance_m": float(cfg.clearance_m), "routes": routes},
         "base_stations": [
@@ -166,6 +168,15 @@ def _meta(
         "columns": list(COLUMNS),
         "summary": dataset_summary(m),
     }
+
+
+def _receiver_settings(cfg: DatasetConfig) -> dict[str, Any]:
+    """``meta.json`` ``receiver_settings`` of a receiver on the PRS CFR (comb, timing offsets,
+    its own settings); the other receivers' settings are the ``first_lobe`` and ``link_budget``
+    entries, as before."""
+    if cfg.toa_method not in CFR_METHODS:
+        return {}
+    return {"receiver_settings": cfg.receiver().settings_meta()}
 
 
 def _forklift_csv(fleet: Fleet, times: np.ndarray) -> str:

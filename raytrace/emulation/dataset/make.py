@@ -24,6 +24,7 @@ from ...solver.config import TraceConfig
 from ...solver.paths import Paths
 from ..bands import get_band
 from ..channel.budget import LinkBudget
+from ..channel.cfr import PrsSettings
 from ..measurement import Measurements
 from ..receivers.first_lobe import FirstLobeSettings
 from ..receivers.receiver import DEFAULT_TOA_METHOD
@@ -126,6 +127,7 @@ def make_datasets(
     progress: bool = False,
     budget: LinkBudget | None = None,
     first_lobe: FirstLobeSettings | None = None,
+    prs: PrsSettings | None = None,
     trace_settings: TraceConfig | None = None,
     subdirectories: bool = True,
     staging: bool = True,
@@ -151,6 +153,7 @@ def make_datasets(
     progress : bool, tqdm progress bars on stderr
     budget : LinkBudget, optional
     first_lobe : FirstLobeSettings, optional, settings of the first-lobe receiver
+    prs : PrsSettings, optional, the PRS CFR of the receivers on it (comb, timing offsets)
     trace_settings : TraceConfig, optional, the tracer limits
     subdirectories : bool, each dataset in ``out_dir/<scenario>-<band>`` (True) or, for a
         single dataset, directly in ``out_dir``
@@ -168,7 +171,7 @@ def make_datasets(
     configs = _dataset_configs(
         datasets, methods, duration_s=duration_s, rate_hz=rate_hz, seed=seed, noise=noise,
         budget=budget or LinkBudget(), first_lobe=first_lobe or FirstLobeSettings(),
-        trace=trace_settings or TraceConfig(),
+        prs=prs or PrsSettings(), trace=trace_settings or TraceConfig(),
     )  # fmt: skip
     if not subdirectories and len(configs) != 1:
         raise HallrayError("several datasets need subdirectories")

@@ -47,6 +47,14 @@ from functools import lru_cache
 import numpy as np
 from scipy.optimize import brentq
 
+from positioning.model.pulse import (
+    envelope_table,
+    precursor_extent_t,
+    pulse_at,
+    pulse_table,
+    quartic_top,
+)
+
 from ...core.constants import linear_power_to_db
 from ...core.errors import HallrayError
 from ..bands import Band
@@ -119,26 +127,27 @@ def cfar_factor(false_alarm_probability: float, cells: int | None) -> float:
     return float(cells * math.expm1(-math.log(pfa) / cells))
 
 
-@lru_cache(maxsize=32)
-def _envelope_table(
-    roll_off: float, span: int, oversampling: int = 64
-) -> tuple[np.ndarray, np.ndarray]:
-    """``x`` (in T) and ``max_{|u| >= x} |h(u T)| T`` on a fine grid up to ``span``."""
-    x = np.arange(0, span * oversampling + 1) / oversampling
-    h = np.abs(raised_cosine(x, 1.0, roll_off))
-    return x, np.maximum.accumulate(h[::-1])[::-1]
+@dataclass(frozen=True)
+class WindowOptions:
+    """How a plan's windows and noise differ from the first-lobe receiver's own (the receivers on
+    the PRS channel frequency response reuse its windows, :mod:`.search_back`).
 
-
-def precursor_extent_t(roll_off: float, rho: float, span: int) -> int:
-    """Whole periods before a path beyond which the pulse stays below ``rho / 4`` of its peak.
-
-    The window starts this many T before the earliest path that may cross the threshold: a
-    path's precursor ringing earlier than that is 12 dB below any threshold at least ``rho``
-    times the strongest peak.
+    Attributes
+    ----------
+    noise_std : float or None, 1/s, per-sample noise std of the delay profile (None: the
+        correlator noise of the link budget, :meth:`LinkBudget.correlator_noise_std`)
+    noise_power : int, the noise spectrum is the pulse's to this power (1: correlator output;
+        2: a white CFR estimate windowed by the pulse's spectrum)
+    window_rho : float or None, relative level (amplitude ratio to the strongest peak) down to
+        which a path may start the window (None: the detection threshold ``rho``)
+    to_peak : bool, every window runs to :data:`POST_T` periods after the strongest peak (the
+        strongest lobes are in it), not just after the first path that must cross
     """
-    x, env = _envelope_table(float(roll_off), int(span))
-    below = np.flatnonzero(env < 0.25 * rho)
-    return int(max(2, math.ceil(x[below[0]]))) if below.size else int(span)
+
+    noise_std: float | None = None
+    noise_power: int = 1
+    window_rho: float | None = None
+    to_peak: bool = False
 
 
 @lru_cache(maxsize=32)
@@ -146,32 +155,6 @@ def isolated_half_width_t(roll_off: float) -> float:
     """Half-amplitude full width of the raised cosine, in T (1.22 T for beta = 0.25)."""
     half = brentq(lambda t: raised_cosine(t, 1.0, roll_off) - 0.5, 0.0, 1.0, xtol=1e-14)
     return 2.0 * float(half)
-
-
-#: Samples per T of the tabulated pulse (linear interpolation error below 1.1e-7 of its peak).
-TABLE_PER_T = 2048
-
-
-@lru_cache(maxsize=32)
-def _pulse_table(roll_off: float, span: int) -> tuple[np.ndarray, np.ndarray]:
-    """``h(x T) T`` for ``x = 0, 1/R, ..., span`` (R = :data:`TABLE_PER_T`), zero-padded, and
-    its forward differences (for linear interpolation with one gather)."""
-    x = np.arange(0, span * TABLE_PER_T + 1) / TABLE_PER_T
-    value = np.concatenate([raised_cosine(x, 1.0, roll_off), [0.0, 0.0]])
-    return value, np.append(np.diff(value), 0.0)
-
-
-def _pulse(lag: np.ndarray, period: float, table: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
-    """``T h(lag)`` (dimensionless) by linear interpolation in ``table``; 0 beyond its span."""
-    value, step = table
-    u = np.abs(lag)
-    u *= TABLE_PER_T / period
-    np.minimum(u, value.size - 2, out=u)
-    i = u.astype(np.intp)
-    u -= i
-    u *= step[i]
-    u += value[i]
-    return u
 
 
 def _response(
@@ -188,7 +171,7 @@ def _response(
     b = np.searchsorted(delay, t.max() + half_width, side="right")
     if b <= a:
         return np.zeros(t.size, dtype=complex)
-    h = _pulse(t[None, :] - delay[a:b, None], period, table)
+    h = pulse_at(t[None, :] - delay[a:b, None], period, table)
     g = gain[a:b] / period
     ri = np.stack([g.real, g.imag]) @ h  # two real products, no complex copy of h
     return ri[0] + 1j * ri[1]
@@ -238,6 +221,7 @@ class LobePlan:
     settings : FirstLobeSettings
     cir : DiscreteCIR, the non-negligible paths (for the fallback and the lobe's dominant path)
     key : tuple, sort key of ``cir`` (see ``_key``)
+    options : WindowOptions, what differs from the first-lobe receiver's windows and noise
     """
 
     n_links: int
@@ -258,6 +242,7 @@ class LobePlan:
     settings: FirstLobeSettings
     cir: DiscreteCIR
     key: tuple[np.ndarray, float, float]
+    options: WindowOptions = WindowOptions()
 
     @property
     def processing_gain(self) -> float:
@@ -302,6 +287,7 @@ def prepare_first_lobe(
     full: np.ndarray | None = None,
     only: np.ndarray | None = None,
     min_width: int = 0,
+    options: WindowOptions | None = None,
 ) -> LobePlan:
     """Noiseless windows of the first-lobe receiver for every link of ``cir``.
 
@@ -315,12 +301,15 @@ def prepare_first_lobe(
         Prepare these links alone (each link's window does not depend on the others).
     min_width : int, pad the signal rows to at least this many samples (the width of the plan
         of every link, so that the noise drawn per row is the same as with all links)
+    options : WindowOptions, optional (default: the first-lobe receiver's own)
     """
     n_links = cir.n_links
     period = pulse.period_s(band)
     dt = period / pulse.oversampling
     half_width = pulse.span * period
-    noise_std = budget.correlator_noise_std(band, pulse)
+    options = options or WindowOptions()
+    noise_std = options.noise_std
+    noise_std = budget.correlator_noise_std(band, pulse) if noise_std is None else noise_std
     alpha = cfar_factor(budget.false_alarm_probability, settings.cfar_cells)
     rho = settings.rho
     amp = np.abs(cir.gain) / period  # each path's own peak |A| / T
@@ -341,9 +330,10 @@ def prepare_first_lobe(
     m = links.size
     if m == 0:
         return LobePlan(n_links, links, np.zeros(0), links, np.zeros((0, 0), complex),
-                        np.zeros(0, complex), np.zeros(0), *fixed)  # fmt: skip
-    table = _pulse_table(float(pulse.roll_off), int(pulse.span))
-    pre = precursor_extent_t(pulse.roll_off, rho, pulse.span) * period
+                        np.zeros(0, complex), np.zeros(0), *fixed, options)  # fmt: skip
+    table = pulse_table(float(pulse.roll_off), int(pulse.span))
+    reach = rho if options.window_rho is None else options.window_rho  # paths that open a window
+    pre = precursor_extent_t(pulse.roll_off, reach, pulse.span) * period
     gamma_noise = noise_std * math.sqrt(alpha)
     whole = np.zeros(m, dtype=bool) if full is None else np.asarray(full, dtype=bool)[links]
     half = pulse.oversampling // 2
@@ -368,11 +358,13 @@ def prepare_first_lobe(
         peak_signal[r], t_peak[r] = s_c[k], cand[k]
         # Window: from the earliest path that could cross the threshold to the first that must
         # (or the strongest peak), with the precursor margin before and POST_T after.
-        gamma0 = max(gamma_noise, rho * abs(s_c[k]))
+        gamma0 = max(gamma_noise, reach * abs(s_c[k]))
         can = np.flatnonzero(a >= MIN_CROSSING * gamma0)
         start = d[can[0]] if can.size else t_peak[r]  # no path can cross alone: a pile-up
         sure = np.flatnonzero(a >= SURE_CROSSING * gamma0)
         t_end = min(d[sure[0]] if sure.size else np.inf, t_peak[r]) + POST_T * period
+        if options.to_peak:
+            t_end = t_peak[r] + POST_T * period
         if whole[r]:
             start, t_end = d[0], d[-1] + half_width
         t0[r] = start - pre
@@ -383,29 +375,7 @@ def prepare_first_lobe(
     signal = np.zeros((m, max(int(n_samples.max()), int(min_width))), dtype=complex)
     for r, row in enumerate(rows):
         signal[r, : row.size] = row
-    return LobePlan(n_links, links, t0, n_samples, signal, peak_signal, t_peak, *fixed)
-
-
-#: Quartic through samples -2..2: coefficient rows (c0..c4) from the five values.
-_QUARTIC = np.linalg.inv(np.vander(np.arange(-2.0, 3.0), 5, increasing=True))
-
-
-def _quartic_top(y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Sub-sample offset (in samples, |u| <= 1) and value of the maximum of the quartic through
-    ``y (n, 5)`` at -2..2 (Newton on its derivative from the parabola's vertex)."""
-    c = y @ _QUARTIC.T  # (n, 5): c0 + c1 u + c2 u^2 + c3 u^3 + c4 u^4
-    curv = y[:, 1] - 2.0 * y[:, 2] + y[:, 3]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        u = np.where(curv < 0, 0.5 * (y[:, 1] - y[:, 3]) / curv, 0.0)
-    u = np.clip(u, -1.0, 1.0)
-    for _ in range(4):
-        d1 = c[:, 1] + 2 * c[:, 2] * u + 3 * c[:, 3] * u**2 + 4 * c[:, 4] * u**3
-        d2 = 2 * c[:, 2] + 6 * c[:, 3] * u + 12 * c[:, 4] * u**2
-        with np.errstate(divide="ignore", invalid="ignore"):
-            step = np.where(d2 < 0, d1 / d2, 0.0)
-        u = np.clip(u - step, -1.0, 1.0)
-    value = c[:, 0] + c[:, 1] * u + c[:, 2] * u**2 + c[:, 3] * u**3 + c[:, 4] * u**4
-    return u, value
+    return LobePlan(n_links, links, t0, n_samples, signal, peak_signal, t_peak, *fixed, options)
 
 
 def _scan(
@@ -413,9 +383,9 @@ def _scan(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """First crossing of ``thr (M, W)`` and the top of its lobe in each row of ``amp (M, W)``.
 
-    Returns ``top (M,)`` sample index, ``u (M,)`` sub-sample offset, ``peak (M,)`` amplitude
-    and ``ok (M,)``: a crossing exists, is not the window's first sample, and its lobe top has
-    two samples on each side inside the window.
+    Returns ``top (M,)`` sample index, ``u (M,)`` sub-sample offset, ``peak (M,)`` amplitude,
+    ``ok (M,)``: a crossing exists, is not the window's first sample, and its lobe top has
+    two samples on each side inside the window, and ``cross (M,)``, the first crossing's index.
     """
     m, w = amp.shape
     idx = np.arange(w)[None, :]
@@ -429,8 +399,8 @@ def _scan(
     ok = has & (cross > 0) & (top >= 2) & (top <= n_samples - 3)
     rows = np.arange(m)
     k5 = np.clip(top[:, None] + np.arange(-2, 3)[None, :], 0, w - 1)
-    u, peak = _quartic_top(amp[rows[:, None], k5])
-    return top, u, peak, ok
+    u, peak = quartic_top(amp[rows[:, None], k5])
+    return top, u, peak, ok, cross
 
 
 def _half_width(amp: np.ndarray, n_samples: np.ndarray, top: np.ndarray, peak: np.ndarray):
@@ -457,7 +427,7 @@ def _half_width(amp: np.ndarray, n_samples: np.ndarray, top: np.ndarray, peak: n
     return out
 
 
-def _lobe_path(plan: LobePlan, link: np.ndarray, t: np.ndarray) -> np.ndarray:
+def lobe_path(plan: LobePlan, link: np.ndarray, t: np.ndarray) -> np.ndarray:
     """Caller's index of the path that contributes most to ``|s|`` of ``link`` at ``t``."""
     out = np.full(link.size, -1, dtype=np.int64)
     if link.size == 0:
@@ -467,8 +437,8 @@ def _lobe_path(plan: LobePlan, link: np.ndarray, t: np.ndarray) -> np.ndarray:
     start, stop = _paths_near(key, base, stride, link, t - period, t + period)
     idx = concat_ranges(start, stop - start)
     row = np.repeat(np.arange(link.size), stop - start)
-    table = _pulse_table(float(plan.pulse.roll_off), int(plan.pulse.span))
-    val = np.abs(cir.gain[idx] * _pulse(t[row] - cir.delay_s[idx], period, table))
+    table = pulse_table(float(plan.pulse.roll_off), int(plan.pulse.span))
+    val = np.abs(cir.gain[idx] * pulse_at(t[row] - cir.delay_s[idx], period, table))
     order = np.lexsort((-val, row))
     first = np.ones(order.size, dtype=bool)
     first[1:] = row[order][1:] != row[order][:-1]
@@ -483,19 +453,21 @@ def _measure_rows(
     pmax: np.ndarray,
     rng: np.random.Generator | None,
 ):
-    """Scan the windows ``rows`` of ``plan`` with the given thresholds (one epoch)."""
+    """Scan the windows ``rows`` of ``plan`` with the given thresholds (one epoch): the lobe
+    tops' times, peaks, widths and validity, the noisy windows and the first crossings' times."""
     sig = plan.signal[rows]
     n_s = plan.n_samples[rows]
     if rng is not None:
         sig = sig + correlator_noise(
             rng, rows.size, sig.shape[1], plan.dt_s, plan.period_s, plan.pulse.roll_off,
             plan.noise_std, guard=NOISE_GUARD_T * plan.pulse.oversampling,
+            power=plan.options.noise_power,
         )  # fmt: skip
     amp = np.abs(sig)
     # Thresholds per sample: the noise (CFAR), rho times the strongest peak, and before the
     # strongest peak its own pulse's precursor envelope plus the noise margin, so that neither
     # its sidelobes nor noise on them pass for an earlier path.
-    x, env = _envelope_table(float(plan.pulse.roll_off), int(plan.pulse.span))
+    x, env = envelope_table(float(plan.pulse.roll_off), int(plan.pulse.span))
     t_k = plan.t0_s[rows, None] + np.arange(sig.shape[1])[None, :] * plan.dt_s
     lead = (plan.peak_time_s[rows, None] - t_k) / plan.period_s
     side = np.where(lead > 0, np.interp(lead, x, env, right=0.0), 0.0)
@@ -503,10 +475,34 @@ def _measure_rows(
     thr = np.maximum(
         np.maximum(gamma_cfar, plan.rho * pmax)[:, None], side * pmax[:, None] + margin
     )
-    top, u, peak, ok = _scan(amp, n_s, thr)
+    top, u, peak, ok, cross = _scan(amp, n_s, thr)
     width = _half_width(amp, n_s, top, peak)
     t = plan.t0_s[rows] + (top + u) * plan.dt_s
-    return t, peak, width, ok
+    return t, peak, width, ok, sig, plan.t0_s[rows] + cross * plan.dt_s
+
+
+@dataclass(frozen=True)
+class NoisyWindows:
+    """One epoch's noisy windows of a plan, as the first-lobe scan saw them (for the receivers
+    that search further in them, :mod:`.search_back`).
+
+    Attributes
+    ----------
+    rows : (R,) int64, rows of the plan (indices into ``plan.links``) measured in their own
+        window: the strongest peak above the noise, the first lobe inside the window
+    signal : (R, W) complex, 1/s, the delay profile with noise on the plan's samples
+    t_cross_s : (R,) float, s, the first-lobe scan's first crossing
+    gamma : (R,) float, 1/s, the CFAR threshold ``sqrt(alpha) sigma_hat``
+    pmax : (R,) float, 1/s, the strongest peak with noise
+    sigma_hat2 : (R,) float, the CFAR noise power estimate
+    """
+
+    rows: np.ndarray
+    signal: np.ndarray
+    t_cross_s: np.ndarray
+    gamma: np.ndarray
+    pmax: np.ndarray
+    sigma_hat2: np.ndarray
 
 
 def measure_first_lobe(plan: LobePlan, rng: np.random.Generator | None) -> LobeMeasurement:
@@ -523,6 +519,13 @@ def measure_first_lobe(plan: LobePlan, rng: np.random.Generator | None) -> LobeM
     -------
     LobeMeasurement
     """
+    return measure_windows(plan, rng)[0]
+
+
+def measure_windows(
+    plan: LobePlan, rng: np.random.Generator | None
+) -> tuple[LobeMeasurement, NoisyWindows]:
+    """:func:`measure_first_lobe`, and the noisy windows it scanned (:class:`NoisyWindows`)."""
     n = plan.n_links
     toa = np.full(n, np.nan)
     snr_db = np.full(n, np.nan)
@@ -531,8 +534,10 @@ def measure_first_lobe(plan: LobePlan, rng: np.random.Generator | None) -> LobeM
     detected = np.zeros(n, dtype=bool)
     m = plan.links.size
     if m == 0:
-        return LobeMeasurement(toa, detected, snr_db, ratio_db, width,
-                               np.full(n, -1, np.int64), 0)  # fmt: skip
+        none = np.zeros(0)
+        return LobeMeasurement(toa, detected, snr_db, ratio_db, width, np.full(n, -1, np.int64),
+                               0), NoisyWindows(np.zeros(0, np.int64), np.zeros((0, 0), complex),
+                                                none, none, none, none)  # fmt: skip
     cells = plan.settings.cfar_cells
     g_over_m = np.ones(m)
     peak_noise = np.zeros(m, dtype=complex)
@@ -548,7 +553,9 @@ def measure_first_lobe(plan: LobePlan, rng: np.random.Generator | None) -> LobeM
     pmax = np.abs(plan.peak_signal + peak_noise)
     live = pmax >= gamma_cfar  # the strongest peak is above the noise threshold
     rows = np.flatnonzero(live)
-    t, peak, w, ok = _measure_rows(plan, rows, gamma_cfar[rows], pmax[rows], rng)
+    t, peak, w, ok, sig, t_cross = _measure_rows(plan, rows, gamma_cfar[rows], pmax[rows], rng)
+    windows = NoisyWindows(rows[ok], sig[ok], t_cross[ok], gamma_cfar[rows[ok]], pmax[rows[ok]],
+                           sigma_hat2[rows[ok]])  # fmt: skip
     refit = rows[~ok]
     refits = int(refit.size)
     if refits:
@@ -562,10 +569,10 @@ def measure_first_lobe(plan: LobePlan, rng: np.random.Generator | None) -> LobeM
         wide = int(plan.n_samples[others].max()) if others.any() else 0
         full_plan = prepare_first_lobe(
             plan.cir, plan.band, plan.budget, plan.pulse, plan.settings, full=whole, only=whole,
-            min_width=wide,
+            min_width=wide, options=plan.options,
         )  # fmt: skip
         sub = np.searchsorted(full_plan.links, plan.links[refit])
-        t2, p2, w2, ok2 = _measure_rows(full_plan, sub, gamma_cfar[refit], pmax[refit], rng)
+        t2, p2, w2, ok2, _, _ = _measure_rows(full_plan, sub, gamma_cfar[refit], pmax[refit], rng)
         pos = np.searchsorted(rows, refit)
         t[pos], peak[pos], w[pos], ok[pos] = t2, p2, w2, ok2
     good = rows[ok]
@@ -578,6 +585,6 @@ def measure_first_lobe(plan: LobePlan, rng: np.random.Generator | None) -> LobeM
         )
         ratio_db[lk] = 20.0 * np.log10(peak[ok] / np.maximum(pmax[good], peak[ok]))
     width[lk] = w[ok] * plan.dt_s / (isolated_half_width_t(plan.pulse.roll_off) * plan.period_s)
-    lobe_path = np.full(n, -1, dtype=np.int64)
-    lobe_path[lk] = _lobe_path(plan, lk, t[ok])
-    return LobeMeasurement(toa, detected, snr_db, ratio_db, width, lobe_path, refits)
+    lobe_path_ = np.full(n, -1, dtype=np.int64)
+    lobe_path_[lk] = lobe_path(plan, lk, t[ok])
+    return LobeMeasurement(toa, detected, snr_db, ratio_db, width, lobe_path_, refits), windows

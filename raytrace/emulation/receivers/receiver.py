@@ -1,11 +1,12 @@
 """All ToA estimators behind one interface: :class:`Receiver` (``first-lobe``, the
 realistic receiver of :mod:`.first_lobe`; ``first-path``, the paper's eq. 3 model; ``peak`` and
-``leading-edge`` on the whole response) and :func:`estimate_toa`.
+``leading-edge`` on the whole response; ``first-lobe-cfr``, ``search-back`` and ``super-res`` on
+the PRS CFR) and :func:`estimate_toa`.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 
 import numpy as np
 
@@ -13,13 +14,21 @@ from ...core.constants import linear_power_to_db
 from ...core.errors import HallrayError
 from ..bands import Band, get_band
 from ..channel.budget import LinkBudget, toa_std_eq3_s
+from ..channel.cfr import PrsSettings
 from ..channel.cir import DiscreteCIR, check_paths, discrete_cir, first_detectable_path
 from ..channel.pulse import PulseShape
 from ..channel.response import pulse_toa
 from .first_lobe import FirstLobeSettings, LobePlan, measure_first_lobe, prepare_first_lobe
+from .search_back import SearchBackSettings, measure_search_back, prepare_cfr
+from .super_res import SuperResSettings, measure_super_res
 
-#: Names accepted as ``method``; the first is the default (the realistic receiver).
-TOA_METHODS = ("first-lobe", "first-path", "peak", "leading-edge")
+#: Names accepted as ``method``.
+TOA_METHODS = (
+    "first-lobe", "first-path", "peak", "leading-edge", "first-lobe-cfr", "search-back",
+    "super-res",
+)  # fmt: skip
+#: The receivers that work on the PRS channel frequency response (:mod:`..channel.cfr`).
+CFR_METHODS = ("first-lobe-cfr", "search-back", "super-res")
 #: The default ToA estimator of datasets, sweeps and maps.
 DEFAULT_TOA_METHOD = TOA_METHODS[0]
 
@@ -112,6 +121,11 @@ class Receiver:
     ``leading-edge``
         First sample of the whole response at or above ``max(peak * 10**(leading_edge_db/20),
         noise threshold)`` (noise power known), then the top of that lobe (:func:`pulse_toa`).
+    ``first-lobe-cfr``, ``search-back``, ``super-res``
+        On the delay profile of the PRS channel frequency response
+        (:mod:`raytrace.emulation.channel.cfr`): the first-lobe rule; the first lobe and a
+        sidelobe-aware search for an earlier arrival (:mod:`.search_back`); a sparse fit of the
+        first lobe's region (:mod:`.super_res`).
 
     Parameters
     ----------
@@ -119,9 +133,12 @@ class Receiver:
     band : Band or band name
     budget : LinkBudget, optional
     pulse : PulseShape, optional
-    first_lobe : FirstLobeSettings, optional
+    first_lobe : FirstLobeSettings, optional (also the first lobe of the CFR receivers)
     leading_edge_db : float, dB, threshold of ``leading-edge`` relative to the strongest sample
         (default -12 dB, 2.3 dB above the pulse's first sidelobe)
+    prs : PrsSettings, optional, the CFR the CFR receivers see (comb, timing offsets)
+    search_back : SearchBackSettings, optional, settings of ``search-back``
+    super_res : SuperResSettings, optional, settings of ``super-res``
     """
 
     def __init__(
@@ -133,6 +150,9 @@ class Receiver:
         pulse: PulseShape | None = None,
         first_lobe: FirstLobeSettings | None = None,
         leading_edge_db: float = -12.0,
+        prs: PrsSettings | None = None,
+        search_back: SearchBackSettings | None = None,
+        super_res: SuperResSettings | None = None,
     ) -> None:
         if method not in TOA_METHODS:
             raise HallrayError(f"unknown ToA method {method!r}; known: {', '.join(TOA_METHODS)}")
@@ -146,6 +166,25 @@ class Receiver:
         self.pulse = pulse or PulseShape()
         self.first_lobe = first_lobe or FirstLobeSettings()
         self.leading_edge_db = float(leading_edge_db)
+        self.prs = prs or PrsSettings()
+        self.search_back = search_back or SearchBackSettings()
+        self.super_res = super_res or SuperResSettings()
+
+    def settings_meta(self) -> dict[str, object]:
+        """The settings of this receiver that are not the link budget's or the pulse's, as a
+        JSON object (a dataset's ``meta.json`` ``receiver_settings``)."""
+        out: dict[str, object] = {"method": self.method}
+        if self.method in ("first-lobe", *CFR_METHODS):
+            out["first_lobe"] = asdict(self.first_lobe)
+        if self.method in CFR_METHODS:
+            out["prs"] = {"comb": self.prs.comb, "timing_offsets_s": list(self.prs.timing_offsets_s)}
+        if self.method == "search-back":
+            out["search_back"] = asdict(self.search_back)
+        if self.method == "super-res":
+            out["super_res"] = asdict(self.super_res)
+        if self.method == "leading-edge":
+            out["leading_edge_db"] = self.leading_edge_db
+        return out
 
     def prepare(
         self, link: np.ndarray, delay_s: np.ndarray, gain: np.ndarray, n_links: int
@@ -163,6 +202,10 @@ class Receiver:
         plan = None
         if self.method == "first-lobe":
             plan = prepare_first_lobe(cir, band, budget, self.pulse, self.first_lobe)
+        elif self.method in CFR_METHODS:
+            depth = {"search-back": self.search_back.depth, "super-res": self.super_res.depth}
+            plan = prepare_cfr(cir, band, budget, self.pulse, self.first_lobe, self.prs,
+                               depth.get(self.method))  # fmt: skip
         return PreparedLinks(n_links, link, delay_s, gain, first, snr, cir, plan)
 
     def measure(
@@ -193,9 +236,15 @@ class Receiver:
                 toa[has] += sigma[has] * rng.standard_normal(int(has.sum()))
             detected = has.copy()
             lobe = first.copy()
-        elif self.method == "first-lobe":
+        elif self.method in ("first-lobe", *CFR_METHODS):
             assert prep.plan is not None, "PreparedLinks from another receiver"
-            m = measure_first_lobe(prep.plan, rng if noise else None)
+            rng_ = rng if noise else None
+            if self.method == "search-back":
+                m = measure_search_back(prep.plan, rng_, self.search_back)
+            elif self.method == "super-res":
+                m = measure_super_res(prep.plan, rng_, self.super_res)
+            else:
+                m = measure_first_lobe(prep.plan, rng_)
             toa, detected = m.toa_s, m.detected
             snr = np.asarray(10.0 ** (m.snr_db / 10.0), dtype=float)
             ratio, width, lobe = m.peak_ratio_db, m.lobe_width, m.lobe_path
