@@ -2,7 +2,8 @@
 
     make-dataset --scenario static|semi-dynamic --band c-band|mmwave [--scene hall]
                  [--duration 60] [--rate 10] [--seed 1]
-                 [--toa-method first-lobe|first-path|peak|leading-edge]
+                 [--toa-method first-lobe|first-path|peak|leading-edge|paper]
+                 [--no-first-path-threshold]
                  [--relative-threshold-db -12] [--cfar-cells 64|none]
                  [--workers N] [--no-noise] [--force] [-q] -o DIR
     make-dataset --all [...] -o DIR      # DIR/static-c-band, DIR/static-mmwave,
@@ -50,7 +51,8 @@ def make_dataset_parser() -> argparse.ArgumentParser:
         default=DEFAULT_TOA_METHOD,
         help=(
             f"ToA receiver: {', '.join(TOA_METHODS)} (default {DEFAULT_TOA_METHOD}: the "
-            "realistic receiver; first-path is the ideal one of the paper's eq. 3)"
+            "realistic receiver; first-path: the ideal one, exact first detectable delay plus "
+            "eq. 3 noise; paper: the paper's model as written)"
         ),
     )
     p.add_argument(
@@ -65,6 +67,12 @@ def make_dataset_parser() -> argparse.ArgumentParser:
         default=str(FirstLobeSettings.cfar_cells),
         metavar="M",
         help="first-lobe: CA-CFAR reference cells, or 'none' for a known noise power (default 64)",
+    )
+    p.add_argument(
+        "--no-first-path-threshold",
+        action="store_true",
+        help="first-path: the first traced path above the tracer's power floor, not the first "
+        "one the link budget detects",
     )
     p.add_argument("--workers", type=int, default=1, help="processes for the snapshots (default 1)")
     p.add_argument(
@@ -142,6 +150,7 @@ def _make(args: argparse.Namespace, tmp: Path, pairs: list, subdirs: bool) -> li
         seed=args.seed,
         toa_method=args.toa_method,
         first_lobe=FirstLobeSettings(args.relative_threshold_db, _cells(args.cfar_cells)),
+        first_path_threshold=not args.no_first_path_threshold,
         trace_settings=config_from_args(args),
         noise=not args.no_noise,
         workers=args.workers,

@@ -66,14 +66,17 @@ class DatasetConfig:
     rate_hz : float, snapshots (epochs) per second
     seed : int
     toa_method : ToA estimator, one of :data:`raytrace.emulation.receivers.TOA_METHODS`:
-        "first-lobe" (default, the realistic receiver), "first-path" (ideal, the paper's eq. 3
-        model), "peak" or "leading-edge"
+        "first-lobe" (default, the realistic receiver), "first-path" (ideal: exact delay of the
+        first detectable path plus eq. 3 noise), "peak", "leading-edge" or "paper" (the paper's
+        model as written: lobe top of the first traced path plus eq. 3 noise)
     noise : bool, estimation noise on (False: no noise; ``first-path`` gives exact delays)
     delta_s : float, seconds between two base stations' transmissions
     clock_offset_max_s : float, device clock offsets are uniform in [0, this)
     budget : LinkBudget
     pulse : PulseShape
     first_lobe : FirstLobeSettings, settings of the first-lobe receiver
+    first_path_threshold : bool, ``first-path`` only: False takes the first traced path above
+        the tracer's power floor instead of the first detectable one
     trace : TraceConfig, the tracer limits
     clearance_m : float, forklift underside above the floor
     """
@@ -90,6 +93,7 @@ class DatasetConfig:
     budget: LinkBudget = field(default_factory=LinkBudget)
     pulse: PulseShape = field(default_factory=PulseShape)
     first_lobe: FirstLobeSettings = field(default_factory=FirstLobeSettings)
+    first_path_threshold: bool = True
     trace: TraceConfig = field(default_factory=TraceConfig)
     clearance_m: float = FORKLIFT_CLEARANCE_M
 
@@ -122,7 +126,8 @@ class DatasetConfig:
         """The dataset's ToA receiver (checks the settings first)."""
         band = self.validate()
         return Receiver(self.toa_method, band, budget=self.budget, pulse=self.pulse,
-                        first_lobe=self.first_lobe)  # fmt: skip
+                        first_lobe=self.first_lobe,
+                        first_path_threshold=self.first_path_threshold)  # fmt: skip
 
     def model(self) -> ToaModel:
         """The measurement model of this dataset (receiver, seed, schedule, clock offsets)."""

@@ -135,8 +135,11 @@ def measure_group(
         if progress is not None:
             progress(n_done)
 
-    # static epochs with the first-path or first-lobe receiver cost milliseconds: no processes
-    cheap = g.static and all(m.receiver.method in ("first-path", "first-lobe") for m in g.models)
+    # static epochs with the first-path, first-lobe or paper receiver cost milliseconds: no
+    # processes
+    cheap = g.static and all(
+        m.receiver.method in ("first-path", "first-lobe", "paper") for m in g.models
+    )
     if workers <= 1 or cheap or n < 2:
         for chunk in _chunks(n, 10):
             collect(_run_epochs(g, chunk), len(chunk))

@@ -1,6 +1,7 @@
 """All ToA estimators behind one interface: :class:`Receiver` (``first-lobe``, the
-realistic receiver of :mod:`.first_lobe`; ``first-path``, the paper's eq. 3 model; ``peak`` and
-``leading-edge`` on the whole response) and :func:`estimate_toa`.
+realistic receiver of :mod:`.first_lobe`; ``first-path``, the ideal one: the first detectable
+path's exact delay plus eq. 3 noise; ``peak`` and ``leading-edge`` on the whole response;
+``paper``, the paper's model as written, :mod:`.paper`) and :func:`estimate_toa`.
 """
 
 from __future__ import annotations
@@ -17,9 +18,10 @@ from ..channel.cir import DiscreteCIR, check_paths, discrete_cir, first_detectab
 from ..channel.pulse import PulseShape
 from ..channel.response import pulse_toa
 from .first_lobe import FirstLobeSettings, LobePlan, measure_first_lobe, prepare_first_lobe
+from .paper import PaperPlan, first_traced_path, measure_paper, prepare_paper
 
 #: Names accepted as ``method``; the first is the default (the realistic receiver).
-TOA_METHODS = ("first-lobe", "first-path", "peak", "leading-edge")
+TOA_METHODS = ("first-lobe", "first-path", "peak", "leading-edge", "paper")
 #: The default ToA estimator of datasets, sweeps and maps.
 DEFAULT_TOA_METHOD = TOA_METHODS[0]
 
@@ -38,7 +40,9 @@ class ToAEstimate:
         ``first-lobe``: the receiver's own thresholds were crossed.
     first_path : (L,) int64
         Index (into the caller's path arrays) of the first detectable path by the link budget's
-        rule (:meth:`LinkBudget.detectable`), -1 if none: the channel's first arrival.
+        rule (:meth:`LinkBudget.detectable`), -1 if none: the channel's first arrival. ``paper``
+        and ``first-path`` without its threshold: the first traced path above the tracer's
+        power floor (:data:`raytrace.emulation.receivers.paper.POWER_FLOOR_DB`).
     snr_db : (L,) float, dB
         SNR before processing gain (the SNR of eq. 3), NaN if none. ``first-lobe``: measured by the
         receiver on its first lobe; the others: the true SNR of the first detectable path.
@@ -53,8 +57,9 @@ class ToAEstimate:
         ``first-lobe``: half-amplitude width of the first lobe over an isolated pulse's; NaN
         otherwise or where the lobe leaves the window.
     lobe_path : (L,) int64
-        ``first-lobe``: index of the path contributing most at the measured ToA, -1 if none;
-        ``first-path``: ``first_path``; -1 for the others.
+        ``first-lobe`` and ``paper``: index of the path contributing most at the measured ToA
+        (``paper``: at the noiseless lobe top), -1 if none; ``first-path``: ``first_path``; -1
+        for the others.
     """
 
     toa_s: np.ndarray
@@ -80,6 +85,7 @@ class PreparedLinks:
     snr : (L,) float, linear SNR of that path before processing gain (NaN if none)
     cir : DiscreteCIR, paths per link in order of arrival
     plan : LobePlan or None, the first-lobe receiver's windows
+    paper : PaperPlan or None, the ``paper`` receiver's noiseless lobe tops
     """
 
     n_links: int
@@ -90,6 +96,7 @@ class PreparedLinks:
     snr: np.ndarray
     cir: DiscreteCIR
     plan: LobePlan | None
+    paper: PaperPlan | None = None
 
 
 class Receiver:
@@ -103,10 +110,17 @@ class Receiver:
     ``first-lobe`` (default)
         The realistic receiver (:mod:`raytrace.emulation.receivers.first_lobe`): correlator output of all paths plus noise, CA-CFAR
         and relative thresholds, ToA at the top of the first detected lobe.
-    ``first-path`` (ideal; the paper's eq. 3 model)
-        Delay of the first *detectable* path (:meth:`LinkBudget.detectable`) plus zero-mean
+    ``first-path`` (ideal)
+        Exact delay of the first *detectable* path (:meth:`LinkBudget.detectable`: a detection
+        threshold on its post-correlation SNR, which the paper does not have) plus zero-mean
         Gaussian error of eq. 3, ``sigma^2 = 1 / ((2 pi B)^2 t_s B SNR)`` s^2, with ``t_s`` =
-        :meth:`LinkBudget.integration_time_s` and SNR that path's ``P_rx / N``.
+        :meth:`LinkBudget.integration_time_s` and SNR that path's ``P_rx / N``. No pulse, so no
+        overlap bias. ``first_path_threshold=False``: the first traced path above the tracer's
+        power floor instead.
+    ``paper`` (the paper's model as written, :mod:`.paper`)
+        The first traced path above the tracer's power floor (no detection threshold), its ToA
+        the top of the lobe of ``|sum_j A_j h(t - tau_j)|`` that holds it (eq. 2: the bias of the
+        paths), plus eq. 3 noise at that path's SNR.
     ``peak``
         Time of the maximum of ``|r(t)|`` over the link's whole response (:func:`pulse_toa`).
     ``leading-edge``
@@ -122,6 +136,8 @@ class Receiver:
     first_lobe : FirstLobeSettings, optional
     leading_edge_db : float, dB, threshold of ``leading-edge`` relative to the strongest sample
         (default -12 dB, 2.3 dB above the pulse's first sidelobe)
+    first_path_threshold : bool, ``first-path`` only: True (default) takes the first path the
+        link budget detects, False the first traced path above the tracer's power floor
     """
 
     def __init__(
@@ -133,6 +149,7 @@ class Receiver:
         pulse: PulseShape | None = None,
         first_lobe: FirstLobeSettings | None = None,
         leading_edge_db: float = -12.0,
+        first_path_threshold: bool = True,
     ) -> None:
         if method not in TOA_METHODS:
             raise HallrayError(f"unknown ToA method {method!r}; known: {', '.join(TOA_METHODS)}")
@@ -146,6 +163,11 @@ class Receiver:
         self.pulse = pulse or PulseShape()
         self.first_lobe = first_lobe or FirstLobeSettings()
         self.leading_edge_db = float(leading_edge_db)
+        if not isinstance(first_path_threshold, (bool, np.bool_)):
+            raise HallrayError(
+                f"first_path_threshold must be True or False, got {first_path_threshold!r}"
+            )
+        self.first_path_threshold = bool(first_path_threshold)
 
     def prepare(
         self, link: np.ndarray, delay_s: np.ndarray, gain: np.ndarray, n_links: int
@@ -154,8 +176,13 @@ class Receiver:
         :func:`estimate_toa`)."""
         link, delay_s, gain, n_links = check_paths(link, delay_s, gain, n_links)
         band, budget = self.band, self.budget
-        ok = budget.detectable(gain, band, link, n_links)
-        first = first_detectable_path(link, delay_s, ok, n_links)
+        if self.method == "paper" or (
+            self.method == "first-path" and not self.first_path_threshold
+        ):
+            first = first_traced_path(link, delay_s, gain, n_links)
+        else:
+            ok = budget.detectable(gain, band, link, n_links)
+            first = first_detectable_path(link, delay_s, ok, n_links)
         has = first >= 0
         snr = np.full(n_links, np.nan)
         snr[has] = budget.path_snr(gain[first[has]], band)
@@ -163,7 +190,10 @@ class Receiver:
         plan = None
         if self.method == "first-lobe":
             plan = prepare_first_lobe(cir, band, budget, self.pulse, self.first_lobe)
-        return PreparedLinks(n_links, link, delay_s, gain, first, snr, cir, plan)
+        paper = None
+        if self.method == "paper":
+            paper = prepare_paper(link, delay_s, gain, n_links, band, budget, self.pulse)
+        return PreparedLinks(n_links, link, delay_s, gain, first, snr, cir, plan, paper)
 
     def measure(
         self, prep: PreparedLinks, rng: np.random.Generator | None, *, noise: bool = True
@@ -199,6 +229,10 @@ class Receiver:
             toa, detected = m.toa_s, m.detected
             snr = np.asarray(10.0 ** (m.snr_db / 10.0), dtype=float)
             ratio, width, lobe = m.peak_ratio_db, m.lobe_width, m.lobe_path
+        elif self.method == "paper":
+            assert prep.paper is not None, "PreparedLinks from another receiver"
+            toa, detected = measure_paper(prep.paper, rng if noise else None)
+            lobe = prep.paper.lobe_path.copy()
         else:
             links = np.flatnonzero(has)
             toa[links], found = pulse_toa(
@@ -243,7 +277,7 @@ def estimate_toa(
     n_links : int
     band : Band or str
         Band or band name (:func:`raytrace.emulation.bands.get_band`).
-    method : {"first-lobe", "first-path", "peak", "leading-edge"}
+    method : {"first-lobe", "first-path", "peak", "leading-edge", "paper"}
     budget : LinkBudget, optional
         Default :class:`LinkBudget()`.
     pulse : PulseShape, optional
