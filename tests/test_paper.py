@@ -109,4 +109,6 @@ def test_irls_as_written_is_judged_against_ls(tmp_path):
     assert len(plain) == 4 and sum(f["holds"] for f in plain) == 2
     assert {f["where"] for f in plain if not f["holds"]} == {"static mmWave", "semi-dynamic mmWave"}
     md = table2_markdown({"paper": table}, ["paper"])
+    # the paper's own figures are "published", our paper receiver's columns "paper ..."
+    assert md.startswith("| metric | setup | band | published LS | published IRLS | paper LS |")
     assert "| mean [m] | static | mmWave | 0.40 | 0.20 | 1.00 | 0.50 | 2.00 | 0.50 (irls) |" in md

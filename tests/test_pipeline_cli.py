@@ -54,6 +54,7 @@ def test_reproduce_paper_writes_both_receivers_and_the_comparison(tmp_path, caps
                    "static <= semi-dynamic", "first-lobe LS", "paper IRLS as written"):  # fmt: skip
         assert needle in text
     # the paper's model first in Table II
+    assert "| published LS | published IRLS | paper LS |" in text
     assert text.index("| paper LS |") < text.index("| first-lobe LS |")
     assert "| first-path | static | C-band | LoS |" in text
     assert "| paper | static | C-band | LoS |" in text
