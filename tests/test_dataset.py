@@ -295,6 +295,29 @@ def test_several_receivers_from_one_trace_equal_separate_runs(tmp_path):
         assert a != b
 
 
+def test_paper_receiver_and_first_path_without_threshold_datasets(tmp_path):
+    """Datasets of the paper receiver and of first-path without its threshold: their meta.json
+    says so; both take the same first path as each other, noiselessly the paper's ToA is the
+    lobe top and first-path's the exact delay; first-path with its threshold writes no extra
+    key (its files are unchanged)."""
+    kw = dict(scene=_scene(), duration_s=0.4, rate_hz=5.0, seed=3, noise=False)
+    pairs = [("static", "c-band")]
+    make_datasets(tmp_path / "p", pairs, toa_method=["paper", "first-path"], **kw)
+    make_datasets(tmp_path / "n", pairs, toa_method="first-path", first_path_threshold=False, **kw)
+    paper_rows, paper_meta = _read(tmp_path / "p" / "static-c-band")
+    thr_rows, thr_meta = _read(tmp_path / "p" / "static-c-band-first-path")
+    free_rows, free_meta = _read(tmp_path / "n" / "static-c-band")
+    assert paper_meta["toa_method"] == "paper" and paper_meta["paper"]["power_floor_db"] == -250.0
+    assert free_meta["first_path"] == {"detection_threshold": False}
+    assert "first_path" not in thr_meta and "paper" not in thr_meta
+    assert [r["first_kind"] for r in paper_rows] == [r["first_kind"] for r in free_rows]
+    # same clock offsets and schedule: the difference is the pull of the later paths on the
+    # first path's lobe (floor and wall reflections here), within half a pulse period
+    T = 1.25 / 100e6
+    diff = np.array([float(p["toa_s"]) - float(f["toa_s"]) for p, f in zip(paper_rows, free_rows)])
+    assert np.all(np.abs(diff) < 0.5 * T) and np.any(np.abs(diff) > 1e-4 * T)
+
+
 def test_meta_json_carries_the_parameters(tmp_path):
     sc = _scene()
     make_dataset(tmp_path / "m", "static", "mmwave", scene=sc, duration_s=0.5, seed=5)

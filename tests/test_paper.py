@@ -87,4 +87,28 @@ def test_orderings_are_judged_on_each_comparison(tmp_path):
     # static irls: 0.9 vs 0.5 fails; the other three (per metric) hold
     assert sum(f["holds"] for f in band) == 6
     md = table2_markdown({"first-lobe": table}, ["first-lobe"])
-    assert "| mean [m] | static | C-band | 0.40 | 0.20 | 1.00 | 0.50 | 0.50 (irls) |" in md
+    # no irls-paper column in this table: its cell is "-" and its ordering is not judged
+    assert "| mean [m] | static | C-band | 0.40 | 0.20 | 1.00 | 0.50 | - | 0.50 (irls) |" in md
+    assert "first-lobe IRLS as written" in md
+    assert not [f for f in found if f["ordering"] == "IRLS as written <= LS"]
+
+
+def test_irls_as_written_is_judged_against_ls(tmp_path):
+    path = tmp_path / "table.csv"
+    with path.open("w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["metric", "scenario", "band", "dataset", "n_fixes", "ls", "irls", "irls-paper",
+                    "paper_irls", "paper_ls"])  # fmt: skip
+        for scen in ("static", "semi-dynamic"):
+            for band in ("c-band", "mmwave"):
+                w.writerow(["mean", scen, band, "d", 10, 1.0, 0.5, 2.0 if band == "mmwave" else 0.9,
+                            0.2, 0.4])  # fmt: skip
+    table = read_table(path)
+    found = ordering_findings(table, ["ls", "irls", "irls-paper"])
+    plain = [f for f in found if f["ordering"] == "IRLS as written <= LS"]
+    assert len(plain) == 4 and sum(f["holds"] for f in plain) == 2
+    assert {f["where"] for f in plain if not f["holds"]} == {"static mmWave", "semi-dynamic mmWave"}
+    md = table2_markdown({"paper": table}, ["paper"])
+    # the paper's own figures are "published", our paper receiver's columns "paper ..."
+    assert md.startswith("| metric | setup | band | published LS | published IRLS | paper LS |")
+    assert "| mean [m] | static | mmWave | 0.40 | 0.20 | 1.00 | 0.50 | 2.00 | 0.50 (irls) |" in md

@@ -37,7 +37,7 @@ def test_unknown_receiver_lists_the_known_ones(tmp_path, capsys):
     out = tmp_path / "run"
     assert reproduce_paper_main(["-o", str(out), "-q", "--receiver", "oracle"]) == 2
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and "first-lobe, first-path, peak, leading-edge" in err
+    assert err.count("\n") == 1 and "first-lobe, first-path, peak, leading-edge, paper" in err
     assert not out.exists()
 
 
@@ -48,10 +48,17 @@ def test_reproduce_paper_writes_both_receivers_and_the_comparison(tmp_path, caps
     assert reproduce_paper_main(argv) == 0
     assert (out / "report" / "table.csv").is_file()
     assert (out / "report-first-path" / "table.csv").is_file()
+    assert (out / "report-paper" / "table.csv").is_file()
     text = (out / "paper.md").read_text()
-    for needle in ("IRLS <= LS", "mmWave <= C-band", "static <= semi-dynamic", "first-lobe LS"):
+    for needle in ("IRLS <= LS", "IRLS as written <= LS", "mmWave <= C-band",
+                   "static <= semi-dynamic", "first-lobe LS", "paper IRLS as written"):  # fmt: skip
         assert needle in text
+    # the paper's model first in Table II
+    assert "| published LS | published IRLS | paper LS |" in text
+    assert text.index("| paper LS |") < text.index("| first-lobe LS |")
     assert "| first-path | static | C-band | LoS |" in text
+    assert "| paper | static | C-band | LoS |" in text
+    assert "random reference" in text
     assert "## Tracked rows" in text and "| twin |" in text and "| c-band |" in text
     assert (out / "maps" / "mmwave" / "map.npz").is_file()
 

@@ -18,6 +18,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from ..errors import PositioningError
+from ..estimators.eq7 import reference_by_name
 from ..estimators.fixes import Fixes, Status
 from ..estimators.track import PARAMS as TRACK_PARAMS
 from ..estimators.track import check_params as check_track_params
@@ -98,9 +99,8 @@ def check_method_params(params: dict[str, dict[str, str]], ds: ToaDataset) -> No
         if m == "twin" and p.get("map"):
             check_map(p["map"], ds.bs_xyz, ds.bs_names, ds.band)
         q = dict(p)
-        ref = q.get("reference")
-        if isinstance(ref, str) and ref in ds.bs_names:
-            q["reference"] = str(ds.bs_names.index(ref))
+        if "reference" in q:
+            q["reference"] = reference_by_name(q["reference"], list(ds.bs_names))
         resolve_params(m, q, len(ds.bs_names))
 
 

@@ -11,8 +11,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..model.problem import Problem
+from .eq7 import GRID_M, choose_reference, parse_reference, solve_eq7
 from .fixes import Fixes, Status, config_params
-from .solver import first_valid, solve_tdoa
 
 
 def plausible(prob: Problem, xyz: np.ndarray, margin: float) -> np.ndarray:
@@ -98,21 +98,31 @@ class LsConfig:
 
     Attributes
     ----------
-    reference : int or None
-        Reference base station index. None: the first received base station of each epoch. If a
-        named reference is not received in an epoch, that epoch falls back to its first received
-        base station and is flagged ``REFERENCE_FALLBACK``.
+    reference : str, int or None
+        Reference base station of each epoch (:mod:`positioning.estimators.eq7`): ``first``
+        (None, the default: the first received base station), ``random`` (drawn per epoch with
+        ``seed``: the paper's "random base station as a reference"), ``strongest`` (highest
+        reported SNR among lone-looking first lobes) or ``fixed:N`` (an index N alone means the
+        same). If a fixed reference is not received in an epoch, that epoch falls back to its
+        first received base station and is flagged ``REFERENCE_FALLBACK``.
+    seed : int -- seed of the ``random`` reference
     tol_m : float, m -- Gauss-Newton/LM step tolerance
     max_iter : int -- Gauss-Newton/LM iteration limit
+    grid_m : float, m -- pitch of the grid over the service area whose deepest cells, besides the
+        closed-form start, start the descents (the lowest minimum of eq. 7 inside the area is
+        kept); 0: the closed-form start alone
     """
 
-    reference: int | None = None
+    reference: str | int | None = None
+    seed: int = 0
     tol_m: float = LS_TOL_M
     max_iter: int = LS_MAX_ITER
+    grid_m: float = GRID_M
 
 
 def least_squares(prob: Problem, config: LsConfig = LsConfig()) -> Fixes:
-    """The paper's LS (eqs. 5-7): signed TDoAs against one reference base station.
+    """The paper's LS (eqs. 5-7): signed TDoAs against one reference base station, the lowest
+    minimum of eq. 7 inside the service area (:func:`positioning.estimators.eq7.solve_eq7`).
 
     Returns
     -------
@@ -122,12 +132,13 @@ def least_squares(prob: Problem, config: LsConfig = LsConfig()) -> Fixes:
     E = prob.n_epochs
     rows = prob.solvable
     status = np.zeros(E, dtype=np.int64)
-    ref = first_valid(prob.valid)
-    if config.reference is not None:
-        has = prob.valid[:, config.reference]
-        ref = np.where(has, config.reference, ref)
-        status |= np.where(rows & ~has, int(Status.REFERENCE_FALLBACK), 0)
-    sol = solve_tdoa(prob, ref, rows, tol=config.tol_m, max_iter=config.max_iter)
+    ref, fallback = choose_reference(
+        prob, parse_reference(config.reference, prob.n_bs), config.seed
+    )
+    status |= np.where(rows & fallback, int(Status.REFERENCE_FALLBACK), 0)
+    sol = solve_eq7(
+        prob, ref, rows, tol=config.tol_m, max_iter=config.max_iter, grid_m=config.grid_m
+    )
     status |= np.where(rows & ~sol.converged, int(Status.NOT_CONVERGED), 0)
     status |= np.where(rows & sol.ill, int(Status.ILL_CONDITIONED), 0)
     status |= np.where(rows, 0, int(Status.UNSOLVED))
@@ -164,8 +175,16 @@ class IrlsConfig:
     max_iter : int
         Maximum reweighting iterations (default 100; typically fewer than 10 are needed).
     ls_tol_m, ls_max_iter : Gauss-Newton/LM settings of the N least-squares solves.
+    ls_grid_m : float, m, grid pitch of the N least-squares solves (as ``grid_m`` of
+        :class:`LsConfig`); 0 (default): each from its closed-form start alone, as before the
+        search existed (the guard already drops estimates outside the plausible region)
     region_margin : float, plausible region of the per-reference estimates (default 1: the
         base stations' box grown by one diagonal on every side)
+    guard : bool
+        True (``irls``): only converged, plausible per-reference estimates are averaged (the
+        guards of :func:`irls`). False (``irls-paper``): Algorithm 1 as written, every
+        per-reference estimate averaged (all-zero weights keep the previous average, as eq. 9
+        cannot divide by zero).
     """
 
     u_max: float = U_MAX_M
@@ -173,7 +192,9 @@ class IrlsConfig:
     max_iter: int = MAX_ITER
     ls_tol_m: float = LS_TOL_M
     ls_max_iter: int = LS_MAX_ITER
+    ls_grid_m: float = 0.0
     region_margin: float = 1.0
+    guard: bool = True
 
 
 def irls(prob: Problem, config: IrlsConfig = IrlsConfig()) -> Fixes:
@@ -206,6 +227,11 @@ def irls(prob: Problem, config: IrlsConfig = IrlsConfig()) -> Fixes:
       ``1/(N-1)`` becomes ``1/(N_e-1)``); epochs with fewer than ``dims + 1`` received base
       stations are ``UNSOLVED`` (NaN).
 
+    The per-reference guard above (converged and plausible estimates only) is this
+    implementation's, not the paper's: ``irls-paper`` (``guard=False``) is Algorithm 1 as written,
+    every per-reference estimate averaged whatever its solve did (the all-zero-weights rule
+    stays, as eq. 9 cannot divide by zero). Both are in Table II of ``reproduce-paper``.
+
     Returns
     -------
     :class:`Fixes` of method ``irls``: ``weights`` (E, N) the normalised eq. 9 weights of the
@@ -214,7 +240,12 @@ def irls(prob: Problem, config: IrlsConfig = IrlsConfig()) -> Fixes:
     """
     rows = prob.solvable
     q, conv, ill = reference_estimates(prob, rows, config)
-    usable, ls_bad, nowhere = _usable_estimates(prob, q, conv, rows, config.region_margin)
+    if config.guard:
+        usable, ls_bad, nowhere = _usable_estimates(prob, q, conv, rows, config.region_margin)
+    else:  # Algorithm 1 as written: every estimate, whatever its solve did
+        usable = np.isfinite(q).all(axis=2)
+        ls_bad = rows & (usable & ~conv).any(axis=1)
+        nowhere = np.zeros(prob.n_epochs, dtype=bool)
     Q, w_norm, iterations, zero_w, converged = reweight(prob, q, usable, rows, config)
     if nowhere.any():
         lo, hi = region_box(prob, config.region_margin)
@@ -258,7 +289,8 @@ def reference_estimates(
         sub = rows & prob.valid[:, e]
         if not sub.any():
             continue
-        sol = solve_tdoa(prob, np.full(E, e), sub, tol=config.ls_tol_m, max_iter=config.ls_max_iter)
+        sol = solve_eq7(prob, np.full(E, e), sub, tol=config.ls_tol_m,
+                        max_iter=config.ls_max_iter, grid_m=config.ls_grid_m)  # fmt: skip
         q[sub, e] = sol.xyz[sub]
         conv[:, e] = sub & sol.converged
         ill |= sub & sol.ill

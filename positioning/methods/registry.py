@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import PositioningError
+from ..estimators.eq7 import REFERENCE_CHOICES, parse_reference
 from ..estimators.fixes import Fixes
 from ..estimators.irls import IrlsConfig, LsConfig, irls, least_squares
 from ..estimators.nlos import NlosMapConfig, nlos_map
@@ -37,6 +38,7 @@ _OPT_COUNT = "non-negative int or none"
 _COUNT = "non-negative int"
 _PROB = "probability in (0, 1)"
 _MAP = "fingerprint map (file path)"
+_REFERENCE = f"reference choice ({', '.join(REFERENCE_CHOICES)})"
 #: Map-free methods a ``twin`` fix may fall back to.
 _FALLBACKS = ("nlos-aware", "irls", "ls", "m-estimator", "subset")
 
@@ -94,6 +96,11 @@ def _runner(estimator: Callable[[Problem, Any], Fixes], config: type) -> Runner:
     return lambda prob, params: estimator(prob, config(**params))
 
 
+def _run_irls_paper(prob: Problem, params: Mapping[str, Any]) -> Fixes:
+    """``irls-paper``: Algorithm 1 as written (no guard on the per-reference estimates)."""
+    return irls(prob, IrlsConfig(guard=False, **params))
+
+
 def _run_twin(prob: Problem, params: Mapping[str, Any]) -> Fixes:
     """``twin``: the ``map`` parameter is the config's fingerprint map; ``fallback`` names the
     map-free method (run with its defaults) that the twin falls back to."""
@@ -110,9 +117,10 @@ METHODS: dict[str, Method] = {
         Method(
             "ls",
             _runner(least_squares, LsConfig),
-            _params(LsConfig, {"reference": _OPT_INDEX, "tol_m": _POS_FLOAT,
-                               "max_iter": _POS_INT}),
-            "paper eq. 7: least squares of signed TDoAs against one reference base station",
+            _params(LsConfig, {"reference": _REFERENCE, "seed": _COUNT, "tol_m": _POS_FLOAT,
+                               "max_iter": _POS_INT, "grid_m": "non-negative float"}),
+            "paper eq. 7: least squares of signed TDoAs against one reference base station "
+            "(first, random: the paper's, strongest or fixed:N), lowest minimum in the area",
             paper=True,
             measurement_weights=False,
         ),
@@ -120,8 +128,20 @@ METHODS: dict[str, Method] = {
             "irls",
             _runner(irls, IrlsConfig),
             _params(IrlsConfig, {"u_max": _POS_FLOAT, "epsilon": _POS_FLOAT, "max_iter": _POS_INT,
-                                 "ls_tol_m": _POS_FLOAT, "ls_max_iter": _POS_INT}),
-            "paper Algorithm 1: every base station the reference once, Andrews-sine weights",
+                                 "ls_tol_m": _POS_FLOAT, "ls_max_iter": _POS_INT,
+                                 "ls_grid_m": "non-negative float"}),
+            "paper Algorithm 1: every base station the reference once, Andrews-sine weights; "
+            "guarded: only converged, plausible per-reference estimates are averaged",
+            paper=True,
+            measurement_weights=False,
+        ),
+        Method(
+            "irls-paper",
+            _run_irls_paper,
+            _params(IrlsConfig, {"u_max": _POS_FLOAT, "epsilon": _POS_FLOAT, "max_iter": _POS_INT,
+                                 "ls_tol_m": _POS_FLOAT, "ls_max_iter": _POS_INT,
+                                 "ls_grid_m": "non-negative float"}),
+            "paper Algorithm 1 as written: every per-reference estimate averaged, no guard",
             paper=True,
             measurement_weights=False,
         ),
@@ -202,6 +222,11 @@ def _coerce(method: str, name: str, value: Any, kind: Any, n_bs: int | None) -> 
         if isinstance(value, (bool, np.bool_)) or text in ("true", "false", "1", "0"):
             return text in ("true", "1")
         raise PositioningError(f"{where} must be true or false, got {value!r}")
+    if kind == _REFERENCE:
+        try:
+            return parse_reference(value, n_bs)
+        except PositioningError as exc:
+            raise PositioningError(f"method {method!r} parameter {name!r}: {exc}") from None
     if isinstance(kind, tuple):
         if value not in kind:
             raise PositioningError(f"{where} must be one of {', '.join(kind)}, got {value!r}")

@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 
+from ..estimators.eq7 import reference_by_name
 from ..estimators.fixes import Fixes
 from ..estimators.track import check_params, split_method, track_fixes
 from ..evaluation.integrity import ALERT_LIMIT_M
@@ -75,8 +76,8 @@ def solve_dataset(
         return track_fixes(single, ds.point, ds.time_s, check_params(track or {}))
     prob = problem if problem is not None else dataset_problem(ds, height)
     p = dict(params)
-    if "reference" in p and isinstance(p["reference"], str) and p["reference"] in ds.bs_names:
-        p["reference"] = ds.bs_names.index(p["reference"])
+    if "reference" in p:
+        p["reference"] = reference_by_name(p["reference"], list(ds.bs_names))
     return run_method(prob, method, outside=outside, alert_limit_m=alert_limit_m, **p)
 
 

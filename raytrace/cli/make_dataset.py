@@ -2,8 +2,9 @@
 
     make-dataset --scenario static|semi-dynamic --band c-band|mmwave [--scene hall]
                  [--duration 60] [--rate 10] [--seed 1]
-                 [--receiver first-lobe|first-path|peak|leading-edge|first-lobe-cfr|
+                 [--receiver first-lobe|first-path|peak|leading-edge|paper|first-lobe-cfr|
                              search-back|super-res]
+                 [--no-first-path-threshold]
                  [--relative-threshold-db -12] [--cfar-cells 64|none] [--comb 1|2|4|6|12]
                  [--workers N] [--no-noise] [--force] [-q] -o DIR
     make-dataset --all [...] -o DIR      # DIR/static-c-band, DIR/static-mmwave,
@@ -54,7 +55,8 @@ def make_dataset_parser() -> argparse.ArgumentParser:
         default=DEFAULT_TOA_METHOD,
         help=(
             f"ToA receiver: {', '.join(TOA_METHODS)} (default {DEFAULT_TOA_METHOD}: the "
-            "realistic receiver; first-path is the ideal one of the paper's eq. 3)"
+            "realistic receiver; first-path: the ideal one, exact first detectable delay plus "
+            "eq. 3 noise; paper: the paper's model as written)"
         ),
     )
     p.add_argument(
@@ -77,6 +79,12 @@ def make_dataset_parser() -> argparse.ArgumentParser:
         metavar="N",
         help="receivers on the PRS CFR: the PRS comb, 1 (every subcarrier), 2, 4, 6 or 12 "
         "(default 1)",
+    )
+    p.add_argument(
+        "--no-first-path-threshold",
+        action="store_true",
+        help="first-path: the first traced path above the tracer's power floor, not the first "
+        "one the link budget detects",
     )
     p.add_argument("--workers", type=int, default=1, help="processes for the snapshots (default 1)")
     p.add_argument(
@@ -156,6 +164,7 @@ def _make(args: argparse.Namespace, tmp: Path, pairs: list, subdirs: bool) -> li
         toa_method=args.toa_method,
         first_lobe=FirstLobeSettings(args.relative_threshold_db, _cells(args.cfar_cells)),
         prs=PrsSettings(comb=args.comb),
+        first_path_threshold=not args.no_first_path_threshold,
         trace_settings=config_from_args(args),
         noise=not args.no_noise,
         workers=args.workers,

@@ -1,11 +1,11 @@
 """``reproduce-paper``: from the bundled hall to the paper's comparison in one command.
 
 Writes the paper's four ToA datasets (static and semi-dynamic, C-band and mmWave) under the
-realistic receiver and under the ideal one (``first-path``), from one trace, with
-:func:`raytrace.emulation.dataset.make_datasets`; positions every epoch with every method and
-writes the paper's Table II and CDF plots with ``accuracy-report`` (the positioning package) for
-each receiver; then ``paper.md``: Table II beside the paper's and the findings
-(:mod:`raytrace.studies.paper`).
+paper's model as written (``paper``), the realistic receiver and the ideal one (``first-path``),
+from one trace, with :func:`raytrace.emulation.dataset.make_datasets`; positions every epoch with
+every method (LS with the paper's random reference) and writes the paper's Table II and CDF plots
+with ``accuracy-report`` (the positioning package) for each receiver; then ``paper.md``: Table II
+beside the paper's and the findings (:mod:`raytrace.studies.paper`).
 """
 
 from __future__ import annotations
@@ -30,8 +30,13 @@ EXTRA_METHODS = ("twin", "irls+track", "nlos-map+track", "twin+track")
 #: Noise draws per map cell (the map's predicted errors; the twin uses its noiseless ToAs).
 MAP_DRAWS = 20
 
-#: The receiver whose report is written beside the main one: the paper's ideal eq. 3 model.
+#: The receivers whose reports are written beside the main one: the paper's model as written
+#: (its Table II columns come first) and the ideal one (exact first detectable delay + eq. 3).
+PAPER_RECEIVER = "paper"
 IDEAL_RECEIVER = "first-path"
+#: LS of every report: the paper's "random base station as a reference", drawn per epoch
+#: (seeded with ``--seed``).
+LS_REFERENCE = "random"
 
 PAIRS = (
     ("static", "c-band"),
@@ -59,8 +64,8 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--receiver",
         default=None,
-        help="ToA receiver of the main report (default first-lobe); the ideal first-path "
-        "receiver's report is written beside it",
+        help="ToA receiver of the main report (default first-lobe); the reports of the paper's "
+        "model (paper) and of the ideal receiver (first-path) are written beside it",
     )
     p.add_argument(
         "--workers",
@@ -94,7 +99,7 @@ def _main(args: argparse.Namespace) -> int:
     receiver = args.receiver or DEFAULT_TOA_METHOD
     if receiver not in TOA_METHODS:
         raise HallrayError(f"unknown receiver {receiver!r}; use one of {', '.join(TOA_METHODS)}")
-    receivers = list(dict.fromkeys([receiver, IDEAL_RECEIVER]))
+    receivers = list(dict.fromkeys([receiver, PAPER_RECEIVER, IDEAL_RECEIVER]))
     if args.workers is None:
         from ..solver.parallel import cpu_count
 
@@ -157,6 +162,7 @@ def _build(
         datasets[r] = [s["directory"] for s in summaries if s["toa_method"] == r]
         reports[r] = tmp / _report_name(r, receivers)
         argv = [*datasets[r], "-o", str(reports[r]), "--workers", str(args.workers)]
+        argv += ["--param", f"ls:reference={LS_REFERENCE}", "--param", f"ls:seed={args.seed}"]
         methods = method_names(include_map=False) + [
             m for m in EXTRA_METHODS if maps or "twin" not in m
         ]
@@ -172,11 +178,16 @@ def _build(
         if code != 0:
             raise HallrayError(f"the accuracy report failed (exit status {code}); nothing written")
     main_static = next(d for d in datasets[receivers[0]] if Path(d).name == "static-c-band")
-    params = {"twin": {"map": str(maps[0]["path"])}} if maps else {}
+    params: dict[str, dict[str, Any]] = {"ls": {"reference": LS_REFERENCE, "seed": args.seed}}
+    if maps:
+        params["twin"] = {"map": str(maps[0]["path"])}
     timed = [m for m in methods if maps or "twin" not in m]
     rates, n_timed = method_costs(main_static, timed, params, n_fixes=COST_FIXES)
     costs = costs_markdown(maps, rates, n_timed)
-    return write_comparison(tmp / "paper.md", reports, datasets, costs=costs)
+    # Table II's columns: the paper's model first, then the main receiver, then the ideal one
+    order = list(dict.fromkeys([PAPER_RECEIVER, *receivers]))
+    return write_comparison(tmp / "paper.md", {r: reports[r] for r in order}, datasets,
+                            costs=costs, main=receivers[0])  # fmt: skip
 
 
 def _build_maps(args: argparse.Namespace, receiver: str, folder: Path) -> list[dict[str, Any]]:

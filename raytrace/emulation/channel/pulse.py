@@ -1,9 +1,11 @@
 """The raised-cosine pulse of eq. 2 (time and frequency domain) and its sampling
-(:class:`PulseShape`).
+(:class:`PulseShape`); :func:`raised_cosine1` is the same pulse as a compiled scalar helper for
+kernels (:mod:`raytrace.core.jit`).
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -11,6 +13,7 @@ import numpy as np
 from positioning.model.pulse import raised_cosine as periods_raised_cosine
 
 from ...core.errors import HallrayError
+from ...core.jit import inline
 from ..bands import Band
 
 #: Default raised-cosine roll-off (see :class:`PulseShape`).
@@ -40,6 +43,23 @@ def raised_cosine(t: np.ndarray | float, period_s: float, roll_off: float) -> np
         ``h(0) = 1/T``; the pulse integrates to 1 (its spectrum is 1 at f = 0).
     """
     return periods_raised_cosine(np.asarray(t, dtype=float) / period_s, roll_off, period_s)
+
+
+@inline
+def raised_cosine1(x, roll_off):
+    """``T h(x T)`` of :func:`raised_cosine` at one ``x = t / T`` (dimensionless, 1 at x = 0): the
+    same pulse and the same cancellation-free form, as a compiled scalar helper for kernels
+    (tested equal to :func:`raised_cosine` to 1e-15)."""
+    if x == 0.0:
+        s = 1.0
+    else:
+        s = math.sin(math.pi * x) / (math.pi * x)
+    if roll_off == 0.0:
+        return s
+    e = 1.0 - abs(2.0 * roll_off * x)
+    if e == 0.0:
+        return s * (0.25 * math.pi)
+    return s * math.sin(0.5 * math.pi * e) / (e * (2.0 - e))
 
 
 def raised_cosine_spectrum(f: np.ndarray | float, period_s: float, roll_off: float) -> np.ndarray:

@@ -71,7 +71,9 @@ class DatasetConfig:
     toa_method : ToA estimator, one of :data:`raytrace.emulation.receivers.TOA_METHODS`
         (default :data:`raytrace.emulation.receivers.DEFAULT_TOA_METHOD`): "first-lobe",
         "first-lobe-cfr", "search-back" and "super-res" (realistic receivers), "first-path"
-        (ideal, the paper's eq. 3 model), "peak" or "leading-edge"
+        (ideal: exact delay of the first detectable path plus eq. 3 noise), "peak",
+        "leading-edge" or "paper" (the paper's model as written: lobe top of the first traced
+        path plus eq. 3 noise)
     noise : bool, estimation noise on (False: no noise; ``first-path`` gives exact delays)
     delta_s : float, seconds between two base stations' transmissions
     clock_offset_max_s : float, device clock offsets are uniform in [0, this)
@@ -82,6 +84,8 @@ class DatasetConfig:
     prs : PrsSettings, the PRS CFR the receivers on it see (comb, timing offsets)
     search_back : SearchBackSettings, settings of ``search-back``
     super_res : SuperResSettings, settings of ``super-res``
+    first_path_threshold : bool, ``first-path`` only: False takes the first traced path above
+        the tracer's power floor instead of the first detectable one
     trace : TraceConfig, the tracer limits
     clearance_m : float, forklift underside above the floor
     """
@@ -101,6 +105,7 @@ class DatasetConfig:
     prs: PrsSettings = field(default_factory=PrsSettings)
     search_back: SearchBackSettings = field(default_factory=SearchBackSettings)
     super_res: SuperResSettings = field(default_factory=SuperResSettings)
+    first_path_threshold: bool = True
     trace: TraceConfig = field(default_factory=TraceConfig)
     clearance_m: float = FORKLIFT_CLEARANCE_M
 
@@ -134,7 +139,8 @@ class DatasetConfig:
         band = self.validate()
         return Receiver(self.toa_method, band, budget=self.budget, pulse=self.pulse,
                         first_lobe=self.first_lobe, prs=self.prs, search_back=self.search_back,
-                        super_res=self.super_res)  # fmt: skip
+                        super_res=self.super_res,
+                        first_path_threshold=self.first_path_threshold)  # fmt: skip
 
     def model(self) -> ToaModel:
         """The measurement model of this dataset (receiver, seed, schedule, clock offsets)."""

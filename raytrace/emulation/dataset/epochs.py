@@ -136,7 +136,7 @@ def measure_group(
             progress(n_done)
 
     # static epochs with these receivers cost milliseconds: no processes
-    fast = ("first-path", "first-lobe", "first-lobe-cfr", "search-back")
+    fast = ("first-path", "first-lobe", "paper", "first-lobe-cfr", "search-back")
     cheap = g.static and all(m.receiver.method in fast for m in g.models)
     if workers <= 1 or cheap or n < 2:
         for chunk in _chunks(n, 10):

@@ -26,6 +26,7 @@ from ...solver.incremental import Fleet
 from ..bands import Band
 from ..measurement import Measurements
 from ..receivers.receiver import CFR_METHODS
+from ..receivers.paper import CLIMB_STEP_T, MAX_CLIMB_T, POWER_FLOOR_DB, TOP_TOL_T
 from .config import COLUMNS, SCHEMA_VERSION, DatasetConfig
 from .staging import stage_output
 
@@ -152,6 +153,7 @@ def _meta(
         "first_lobe": dataclasses.asdict(cfg.first_lobe),
         **_receiver_settings(cfg),
         "trace": dataclasses.asdict(cfg.trace),
+        **_receiver_meta(cfg),
         "forklifts": {"clearance_m": float(cfg.clearance_m), "routes": routes},
         "base_stations": [
             {"name": n, "xyz": [float(v) for v in p]}
@@ -177,6 +179,26 @@ def _receiver_settings(cfg: DatasetConfig) -> dict[str, Any]:
     if cfg.toa_method not in CFR_METHODS:
         return {}
     return {"receiver_settings": cfg.receiver().settings_meta()}
+def _receiver_meta(cfg: DatasetConfig) -> dict[str, Any]:
+    """``meta.json`` keys of the receivers with their own settings: ``paper`` (its power floor
+    and climb, eq. 3's SNR and t_s) and ``first-path`` with its detection threshold off."""
+    if cfg.toa_method == "paper":
+        return {
+            "paper": {
+                "first_arrival": "earliest traced path with power gain >= power_floor_db",
+                "power_floor_db": POWER_FLOOR_DB,
+                "toa": "top of the lobe of |sum_j gain_j h(t - delay_j)| holding the first "
+                "arrival (h: the pulse, untruncated) + eq. 3 noise",
+                "eq3_snr": "first arrival's P_rx / N (link_budget), before processing gain",
+                "eq3_t_s": "link_budget.n_symbols / subcarrier_spacing_hz",
+                "climb_step_t": CLIMB_STEP_T,
+                "max_climb_t": MAX_CLIMB_T,
+                "top_tolerance_t": TOP_TOL_T,
+            }
+        }
+    if cfg.toa_method == "first-path" and not cfg.first_path_threshold:
+        return {"first_path": {"detection_threshold": False}}
+    return {}
 
 
 def _forklift_csv(fleet: Fleet, times: np.ndarray) -> str:

@@ -128,6 +128,7 @@ def make_datasets(
     budget: LinkBudget | None = None,
     first_lobe: FirstLobeSettings | None = None,
     prs: PrsSettings | None = None,
+    first_path_threshold: bool = True,
     trace_settings: TraceConfig | None = None,
     subdirectories: bool = True,
     staging: bool = True,
@@ -154,6 +155,8 @@ def make_datasets(
     budget : LinkBudget, optional
     first_lobe : FirstLobeSettings, optional, settings of the first-lobe receiver
     prs : PrsSettings, optional, the PRS CFR of the receivers on it (comb, timing offsets)
+    first_path_threshold : bool, ``first-path``: False takes the first traced path above the
+        tracer's power floor, not the first detectable one
     trace_settings : TraceConfig, optional, the tracer limits
     subdirectories : bool, each dataset in ``out_dir/<scenario>-<band>`` (True) or, for a
         single dataset, directly in ``out_dir``
@@ -171,7 +174,8 @@ def make_datasets(
     configs = _dataset_configs(
         datasets, methods, duration_s=duration_s, rate_hz=rate_hz, seed=seed, noise=noise,
         budget=budget or LinkBudget(), first_lobe=first_lobe or FirstLobeSettings(),
-        prs=prs or PrsSettings(), trace=trace_settings or TraceConfig(),
+        prs=prs or PrsSettings(), first_path_threshold=first_path_threshold,
+        trace=trace_settings or TraceConfig(),
     )  # fmt: skip
     if not subdirectories and len(configs) != 1:
         raise HallrayError("several datasets need subdirectories")

@@ -1,7 +1,8 @@
 """All ToA estimators behind one interface: :class:`Receiver` (``first-lobe``, the
-realistic receiver of :mod:`.first_lobe`; ``first-path``, the paper's eq. 3 model; ``peak`` and
-``leading-edge`` on the whole response; ``first-lobe-cfr``, ``search-back`` and ``super-res`` on
-the PRS CFR) and :func:`estimate_toa`.
+realistic receiver of :mod:`.first_lobe`; ``first-path``, the ideal one: the first detectable
+path's exact delay plus eq. 3 noise; ``peak`` and ``leading-edge`` on the whole response;
+``paper``, the paper's model as written, :mod:`.paper`; ``first-lobe-cfr``, ``search-back`` and
+``super-res`` on the PRS CFR) and :func:`estimate_toa`.
 """
 
 from __future__ import annotations
@@ -19,12 +20,13 @@ from ..channel.cir import DiscreteCIR, check_paths, discrete_cir, first_detectab
 from ..channel.pulse import PulseShape
 from ..channel.response import pulse_toa
 from .first_lobe import FirstLobeSettings, LobePlan, measure_first_lobe, prepare_first_lobe
+from .paper import PaperPlan, first_traced_path, measure_paper, prepare_paper
 from .search_back import SearchBackSettings, measure_search_back, prepare_cfr
 from .super_res import SuperResSettings, measure_super_res
 
 #: Names accepted as ``method``.
 TOA_METHODS = (
-    "first-lobe", "first-path", "peak", "leading-edge", "first-lobe-cfr", "search-back",
+    "first-lobe", "first-path", "peak", "leading-edge", "paper", "first-lobe-cfr", "search-back",
     "super-res",
 )  # fmt: skip
 #: The receivers that work on the PRS channel frequency response (:mod:`..channel.cfr`).
@@ -47,7 +49,9 @@ class ToAEstimate:
         ``first-lobe``: the receiver's own thresholds were crossed.
     first_path : (L,) int64
         Index (into the caller's path arrays) of the first detectable path by the link budget's
-        rule (:meth:`LinkBudget.detectable`), -1 if none: the channel's first arrival.
+        rule (:meth:`LinkBudget.detectable`), -1 if none: the channel's first arrival. ``paper``
+        and ``first-path`` without its threshold: the first traced path above the tracer's
+        power floor (:data:`raytrace.emulation.receivers.paper.POWER_FLOOR_DB`).
     snr_db : (L,) float, dB
         SNR before processing gain (the SNR of eq. 3), NaN if none. ``first-lobe``: measured by the
         receiver on its first lobe; the others: the true SNR of the first detectable path.
@@ -62,8 +66,9 @@ class ToAEstimate:
         ``first-lobe``: half-amplitude width of the first lobe over an isolated pulse's; NaN
         otherwise or where the lobe leaves the window.
     lobe_path : (L,) int64
-        ``first-lobe``: index of the path contributing most at the measured ToA, -1 if none;
-        ``first-path``: ``first_path``; -1 for the others.
+        ``first-lobe`` and ``paper``: index of the path contributing most at the measured ToA
+        (``paper``: at the noiseless lobe top), -1 if none; ``first-path``: ``first_path``; -1
+        for the others.
     """
 
     toa_s: np.ndarray
@@ -89,6 +94,7 @@ class PreparedLinks:
     snr : (L,) float, linear SNR of that path before processing gain (NaN if none)
     cir : DiscreteCIR, paths per link in order of arrival
     plan : LobePlan or None, the first-lobe receiver's windows
+    paper : PaperPlan or None, the ``paper`` receiver's noiseless lobe tops
     """
 
     n_links: int
@@ -99,6 +105,7 @@ class PreparedLinks:
     snr: np.ndarray
     cir: DiscreteCIR
     plan: LobePlan | None
+    paper: PaperPlan | None = None
 
 
 class Receiver:
@@ -112,10 +119,17 @@ class Receiver:
     ``first-lobe`` (default)
         The realistic receiver (:mod:`raytrace.emulation.receivers.first_lobe`): correlator output of all paths plus noise, CA-CFAR
         and relative thresholds, ToA at the top of the first detected lobe.
-    ``first-path`` (ideal; the paper's eq. 3 model)
-        Delay of the first *detectable* path (:meth:`LinkBudget.detectable`) plus zero-mean
+    ``first-path`` (ideal)
+        Exact delay of the first *detectable* path (:meth:`LinkBudget.detectable`: a detection
+        threshold on its post-correlation SNR, which the paper does not have) plus zero-mean
         Gaussian error of eq. 3, ``sigma^2 = 1 / ((2 pi B)^2 t_s B SNR)`` s^2, with ``t_s`` =
-        :meth:`LinkBudget.integration_time_s` and SNR that path's ``P_rx / N``.
+        :meth:`LinkBudget.integration_time_s` and SNR that path's ``P_rx / N``. No pulse, so no
+        overlap bias. ``first_path_threshold=False``: the first traced path above the tracer's
+        power floor instead.
+    ``paper`` (the paper's model as written, :mod:`.paper`)
+        The first traced path above the tracer's power floor (no detection threshold), its ToA
+        the top of the lobe of ``|sum_j A_j h(t - tau_j)|`` that holds it (eq. 2: the bias of the
+        paths), plus eq. 3 noise at that path's SNR.
     ``peak``
         Time of the maximum of ``|r(t)|`` over the link's whole response (:func:`pulse_toa`).
     ``leading-edge``
@@ -139,6 +153,8 @@ class Receiver:
     prs : PrsSettings, optional, the CFR the CFR receivers see (comb, timing offsets)
     search_back : SearchBackSettings, optional, settings of ``search-back``
     super_res : SuperResSettings, optional, settings of ``super-res``
+    first_path_threshold : bool, ``first-path`` only: True (default) takes the first path the
+        link budget detects, False the first traced path above the tracer's power floor
     """
 
     def __init__(
@@ -153,6 +169,7 @@ class Receiver:
         prs: PrsSettings | None = None,
         search_back: SearchBackSettings | None = None,
         super_res: SuperResSettings | None = None,
+        first_path_threshold: bool = True,
     ) -> None:
         if method not in TOA_METHODS:
             raise HallrayError(f"unknown ToA method {method!r}; known: {', '.join(TOA_METHODS)}")
@@ -169,6 +186,11 @@ class Receiver:
         self.prs = prs or PrsSettings()
         self.search_back = search_back or SearchBackSettings()
         self.super_res = super_res or SuperResSettings()
+        if not isinstance(first_path_threshold, (bool, np.bool_)):
+            raise HallrayError(
+                f"first_path_threshold must be True or False, got {first_path_threshold!r}"
+            )
+        self.first_path_threshold = bool(first_path_threshold)
 
     def settings_meta(self) -> dict[str, object]:
         """The settings of this receiver that are not the link budget's or the pulse's, as a
@@ -193,8 +215,13 @@ class Receiver:
         :func:`estimate_toa`)."""
         link, delay_s, gain, n_links = check_paths(link, delay_s, gain, n_links)
         band, budget = self.band, self.budget
-        ok = budget.detectable(gain, band, link, n_links)
-        first = first_detectable_path(link, delay_s, ok, n_links)
+        if self.method == "paper" or (
+            self.method == "first-path" and not self.first_path_threshold
+        ):
+            first = first_traced_path(link, delay_s, gain, n_links)
+        else:
+            ok = budget.detectable(gain, band, link, n_links)
+            first = first_detectable_path(link, delay_s, ok, n_links)
         has = first >= 0
         snr = np.full(n_links, np.nan)
         snr[has] = budget.path_snr(gain[first[has]], band)
@@ -206,7 +233,10 @@ class Receiver:
             depth = {"search-back": self.search_back.depth, "super-res": self.super_res.depth}
             plan = prepare_cfr(cir, band, budget, self.pulse, self.first_lobe, self.prs,
                                depth.get(self.method))  # fmt: skip
-        return PreparedLinks(n_links, link, delay_s, gain, first, snr, cir, plan)
+        paper = None
+        if self.method == "paper":
+            paper = prepare_paper(link, delay_s, gain, n_links, band, budget, self.pulse)
+        return PreparedLinks(n_links, link, delay_s, gain, first, snr, cir, plan, paper)
 
     def measure(
         self, prep: PreparedLinks, rng: np.random.Generator | None, *, noise: bool = True
@@ -248,6 +278,10 @@ class Receiver:
             toa, detected = m.toa_s, m.detected
             snr = np.asarray(10.0 ** (m.snr_db / 10.0), dtype=float)
             ratio, width, lobe = m.peak_ratio_db, m.lobe_width, m.lobe_path
+        elif self.method == "paper":
+            assert prep.paper is not None, "PreparedLinks from another receiver"
+            toa, detected = measure_paper(prep.paper, rng if noise else None)
+            lobe = prep.paper.lobe_path.copy()
         else:
             links = np.flatnonzero(has)
             toa[links], found = pulse_toa(
@@ -292,7 +326,7 @@ def estimate_toa(
     n_links : int
     band : Band or str
         Band or band name (:func:`raytrace.emulation.bands.get_band`).
-    method : {"first-lobe", "first-path", "peak", "leading-edge"}
+    method : {"first-lobe", "first-path", "peak", "leading-edge", "paper"}
     budget : LinkBudget, optional
         Default :class:`LinkBudget()`.
     pulse : PulseShape, optional

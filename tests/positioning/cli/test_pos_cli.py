@@ -112,6 +112,8 @@ def test_list_methods(capsys):
         (["--param", "bogus=1"], "bogus"),
         (["--param", "u_max"], "NAME=VALUE"),
         (["--method", "ls", "--param", "reference=BS9"], "reference"),
+        (["--method", "ls", "--param", "reference=nearest"], "first, random, strongest, fixed:N"),
+        (["--method", "ls", "--param", "reference=fixed:7"], "4 base stations"),
         (["--height", "nan"], "height"),
     ],
 )
