@@ -25,8 +25,8 @@ from ...scene.model import Scene
 from ...solver.incremental import Fleet
 from ..bands import Band
 from ..measurement import Measurements
-from ..receivers.receiver import CFR_METHODS
 from ..receivers.paper import CLIMB_STEP_T, MAX_CLIMB_T, POWER_FLOOR_DB, TOP_TOL_T
+from ..receivers.receiver import CFR_METHODS
 from .config import COLUMNS, SCHEMA_VERSION, DatasetConfig
 from .staging import stage_output
 
