@@ -3,8 +3,9 @@ a new subpackage left out of the list is missing from a plain ``pip install .``)
 
 from __future__ import annotations
 
-import tomllib
 from pathlib import Path
+
+import tomllib
 
 ROOT = Path(__file__).resolve().parents[1]
 
