@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import SceneError
-from ..core.scale import check_size
+from ..core.scale import check_extent
 from ..physics.materials import MaterialLibrary
 from .model import Scene
 
@@ -114,7 +114,8 @@ def load_scene(
         )
     scene = Scene.from_meshes(bound, library, metadata=metadata, source=str(p))
     lo, hi = scene.bounds
-    check_size(float(np.max(hi - lo)), f"scene {p.name}")  # a hall in mm: refused before tracing
+    # a hall in mm (or cm, or km): refused before tracing
+    check_extent(tuple(float(v) for v in hi - lo), f"scene {p.name}")
     return scene
 
 
