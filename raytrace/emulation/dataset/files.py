@@ -9,14 +9,13 @@ import dataclasses
 import json
 import math
 import os
-import shutil
 from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from hallray.safe_output import commit_dir
+from hallray.safe_output import output_dir
 
 from ...core.errors import HallrayError
 from ...scene.facts import SceneFacts
@@ -26,7 +25,9 @@ from ...solver.incremental import Fleet
 from ..bands import Band
 from ..measurement import Measurements
 from .config import COLUMNS, SCHEMA_VERSION, DatasetConfig
-from .staging import stage_output
+
+#: The name a dataset directory's marker records (:func:`hallray.safe_output.write_marker`).
+DATASET_COMMAND = "make-dataset"
 
 
 def _num(values: np.ndarray, fmt: str) -> list[str]:
@@ -278,11 +279,6 @@ def write_dataset(
     """
     files = dataset_files(scene, cfg, measured, fleet=fleet)
     out = Path(out_dir)
-    tmp = stage_output(out, force)
-    try:
+    with output_dir(out, command=DATASET_COMMAND, force=force) as tmp:
         write_files(tmp, files)
-        commit_dir(tmp, out)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     return out

@@ -6,14 +6,15 @@ and receivers of a scenario, measures every epoch and writes each dataset's file
 from __future__ import annotations
 
 import os
-import shutil
 import sys
 import time
 from collections.abc import Iterable, Sequence
+from contextlib import nullcontext
 from pathlib import Path
 from typing import Any
 
-from hallray.safe_output import commit_dir
+from hallray.limits import check_size
+from hallray.safe_output import output_dir
 
 from ...core.errors import HallrayError, SceneError
 from ...scene.facts import SceneFacts
@@ -29,8 +30,7 @@ from ..receivers.first_lobe import FirstLobeSettings
 from ..receivers.receiver import DEFAULT_TOA_METHOD
 from .config import SCENARIOS, DatasetConfig
 from .epochs import ScenarioGroup, measure_group, scenario_group
-from .files import dataset_parts, dataset_summary, write_files
-from .staging import stage_output
+from .files import DATASET_COMMAND, dataset_parts, dataset_summary, write_files
 
 
 def _dataset_configs(
@@ -180,30 +180,26 @@ def make_datasets(
     facts = SceneFacts.of(sc, inputs.block)  # read once for every dataset's meta.json
     if any(c.scenario == "semi-dynamic" for c in configs) and not inputs.routes:
         raise SceneError("the semi-dynamic scenario needs forklift routes in the scene metadata")
+    rows = float(len(configs[0].times_s)) * len(inputs.point_names) * len(inputs.bs_names)
+    check_size("dataset rows", rows, f"{len(configs[0].times_s)} epochs x "
+               f"{len(inputs.point_names)} points x {len(inputs.bs_names)} base stations")  # fmt: skip
     out = Path(out_dir)
-    if staging:
-        tmp = stage_output(out, force)
-    elif not out.is_dir() or any(out.iterdir()):
+    if not staging and (not out.is_dir() or any(out.iterdir())):
         raise HallrayError(f"unstaged output {out} must be an empty directory")
-    else:
-        tmp = out
-    committed = False
     summaries: list[dict[str, Any]] = []
     # the static scene's paths per carrier, traced once for both scenarios
     static_cache: dict[float, Paths] = {}
-    try:
+    source = None if isinstance(scene, Scene) else scene
+    # staged: the one output layer (whole or nothing, inputs untouched, only an earlier dataset
+    # replaced, with force); unstaged: the caller's empty staging directory
+    with output_dir(out, command=DATASET_COMMAND, force=force, inputs=[source]) if staging \
+            else nullcontext(out) as tmp:  # fmt: skip
         for scenario in SCENARIOS:
             group = [c for c in configs if c.scenario == scenario]
             if group:
                 g = scenario_group(scenario, group, sc, inputs, static_cache)
                 summaries += _write_group(g, group, (sc, inputs, facts), tmp, out,
                                           subdirectories, methods[0], workers, progress)  # fmt: skip
-        if staging:
-            commit_dir(tmp, out)
-        committed = True
-    finally:
-        if not committed and staging:
-            shutil.rmtree(tmp, ignore_errors=True)
     for s in summaries:
         s["total_seconds"] = time.perf_counter() - t_start
     return summaries
