@@ -30,7 +30,7 @@ from ..receivers.first_lobe import FirstLobeSettings
 from ..receivers.receiver import DEFAULT_TOA_METHOD
 from .config import SCENARIOS, DatasetConfig
 from .epochs import ScenarioGroup, measure_group, scenario_group
-from .files import DATASET_COMMAND, dataset_parts, dataset_summary, write_files
+from .files import DATASET_COMMAND, DatasetStream
 
 
 def _dataset_configs(
@@ -57,18 +57,19 @@ def _open_scene(scene: str | os.PathLike[str] | Scene) -> Scene:
 
 
 def _measure_with_progress(
-    g: ScenarioGroup, workers: int, progress: bool
+    g: ScenarioGroup, workers: int, progress: bool, sink: Any = None
 ) -> tuple[list[Measurements], dict]:
-    """:func:`measure_group`, with a tqdm bar on stderr if ``progress``."""
+    """:func:`measure_group` (its chunks to ``sink``), with a tqdm bar on stderr if
+    ``progress``."""
     if not progress:
-        return measure_group(g, workers, None)
+        return measure_group(g, workers, None, sink)
     from tqdm import tqdm
 
     names = ", ".join(dict.fromkeys(m.receiver.band.name for m in g.models))
     with tqdm(
         total=len(g.times_s), desc=f"{g.scenario} ({names})", unit="epoch", file=sys.stderr
     ) as bar:
-        return measure_group(g, workers, bar.update)
+        return measure_group(g, workers, bar.update, sink)
 
 
 def _write_group(
@@ -85,16 +86,28 @@ def _write_group(
     """Measure a scenario's datasets (``configs``, the group's order) and write each into its
     directory under ``tmp`` (``out`` once committed); their summaries."""
     t_static = g.trace_s
-    measured, stats = _measure_with_progress(g, workers, progress)
     fleet = g.tracer.fleet if g.scenario == "semi-dynamic" else None
     sc, inputs, facts = scene
-    summaries = []
-    for cfg, m in zip(configs, measured):
+    dirs = []
+    for cfg in configs:
         name = f"{cfg.scenario}-{get_band(cfg.band).name}"
         if cfg.toa_method != first_method:
             name += f"-{cfg.toa_method}"
-        d = tmp / name if subdirectories else tmp
-        write_files(d, dataset_parts(sc, cfg, m, inputs=inputs, fleet=fleet, facts=facts))
+        dirs.append(tmp / name if subdirectories else tmp)
+    # each dataset's toa.csv is written while its epochs are measured: memory does not grow
+    # with the epochs (the bytes are those of dataset_parts on all the measurements)
+    streams = [DatasetStream(d, sc, cfg, inputs=inputs, facts=facts, fleet=fleet)
+               for d, cfg in zip(dirs, configs)]  # fmt: skip
+    try:
+        _, stats = _measure_with_progress(
+            g, workers, progress, lambda ms: [s.add(m) for s, m in zip(streams, ms)]
+        )
+        counts = [s.close() for s in streams]
+    finally:
+        for s in streams:
+            s.abort()
+    summaries = []
+    for cfg, d, count in zip(configs, dirs, counts):
         summaries.append(
             {
                 "directory": str(out / d.relative_to(tmp)),
@@ -102,7 +115,7 @@ def _write_group(
                 "band": get_band(cfg.band).name,
                 "toa_method": cfg.toa_method,
                 "epochs": len(g.times_s),
-                **dataset_summary(m),
+                **count,
                 "static_trace_s": t_static,
                 "group_seconds": time.perf_counter() - g.t_start,
                 "stage_seconds": stats,
