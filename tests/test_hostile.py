@@ -13,7 +13,6 @@ import numpy as np
 import pytest
 from pos_synth import PAPER_BS, write_dataset
 
-from hallray.safe_output import MARKER
 from positioning.cli.accuracy import accuracy_report_main
 from positioning.cli.estimate import estimate_positions_main
 from raytrace.cli.accuracy_map import accuracy_map_main
@@ -105,6 +104,8 @@ def test_force_never_touches_the_installed_package(tmp_path, capsys):
 
 
 def test_force_replaces_only_an_earlier_output_of_the_same_command(tmp_path, capsys):
+    from hallray.safe_output import MARKER
+
     out = tmp_path / "out"
     assert make_hall_main(["--profile", "InF-SL", "--size", "20x20x6", "--points", "3",
                            "-o", str(out)]) == 0  # fmt: skip
