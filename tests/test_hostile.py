@@ -90,16 +90,18 @@ def test_force_never_replaces_the_working_directory_or_its_ancestors(tmp_path, c
     assert (work / "thesis.tex").read_text() == "keep"
 
 
-def test_force_never_touches_the_installed_package(tmp_path, capsys):
+def test_force_never_touches_the_installed_package():
+    """Checked on the rule itself, never through a command: a regression must not wipe the
+    package it tests (a run of this case through make-dataset on the tree before issue 40 did)."""
     import raytrace
+    from hallray.safe_output import OutputError, check_output, check_output_dir
 
     pkg = Path(raytrace.__file__).resolve().parent
-    base = ["--scenario", "static", "--band", "c-band", "--duration", "0.1", "--force", "-q"]
-    for out in (pkg, pkg / "scratch"):
-        assert make_dataset_main([*base, "-o", str(out)]) == 2
-        assert "installed package" in _line(capsys)
-    assert make_dataset_main([*base, "-o", str(pkg.parent / "scenes")]) == 2  # the bundled hall
-    assert "input" in _line(capsys) or "installed package" in _line(capsys)
+    for out in (pkg, pkg / "scratch", pkg.parent / "scenes"):
+        with pytest.raises(OutputError, match="installed package"):
+            check_output_dir(out, command="make-dataset", force=True)
+    with pytest.raises(OutputError, match="installed package"):
+        check_output(pkg / "cli" / "fixes.csv")
     assert (pkg / "__init__.py").is_file() and not (pkg / "scratch").exists()
 
 
@@ -552,3 +554,17 @@ def test_dataset_epochs_are_streamed_not_gathered(tmp_path, monkeypatch):
     assert meta["n_epochs"] == 60  # every epoch written
     assert rows == meta["summary"]["rows"] == 60 * len(meta["points"]) * len(meta["base_stations"])
     assert 0 < largest[0] <= 10  # one chunk (epochs.py measures 10 epochs at a time)
+
+
+def test_twin_map_of_another_device_height_is_refused():
+    from pos_synth import synth_map, synth_toa
+
+    from positioning import locate
+    from positioning.errors import PositioningError
+
+    fmap = synth_map()
+    toa, _ = synth_toa(20, sigma_m=0.05)
+    h = float(np.median(fmap.cell_xyz[:, 2]))
+    locate(toa, PAPER_BS, "twin", height_m=h, map=fmap)
+    with pytest.raises(PositioningError, match="map is at device height"):
+        locate(toa, PAPER_BS, "twin", height_m=h + 1.0, map=fmap)
