@@ -384,8 +384,19 @@ def test_dataset_given_twice_is_refused(ds, tmp_path, capsys):
 
 
 def test_truth_in_millimetres_is_refused(tmp_path, capsys):
-    d = write_dataset(tmp_path / "ds", points=POINTS * 1000.0, n_epochs=2)
-    assert estimate_positions_main([str(d), "-o", "-"]) == 2
+    """ToAs in seconds, base stations in metres, only the truth columns in mm."""
+    import csv
+
+    d = write_dataset(tmp_path / "ds", points=POINTS, n_epochs=2)
+    rows = list(csv.DictReader((d / "toa.csv").open()))
+    for r in rows:
+        for k in ("x_true", "y_true", "z_true"):
+            r[k] = repr(float(r[k]) * 1000.0)
+    with (d / "toa.csv").open("w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+    assert estimate_positions_main([str(d), "--height", "1.5", "-o", "-"]) == 2
     assert "millimetres" in _line(capsys)
 
 
