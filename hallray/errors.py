@@ -12,3 +12,18 @@ from __future__ import annotations
 
 class InputError(ValueError):
     """Bad input to a command or a library function (one-line message, shown as is)."""
+
+
+#: Characters of a value's ``repr`` shown in an error message (:func:`brief`).
+BRIEF_CHARS = 60
+
+
+def brief(value: object, limit: int = BRIEF_CHARS) -> str:
+    """``repr(value)`` for an error message, cut to ``limit`` characters: a message never prints
+    an unbounded value (a list of a million items, a YAML alias chain). Containers are cut before
+    their repr is built, so the cost is bounded too."""
+    if isinstance(value, (list, tuple, set, frozenset, dict)) and len(value) > limit:
+        kind = type(value).__name__
+        return f"<{kind} of {len(value):,} items>"
+    text = repr(value)
+    return text if len(text) <= limit else f"{text[: limit - 3]}... ({len(text):,} characters)"

@@ -9,6 +9,8 @@ One harness for the commands of both packages (``raytrace.cli.harness.run_tool``
   (:data:`EXIT_BAD_INPUT`), never a traceback;
 * argparse usage errors -> one line, exit status 2; ``--help`` -> 0;
 * an unwritable output, a full disk (``OSError``) -> one line, exit status 2;
+* memory exhausted (``MemoryError``, which the size limits of :mod:`hallray.limits` should have
+  prevented) -> one line, exit status 2;
 * Ctrl-C and SIGTERM -> ``error: interrupted``, exit status 130 (:data:`EXIT_INTERRUPTED`),
   after the tool's own clean-up (``finally`` blocks) ran;
 * a closed stdout (``tool | head``) -> no message, exit status 141 (:data:`EXIT_BROKEN_PIPE`,
@@ -36,9 +38,9 @@ EXIT_BAD_INPUT = 2
 EXIT_INTERRUPTED = 130
 EXIT_BROKEN_PIPE = 141
 
-#: Option values that start with '-' but are numbers or comma-separated numbers (``-1,2,1.5``):
-#: argparse would take them for an option.
-_NEGATIVE_VALUE = re.compile(r"^-(\d|\.\d)[\d.,eE+-]*$")
+#: Option values that start with '-' but are numbers or comma-separated numbers (``-1,2,1.5``)
+#: or minus infinity (``--min-power-db -inf``): argparse would take them for an option.
+_NEGATIVE_VALUE = re.compile(r"^-((\d|\.\d)[\d.,eE+-]*|inf|infinity)$", re.IGNORECASE)
 
 #: The program name the next :func:`run_command` shows in its usage line (``hallray trace``
 #: when the ``hallray`` command runs a tool; None: the tool's own name).
@@ -60,13 +62,22 @@ class OneLineParser(argparse.ArgumentParser):
         raise SystemExit(EXIT_BAD_INPUT)
 
 
+#: Longest error line shown; the rest is cut (a message never prints an unbounded value).
+MAX_MESSAGE_CHARS = 1000
+
+
 def one_line(exc: BaseException) -> str:
-    """The message of an error as one line (an ``OSError`` names its file)."""
+    """The message of an error as one line (an ``OSError`` names its file), at most
+    :data:`MAX_MESSAGE_CHARS` characters."""
     if isinstance(exc, OSError):
         text = exc.strerror or str(exc)
-        return f"{text}: {exc.filename}" if exc.filename else text
-    text = str(exc).strip() or type(exc).__name__
-    return " ".join(text.split())
+        text = f"{text}: {exc.filename}" if exc.filename else text
+    else:
+        text = str(exc).strip() or type(exc).__name__
+    text = " ".join(text.split())
+    if len(text) > MAX_MESSAGE_CHARS:
+        text = f"{text[:MAX_MESSAGE_CHARS]}... ({len(text) - MAX_MESSAGE_CHARS:,} characters cut)"
+    return text
 
 
 @contextmanager
@@ -139,6 +150,13 @@ def run_command(
         return EXIT_BAD_INPUT
     except OSError as exc:  # unwritable output, a full disk: one line, not a traceback
         print(f"error: {one_line(exc)}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except MemoryError:  # the limits (hallray.limits) should have refused it up front
+        print(
+            "error: out of memory: the run needs more memory than this machine has; reduce its "
+            "size (the size limits are in docs/reliability.md)",
+            file=sys.stderr,
+        )
         return EXIT_BAD_INPUT
     except KeyboardInterrupt:
         print(f"error: {interrupted}", file=sys.stderr)

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from conftest import box, make_scene, quad
 
+from hallray.safe_output import MARKER
 from raytrace.cli.make_dataset import make_dataset_main
 from raytrace.core.constants import K_BOLTZMANN
 from raytrace.core.errors import HallrayError, SceneError
@@ -439,7 +440,8 @@ def test_cli_all_writes_four_datasets(tmp_path, tiny_glb, capsys):
         ["--all", "--scene", tiny_glb, "--duration", "0.5", "--workers", "1", "-o", out], capsys
     )
     assert code == 0, err
-    subdirs = sorted(p.name for p in out.iterdir())
+    subdirs = sorted(p.name for p in out.iterdir() if p.name != MARKER)  # the output's marker
+    assert (out / MARKER).is_file()
     assert subdirs == [
         "semi-dynamic-c-band",
         "semi-dynamic-mmwave",
@@ -494,15 +496,23 @@ def test_cli_refuses_a_non_empty_directory_unless_forced(tmp_path, tiny_glb, cap
     code, _, err = _cli([*base, "-o", out], capsys)
     assert code == 2 and "not empty" in err and err.count("\n") == 1
     assert (out / "old.txt").read_text() == "keep me"
+    # issue 40: --force replaces only an earlier make-dataset output, never someone's files
+    code, _, err = _cli([*base, "--force", "-q", "-o", out], capsys)
+    assert code == 2 and "was not written by make-dataset" in err and err.count("\n") == 1
+    assert sorted(p.name for p in out.iterdir()) == ["old.txt"]
+    out = tmp_path / "ds2"
+    assert _cli([*base, "-q", "-o", out], capsys)[0] == 0
+    code, _, err = _cli([*base, "-q", "-o", out], capsys)
+    assert code == 2 and "earlier make-dataset output (use --force" in err
     code, _, err = _cli([*base, "--force", "-q", "-o", out], capsys)
     assert code == 0, err
-    assert sorted(p.name for p in out.iterdir()) == ["meta.json", "toa.csv"]
+    assert sorted(p.name for p in out.iterdir()) == [MARKER, "meta.json", "toa.csv"]
     # an existing empty directory is fine without --force
     empty = tmp_path / "empty"
     empty.mkdir()
     assert _cli([*base, "-q", "-o", empty], capsys)[0] == 0
     assert (empty / "toa.csv").exists()
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["ds", "empty"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ds", "ds2", "empty"]
 
 
 def test_failure_midway_leaves_no_output(tmp_path, monkeypatch):
@@ -521,9 +531,9 @@ def test_failure_midway_leaves_no_output(tmp_path, monkeypatch):
         make_dataset(tmp_path / "ds", "semi-dynamic", "c-band", scene=sc, duration_s=1.0)
     assert list(tmp_path.iterdir()) == []
     # with --force, the previous dataset survives a failed run untouched
-    (tmp_path / "ds").mkdir()
-    (tmp_path / "ds" / "toa.csv").write_text("previous")
+    make_dataset(tmp_path / "ds", "static", "c-band", scene=sc, duration_s=0.2)
+    previous = (tmp_path / "ds" / "toa.csv").read_bytes()
     with pytest.raises(HallrayError, match="simulated"):
         make_dataset(tmp_path / "ds", "static", "c-band", scene=sc, duration_s=1.0, force=True)
-    assert (tmp_path / "ds" / "toa.csv").read_text() == "previous"
+    assert (tmp_path / "ds" / "toa.csv").read_bytes() == previous
     assert [p.name for p in tmp_path.iterdir()] == ["ds"]

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 from conftest import box, make_scene, quad
 
+from hallray.safe_output import MARKER
 from raytrace.cli.export_scene import export_scene_main
 from raytrace.core.errors import MaterialError, SceneError
 from raytrace.physics.materials import MaterialLibrary
@@ -235,8 +236,9 @@ def test_command_writes_the_directory_whole(tmp_path, capsys):
     assert export_scene_main(["hall", "-o", str(out)]) == 0
     msg = capsys.readouterr().out
     assert "112 meshes" in msg and "hall.hallray.json" in msg
-    assert sorted(p.name for p in out.parent.iterdir()) == ["hall.hallray.json", "hall.xml",
-                                                           "meshes"]  # fmt: skip
+    # and the output layer's marker (issue 40: only an earlier export is ever replaced)
+    assert sorted(p.name for p in out.parent.iterdir()) == [MARKER, "hall.hallray.json",
+                                                           "hall.xml", "meshes"]  # fmt: skip
     assert len(list((out.parent / "meshes").iterdir())) == 112
     # a previous export is replaced without --force; nothing is left beside it
     assert export_scene_main(["hall", "-o", str(out), "-q"]) == 0
@@ -272,5 +274,5 @@ def test_command_refuses_to_export_into_its_input(tmp_path, capsys):
     assert export_scene_main(["hall", "-o", str(tmp_path / "e" / "s.xml"), "-q"]) == 0
     xml = str(tmp_path / "e" / "s.xml")
     assert export_scene_main([xml, "-o", xml]) == 2
-    assert "is an input" in capsys.readouterr().err
+    assert "contains an input of this command" in capsys.readouterr().err
     assert load_scene(xml).content_hash() == load_scene("hall").content_hash()

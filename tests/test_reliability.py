@@ -20,7 +20,7 @@ import pytest
 import trimesh
 from pos_synth import write_dataset
 
-from hallray.safe_output import output_dir, output_lock, write_file
+from hallray.safe_output import MARKER, output_dir, output_lock, write_file
 from positioning.cli.accuracy import accuracy_report_main
 from positioning.cli.estimate import estimate_positions_main
 from raytrace.cli.make_dataset import make_dataset_main
@@ -81,7 +81,7 @@ def test_output_that_is_an_input_is_refused(ds, capsys):
     assert "is an input of this command" in _only_line(_err(capsys))
     assert (ds / "toa.csv").read_bytes() == before
     assert accuracy_report_main([str(ds), "--methods", "ls", "-o", str(ds.parent)]) == 2
-    assert "is an input" in _err(capsys)
+    assert "contains an input of this command" in _err(capsys)
 
 
 def test_export_glb_onto_its_own_scene_is_refused(tmp_path, capsys):
@@ -132,9 +132,15 @@ def test_second_writer_gets_a_clear_error(ds, tmp_path, capsys):
 def test_report_is_whole_or_nothing_and_replaces_only_a_report(ds, tmp_path, capsys):
     rep = tmp_path / "rep"
     assert accuracy_report_main([str(ds), "--methods", "ls", "-o", str(rep)]) == 0
-    (rep / "stale.png").write_bytes(b"x")  # a previous report is replaced whole
+    (rep / "table.md").write_text("edited")  # a previous report is replaced whole
+    (rep / "table.csv").unlink()
     assert accuracy_report_main([str(ds), "--methods", "ls", "-o", str(rep)]) == 0
-    assert not (rep / "stale.png").exists() and (rep / "table.md").is_file()
+    assert (rep / "table.md").read_text().startswith("| metric") and (rep / "table.csv").is_file()
+    # issue 40: a file the report did not write is someone else's: the report is not replaced
+    (rep / "notes.txt").write_text("mine")
+    assert accuracy_report_main([str(ds), "--methods", "ls", "-o", str(rep)]) == 2
+    assert "holds files accuracy-report did not write (notes.txt)" in _only_line(_err(capsys))
+    assert (rep / "notes.txt").read_text() == "mine" and (rep / "table.md").is_file()
     mine = tmp_path / "mine"
     mine.mkdir()
     (mine / "thesis.tex").write_text("keep")
@@ -443,7 +449,7 @@ def _cli(module: str, func: str, args: list[str]) -> subprocess.Popen:
 
 def _whole_dataset(out: Path) -> bool:
     """A ToA dataset directory with its two files and every row its ``meta.json`` announces."""
-    if sorted(p.name for p in out.iterdir()) != ["meta.json", "toa.csv"]:
+    if sorted(p.name for p in out.iterdir()) != [MARKER, "meta.json", "toa.csv"]:
         return False
     meta = json.loads((out / "meta.json").read_text())
     rows = meta["n_epochs"] * len(meta["base_stations"]) * len(meta["points"])
@@ -556,5 +562,5 @@ def test_fault_injection_reproduce_paper(tmp_path):
                     random.Random(3), (3.0, 12.0), kills=2)  # fmt: skip
     assert (out / "report" / "table.md").is_file()
     # the four setups under the realistic and the ideal receiver
-    assert len(list((out / "datasets").iterdir())) == 8
+    assert len([p for p in (out / "datasets").iterdir() if p.name != MARKER]) == 8
     assert (out / "paper.md").is_file() and (out / "maps" / "c-band" / "map.npz").is_file()

@@ -18,14 +18,19 @@ from .options import (
     alert_limit,
     all_unsolved,
     base_method,
+    check_distinct_datasets,
     check_method_params,
     height_mode,
     methods_help,
     no_trusted,
     parse_params,
+    run_inputs,
     summary_line,
     with_map,
 )
+
+#: The name an accuracy report's marker records (:func:`hallray.safe_output.write_marker`).
+REPORT_COMMAND = "accuracy-report"
 
 
 def _report_parser() -> OneLineParser:
@@ -66,11 +71,10 @@ def _report_parser() -> OneLineParser:
 
 
 def _report(args: argparse.Namespace) -> int:
-    from hallray.safe_output import check_output, output_dir
+    from hallray.safe_output import check_output_dir, output_dir
 
     from ..evaluation.trust import check_trustworthy, trust_counts
     from ..io.scale import check_height
-    from ..report.files import is_report_dir
     from ..report.pool import evaluate_all
     from ..report.write import write_report
 
@@ -83,10 +87,13 @@ def _report(args: argparse.Namespace) -> int:
     if args.workers < 1:
         raise PositioningError(f"--workers must be at least 1, got {args.workers}")
     out = Path(args.output)
-    check_output(out, inputs=args.datasets, directory=True)  # before any work
     height = height_mode(args)
     limit = alert_limit(args)
     params = parse_params(args.param, methods)
+    inputs = run_inputs(args.datasets, args.map, params)
+    # before any work: the output may not touch an input, and replaces only an earlier report
+    check_output_dir(out, command=REPORT_COMMAND, inputs=inputs, replace_previous=True)
+    check_distinct_datasets(args.datasets)
     datasets = [load_dataset(d) for d in args.datasets]
     per_ds = [with_map(params, args.map, ds) for ds in datasets]
     results = []
@@ -105,7 +112,7 @@ def _report(args: argparse.Namespace) -> int:
             raise no_trusted(ds, fx[0])
         results.append(r)
     # the report appears whole or not at all; a previous report there is replaced
-    with output_dir(out, inputs=args.datasets, replaceable=is_report_dir) as tmp:
+    with output_dir(out, command=REPORT_COMMAND, inputs=inputs, replace_previous=True) as tmp:
         md, written = write_report(results, methods, tmp)
     print(md, end="")
     print()

@@ -6,7 +6,6 @@ from __future__ import annotations
 import argparse
 import sys
 from collections.abc import Sequence
-from pathlib import Path
 
 from hallray.harness import OneLineParser, run_command
 
@@ -25,6 +24,7 @@ from .options import (
     methods_help,
     no_trusted,
     parse_params,
+    run_inputs,
     summary_line,
     with_map,
 )
@@ -67,13 +67,13 @@ def _estimate(args: argparse.Namespace) -> int:
     if args.output is None:
         raise PositioningError("the following arguments are required: -o/--output")
     base = base_method(args.method)
-    inputs = [Path(args.dataset) / n for n in ("toa.csv", "meta.json")]
-    out = args.output
-    if out != STDOUT:
-        check_output(out, inputs=inputs)  # before any work
     height = height_mode(args)
     limit = alert_limit(args)
     params = parse_params(args.param, [args.method])
+    inputs = run_inputs([args.dataset], args.map, params)
+    out = args.output
+    if out != STDOUT:
+        check_output(out, inputs=inputs)  # before any work
     ds = load_dataset(args.dataset)
     params = with_map(params, args.map, ds)
     check_height(height, ds.bs_xyz)

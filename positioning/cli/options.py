@@ -65,8 +65,13 @@ def parse_params(items: Sequence[str], methods: Sequence[str]) -> dict[str, dict
                     f"--param {item!r}: unknown method {meth!r}; choose one of: "
                     f"{', '.join(METHODS)}"
                 )
-            if meth in out:
-                out[meth][name] = value
+            if meth not in out:  # validated all the same, then refused: it would be ignored
+                resolve_params(meth, {name: value})
+                raise PositioningError(
+                    f"--param {item!r}: method {meth!r} is not run here (methods: "
+                    f"{', '.join(m for m in out if m != 'track')}): drop it or run that method"
+                )
+            out[meth][name] = value
             continue
         targets = [m for m in methods if key in METHODS[m].params]
         if not targets:
@@ -76,6 +81,41 @@ def parse_params(items: Sequence[str], methods: Sequence[str]) -> dict[str, dict
         for m in targets:
             out[m][key] = value
     return out
+
+
+def run_inputs(
+    datasets: Sequence[str], maps: Sequence[str] | None, params: dict[str, dict[str, str]]
+) -> list[str]:
+    """Everything a run reads, which no output may be, contain or lie inside: each dataset's
+    files and directory, and every map (``--map``, ``--param twin:map=FILE``)."""
+    import os
+
+    files = [os.path.join(d, n) for d in datasets for n in ("toa.csv", "meta.json")]
+    maps = [*(maps or []), *(p["map"] for p in params.values() if p.get("map"))]
+    return [*files, *datasets, *maps]
+
+
+def check_distinct_datasets(paths: Sequence[str]) -> None:
+    """Refuse a dataset given twice (every table row would be doubled) and two datasets of one
+    name (the report names rows and files after the dataset's directory)."""
+    import os
+
+    seen: dict[str, str] = {}
+    names: dict[str, str] = {}
+    for p in paths:
+        key = os.path.realpath(p)
+        if key in seen:
+            raise PositioningError(
+                f"dataset {p} is given twice (also as {seen[key]}): give each dataset once"
+            )
+        seen[key] = p
+        name = os.path.basename(key)
+        if name in names:
+            raise PositioningError(
+                f"datasets {names[name]} and {p} have the same name {name!r}, which the report's "
+                "rows and files are named after: copy one under another name"
+            )
+        names[name] = p
 
 
 def height_mode(args: argparse.Namespace) -> str | float:

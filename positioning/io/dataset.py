@@ -15,13 +15,15 @@ from the row when present and non-empty, else from ``meta.json`` ``schedule_s``,
 from __future__ import annotations
 
 import csv
-import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from hallray import strict_json
+from hallray.errors import brief
 
 from ..errors import PositioningError
 from ..model.area import ServiceArea, area_from_meta
@@ -43,6 +45,8 @@ class ToaDataset:
     true_xyz : (F, 3) float, metres
     toa_s : (F, N) float, seconds, device clock, NaN = not received
     tx_offset_s : (F, N) float, seconds -- transmission schedule of each measurement
+    distance_m : (F, N) float, metres, or None -- the optional ``distance_m`` column (NaN where
+        empty), checked against the stations and true positions
     """
 
     path: Path
@@ -55,6 +59,7 @@ class ToaDataset:
     true_xyz: np.ndarray
     toa_s: np.ndarray
     tx_offset_s: np.ndarray
+    distance_m: np.ndarray | None = None
 
     @property
     def n_fixes(self) -> int:
@@ -85,9 +90,9 @@ def _float(text: str, what: str, line: int, allow_empty: bool = False) -> float:
     try:
         v = float(t)
     except ValueError:
-        raise PositioningError(f"toa.csv line {line}: bad number in {what}: {text!r}") from None
+        raise PositioningError(f"toa.csv line {line}: bad number in {what}: {brief(text)}") from None
     if not math.isfinite(v):
-        raise PositioningError(f"toa.csv line {line}: non-finite {what}: {text!r}")
+        raise PositioningError(f"toa.csv line {line}: non-finite {what}: {brief(text)}")
     return v
 
 
@@ -95,8 +100,8 @@ def _read_meta(path: Path) -> dict[str, Any]:
     if not path.is_file():
         raise PositioningError(f"{path}: file not found")
     try:
-        meta = json.loads(path.read_text(encoding="utf-8-sig"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        meta = strict_json.loads(path.read_text(encoding="utf-8-sig"))
+    except (OSError, UnicodeDecodeError, ValueError) as exc:  # bad JSON, a duplicate key
         msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         raise PositioningError(f"{path}: cannot read JSON ({msg})") from None
     if not isinstance(meta, dict):
@@ -162,6 +167,7 @@ def load_dataset(directory: str | Path) -> ToaDataset:
         true_xyz=np.array(rows.truth, dtype=float),
         toa_s=np.array(rows.toa, dtype=float),
         tx_offset_s=np.array(rows.offsets, dtype=float),
+        distance_m=np.array(rows.distances, dtype=float) if rows.has_distance else None,
     )
     from .scale import check_dataset
 
@@ -183,6 +189,8 @@ class _Rows:
         self.truth: list[tuple[float, ...]] = []
         self.toa: list[list[float]] = []
         self.offsets: list[list[float]] = []
+        self.distances: list[list[float]] = []
+        self.has_distance = False
         self.seen: set[tuple[int, int]] = set()
 
     def read(self, reader: Any, csv_path: Path) -> None:
@@ -195,6 +203,7 @@ class _Rows:
         if missing:
             raise PositioningError(f"{csv_path}: missing columns: {', '.join(missing)}")
         ix = {h: i for i, h in enumerate(header)}
+        self.has_distance = "distance_m" in ix
         for line, row in enumerate(reader, start=2):
             if not row or all(not c.strip() for c in row):
                 continue
@@ -212,11 +221,11 @@ class _Rows:
         try:
             ep = int(row[ix["epoch"]].strip())
         except ValueError:
-            raise PositioningError(f"toa.csv line {line}: bad epoch {row[ix['epoch']]!r}") from None
+            raise PositioningError(f"toa.csv line {line}: bad epoch {brief(row[ix['epoch']])}") from None
         pt = row[ix["point"]].strip()
         bsn = row[ix["bs"]].strip()
         if bsn not in self.col:
-            raise PositioningError(f"toa.csv line {line}: base station {bsn!r} is not in meta.json")
+            raise PositioningError(f"toa.csv line {line}: base station {brief(bsn)} is not in meta.json")
         toa = _float(row[ix["toa_s"]], "toa_s", line, allow_empty=True)
         off = math.nan
         if i_off is not None:
@@ -240,14 +249,17 @@ class _Rows:
             )
             self.toa.append([math.nan] * self.n_bs)
             self.offsets.append([0.0] * self.n_bs)
+            self.distances.append([math.nan] * self.n_bs)
         j = self.col[bsn]
         if (f, j) in self.seen:
             raise PositioningError(
-                f"toa.csv line {line}: duplicate row for epoch {ep}, point {pt!r}, bs {bsn!r}"
+                f"toa.csv line {line}: duplicate row for epoch {ep}, point {brief(pt)}, bs {brief(bsn)}"
             )
         self.seen.add((f, j))
         self.toa[f][j] = toa
         self.offsets[f][j] = off
+        if self.has_distance:
+            self.distances[f][j] = _float(row[ix["distance_m"]], "distance_m", line, allow_empty=True)
 
 
 #: ``meta.json`` ``schema_version`` values this reader understands (absent: hand-made, fine).
@@ -258,7 +270,7 @@ def _check_schema(meta: dict[str, Any], path: Path) -> None:
     v = meta.get("schema_version")
     if v is not None and (isinstance(v, bool) or v not in KNOWN_SCHEMA_VERSIONS):
         raise PositioningError(
-            f"{path}: schema_version {v!r} is not one this reader knows "
+            f"{path}: schema_version {brief(v)} is not one this reader knows "
             f"({', '.join(map(str, KNOWN_SCHEMA_VERSIONS))}): update hallray or regenerate it"
         )
 
@@ -281,7 +293,7 @@ def _check_truth(first: tuple[float, ...], row: list[str], ix: dict[str, int], l
     if max(abs(a - b) for a, b in zip(first, here)) > 1e-3:
         raise PositioningError(
             f"toa.csv line {line}: true position {list(here)} of epoch {key[0]}, point "
-            f"{key[1]!r} differs from its first row's {list(first)}"
+            f"{brief(key[1])} differs from its first row's {list(first)}"
         )
 
 

@@ -14,6 +14,8 @@ from typing import Any
 
 import numpy as np
 
+from hallray.errors import brief
+
 from ..errors import PositioningError
 from ..estimators.eq7 import REFERENCE_CHOICES, parse_reference
 from ..estimators.fixes import Fixes
@@ -76,7 +78,7 @@ class Method:
         """Deprecated: ``func(problem, **params)``, the method as called before it took a config;
         use :attr:`run`. Works for one release, with a :class:`DeprecationWarning`."""
         warnings.warn(
-            f"positioning.Method.func moved to positioning.Method.run (method {self.name!r}, "
+            f"positioning.Method.func moved to positioning.Method.run (method {brief(self.name)}, "
             "run(problem, params)); the old path goes away in the next release",
             DeprecationWarning,
             stacklevel=2,
@@ -212,16 +214,16 @@ def method_names(include_map: bool = True) -> list[str]:
 
 def _coerce(method: str, name: str, value: Any, kind: Any, n_bs: int | None) -> Any:
     """Validate (and, for strings from the CLI, parse) one parameter value."""
-    where = f"method {method!r} parameter {name!r}"
+    where = f"method {brief(method)} parameter {brief(name)}"
     if kind == _MAP:
         if value is None or (isinstance(value, str) and not value.strip()):
-            raise PositioningError(f"method {method!r} needs a fingerprint map (--map MAP)")
+            raise PositioningError(f"method {brief(method)} needs a fingerprint map (--map MAP)")
         return value
     if kind == "bool":
         text = str(value).strip().lower()
         if isinstance(value, (bool, np.bool_)) or text in ("true", "false", "1", "0"):
             return text in ("true", "1")
-        raise PositioningError(f"{where} must be true or false, got {value!r}")
+        raise PositioningError(f"{where} must be true or false, got {brief(value)}")
     if kind == _REFERENCE:
         try:
             return parse_reference(value, n_bs)
@@ -229,7 +231,7 @@ def _coerce(method: str, name: str, value: Any, kind: Any, n_bs: int | None) -> 
             raise PositioningError(f"method {method!r} parameter {name!r}: {exc}") from None
     if isinstance(kind, tuple):
         if value not in kind:
-            raise PositioningError(f"{where} must be one of {', '.join(kind)}, got {value!r}")
+            raise PositioningError(f"{where} must be one of {', '.join(kind)}, got {brief(value)}")
         return value
     if isinstance(value, str) and value.strip().lower() in ("none", "null", ""):
         value = None
@@ -248,7 +250,7 @@ def _coerce(method: str, name: str, value: Any, kind: Any, n_bs: int | None) -> 
         else:
             v = float(value)
     except (TypeError, ValueError):
-        raise PositioningError(f"{where} must be a {kind}, got {value!r}") from None
+        raise PositioningError(f"{where} must be a {kind}, got {brief(value)}") from None
     ok = {
         _POS_FLOAT: lambda x: np.isfinite(x) and x > 0,
         "positive float or none": lambda x: np.isfinite(x) and x > 0,
@@ -262,7 +264,7 @@ def _coerce(method: str, name: str, value: Any, kind: Any, n_bs: int | None) -> 
     }[kind](v)
     if not ok:
         extra = f" (there are {n_bs} base stations)" if kind == _OPT_INDEX else ""
-        raise PositioningError(f"{where} must be a {kind}{extra}, got {value!r}")
+        raise PositioningError(f"{where} must be a {kind}{extra}, got {brief(value)}")
     return v
 
 
@@ -272,12 +274,12 @@ def resolve_params(method: str, params: Mapping[str, Any], n_bs: int | None = No
     Values may be strings (as from ``--param k=v``); they are parsed by the parameter's kind.
     """
     if method not in METHODS:
-        raise PositioningError(f"unknown method {method!r}; choose one of: {', '.join(METHODS)}")
+        raise PositioningError(f"unknown method {brief(method)}; choose one of: {', '.join(METHODS)}")
     spec = METHODS[method].params
     unknown = sorted(set(params) - set(spec))
     if unknown:
         raise PositioningError(
-            f"method {method!r} has no parameter {unknown[0]!r}; "
+            f"method {brief(method)} has no parameter {brief(unknown[0])}; "
             f"parameters: {', '.join(spec) or '(none)'}"
         )
     out = {}

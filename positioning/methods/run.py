@@ -11,8 +11,11 @@ import numpy as np
 from ..errors import PositioningError
 from ..estimators.bounded import bounded_refit
 from ..estimators.fixes import Fixes, Status
+from ..evaluation.trust import check_trustworthy, counts_of, ill_conditioned
 from ..model.area import ServiceArea
 from ..model.problem import LinkInfo, Problem, make_problem
+from ..model.scale import check_height, check_stations, check_toa_scale
+from ..model.tdoa import C0
 from .registry import METHODS, resolve_params
 
 #: What to do with a fix outside the service area: solve again inside it, or leave it unsolved.
@@ -120,6 +123,7 @@ def locate(
     links: LinkInfo | None = ...,
     alert_limit_m: float | None = ...,
     return_info: Literal[False] = ...,
+    checks: bool = ...,
     **params: Any,
 ) -> np.ndarray: ...
 
@@ -137,6 +141,7 @@ def locate(
     links: LinkInfo | None = ...,
     alert_limit_m: float | None = ...,
     return_info: Literal[True],
+    checks: bool = ...,
     **params: Any,
 ) -> Fixes: ...
 
@@ -153,6 +158,7 @@ def locate(
     links: LinkInfo | None = None,
     alert_limit_m: float | None = None,
     return_info: bool = False,
+    checks: bool = True,
     **params: Any,
 ) -> np.ndarray | Fixes:
     """Position E epochs from the ToAs of N base stations.
@@ -189,6 +195,14 @@ def locate(
     return_info : bool
         False (default): return only the positions. True: return a :class:`Fixes` with per-epoch
         status, iterations, weights and ``n_unsolved``.
+    checks : bool
+        True (default): the checks the commands make (``estimate-positions``), with the same
+        one-line messages: the scale rule on the stations (millimetres, kilometres), the ToAs
+        (milliseconds, microseconds, nanoseconds) and ``height_m`` (:mod:`positioning.model.scale`),
+        before the solve; after it, a run in which some fix is solved but none can be trusted
+        (collinear stations in 2D, stations in one plane in 3D whose fixes' mirror images fit as
+        well; :mod:`positioning.evaluation.trust`) raises. False skips them (a caller that has
+        checked its input, or wants the fixes of a degenerate geometry anyway).
     **params
         Method parameters (see ``METHODS[method].params``), validated.
 
@@ -201,8 +215,37 @@ def locate(
     Raises
     ------
     PositioningError
-        Bad shapes or values, duplicate base-station positions, unknown method or parameter.
+        Bad shapes or values, duplicate base-station positions, unknown method or parameter;
+        with ``checks``: values beyond the hall scale (:class:`~positioning.model.scale.ScaleError`)
+        and a result without a trustworthy fix.
     """
     prob = make_problem(toa_s, bs_xyz, tx_offsets_s, height_m, area=area, links=links)
+    if checks:
+        check_problem(prob)
     fixes = run_method(prob, method, outside=outside, alert_limit_m=alert_limit_m, **params)
+    if checks:
+        check_fixes(prob, fixes)
     return fixes if return_info else fixes.xyz
+
+
+def check_problem(prob: Problem) -> None:
+    """The commands' scale rule on a problem's input (:mod:`positioning.model.scale`), named as
+    :func:`locate`'s arguments."""
+    check_stations(prob.bs, "bs_xyz")
+    check_toa_scale(prob.rho / C0, prob.bs, "toa_s")
+    if prob.height is not None:
+        check_height(prob.height, prob.bs, "height_m")
+
+
+def check_fixes(prob: Problem, fixes: Fixes) -> None:
+    """Refuse fixes of which some are solved but every solved one is ill-conditioned by the
+    station geometry (the commands' rule, :func:`positioning.evaluation.trust.check_trustworthy`,
+    with its message). Fixes that are only flagged not converged are returned, flagged: the
+    caller reads their status (``return_info``)."""
+    three_d = prob.height is None
+    ill = ill_conditioned(prob.valid, prob.bs, three_d, xyz=np.asarray(fixes.xyz), rho=prob.rho)
+    counts = counts_of(fixes, ill)
+    solved = np.asarray(fixes.solved)
+    if solved.any() and not (solved & ~ill).any():
+        check_trustworthy({**counts, "trustworthy": 0}, "locate", "3d" if three_d else 0.0,
+                          "height_m")  # fmt: skip

@@ -15,11 +15,19 @@ from typing import Any
 
 import numpy as np
 
+from hallray.units import MAX_SCENE_M
+
 from ..errors import PositioningError
+from .scale import ScaleError, length_hint
 
 #: A point this close to the outline (m) counts as inside: projections land on the outline up to
 #: rounding, and must count as inside.
 BOUNDARY_TOL_M = 1e-7
+#: Most points of :meth:`ServiceArea.grid` and :meth:`ServiceArea.outline`: a larger area gets a
+#: coarser pitch (a legal 4.2 km hall at 1 m would be 17.6 million points and 5 GB).
+MAX_GRID_POINTS = 100_000
+#: Point x edge pairs evaluated at once by :meth:`ServiceArea.contains` (memory bound).
+_PAIRS_PER_BLOCK = 1_000_000
 
 
 @dataclass(frozen=True)
@@ -49,6 +57,12 @@ class ServiceArea:
         x, y = poly[:, 0], poly[:, 1]
         if abs(0.5 * np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y)) <= 0.0:
             raise PositioningError("service area polygon has zero area")
+        span = float(np.max(np.ptp(poly, axis=0)))
+        if span > MAX_SCENE_M:  # the scale rule (hallray.units): a polygon in millimetres
+            raise ScaleError(
+                f"service area polygon spans {span:,.0f} m, beyond the {MAX_SCENE_M / 1000:g} km "
+                f"a hall can span: coordinates {length_hint(span)}"
+            )
         object.__setattr__(self, "polygon", poly)
 
     @classmethod
@@ -91,10 +105,18 @@ class ServiceArea:
     def contains(self, xy: np.ndarray) -> np.ndarray:
         """(A,) bool: inside the polygon or on its outline (within :data:`BOUNDARY_TOL_M`).
 
-        Even-odd rule (a horizontal ray crossing count), vectorised over points and edges; NaN
-        points are outside.
+        Even-odd rule (a horizontal ray crossing count), vectorised over points and edges, in
+        blocks of points (memory: :data:`_PAIRS_PER_BLOCK` point-edge pairs); NaN points are
+        outside.
         """
         xy = np.asarray(xy, dtype=float).reshape(-1, 2)
+        block = max(1, _PAIRS_PER_BLOCK // len(self.polygon))
+        if len(xy) > block:
+            return np.concatenate([self._contains(xy[i : i + block])
+                                   for i in range(0, len(xy), block)])  # fmt: skip
+        return self._contains(xy)
+
+    def _contains(self, xy: np.ndarray) -> np.ndarray:
         a, b = self.edges
         x, y = xy[:, :1], xy[:, 1:]
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -114,8 +136,11 @@ class ServiceArea:
         return np.where(inside[:, None], xy, foot)
 
     def outline(self, step_m: float) -> np.ndarray:
-        """(K, 2) points along the outline, at most ``step_m`` apart, vertices included."""
+        """(K, 2) points along the outline, at most ``step_m`` apart (farther when that would be
+        more than :data:`MAX_GRID_POINTS`), vertices included."""
         a, b = self.edges
+        perimeter = float(np.sum(np.linalg.norm(b - a, axis=1)))
+        step_m = max(step_m, perimeter / MAX_GRID_POINTS)
         pts = []
         for p, q in zip(a, b, strict=True):
             n = max(int(np.ceil(np.linalg.norm(q - p) / step_m)), 1)
@@ -124,8 +149,11 @@ class ServiceArea:
         return np.concatenate(pts)
 
     def grid(self, step_m: float) -> np.ndarray:
-        """(G, 2) points of a square grid of pitch ``step_m`` that lie inside (cell centres)."""
+        """(G, 2) points of a square grid of pitch ``step_m`` that lie inside (cell centres); a
+        coarser pitch where ``step_m`` would give more than :data:`MAX_GRID_POINTS` points."""
         lo, hi = self.bounds
+        w, h = np.maximum(hi - lo, 1e-9)
+        step_m = max(step_m, float(np.sqrt(w * h / MAX_GRID_POINTS)))
         xs = np.arange(lo[0] + 0.5 * step_m, hi[0], step_m)
         ys = np.arange(lo[1] + 0.5 * step_m, hi[1], step_m)
         g = np.stack(np.meshgrid(xs, ys, indexing="ij"), axis=-1).reshape(-1, 2)

@@ -168,6 +168,11 @@ class TwinConfig:
     resynth_step: float = RASTER_STEP_M
 
 
+#: Largest difference between a fix's device height and the map's, m, for the cell and interp
+#: bias models (the map's ToAs are of its height).
+MAP_HEIGHT_TOL_M = 0.05
+
+
 def twin(
     prob: Problem, config: TwinConfig, fallback: Callable[[Problem], Fixes] | None = None
 ) -> Fixes:
@@ -249,6 +254,16 @@ def _setup(prob: Problem, config: TwinConfig) -> tuple[FingerprintMap, Lattice, 
         raise PositioningError(f"twin: unknown bias model {bias!r} (cell, interp, resynth, auto)")
     if bias == "resynth" and not fmap.has_paths:
         raise PositioningError("twin: bias=resynth needs a map with paths (schema version 2)")
+    if bias != "resynth":  # the cells' ToAs are of the map's height: the fixes must be at it
+        map_h = float(np.median(fmap.cell_xyz[:, 2]))
+        off = np.abs(np.asarray(prob.height, dtype=float) - map_h)
+        if np.nanmax(off, initial=0.0) > MAP_HEIGHT_TOL_M:
+            h = float(np.asarray(prob.height)[int(np.nanargmax(off))])
+            raise PositioningError(
+                f"twin: the map is at device height {map_h:g} m but a fix is at {h:g} m: build "
+                "the map at the devices' height (accuracy-map --height), or use a map with paths "
+                "(bias resynth moves them to the height)"
+            )
     prior_m = config.prior_m
     if prior_m is None:
         prior_m = RESYNTH_PRIOR_M if bias == "resynth" else PRIOR_M

@@ -67,6 +67,7 @@ from typing import Any
 
 import numpy as np
 
+from hallray import strict_json
 from hallray.safe_output import write_file
 
 from ..errors import PositioningError
@@ -282,9 +283,9 @@ def read_map(path: str | Path) -> FingerprintMap:
             f"{', '.join(map(str, READ_VERSIONS))})"
         )
     try:
-        meta = json.loads(str(data.get("meta_json", "{}")))
-    except json.JSONDecodeError:
-        raise PositioningError(f"{path}: meta_json is not valid JSON") from None
+        meta = strict_json.loads(str(data.get("meta_json", "{}")))
+    except ValueError as exc:  # not JSON, or a key given twice
+        raise PositioningError(f"{path}: meta_json is not valid JSON ({exc})") from None
     if not isinstance(meta, dict):
         raise PositioningError(f"{path}: meta_json is not a JSON object")
     _check_arrays(data, str(path))

@@ -78,6 +78,7 @@ def accuracy_map_main(argv: Sequence[str] | None = None) -> int:
 
 
 def _accuracy_map(args: argparse.Namespace) -> int:
+    from ..scene.bundled import resolve_scene
     from ..scene.io import load_scene
     from ..solver.config import config_from_args
     from ..solver.parallel import process_context, resolve_workers
@@ -102,7 +103,8 @@ def _accuracy_map(args: argparse.Namespace) -> int:
     )  # fmt: skip
     settings.check()
     resolve_workers(args.workers, 1)  # a bad --workers is refused before any work
-    check_output(args.output, args.force)
+    inputs = [resolve_scene(args.scene), args.materials, args.band]
+    check_output(args.output, args.force, inputs)
     if args.scheduler is None and resolve_workers(args.workers, 2) > 1:
         # the workers' fork server imports its modules while this process loads the scene
         process_context(("raytrace.studies.accuracy_map",))
@@ -110,7 +112,7 @@ def _accuracy_map(args: argparse.Namespace) -> int:
     amap = compute_map(scene, settings, scene_name=str(args.scene), workers=args.workers,
                        scheduler=args.scheduler, progress=not args.quiet)  # fmt: skip
     files = write_outputs(args.output, scene, amap, force=args.force,
-                          pictures=not args.no_pictures)  # fmt: skip
+                          pictures=not args.no_pictures, inputs=inputs)  # fmt: skip
     if not args.quiet:
         f = amap.fmap
         print(f"{f.n_cells} cells x {f.n_bs} base stations, {f.meta['n_paths']} paths, "

@@ -31,10 +31,13 @@ def build_hall_parser() -> argparse.ArgumentParser:
 
 
 def _build_hall(args: argparse.Namespace) -> int:
-    spec = load_hall_spec(args.hall)
+    from hallray.safe_output import check_output
+
     out = Path(args.output) if args.output else Path(args.hall).with_suffix(".glb")
     if out.suffix.lower() != ".glb":
         raise SceneError(f"output {out} must end in .glb")
+    check_output(out, inputs=[args.hall])  # before any work: never the YAML, never the package
+    spec = load_hall_spec(args.hall)
     scene = build_scene(spec)
     data = write_glb(scene, out)
     n_faces = sum(len(g.faces) for g in scene.geometry.values())

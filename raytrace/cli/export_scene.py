@@ -45,7 +45,8 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--frequency-hz", type=float,
                    help="that reference frequency in Hz (overrides --band)")  # fmt: skip
     p.add_argument("--force", action="store_true",
-                   help="replace a non-empty DIR that is not a previous export")  # fmt: skip
+                   help="kept for compatibility: an earlier export is replaced anyway, a "
+                   "directory with other files never")  # fmt: skip
     p.add_argument("-q", "--quiet", action="store_true", help="print nothing on success")
     return p
 
@@ -55,16 +56,13 @@ def export_scene_main(argv: Sequence[str] | None = None) -> int:
     return run_tool(main, parser(), argv, interrupted="interrupted (nothing written)")
 
 
-def _is_export(d: Path) -> bool:
-    """A directory a previous export wrote (it holds a sidecar): replaced without --force."""
-    from ..scene.mitsuba import SIDECAR_SUFFIX
-
-    return any(d.glob(f"*{SIDECAR_SUFFIX}"))
+#: The name an export's marker records (:func:`hallray.safe_output.write_marker`).
+EXPORT_COMMAND = "hallray-export"
 
 
 def main(args: argparse.Namespace) -> int:
     """``hallray-export``: parse -> load -> export into a temporary directory -> rename."""
-    from hallray.safe_output import check_output, output_dir
+    from hallray.safe_output import check_output_dir, output_dir
 
     from ..emulation.bands import get_band
     from ..scene.bundled import resolve_scene
@@ -88,7 +86,8 @@ def main(args: argparse.Namespace) -> int:
     else:
         freq = float(get_band(args.band).center_frequency_hz)
     inputs = [resolve_scene(args.scene), args.materials]
-    check_output(folder, inputs=inputs, directory=True, what="output directory")
+    check_output_dir(folder, command=EXPORT_COMMAND, inputs=inputs, force=args.force,
+                     replace_previous=True)  # fmt: skip
     tty = not args.quiet and sys.stderr.isatty()  # progress lines for a person at a terminal
     if tty:
         print(f"loading {args.scene}...", file=sys.stderr, flush=True)
@@ -101,8 +100,8 @@ def main(args: argparse.Namespace) -> int:
 
         bar = tqdm(total=len(scene.objects), desc="meshes", unit="mesh", leave=False)
     try:
-        with output_dir(folder, force=args.force, inputs=inputs, replaceable=_is_export,
-                        what="output directory") as tmp:  # fmt: skip
+        with output_dir(folder, command=EXPORT_COMMAND, force=args.force, inputs=inputs,
+                        replace_previous=True) as tmp:  # fmt: skip
             result = export_mitsuba(
                 scene, tmp / xml.name, frequency_hz=freq,
                 progress=(lambda k, n: bar.update(1)) if bar is not None else None,

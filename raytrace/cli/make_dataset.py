@@ -120,6 +120,7 @@ def _make_dataset(args: argparse.Namespace) -> int:
     from hallray.safe_output import output_dir
 
     from ..emulation.dataset.config import ALL_DATASETS
+    from ..scene.bundled import resolve_scene
 
     if args.all:
         if args.scenario or args.band:
@@ -130,10 +131,11 @@ def _make_dataset(args: argparse.Namespace) -> int:
             raise HallrayError("give --scenario and --band, or --all")
         pairs, subdirs = [(args.scenario, args.band)], False
     PrsSettings(comb=args.comb)  # an unknown comb is refused before any work
-    scene = None if args.scene == "hall" else args.scene
+    scene = resolve_scene(args.scene)
     # built in a temporary directory beside the output, renamed when whole; locked against a
-    # second writer
-    with output_dir(args.output, force=args.force, inputs=[scene]) as tmp:
+    # second writer; only an earlier make-dataset output is replaced (--force)
+    with output_dir(args.output, command="make-dataset", force=args.force,
+                    inputs=[scene, args.band]) as tmp:  # fmt: skip
         summaries = _make(args, tmp, pairs, subdirs)
     for s in summaries:  # name the final directory, not the staging one
         s["directory"] = str(Path(args.output) / Path(s["directory"]).relative_to(tmp))

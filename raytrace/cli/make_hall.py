@@ -85,8 +85,8 @@ def _make_hall(args: argparse.Namespace) -> int:
     from hallray.safe_output import output_dir
 
     # the three files appear together or not at all; a previous make-hall output is replaced,
-    # any other non-empty directory refused
-    with output_dir(args.output, replaceable=lambda d: (d / INF_JSON).is_file()) as tmp:
+    # any other non-empty directory (or one with files make-hall did not write) refused
+    with output_dir(args.output, command="make-hall", replace_previous=True) as tmp:
         written = make_hall(
             args.profile, args.size, args.seed, tmp, n_points=args.points,
             **_generator_kwargs(args),
@@ -166,6 +166,13 @@ def hall_los_check_main(argv: Sequence[str] | None = None) -> int:
 def _hall_los_check(args: argparse.Namespace) -> int:
     if args.points is not None and args.points < 1:
         raise HallrayError(f"--points must be >= 1, got {args.points}")
+    if args.plot:  # before any work
+        from hallray.safe_output import check_output
+
+        if not str(args.plot).lower().endswith(".png"):
+            raise HallrayError(f"--plot {args.plot}: must end in .png")
+        target = args.target if Path(args.target).is_dir() else None
+        check_output(args.plot, inputs=[target], what="--plot")
     sample, params = _los_sample(args)
     if sample.n_links == 0:
         raise HallrayError("no base station -> point links to check: give more --points")
@@ -211,7 +218,9 @@ def _los_sample(args: argparse.Namespace) -> tuple[Any, dict[str, Any]]:
             if not path.is_file():
                 raise HallrayError(f"{path} not found (write the hall with make-hall -o {target})")
         try:
-            info = json.loads(info_path.read_text(encoding="utf-8"))
+            from hallray import strict_json
+
+            info = strict_json.loads(info_path.read_text(encoding="utf-8"))
             params = dict(info["params"])
             k = float(info["k_subsce_m"])
         except (ValueError, KeyError, TypeError) as exc:
@@ -231,10 +240,16 @@ def _los_sample(args: argparse.Namespace) -> tuple[Any, dict[str, Any]]:
     n = 5 if args.seeds is None else args.seeds
     if n < 1:
         raise HallrayError(f"--seeds must be >= 1, got {n}")
+    from hallray.limits import check_size
+
+    check_size("seeds", n, f"--seeds {n}")
     if args.first_seed < 0:
         raise HallrayError(f"--first-seed must be >= 0, got {args.first_seed}")
     kwargs = _generator_kwargs(args)
     params = resolve_params(args.target, args.size, args.first_seed, n_points=args.points, **kwargs)
+    links = float(n) * params.n_points * params.bs_grid[0] * params.bs_grid[1]
+    check_size("los links", links, f"--seeds {n} x {params.n_points} points x "
+               f"{params.bs_grid[0] * params.bs_grid[1]} base stations")  # fmt: skip
     sample = los_check(
         args.target,
         range(args.first_seed, args.first_seed + n),

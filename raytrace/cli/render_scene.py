@@ -91,16 +91,28 @@ def render_scene_main(argv: Sequence[str] | None = None) -> int:
 def _render_scene(args: argparse.Namespace) -> int:
     from ..scene.io import load_scene
     from ..scene.metadata import SceneMetadata
-    from ..solver.paths import Paths
+    from ..solver.paths import Paths, check_paths_scene
     from ..viz.render import link_paths, render_scene
 
     if not args.output.lower().endswith(".png"):
         raise HallrayError(f"output {args.output} must end in .png")
     if args.dpi < 20 or args.dpi > 1200:
         raise HallrayError(f"--dpi must be 20..1200, got {args.dpi}")
+    for flag, value in (("--elev", args.elev), ("--azim", args.azim),
+                        ("--cut-height", args.cut_height)):  # fmt: skip
+        if value is not None and not np.isfinite(value):
+            raise HallrayError(f"{flag} must be a finite number, got {value}")
+    w, h = args.size
+    if min(w, h) < 16:
+        raise HallrayError(f"--size must be at least 16x16 pixels, got {w}x{h}")
+    from hallray.limits import check_size
+
+    check_size("pixels", float(w) * float(h), f"--size {w}x{h}")
     from hallray.safe_output import check_output
 
-    check_output(args.output, inputs=[args.scene, args.materials, args.paths])
+    from ..scene.bundled import resolve_scene
+
+    check_output(args.output, inputs=[resolve_scene(args.scene), args.materials, args.paths])
     scene = load_scene(args.scene, args.materials, **scene_options(args))
     sites = SceneMetadata.from_scene(scene)
     bs_names, bs_xyz, pt_names, pt_xyz = (
@@ -115,7 +127,7 @@ def _render_scene(args: argparse.Namespace) -> int:
         if args.tx or args.rx:
             raise HallrayError("give either --paths or --tx/--rx, not both")
         paths = Paths.load(args.paths)
-        _check_paths_fit_scene(paths, scene, args.paths)
+        check_paths_scene(args.paths, paths, scene)
         tx_names = _names_for(paths.tx, bs_names, bs_xyz, "tx")
         rx_names = _names_for(paths.rx, pt_names, pt_xyz, "rx")
         chosen = parse_links(args.link, tx_names, rx_names) if args.link else []
@@ -172,15 +184,3 @@ def _names_for(xyz: np.ndarray, names: list[str], stored: np.ndarray, prefix: st
     if len(names) == len(xyz) and np.allclose(stored, xyz, atol=1e-3):
         return list(names)
     return [f"{prefix}{i}" for i in range(len(xyz))]
-
-
-def _check_paths_fit_scene(paths: object, scene: object, name: str) -> None:
-    """Refuse a paths file whose positions or interaction points lie outside the scene."""
-    lo, hi = scene.bounds  # type: ignore[attr-defined]
-    slack = 0.01 * float(np.linalg.norm(hi - lo)) + 0.01
-    pts = [paths.tx, paths.rx]  # type: ignore[attr-defined]
-    inter = paths.points.reshape(-1, 3)  # type: ignore[attr-defined]
-    pts.append(inter[np.isfinite(inter).all(axis=1)])
-    allp = np.concatenate(pts)
-    if len(allp) and ((allp < lo - slack) | (allp > hi + slack)).any():
-        raise HallrayError(f"paths file {name} does not belong to this scene (points outside it)")

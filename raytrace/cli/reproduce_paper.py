@@ -95,6 +95,7 @@ def _main(args: argparse.Namespace) -> int:
     from hallray.safe_output import output_dir
 
     from ..emulation.receivers.receiver import DEFAULT_TOA_METHOD, TOA_METHODS
+    from ..scene.bundled import resolve_scene
 
     receiver = args.receiver or DEFAULT_TOA_METHOD
     if receiver not in TOA_METHODS:
@@ -109,22 +110,36 @@ def _main(args: argparse.Namespace) -> int:
     if not (math.isfinite(args.map_step) and args.map_step >= 0):
         raise HallrayError(f"--map-step must be a number of metres >= 0, got {args.map_step!r}")
     if args.map_step > 0:  # a grid step it refuses is refused before any work
-        from ..studies.accuracy_map.settings import MapSettings
-
-        MapSettings(step_m=args.map_step, receiver=receiver).check()
+        _check_map_grid(args, receiver)
     out = Path(args.output)
-    scene = None if args.scene == "hall" else args.scene
+    scene = resolve_scene(args.scene)
     t0 = time.perf_counter()
     # the whole output (datasets, reports, paper.md) is built in a temporary directory beside OUT
     # and renamed when complete: an error, Ctrl-C or SIGTERM leaves nothing, and a rerun starts
     # clean
-    with output_dir(out, force=args.force, inputs=[scene]) as tmp:
+    with output_dir(out, command="reproduce-paper", force=args.force, inputs=[scene]) as tmp:
         text = _build(args, receivers, tmp, out, t0)
     print("\n" + text.split("## Why, by mechanism")[0].rstrip())
     reports = ", ".join(str(out / _report_name(r, receivers)) for r in receivers)
     print(f"\nreports in {reports}; comparison and findings in {out / 'paper.md'} "
           f"(total {time.perf_counter() - t0:.1f} s)")  # fmt: skip
     return 0
+
+
+def _check_map_grid(args: argparse.Namespace, receiver: str) -> None:
+    """The maps' settings and grid size (cells, the size limits), before any dataset is built:
+    a ``--map-step`` the maps would refuse is refused in seconds, not after the datasets."""
+    from ..scene.io import load_scene
+    from ..scene.metadata import SceneMetadata
+    from ..studies.accuracy_map.grid import make_grid
+    from ..studies.accuracy_map.settings import MapSettings
+
+    settings = MapSettings(step_m=args.map_step, receiver=receiver, draws=MAP_DRAWS)
+    settings.check()
+    scene = load_scene(args.scene)
+    sites = SceneMetadata.from_scene(scene)
+    grid = make_grid(scene, settings, sites.point_names, sites.point_xyz)
+    settings.check_grid(len(grid.cell_xyz), len(sites.bs_xyz))
 
 
 def _report_name(receiver: str, receivers: Sequence[str]) -> str:

@@ -110,7 +110,7 @@ def _trace_scene(args: argparse.Namespace) -> int:
     elapsed = time.perf_counter() - t0
     table = link_table(paths, tx_names, rx_names)
     if args.output:
-        paths.save(args.output)
+        paths.save(args.output, scene_sha256=scene.content_hash())
     if args.export_glb:
         from ..viz.export import export_paths_glb
 
@@ -149,10 +149,16 @@ def _check_outputs(args: argparse.Namespace) -> None:
     """Refuse, before any work, an output that is special, an input, or both outputs at once."""
     from hallray.safe_output import check_output
 
-    inputs = [args.scene if args.scene != "hall" else None, args.materials]
+    from ..scene.bundled import resolve_scene
+
+    inputs = [resolve_scene(args.scene), args.materials, args.band]
     if args.output:
         check_output(args.output, inputs=inputs, what="-o")
     if args.export_glb:
+        if not args.export_glb.lower().endswith(".glb"):
+            raise HallrayError(
+                f"--export-glb {args.export_glb}: the export is binary glTF: name it .glb"
+            )
         check_output(args.export_glb, inputs=[*inputs, args.output], what="--export-glb")
 
 

@@ -147,13 +147,13 @@ def _map_file(arg: str | None) -> Path | None:
 def _paths(args: argparse.Namespace, scene: Any) -> tuple[Any, list[int] | None, tuple]:
     """(paths or None, the link indices to draw or None for all, (tx names, rx names))."""
     from ..scene.metadata import SceneMetadata
-    from ..solver.paths import Paths
+    from ..solver.paths import Paths, check_paths_scene
     from ..viz.interactive import site_names
 
     sites = SceneMetadata.from_scene(scene)
     if args.paths:
         paths = Paths.load(args.paths)
-        _check_paths_of_scene(args.paths, paths, scene)
+        check_paths_scene(args.paths, paths, scene)
         tx_names = site_names(paths.tx, sites.bs_names, sites.bs_xyz, "tx")
         rx_names = site_names(paths.rx, sites.point_names, sites.point_xyz, "rx")
         links = parse_links(args.link, tx_names, rx_names) if args.link else None
@@ -193,24 +193,6 @@ def _trace_links(
     paths = trace(scene, tx[ts], rx[rs], float(freq), config_from_args(args))
     sub = [ts.index(c // len(rx)) * len(rs) + rs.index(c % len(rx)) for c in chosen]
     return paths, sub, ([tx_names[t] for t in ts], [rx_names[r] for r in rs])
-
-
-def _check_paths_of_scene(name: str, paths: Any, scene: Any) -> None:
-    """Refuse a paths file of another scene: by the scene hash it carries (``scene_sha256``), if
-    any, else by positions and interaction points outside the scene."""
-    with np.load(name) as z:
-        stored = str(z["scene_sha256"]) if "scene_sha256" in z.files else None
-    if stored is not None and stored != scene.content_hash():
-        raise HallrayError(
-            f"paths file {name} was traced in another scene (its scene_sha256 differs from this "
-            "scene's content hash)"
-        )
-    lo, hi = scene.bounds
-    slack = 0.01 * float(np.linalg.norm(hi - lo)) + 0.01
-    inter = paths.points.reshape(-1, 3)
-    allp = np.concatenate([paths.tx, paths.rx, inter[np.isfinite(inter).all(axis=1)]])
-    if len(allp) and ((allp < lo - slack) | (allp > hi + slack)).any():
-        raise HallrayError(f"paths file {name} does not belong to this scene (points outside it)")
 
 
 if __name__ == "__main__":  # pragma: no cover

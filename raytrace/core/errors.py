@@ -6,9 +6,14 @@ into a one-line message and a non-zero exit status, never a traceback.
 
 from __future__ import annotations
 
+from hallray.errors import InputError
 
-class HallrayError(ValueError):
-    """Bad input to the tracer or its tools (message is one line, shown to the user as is)."""
+
+class HallrayError(InputError):
+    """Bad input to the tracer or its tools (message is one line, shown to the user as is).
+
+    An :class:`hallray.errors.InputError` (a ``ValueError``), like the positioning package's
+    errors and the size limits' :class:`hallray.limits.SizeError`."""
 
 
 class MaterialError(HallrayError):

@@ -9,6 +9,8 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
+from hallray.errors import brief
+
 from .errors import HallrayError
 
 
@@ -48,14 +50,28 @@ def write_atomic(path: str | os.PathLike[str], data: bytes) -> None:
 
 
 def _yaml12_loader() -> type:
-    """PyYAML's safe loader with YAML 1.2 numbers: ``1.0e9``, ``1e-3`` and ``.5`` are floats
-    (PyYAML follows YAML 1.1, where an exponent needs a sign and a dot: ``1.0e9`` is a string)."""
+    """PyYAML's safe loader with YAML 1.2 numbers (``1.0e9``, ``1e-3`` and ``.5`` are floats; PyYAML
+    follows YAML 1.1, where an exponent needs a sign and a dot: ``1.0e9`` is a string), that
+    refuses a key given twice in one mapping (YAML forbids it; PyYAML keeps the last silently) and
+    a document whose aliases expand to more than the ``yaml values`` limit of
+    :mod:`hallray.limits` (a "billion laughs" file), before anything is built from it."""
     import re
 
     import yaml
+    from yaml.constructor import ConstructorError
 
     class Loader(yaml.SafeLoader):
-        pass
+        def construct_mapping(self, node: Any, deep: bool = False) -> Any:
+            if isinstance(node, yaml.MappingNode):
+                _refuse_duplicate_keys(self, node, ConstructorError)
+            return super().construct_mapping(node, deep=deep)
+
+        def get_single_data(self) -> Any:
+            node = self.get_single_node()
+            if node is None:
+                return None
+            _check_expansion(node, ConstructorError)
+            return self.construct_document(node)
 
     float12 = re.compile(
         r"^(?:[-+]?(?:[0-9][0-9_]*)\.[0-9_]*(?:[eE][-+]?[0-9]+)?"
@@ -69,6 +85,67 @@ def _yaml12_loader() -> type:
     }
     Loader.add_implicit_resolver("tag:yaml.org,2002:float", float12, list("-+0123456789."))
     return Loader
+
+
+def _refuse_duplicate_keys(loader: Any, node: Any, error: type[Exception]) -> None:
+    """Raise ``error`` for a scalar key given twice in one mapping node (merged ``<<`` keys may
+    be overridden, as YAML allows)."""
+    seen: dict[Any, int] = {}
+    for key_node, _ in node.value:
+        if key_node.tag == "tag:yaml.org,2002:merge" or not hasattr(key_node.value, "strip"):
+            continue
+        key = loader.construct_object(key_node)
+        try:
+            first = seen.setdefault(key, key_node.start_mark.line)
+        except TypeError:  # an unhashable key: PyYAML refuses it itself
+            continue
+        if first != key_node.start_mark.line:
+            raise error(
+                None, None,
+                f"key {brief(key)} given twice (lines {first + 1} and "
+                f"{key_node.start_mark.line + 1}): give it once",
+                key_node.start_mark,
+            )  # fmt: skip
+
+
+def _children(node: Any) -> list[Any]:
+    """The nodes under a YAML node (a mapping's keys and values, a sequence's items)."""
+    if not isinstance(node.value, list):
+        return []  # a scalar
+    return [k for item in node.value for k in (item if isinstance(item, tuple) else (item,))]
+
+
+def _check_expansion(root: Any, error: type[Exception]) -> None:
+    """Refuse a node graph whose aliases expand to more values than the ``yaml values`` limit,
+    or that refers to itself. Sizes are memoised per node (an alias is the same node object), so
+    the check is linear in the file, not in the expansion."""
+    from hallray.limits import LIMITS, overridden
+
+    limit = LIMITS["yaml values"].maximum
+    size: dict[int, int] = {}
+    busy: set[int] = set()  # on the current path from the root
+    stack: list[tuple[Any, bool]] = [(root, False)]
+    while stack:
+        node, expanded = stack.pop()
+        key = id(node)
+        if expanded:
+            busy.discard(key)
+            size[key] = 1 + sum(size[id(k)] for k in _children(node))
+            if size[key] > limit and not overridden():
+                raise error(
+                    None, None,
+                    f"its aliases expand to more than {limit:,} values (the 'yaml values' "
+                    "limit of docs/reliability.md): write the values out",
+                    node.start_mark,
+                )  # fmt: skip
+            continue
+        if key in size:
+            continue
+        if key in busy:
+            raise error(None, None, "an alias refers to a value that contains it", node.start_mark)
+        busy.add(key)
+        stack.append((node, True))
+        stack += [(k, False) for k in _children(node) if id(k) not in size]
 
 
 def read_yaml(

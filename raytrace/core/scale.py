@@ -12,7 +12,13 @@ from __future__ import annotations
 import math
 
 from hallray.units import LENGTH_UNITS as UNIT_FACTORS
-from hallray.units import MAX_SCENE_M
+from hallray.units import (
+    MAX_HALL_HEIGHT_M,
+    MAX_SCENE_M,
+    MIN_SCENE_M,
+    frequency_problem,
+    likely_small_length_unit,
+)
 
 from .errors import HallrayError
 
@@ -47,3 +53,36 @@ def check_size(size_m: float, what: str, limit_m: float = MAX_SCENE_M) -> None:
             f"{what} is {size_m:,.0f} m, beyond the {limit_m / 1000:g} km a hall can span: "
             f"{unit_hint(size_m, limit_m)}"
         )
+
+
+def check_extent(size_m: tuple[float, float, float] | list[float], what: str) -> None:
+    """The scale rule on a hall's or scene's extent ``(x, y, z)`` in metres: at most
+    :data:`MAX_SCENE_M` across, at most :data:`~hallray.units.MAX_HALL_HEIGHT_M` high, and at
+    least :data:`~hallray.units.MIN_SCENE_M` across (a hall in kilometres). Raises
+    :class:`ScaleError` naming the likely unit mistake.
+    """
+    x, y, z = (float(v) for v in size_m)
+    check_size(max(x, y, z), what)
+    if math.isfinite(z) and z > MAX_HALL_HEIGHT_M:
+        raise ScaleError(
+            f"{what} is {z:,.0f} m high, more than the {MAX_HALL_HEIGHT_M:g} m a hall can be: "
+            f"{unit_hint(z, MAX_HALL_HEIGHT_M)}"
+        )
+    big = max(x, y, z)
+    if math.isfinite(big) and big < MIN_SCENE_M:
+        found = likely_small_length_unit(big)
+        hint = (
+            f"the numbers are probably in {found[1]} (x{found[0]:g}): scale them to metres"
+            if found
+            else "give coordinates in metres"
+        )
+        raise ScaleError(f"{what} is {big:g} m across, less than the {MIN_SCENE_M:g} m of a hall: {hint}")
+
+
+def check_frequency(frequency_hz: float, what: str = "frequency") -> float:
+    """The scale rule on a carrier frequency (:func:`hallray.units.frequency_problem`); returns
+    it as a float. Raises :class:`ScaleError`."""
+    problem = frequency_problem(frequency_hz)
+    if problem is not None:
+        raise ScaleError(f"{what}: {problem}")
+    return float(frequency_hz)

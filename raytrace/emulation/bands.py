@@ -24,6 +24,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from hallray.errors import brief
+
 from ..core.constants import wavelength
 from ..core.errors import HallrayError
 from ..core.fileio import read_yaml
@@ -66,16 +68,16 @@ class Band:
             value = getattr(self, field)
             if not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
                 raise HallrayError(
-                    f"band {self.name!r}: {field} must be a positive number, got {value!r}"
+                    f"band {brief(self.name)}: {field} must be a positive number, got {brief(value)}"
                 )
             object.__setattr__(self, field, float(value))
         if self.subcarrier_spacing_hz > self.bandwidth_hz:
             raise HallrayError(
-                f"band {self.name!r}: subcarrier spacing {self.subcarrier_spacing_hz:g} Hz exceeds "
+                f"band {brief(self.name)}: subcarrier spacing {self.subcarrier_spacing_hz:g} Hz exceeds "
                 f"the bandwidth {self.bandwidth_hz:g} Hz"
             )
         if self.bandwidth_hz >= 2 * self.center_frequency_hz:
-            raise HallrayError(f"band {self.name!r}: bandwidth must be below twice the carrier")
+            raise HallrayError(f"band {brief(self.name)}: bandwidth must be below twice the carrier")
 
     @property
     def n_subcarriers(self) -> int:
@@ -131,20 +133,20 @@ def band_from_dict(name: str, entry: Mapping[str, Any]) -> Band:
         Missing, unknown or non-numeric keys (one-line message naming the band and the key).
     """
     if not isinstance(entry, Mapping):
-        raise HallrayError(f"band {name!r}: expected a mapping with keys {', '.join(_YAML_KEYS)}")
+        raise HallrayError(f"band {brief(name)}: expected a mapping with keys {', '.join(_YAML_KEYS)}")
     unknown = sorted(set(map(str, entry)) - set(_YAML_KEYS))
     if unknown:
         raise HallrayError(
-            f"band {name!r}: unknown key(s) {', '.join(unknown)}; expected {', '.join(_YAML_KEYS)}"
+            f"band {brief(name)}: unknown key(s) {', '.join(unknown)}; expected {', '.join(_YAML_KEYS)}"
         )
     missing = [k for k in _YAML_KEYS if k not in entry]
     if missing:
-        raise HallrayError(f"band {name!r}: missing key(s) {', '.join(missing)}")
+        raise HallrayError(f"band {brief(name)}: missing key(s) {', '.join(missing)}")
     values = {}
     for key in _YAML_KEYS:
         value = entry[key]
         if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise HallrayError(f"band {name!r}: {key} must be a number, got {value!r}")
+            raise HallrayError(f"band {brief(name)}: {key} must be a number, got {brief(value)}")
         values[key] = float(value)
     return Band(
         _normalise(name),
@@ -228,4 +230,4 @@ def get_band(
                 "name with bands=load_bands(path)"
             )
         return next(iter(user.values()))
-    raise HallrayError(f"unknown band {text!r}; known bands: {', '.join(known)}")
+    raise HallrayError(f"unknown band {brief(text)}; known bands: {', '.join(known)}")

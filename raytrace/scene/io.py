@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import SceneError
-from ..core.scale import check_size
+from ..core.scale import check_extent
 from ..physics.materials import MaterialLibrary
 from .budget import check_load
 from .construction import check_smooth_angle
@@ -87,7 +87,8 @@ def load_scene(
     except OSError as exc:  # a materials file or a mesh the XML names cannot be read
         raise SceneError(f"cannot read {exc.filename or p.name}: {exc.strerror or exc}") from None
     lo, hi = scene.bounds
-    check_size(float(np.max(hi - lo)), f"scene {p.name}")  # a hall in mm: refused before tracing
+    # a hall in mm (or cm, or km): refused before tracing
+    check_extent(tuple(float(v) for v in hi - lo), f"scene {p.name}")
     return scene
 
 

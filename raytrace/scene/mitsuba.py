@@ -42,6 +42,8 @@ from typing import Any
 
 import numpy as np
 
+from hallray import strict_json
+
 from ..core.errors import MaterialError, SceneError
 from ..core.fileio import write_atomic
 from ..core.palette import material_colors
@@ -418,8 +420,8 @@ def read_sidecar(xml_path: Path) -> dict[str, Any] | None:
     if not side.is_file():
         return None
     try:
-        doc = json.loads(side.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        doc = strict_json.loads(side.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, ValueError) as exc:  # a duplicate key is a ValueError
         raise SceneError(f"cannot read {side.name}: {' '.join(str(exc).split())}") from None
     if not isinstance(doc, dict) or doc.get("format") != SIDECAR_FORMAT:
         raise SceneError(f"{side.name} is not a hallray sidecar (format {SIDECAR_FORMAT!r})")

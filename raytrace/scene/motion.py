@@ -13,6 +13,8 @@ from typing import Any
 
 import numpy as np
 
+from hallray.limits import check_size
+
 from ..core.errors import SceneError
 
 #: Height of the forklift box's underside above the floor plane z = 0, m. Keeps the box from
@@ -168,6 +170,8 @@ def snapshot_times(duration_s: float, rate_hz: float) -> np.ndarray:
         raise SceneError(f"duration must be a positive number of seconds, got {duration_s!r}")
     if not math.isfinite(r) or r <= 0:
         raise SceneError(f"rate must be a positive number of Hz, got {rate_hz!r}")
+    # the size limit before the count is made an int and the times allocated
+    check_size("epochs", math.floor(d * r + 1e-9), f"duration {d:g} s x rate {r:g} Hz")
     n = int(math.floor(d * r + 1e-9))
     if n < 1:
         raise SceneError(f"duration {d:g} s at {r:g} Hz gives no snapshot")

@@ -17,6 +17,8 @@ from typing import Any
 
 import numpy as np
 
+from hallray.errors import brief
+
 from ..core.constants import C0
 from ..core.errors import TraceInputError
 from ..physics.materials import slab
@@ -86,7 +88,7 @@ class TraceContext:
             self.wedge_mask = None
         else:
             objs = np.zeros(len(scene.objects), dtype=bool)
-            objs[np.asarray(involving, dtype=np.int64)] = True
+            objs[check_involving(scene, involving)] = True
             self.facet_mask = objs[scene.facets.object]
             self.wedge_mask = objs[scene.wedges.object] if len(scene.wedges) else np.zeros(0, bool)
         self.k0 = 2 * np.pi * f / C0
@@ -133,6 +135,26 @@ class TraceContext:
         if len(w) == 0:
             return np.full(idx.shape, -1)
         return w.object[np.clip(idx, 0, len(w) - 1)]
+
+
+def check_involving(scene: Scene, involving: Any) -> np.ndarray:
+    """``involving`` as object indices (int64 array), each in ``0 .. objects - 1``; a one-line
+    :class:`TraceInputError` otherwise (not an ``IndexError``, nor a negative index that wraps)."""
+    try:
+        idx = np.asarray(involving)
+    except (TypeError, ValueError):
+        idx = np.asarray([None])
+    n = len(scene.objects)
+    if idx.dtype.kind not in "iu" and not (idx.dtype.kind == "f" and idx.size == 0):
+        raise TraceInputError(f"involving must be object indices (integers), got {brief(involving)}")
+    idx = idx.astype(np.int64).reshape(-1)
+    bad = idx[(idx < 0) | (idx >= n)]
+    if bad.size:
+        raise TraceInputError(
+            f"involving: object index {int(bad[0])} is not one of the scene's {n} objects "
+            f"(0 .. {n - 1})"
+        )
+    return idx
 
 
 def opaque_objects(

@@ -420,12 +420,16 @@ class Paths:
         })  # fmt: skip
 
     # -- files --------------------------------------------------------------------------------
-    def save(self, path: str | Path) -> None:
-        """Write the paths as .npz, .json or .csv (see the module docstring), atomically."""
+    def save(self, path: str | Path, *, scene_sha256: str | None = None) -> None:
+        """Write the paths as .npz, .json or .csv (see the module docstring), atomically;
+        ``scene_sha256``: the traced scene's :meth:`~raytrace.scene.model.Scene.content_hash`,
+        stored in a .npz so that a reader can refuse it for another scene
+        (:func:`check_paths_scene`)."""
         p = Path(path)
         suffix = p.suffix.lower()
         if suffix == ".npz":
             buf = io.BytesIO()
+            extra = {} if scene_sha256 is None else {"scene_sha256": str(scene_sha256)}
             np.savez_compressed(
                 buf,
                 format_version=FORMAT_VERSION,
@@ -433,6 +437,7 @@ class Paths:
                 tx=self.tx,
                 rx=self.rx,
                 **{k: getattr(self, k) for k in self.PER_PATH},
+                **extra,
             )
             data = buf.getvalue()
         elif suffix == ".json":
@@ -548,3 +553,26 @@ class Paths:
                     row += ["", "", "", ""]
             w.writerow(row)
         return out.getvalue()
+
+
+def check_paths_scene(name: str | Path, paths: Paths, scene: Any) -> None:
+    """Refuse the paths file ``name`` (already loaded as ``paths``) for ``scene`` when it was
+    traced in another one: by the scene hash it carries (``scene_sha256``, written by
+    ``trace-scene -o``), else by transmitters, receivers or interaction points outside the scene
+    (a file written before the hash). One-line :class:`HallrayError`."""
+    try:
+        with np.load(name) as z:
+            stored = str(z["scene_sha256"]) if "scene_sha256" in z.files else None
+    except (OSError, ValueError, zipfile.BadZipFile):
+        stored = None
+    if stored is not None and stored != scene.content_hash():
+        raise HallrayError(
+            f"paths file {name} was traced in another scene (its scene_sha256 differs from this "
+            "scene's content hash): trace this scene (trace-scene SCENE -o FILE)"
+        )
+    lo, hi = scene.bounds
+    slack = 0.01 * float(np.linalg.norm(hi - lo)) + 0.01
+    inter = paths.points.reshape(-1, 3)
+    allp = np.concatenate([paths.tx, paths.rx, inter[np.isfinite(inter).all(axis=1)]])
+    if len(allp) and ((allp < lo - slack) | (allp > hi + slack)).any():
+        raise HallrayError(f"paths file {name} does not belong to this scene (points outside it)")

@@ -29,13 +29,16 @@ from typing import Any
 
 import numpy as np
 
+from hallray.errors import brief
+from hallray.units import frequency_problem
+
 from ..core.errors import TraceInputError
 from ..core.scale import MAX_SCENE_M, unit_hint
 from ..scene.budget import CHECK_MIN_TRIANGLES, check_trace
 from ..scene.model import Scene
 from . import diffraction, specular
 from .config import MIN_POWER_DB, TraceConfig
-from .context import TraceContext, opaque_objects
+from .context import TraceContext, check_involving, opaque_objects
 from .evaluate import candidates, evaluate
 from .parallel import (
     ScenePool,
@@ -192,6 +195,8 @@ def trace(
     Paths, in their canonical order (:meth:`Paths.sorted`).
     """
     cfg, f, tx, rx = _checked(scene, tx, rx, frequency_hz, config)
+    if involving is not None:
+        involving = check_involving(scene, involving)
     if (
         workers is None
         and chunk_links is None
@@ -261,6 +266,8 @@ def trace_chunks(
     (receivers, result) : the chunk's receiver indices (a range) and its Paths or reduced result
     """
     cfg, f, tx, rx = _checked(scene, tx, rx, frequency_hz, config)
+    if involving is not None:
+        involving = check_involving(scene, involving)
     yield from _chunked(scene, tx, rx, f, cfg, reduce, workers, chunk_links, progress, stats,
                         involving, opaque)  # fmt: skip
 
@@ -360,9 +367,15 @@ def _checked(
     cfg = TraceConfig() if config is None else config
     if not isinstance(cfg, TraceConfig):
         raise TraceInputError(f"config must be a TraceConfig, got {type(cfg).__name__}")
-    f = float(frequency_hz)
+    try:
+        f = float(frequency_hz)
+    except (TypeError, ValueError):
+        raise TraceInputError(f"frequency must be a number of Hz, got {brief(frequency_hz)}") from None
     if not np.isfinite(f) or f <= 0:
         raise TraceInputError(f"frequency must be a positive number of Hz, got {frequency_hz}")
+    problem = frequency_problem(f)  # the scale rule: 3.5 "Hz" is 3.5 GHz in the wrong unit
+    if problem is not None:
+        raise TraceInputError(f"frequency {problem}")
     tx = check_positions(scene, tx, "transmitter")
     rx = check_positions(scene, rx, "receiver")
     check_distinct(tx, rx)

@@ -26,7 +26,7 @@ with :meth:`DatasetConfig.model` (a sweep cell does this with the ToAs it positi
 the files with the same code, so the two give the same bytes for the same inputs.
 
 Modules: :mod:`.config` (the scenarios, bands, columns and :class:`DatasetConfig`), :mod:`.files`
-(the files of one dataset), :mod:`.staging` (an output directory built whole), :mod:`.epochs`
+(the files of one dataset, built whole through :mod:`hallray.safe_output`), :mod:`.epochs`
 (the epochs of one scenario, in this process or in workers), :mod:`.make` (:func:`make_datasets`).
 """
 

@@ -119,16 +119,26 @@ def _chunks(n: int, size: int) -> list[list[int]]:
 
 
 def measure_group(
-    g: ScenarioGroup, workers: int, progress: Callable[[int], None] | None
+    g: ScenarioGroup,
+    workers: int,
+    progress: Callable[[int], None] | None,
+    sink: Callable[[list[Measurements]], None] | None = None,
 ) -> tuple[list[Measurements], dict]:
-    """All epochs of a group: the measurements of each dataset, summed stage timings."""
+    """All epochs of a group: the measurements of each dataset, summed stage timings.
+
+    ``sink``: called with each chunk's measurements (one per dataset, consecutive epochs, in
+    order) instead of keeping them; the measurements returned are then ``[]``. A long dataset
+    is streamed to its files this way, so that memory does not grow with its epochs.
+    """
     n = len(g.times_s)
     parts: list[list[Measurements]] = [[] for _ in g.models]
     stats: dict[str, float] = {}
 
     def collect(res: tuple[list[Measurements], dict], n_done: int) -> None:
         measured, st = res
-        for k, m in enumerate(measured):
+        if sink is not None:
+            sink(measured)
+        for k, m in enumerate(measured if sink is None else []):
             parts[k].append(m)
         for key, v in st.items():
             stats[key] = stats.get(key, 0.0) + v
@@ -159,7 +169,7 @@ def measure_group(
             # map keeps the order of the chunks: the files do not depend on the worker count
             for chunk, res in zip(chunks, pool.map(_run_chunk, chunks)):
                 collect(res, len(chunk))
-    return [Measurements.concatenate(p) for p in parts], stats
+    return ([] if sink is not None else [Measurements.concatenate(p) for p in parts]), stats
 
 
 def scenario_group(

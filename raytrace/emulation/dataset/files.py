@@ -9,14 +9,14 @@ import dataclasses
 import json
 import math
 import os
-import shutil
 from collections.abc import Iterable, Iterator, Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from hallray.safe_output import commit_dir
+from hallray.safe_output import output_dir
 
 from ...core.errors import HallrayError
 from ...scene.facts import SceneFacts
@@ -28,7 +28,9 @@ from ..measurement import Measurements
 from ..receivers.paper import CLIMB_STEP_T, MAX_CLIMB_T, POWER_FLOOR_DB, TOP_TOL_T
 from ..receivers.receiver import CFR_METHODS
 from .config import COLUMNS, SCHEMA_VERSION, DatasetConfig
-from .staging import stage_output
+
+#: The name a dataset directory's marker records (:func:`hallray.safe_output.write_marker`).
+DATASET_COMMAND = "make-dataset"
 
 
 def _num(values: np.ndarray, fmt: str) -> list[str]:
@@ -52,8 +54,15 @@ CSV_BLOCK_EPOCHS = 100
 def _toa_csv_blocks(inputs: SceneMetadata, times_s: np.ndarray, m: Measurements) -> Iterator[str]:
     """The text of ``toa.csv`` (:func:`_toa_csv`) in blocks of :data:`CSV_BLOCK_EPOCHS` epochs,
     so that a writer streams it."""
-    n_e, n_p, n_b = m.toa_s.shape
     yield ",".join(COLUMNS) + "\n"
+    yield from _toa_rows(inputs, times_s, m)
+
+
+def _toa_rows(inputs: SceneMetadata, times_s: np.ndarray, m: Measurements) -> Iterator[str]:
+    """The rows of ``toa.csv`` for the epochs of ``m`` (any consecutive epochs: a dataset
+    streamed chunk by chunk gives the bytes of the whole), in blocks of
+    :data:`CSV_BLOCK_EPOCHS` epochs."""
+    n_e, n_p, n_b = m.toa_s.shape
     # the texts of what repeats (per point, base station, link), then one join a row
     point_xyz = [",".join(map(repr, p)) for p in inputs.point_xyz.tolist()]
     dist = np.linalg.norm(inputs.bs_xyz[None, :, :] - inputs.point_xyz[:, None, :], axis=2)
@@ -84,9 +93,11 @@ def _toa_csv_blocks(inputs: SceneMetadata, times_s: np.ndarray, m: Measurements)
         yield "".join(lines)
 
 
-def dataset_summary(m: Measurements) -> dict[str, Any]:
-    """``meta.json`` ``summary``: rows and the detected / LoS / first-path LoS fractions."""
-    rows, det, los, first_los = (int(v) for v in m.counts())
+def dataset_summary(m: Measurements | np.ndarray) -> dict[str, Any]:
+    """``meta.json`` ``summary``: rows and the detected / LoS / first-path LoS fractions, of
+    measurements or of their summed :meth:`Measurements.counts`."""
+    counts = m if isinstance(m, np.ndarray) else m.counts()
+    rows, det, los, first_los = (int(v) for v in counts)
     return {
         "rows": rows,
         "detected_fraction": det / rows if rows else 0.0,
@@ -110,7 +121,7 @@ def _meta(
     band: Band,
     facts: SceneFacts,
     inputs: SceneMetadata,
-    m: Measurements,
+    m: Measurements | MeasuredSoFar,
     scene_name: str,
 ) -> dict[str, Any]:
     """``meta.json``: every parameter that produced the dataset (schema in docs/dataset.md)."""
@@ -134,7 +145,7 @@ def _meta(
         "scene_sha256": facts.sha256,
         "duration_s": float(cfg.duration_s),
         "rate_hz": float(cfg.rate_hz),
-        "n_epochs": len(m.epochs),
+        "n_epochs": int(m.n_epochs) if isinstance(m, MeasuredSoFar) else len(m.epochs),
         "epoch_time_s": "epoch / rate_hz",
         "toa_method": cfg.toa_method,
         "noise": bool(cfg.noise),
@@ -168,7 +179,7 @@ def _meta(
         "area_of_interest": inputs.block.get("area_of_interest"),
         "obstacles_2d": _obstacles_2d(inputs.block),
         "columns": list(COLUMNS),
-        "summary": dataset_summary(m),
+        "summary": dataset_summary(m.counts()),
     }
 
 
@@ -199,6 +210,76 @@ def _receiver_meta(cfg: DatasetConfig) -> dict[str, Any]:
     if cfg.toa_method == "first-path" and not cfg.first_path_threshold:
         return {"first_path": {"detection_threshold": False}}
     return {}
+@dataclass
+class MeasuredSoFar:
+    """What ``meta.json`` needs of a dataset's measurements streamed to disk: the epochs written,
+    the schedule and the summed :meth:`Measurements.counts`."""
+
+    n_epochs: int = 0
+    tx_offset_s: np.ndarray | None = None
+    counted: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(4, dtype=np.int64))
+
+    def counts(self) -> np.ndarray:
+        return self.counted
+
+
+class DatasetStream:
+    """One dataset written while its epochs are measured: ``toa.csv`` grows chunk by chunk
+    (:meth:`add`, epochs in order), ``meta.json`` and ``forklifts.csv`` are written at the end
+    (:meth:`close`). Memory stays that of one chunk however long the dataset; the bytes are those
+    of :func:`dataset_files` for the same measurements.
+
+    Parameters
+    ----------
+    directory : Path, the dataset's directory (created), inside a staged output
+    scene, cfg, inputs, facts, fleet : as in :func:`dataset_parts`
+    """
+
+    def __init__(self, directory: Path, scene: Scene, cfg: DatasetConfig, *,
+                 inputs: SceneMetadata, facts: SceneFacts, fleet: Fleet | None) -> None:  # fmt: skip
+        self.band = cfg.validate()
+        if (cfg.scenario == "semi-dynamic") != (fleet is not None):
+            raise HallrayError("a semi-dynamic dataset needs its forklift fleet, a static one none")
+        self.directory, self.scene, self.cfg = directory, scene, cfg
+        self.inputs, self.facts, self.fleet = inputs, facts, fleet
+        self.times = cfg.times_s
+        self.so_far = MeasuredSoFar()
+        directory.mkdir(exist_ok=True)
+        self._fh = (directory / "toa.csv").open("w", encoding="utf-8", newline="")
+        self._fh.write(",".join(COLUMNS) + "\n")
+
+    def add(self, m: Measurements) -> None:
+        """Write the rows of the next consecutive epochs."""
+        shape = (len(self.inputs.point_names), len(self.inputs.bs_names))
+        first = self.so_far.n_epochs
+        if m.toa_s.shape[1:] != shape or not np.array_equal(
+            m.epochs, np.arange(first, first + len(m.epochs))
+        ):
+            raise HallrayError("a dataset's measurements are streamed in epoch order, whole")
+        for block in _toa_rows(self.inputs, self.times, m):
+            self._fh.write(block)
+        self.so_far.n_epochs += len(m.epochs)
+        self.so_far.tx_offset_s = m.tx_offset_s
+        self.so_far.counted += m.counts()
+
+    def close(self) -> dict[str, Any]:
+        """Finish ``toa.csv``, write ``meta.json`` (and ``forklifts.csv``); the summary."""
+        self._fh.close()
+        if self.so_far.n_epochs != len(self.times):
+            raise HallrayError(
+                f"a dataset streamed {self.so_far.n_epochs} of its {len(self.times)} epochs"
+            )
+        meta = _meta(self.cfg, self.band, self.facts, self.inputs, self.so_far,
+                     _scene_name(self.scene))  # fmt: skip
+        files = {"meta.json": json.dumps(meta, indent=1, sort_keys=False) + "\n"}
+        if self.fleet is not None:
+            files["forklifts.csv"] = _forklift_csv(self.fleet, self.times)
+        write_files(self.directory, files)
+        return dataset_summary(self.so_far.counts())
+
+    def abort(self) -> None:
+        """Close the file after an error (the staged output is removed by its owner)."""
+        self._fh.close()
 
 
 def _forklift_csv(fleet: Fleet, times: np.ndarray) -> str:
@@ -311,11 +392,6 @@ def write_dataset(
     """
     files = dataset_files(scene, cfg, measured, fleet=fleet)
     out = Path(out_dir)
-    tmp = stage_output(out, force)
-    try:
+    with output_dir(out, command=DATASET_COMMAND, force=force) as tmp:
         write_files(tmp, files)
-        commit_dir(tmp, out)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     return out

@@ -6,14 +6,15 @@ and receivers of a scenario, measures every epoch and writes each dataset's file
 from __future__ import annotations
 
 import os
-import shutil
 import sys
 import time
 from collections.abc import Iterable, Sequence
+from contextlib import nullcontext
 from pathlib import Path
 from typing import Any
 
-from hallray.safe_output import commit_dir
+from hallray.limits import check_size
+from hallray.safe_output import output_dir
 
 from ...core.errors import HallrayError, SceneError
 from ...scene.facts import SceneFacts
@@ -30,8 +31,7 @@ from ..receivers.first_lobe import FirstLobeSettings
 from ..receivers.receiver import DEFAULT_TOA_METHOD
 from .config import SCENARIOS, DatasetConfig
 from .epochs import ScenarioGroup, measure_group, scenario_group
-from .files import dataset_parts, dataset_summary, write_files
-from .staging import stage_output
+from .files import DATASET_COMMAND, DatasetStream
 
 
 def _dataset_configs(
@@ -58,18 +58,19 @@ def _open_scene(scene: str | os.PathLike[str] | Scene) -> Scene:
 
 
 def _measure_with_progress(
-    g: ScenarioGroup, workers: int, progress: bool
+    g: ScenarioGroup, workers: int, progress: bool, sink: Any = None
 ) -> tuple[list[Measurements], dict]:
-    """:func:`measure_group`, with a tqdm bar on stderr if ``progress``."""
+    """:func:`measure_group` (its chunks to ``sink``), with a tqdm bar on stderr if
+    ``progress``."""
     if not progress:
-        return measure_group(g, workers, None)
+        return measure_group(g, workers, None, sink)
     from tqdm import tqdm
 
     names = ", ".join(dict.fromkeys(m.receiver.band.name for m in g.models))
     with tqdm(
         total=len(g.times_s), desc=f"{g.scenario} ({names})", unit="epoch", file=sys.stderr
     ) as bar:
-        return measure_group(g, workers, bar.update)
+        return measure_group(g, workers, bar.update, sink)
 
 
 def _write_group(
@@ -86,16 +87,28 @@ def _write_group(
     """Measure a scenario's datasets (``configs``, the group's order) and write each into its
     directory under ``tmp`` (``out`` once committed); their summaries."""
     t_static = g.trace_s
-    measured, stats = _measure_with_progress(g, workers, progress)
     fleet = g.tracer.fleet if g.scenario == "semi-dynamic" else None
     sc, inputs, facts = scene
-    summaries = []
-    for cfg, m in zip(configs, measured):
+    dirs = []
+    for cfg in configs:
         name = f"{cfg.scenario}-{get_band(cfg.band).name}"
         if cfg.toa_method != first_method:
             name += f"-{cfg.toa_method}"
-        d = tmp / name if subdirectories else tmp
-        write_files(d, dataset_parts(sc, cfg, m, inputs=inputs, fleet=fleet, facts=facts))
+        dirs.append(tmp / name if subdirectories else tmp)
+    # each dataset's toa.csv is written while its epochs are measured: memory does not grow
+    # with the epochs (the bytes are those of dataset_parts on all the measurements)
+    streams = [DatasetStream(d, sc, cfg, inputs=inputs, facts=facts, fleet=fleet)
+               for d, cfg in zip(dirs, configs)]  # fmt: skip
+    try:
+        _, stats = _measure_with_progress(
+            g, workers, progress, lambda ms: [s.add(m) for s, m in zip(streams, ms)]
+        )
+        counts = [s.close() for s in streams]
+    finally:
+        for s in streams:
+            s.abort()
+    summaries = []
+    for cfg, d, count in zip(configs, dirs, counts):
         summaries.append(
             {
                 "directory": str(out / d.relative_to(tmp)),
@@ -103,7 +116,7 @@ def _write_group(
                 "band": get_band(cfg.band).name,
                 "toa_method": cfg.toa_method,
                 "epochs": len(g.times_s),
-                **dataset_summary(m),
+                **count,
                 "static_trace_s": t_static,
                 "group_seconds": time.perf_counter() - g.t_start,
                 "stage_seconds": stats,
@@ -187,30 +200,26 @@ def make_datasets(
     facts = SceneFacts.of(sc, inputs.block)  # read once for every dataset's meta.json
     if any(c.scenario == "semi-dynamic" for c in configs) and not inputs.routes:
         raise SceneError("the semi-dynamic scenario needs forklift routes in the scene metadata")
+    rows = float(len(configs[0].times_s)) * len(inputs.point_names) * len(inputs.bs_names)
+    check_size("dataset rows", rows, f"{len(configs[0].times_s)} epochs x "
+               f"{len(inputs.point_names)} points x {len(inputs.bs_names)} base stations")  # fmt: skip
     out = Path(out_dir)
-    if staging:
-        tmp = stage_output(out, force)
-    elif not out.is_dir() or any(out.iterdir()):
+    if not staging and (not out.is_dir() or any(out.iterdir())):
         raise HallrayError(f"unstaged output {out} must be an empty directory")
-    else:
-        tmp = out
-    committed = False
     summaries: list[dict[str, Any]] = []
     # the static scene's paths per carrier, traced once for both scenarios
     static_cache: dict[float, Paths] = {}
-    try:
+    source = None if isinstance(scene, Scene) else scene
+    # staged: the one output layer (whole or nothing, inputs untouched, only an earlier dataset
+    # replaced, with force); unstaged: the caller's empty staging directory
+    with output_dir(out, command=DATASET_COMMAND, force=force, inputs=[source]) if staging \
+            else nullcontext(out) as tmp:  # fmt: skip
         for scenario in SCENARIOS:
             group = [c for c in configs if c.scenario == scenario]
             if group:
                 g = scenario_group(scenario, group, sc, inputs, static_cache)
                 summaries += _write_group(g, group, (sc, inputs, facts), tmp, out,
                                           subdirectories, methods[0], workers, progress)  # fmt: skip
-        if staging:
-            commit_dir(tmp, out)
-        committed = True
-    finally:
-        if not committed and staging:
-            shutil.rmtree(tmp, ignore_errors=True)
     for s in summaries:
         s["total_seconds"] = time.perf_counter() - t_start
     return summaries

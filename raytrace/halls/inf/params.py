@@ -13,8 +13,11 @@ from typing import Any
 
 import numpy as np
 
+from hallray.errors import brief
+from hallray.limits import check_size
+
 from ...core.errors import HallrayError
-from ...core.scale import check_size
+from ...core.scale import check_extent
 from ..spec.model import ITU_MATERIALS
 
 #: Version of the generator's algorithm: a change of the layout rules bumps it (seeds then give
@@ -80,7 +83,7 @@ def canonical_profile(profile: str) -> str:
         for name in PROFILES:
             if profile.strip().lower() == name.lower():
                 return name
-    raise HallrayError(f"unknown profile {profile!r}; choose one of {', '.join(PROFILES)}")
+    raise HallrayError(f"unknown profile {brief(profile)}; choose one of {', '.join(PROFILES)}")
 
 
 def parse_size(text: str | Sequence[float]) -> tuple[float, float, float]:
@@ -92,17 +95,17 @@ def parse_size(text: str | Sequence[float]) -> tuple[float, float, float]:
         except ValueError:
             vals = []
         if len(vals) != 3:
-            raise HallrayError(f"bad size {text!r}: expected LxWxH in metres, e.g. 42x46x8.8")
+            raise HallrayError(f"bad size {brief(text)}: expected LxWxH in metres, e.g. 42x46x8.8")
     else:
         try:
             vals = [float(v) for v in text]
         except (TypeError, ValueError):
-            raise HallrayError(f"bad size {text!r}: expected [L, W, H] in metres") from None
+            raise HallrayError(f"bad size {brief(text)}: expected [L, W, H] in metres") from None
         if len(vals) != 3:
-            raise HallrayError(f"bad size {text!r}: expected [L, W, H] in metres")
+            raise HallrayError(f"bad size {brief(text)}: expected [L, W, H] in metres")
     if not all(math.isfinite(v) and v > 0 for v in vals):
-        raise HallrayError(f"bad size {text!r}: every dimension must be a positive number of m")
-    check_size(max(vals), f"hall size {text if isinstance(text, str) else list(text)}")
+        raise HallrayError(f"bad size {brief(text)}: every dimension must be a positive number of m")
+    check_extent(vals, f"hall size {brief(text) if isinstance(text, str) else list(vals)}")
     return (vals[0], vals[1], vals[2])
 
 
@@ -215,7 +218,7 @@ def resolve_params(
     defaults = DENSE_DEFAULTS if dense else SPARSE_DEFAULTS
     lx, ly, lz = parse_size(DEFAULT_SIZE_M if size is None else size)
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-        raise HallrayError(f"seed must be a non-negative integer, got {seed!r}")
+        raise HallrayError(f"seed must be a non-negative integer, got {brief(seed)}")
     r = _density(name, dense, _number(name, opt.density, "clutter density", defaults["density"]))
     d_c = _number(name, opt.clutter_size, "clutter size", defaults["clutter_size"])
     if d_c <= 0:
@@ -224,7 +227,10 @@ def resolve_params(
     grid = _bs_grid(name, lx, ly, opt)
     n_points = opt.n_points
     if isinstance(n_points, bool) or not isinstance(n_points, (int, np.integer)) or n_points < 0:
-        raise HallrayError(f"{name}: number of points must be an integer >= 0, got {n_points!r}")
+        raise HallrayError(f"{name}: number of points must be an integer >= 0, got {brief(n_points)}")
+    # the size limits, before any layout work
+    check_size("points", int(n_points), f"{name}: {int(n_points)} points")
+    check_size("base stations", float(grid[0]) * float(grid[1]), f"{name}: base-station grid {grid[0]}x{grid[1]}")
     return InFParams(
         profile=name,
         size=(lx, ly, lz),
@@ -245,10 +251,10 @@ def _number(name: str, value: Any, what: str, default: float) -> float:
     """``value`` (or ``default`` if None) as a finite float; a one-line error naming the profile."""
     v = default if value is None else value
     if isinstance(v, bool) or not isinstance(v, (int, float, np.floating, np.integer)):
-        raise HallrayError(f"{name}: {what} must be a number, got {v!r}")
+        raise HallrayError(f"{name}: {what} must be a number, got {brief(v)}")
     v = float(v)
     if not math.isfinite(v):
-        raise HallrayError(f"{name}: {what} must be finite, got {v!r}")
+        raise HallrayError(f"{name}: {what} must be finite, got {brief(v)}")
     return v
 
 
@@ -323,7 +329,7 @@ def _bs_grid(name: str, lx: float, ly: float, opt: InFOptions) -> tuple[int, int
     if len(grid) != 2 or not all(
         isinstance(n, (int, np.integer)) and not isinstance(n, bool) and n >= 1 for n in grid
     ):
-        raise HallrayError(f"{name}: bs_grid must be two integers >= 1, got {opt.bs_grid!r}")
+        raise HallrayError(f"{name}: bs_grid must be two integers >= 1, got {brief(opt.bs_grid)}")
     return (int(grid[0]), int(grid[1]))
 
 
@@ -335,10 +341,10 @@ def _clutter_materials(name: str, materials: Mapping[str, float] | None) -> dict
     for m, w in mats.items():
         if m not in ITU_MATERIALS:
             raise HallrayError(
-                f"{name}: unknown clutter material {m!r} (ITU-R P.2040: {', '.join(ITU_MATERIALS)})"
+                f"{name}: unknown clutter material {brief(m)} (ITU-R P.2040: {', '.join(ITU_MATERIALS)})"
             )
         if isinstance(w, bool) or not isinstance(w, (int, float)) or not w >= 0:
-            raise HallrayError(f"{name}: weight of material {m!r} must be >= 0, got {w!r}")
+            raise HallrayError(f"{name}: weight of material {brief(m)} must be >= 0, got {brief(w)}")
     total = float(sum(mats.values()))
     if total <= 0:
         raise HallrayError(f"{name}: clutter material weights sum to zero")

@@ -12,6 +12,8 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
+from hallray.errors import brief
+
 from ...core.errors import HallrayError, MaterialError
 from ...core.fileio import read_yaml
 from ...physics.materials import MaterialLibrary
@@ -114,7 +116,7 @@ class MaterialRules:
             library = library.with_yaml({"materials": user})
         default = data.get("default", "metal")
         if not isinstance(default, str) or default not in library:
-            raise MaterialError(f"{origin}: default: unknown material {default!r}")
+            raise MaterialError(f"{origin}: default: unknown material {brief(default)}")
         raw_rules = data.get("rules") or []
         if not isinstance(raw_rules, list):
             raise MaterialError(f"{origin}: 'rules' must be a list")
@@ -134,7 +136,7 @@ class MaterialRules:
 
 def _check_rule(rule: Any, where: str, library: MaterialLibrary) -> dict[str, Any]:
     if not isinstance(rule, Mapping):
-        raise MaterialError(f"{where}: expected a mapping, got {rule!r}")
+        raise MaterialError(f"{where}: expected a mapping, got {brief(rule)}")
     for key in rule:
         if key not in _RULE_KEYS:
             raise MaterialError(
@@ -142,22 +144,22 @@ def _check_rule(rule: Any, where: str, library: MaterialLibrary) -> dict[str, An
             )
     mat = rule.get("material")
     if not isinstance(mat, str) or mat not in library:
-        raise MaterialError(f"{where}: material: unknown material {mat!r}")
+        raise MaterialError(f"{where}: material: unknown material {brief(mat)}")
     if "kind" in rule and rule["kind"] not in ("plane", "object"):
-        raise MaterialError(f"{where}: kind must be 'plane' or 'object', got {rule['kind']!r}")
+        raise MaterialError(f"{where}: kind must be 'plane' or 'object', got {brief(rule['kind'])}")
     if "orientation" in rule and rule["orientation"] not in _ORIENTATIONS:
         raise MaterialError(
             f"{where}: orientation must be one of {', '.join(_ORIENTATIONS)}, "
-            f"got {rule['orientation']!r}"
+            f"got {brief(rule['orientation'])}"
         )
     for key in ("bounding", "floor_to_ceiling"):
         if key in rule and not isinstance(rule[key], bool):
-            raise MaterialError(f"{where}: {key} must be true or false, got {rule[key]!r}")
+            raise MaterialError(f"{where}: {key} must be true or false, got {brief(rule[key])}")
     for key in rule:
         if key.startswith(("min_", "max_")):
             val = rule[key]
             if isinstance(val, bool) or not isinstance(val, (int, float)) or not math.isfinite(val):
-                raise MaterialError(f"{where}: {key} must be a number, got {val!r}")
+                raise MaterialError(f"{where}: {key} must be a number, got {brief(val)}")
     return dict(rule)
 
 
@@ -300,6 +302,6 @@ class ScanOptions:
             raise HallrayError(f"plane normal angle must be < 90 deg, got {out.plane_normal_deg}")
         if out.objects not in OBJECT_MODES:
             raise HallrayError(
-                f"objects must be one of {', '.join(OBJECT_MODES)}, got {out.objects!r}"
+                f"objects must be one of {', '.join(OBJECT_MODES)}, got {brief(out.objects)}"
             )
         return out

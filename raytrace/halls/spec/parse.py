@@ -15,9 +15,12 @@ from typing import Any
 
 import numpy as np
 
+from hallray.errors import brief
+from hallray.limits import check_size
+
 from ...core.errors import HallrayError, MaterialError, SceneError
 from ...core.fileio import read_yaml
-from ...core.scale import check_size
+from ...core.scale import check_extent
 from ...physics.materials import MaterialLibrary
 from ...scene.motion import ROUTE_MODES, Route
 from .model import (
@@ -53,7 +56,7 @@ def _mapping(value: Any, where: str) -> Mapping[str, Any]:
         _fail(where, f"expected a mapping, got {type(value).__name__}")
     for key in value:
         if not isinstance(key, str):
-            _fail(where, f"keys must be strings, got {key!r}")
+            _fail(where, f"keys must be strings, got {brief(key)}")
     return value
 
 
@@ -71,26 +74,26 @@ def _check_keys(
 
 def _number(value: Any, where: str, *, positive: bool = False, nonneg: bool = False) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
-        _fail(where, f"expected a number, got {value!r}")
+        _fail(where, f"expected a number, got {brief(value)}")
     out = float(value)
     if not math.isfinite(out):
-        _fail(where, f"expected a finite number, got {value!r}")
+        _fail(where, f"expected a finite number, got {brief(value)}")
     if positive and out <= 0.0:
-        _fail(where, f"must be > 0, got {value!r}")
+        _fail(where, f"must be > 0, got {brief(value)}")
     if nonneg and out < 0.0:
-        _fail(where, f"must be >= 0, got {value!r}")
+        _fail(where, f"must be >= 0, got {brief(value)}")
     return out
 
 
 def _vector(value: Any, where: str, n: int, *, positive: bool = False) -> tuple[float, ...]:
     if not isinstance(value, (list, tuple)) or len(value) != n:
-        _fail(where, f"expected a list of {n} numbers, got {value!r}")
+        _fail(where, f"expected a list of {n} numbers, got {brief(value)}")
     return tuple(_number(v, f"{where}[{i}]", positive=positive) for i, v in enumerate(value))
 
 
 def _string(value: Any, where: str) -> str:
     if not isinstance(value, str):
-        _fail(where, f"expected a string, got {value!r}")
+        _fail(where, f"expected a string, got {brief(value)}")
     return value
 
 
@@ -98,7 +101,7 @@ def _name(value: Any, where: str, *, template: bool = False) -> str:
     name = _string(value, where)
     check = re.sub(r"\{[^{}]*\}", "0", name) if template else name
     if not _NAME_RE.match(check):
-        _fail(where, f"bad name {name!r} (letters, digits, '_' and '-' only)")
+        _fail(where, f"bad name {brief(name)} (letters, digits, '_' and '-' only)")
     return name
 
 
@@ -112,7 +115,7 @@ def _parse_materials(raw: Any) -> dict[str, dict[str, Any]]:
         if not _MATERIAL_NAME_RE.match(name):
             _fail(where, "material names are lower-case letters, digits and '_'", MaterialError)
         if not isinstance(entry, Mapping):
-            _fail(where, f"expected a mapping, got {entry!r}", MaterialError)
+            _fail(where, f"expected a mapping, got {brief(entry)}", MaterialError)
         for key in entry:
             if key not in _MATERIAL_KEYS:
                 _fail(
@@ -167,16 +170,17 @@ def _repeat_offsets(raw: Any, where: str) -> list[tuple[dict[str, Any], np.ndarr
     count = rep["count"]
     counts = count if isinstance(count, list) else [count]
     if not 1 <= len(counts) <= 2:
-        _fail(f"{where}.count", f"expected n or [n1, n2], got {count!r}")
+        _fail(f"{where}.count", f"expected n or [n1, n2], got {brief(count)}")
     for n in counts:
         if isinstance(n, bool) or not isinstance(n, int) or n < 1:
-            _fail(f"{where}.count", f"counts must be integers >= 1, got {count!r}")
+            _fail(f"{where}.count", f"counts must be integers >= 1, got {brief(count)}")
+    check_size("hall objects", float(np.prod(np.array(counts, dtype=float))), f"{where}.count {counts}")
     step = rep["step"]
     if not isinstance(step, list):
-        _fail(f"{where}.step", f"expected a list, got {step!r}")
+        _fail(f"{where}.step", f"expected a list, got {brief(step)}")
     if len(counts) == 1:
         if len(step) not in (2, 3):
-            _fail(f"{where}.step", f"expected [dx, dy] or [dx, dy, dz], got {step!r}")
+            _fail(f"{where}.step", f"expected [dx, dy] or [dx, dy, dz], got {brief(step)}")
         axes = [np.array(_vector(step, f"{where}.step", len(step)) + (0.0,) * (3 - len(step)))]
     elif step and all(isinstance(s, list) for s in step):
         if len(step) != 2:
@@ -184,7 +188,7 @@ def _repeat_offsets(raw: Any, where: str) -> list[tuple[dict[str, Any], np.ndarr
         axes = []
         for k, s in enumerate(step):
             if len(s) not in (2, 3):
-                _fail(f"{where}.step[{k}]", f"expected [dx, dy] or [dx, dy, dz], got {s!r}")
+                _fail(f"{where}.step[{k}]", f"expected [dx, dy] or [dx, dy, dz], got {brief(s)}")
             axes.append(np.array(_vector(s, f"{where}.step[{k}]", len(s)) + (0.0,) * (3 - len(s))))
     else:
         dx, dy = _vector(step, f"{where}.step", 2)
@@ -215,13 +219,13 @@ def _letter(i: int) -> str:
 def _format_name(template: str, fields: Mapping[str, Any], where: str) -> str:
     if not fields:
         if "{" in template:
-            _fail(where, f"name template {template!r} needs a 'repeat'")
+            _fail(where, f"name template {brief(template)} needs a 'repeat'")
         return template
     if "{" in template:
         try:
             name = template.format(**{k: v for k, v in fields.items() if k != "grid"})
         except (KeyError, ValueError, IndexError) as exc:
-            _fail(where, f"bad name template {template!r} ({exc}); fields: i, j, n, I")
+            _fail(where, f"bad name template {brief(template)} ({exc}); fields: i, j, n, I")
         return _name(name, where)
     if fields.get("grid") is False:
         return f"{template}_{fields['n']:02d}"
@@ -262,7 +266,8 @@ def _parse_primitive(raw: Mapping[str, Any], where: str, materials: Sequence[str
         base = xyz if key == "base" else (xyz[0], xyz[1], xyz[2] - 0.5 * height)
         sections = raw.get("sections", DEFAULT_CYLINDER_SECTIONS)
         if isinstance(sections, bool) or not isinstance(sections, int) or sections < 3:
-            _fail(f"{where}.sections", f"expected an integer >= 3, got {sections!r}")
+            _fail(f"{where}.sections", f"expected an integer >= 3, got {brief(sections)}")
+        check_size("cylinder sections", sections, f"{where}.sections")
         return Cylinder(name, material, base, radius, height, sections)
     if kind == "sheet":
         _check_keys(raw, where, ("name", "type", "material", "origin", "u", "v"), _SHEET_KEYS)
@@ -272,7 +277,7 @@ def _parse_primitive(raw: Mapping[str, Any], where: str, materials: Sequence[str
         if np.linalg.norm(np.cross(u, v)) < 1e-9:
             _fail(where, "sheet edges u and v are parallel or zero (zero area)")
         return Sheet(name, material, origin, u, v)
-    _fail(f"{where}.type", f"unknown type {kind!r} (box, cylinder, sheet, instance)")
+    _fail(f"{where}.type", f"unknown type {brief(kind)} (box, cylinder, sheet, instance)")
     raise AssertionError  # unreachable
 
 
@@ -360,11 +365,14 @@ def _parse_objects(
                 _fail(f"{where}.template", f"unknown template '{tname}'")
             at = np.array(_vector(entry["at"], f"{where}.at", 3))
             yaw = _number(entry.get("yaw_deg", 0.0), f"{where}.yaw_deg")
+            check_size("hall objects", len(out) + len(placements) * len(templates[tname]),
+                       f"objects after {where}")  # fmt: skip
             for fields, off in placements:
                 inst = _format_name(base, fields, where)
                 for prim in templates[tname]:
                     out.append(_place(prim, f"{inst}_{prim.name}", at + off, yaw))
         else:
+            check_size("hall objects", len(out) + len(placements), f"objects after {where}")
             prim = _parse_primitive(entry, where, materials)
             for fields, off in placements:
                 out.append(_place(prim, _format_name(prim.name, fields, where), off, 0.0))
@@ -423,7 +431,7 @@ def _parse_routes(raw: Any, materials: Sequence[str]) -> list[Route]:
         speed = _number(entry["speed"], f"{where}.speed", positive=True)
         mode = entry.get("mode", "loop")
         if mode not in ROUTE_MODES:
-            _fail(f"{where}.mode", f"expected one of {', '.join(ROUTE_MODES)}, got {mode!r}")
+            _fail(f"{where}.mode", f"expected one of {', '.join(ROUTE_MODES)}, got {brief(mode)}")
         if mode == "loop" and len(waypoints) < 3:
             _fail(f"{where}.waypoints", "a loop needs at least 3 waypoints")
         out.append(Route(name, size, material, waypoints, speed, mode))
@@ -447,6 +455,7 @@ def _validate(spec: HallSpec) -> None:
     from shapely.geometry import Point
 
     _validate_objects(spec)
+    _validate_overlaps(spec)
     if spec.area_of_interest is not None:
         x0, y0, x1, y1 = spec.area_of_interest
         if not (x0 < x1 and y0 < y1):
@@ -491,6 +500,37 @@ def _validate_objects(spec: HallSpec) -> None:
             )
 
 
+#: Overlap of two closed solids tolerated (touching is fine): height, m, and footprint, m^2.
+OVERLAP_TOL_M = 1e-6
+OVERLAP_TOL_M2 = 1e-6
+
+
+def _validate_overlaps(spec: HallSpec) -> None:
+    """Closed solids may touch but not overlap (docs/hall.md: the tracer counts the solids a path
+    crosses). Every closed primitive is a vertical prism, so two overlap exactly when their
+    height ranges and their footprints overlap."""
+    from shapely import STRtree
+
+    solids = [p for p in spec.objects if p.closed]
+    if len(solids) < 2:
+        return
+    feet = [_shapely_footprint(p) for p in solids]
+    bounds = [primitive_bounds(p) for p in solids]
+    pairs = STRtree(feet).query(feet, predicate="intersects")
+    for i, j in zip(*pairs):
+        if i >= j:
+            continue
+        (lo_i, hi_i), (lo_j, hi_j) = bounds[i], bounds[j]
+        if min(hi_i[2], hi_j[2]) - max(lo_i[2], lo_j[2]) <= OVERLAP_TOL_M:
+            continue
+        if feet[i].intersection(feet[j]).area > OVERLAP_TOL_M2:
+            _fail(
+                f"object '{solids[i].name}'",
+                f"overlaps object '{solids[j].name}': closed solids may touch but not overlap "
+                "(the tracer counts the solids a path crosses); move or shrink one",
+            )
+
+
 def _validate_route(spec: HallSpec, route: Route) -> Any:
     """A forklift route stays inside the hall and clear of every object it cannot drive over;
     returns its swept floor area (shapely)."""
@@ -521,10 +561,13 @@ def _validate_sites(
     xyz = np.array([e.xyz for e in entries], dtype=float).reshape(-1, 3)
     for k, entry in enumerate(entries):
         p = xyz[k]
-        if np.any(p <= POINT_CLEARANCE_M) or np.any(p >= size - POINT_CLEARANCE_M):
+        # at least POINT_CLEARANCE_M: exactly 1 cm is allowed (up to rounding)
+        if np.any(p < POINT_CLEARANCE_M - BOUNDS_TOL_M) or np.any(
+            p > size - POINT_CLEARANCE_M + BOUNDS_TOL_M
+        ):
             _fail(f"{label} '{entry.name}'", f"{list(entry.xyz)} is outside the hall interior")
     for prim in spec.objects:
-        inside = prim.contains(xyz, POINT_CLEARANCE_M)
+        inside = prim.contains(xyz, POINT_CLEARANCE_M - BOUNDS_TOL_M)
         if np.any(inside):
             k = int(np.argmax(inside))
             verb = "is inside" if prim.closed else "lies on"
@@ -574,14 +617,14 @@ def _parse(data: Any) -> HallSpec:
     version = top.get("schema_version", SCHEMA_VERSION)
     if version != SCHEMA_VERSION:
         _fail(
-            "schema_version", f"unsupported version {version!r} (this build reads {SCHEMA_VERSION})"
+            "schema_version", f"unsupported version {brief(version)} (this build reads {SCHEMA_VERSION})"
         )
     name = _string(top.get("name", "hall"), "name")
     description = _string(top.get("description", ""), "description")
     hall = _mapping(top["hall"], "hall")
     _check_keys(hall, "hall", ("size",), ("material", "wall_thickness"))
     size = _vector(hall["size"], "hall.size", 3, positive=True)
-    check_size(max(size), f"hall.size {list(size)}")
+    check_extent(size, f"hall.size {list(size)}")
     thickness = _number(hall.get("wall_thickness", 0.3), "hall.wall_thickness", positive=True)
     materials = _parse_materials(top.get("materials"))
     names = tuple(dict.fromkeys(ITU_MATERIALS + tuple(materials)))
@@ -590,6 +633,9 @@ def _parse(data: Any) -> HallSpec:
         _fail("hall.material", f"unknown material '{shell_material}'", MaterialError)
     templates = _parse_templates(top.get("templates"), names)
     objects = _parse_objects(top.get("objects"), names, templates)
+    triangles = sum(12 if o.kind == "box" else 4 * o.sections if o.kind == "cylinder" else 2
+                    for o in objects)  # fmt: skip
+    check_size("hall triangles", triangles, "the hall's objects")
     bss = _parse_positions(top.get("base_stations"), "base_stations", with_note=False)
     pts = _parse_positions(top.get("points"), "points", with_note=True)
     routes = _parse_routes(top.get("routes"), names)

@@ -18,6 +18,8 @@ from typing import Any
 
 import numpy as np
 
+from hallray.errors import brief
+
 from ...core.constants import EPS0
 from ...core.errors import MaterialError
 from ...core.fileio import read_yaml
@@ -94,13 +96,13 @@ class Material:
     def __post_init__(self) -> None:
         if not isinstance(self.name, str) or not _NAME_RE.match(self.name):
             raise MaterialError(
-                f"bad material name {self.name!r}: use letters, digits and '_', starting with a letter"
+                f"bad material name {brief(self.name)}: use letters, digits and '_', starting with a letter"
             )
         for key in ("a", "b", "c", "d", "f_min_hz", "f_max_hz", "thickness_m"):
             value = getattr(self, key)
             if isinstance(value, bool) or not isinstance(value, (int, float, np.floating)):
                 raise MaterialError(
-                    f"material '{self.name}': {key} must be a number, got {value!r}"
+                    f"material '{self.name}': {key} must be a number, got {brief(value)}"
                 )
             object.__setattr__(self, key, float(value))
         n = self.name
@@ -159,7 +161,9 @@ class Material:
         where = f"material '{self.name}' ({self.source}) is valid for {self.range_text}"
         if not extrapolate:
             raise MaterialError(
-                f"{where}, not {_fmt_ghz(bad)} GHz; pass extrapolate=True to extrapolate"
+                f"{where}, not {_fmt_ghz(bad)} GHz; to evaluate it there anyway, allow "
+                "extrapolation (--extrapolate; extrapolate: true in a sweep config; "
+                "extrapolate=True in Python)"
             )
         warnings.warn(
             f"{where}; extrapolating to {_fmt_ghz(bad)} GHz",
@@ -245,7 +249,7 @@ _TOP_KEYS = ("materials", "bind", "default")
 
 def _number(origin: str, name: str, key: str, value: Any) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise MaterialError(f"{origin}: material '{name}': {key} must be a number, got {value!r}")
+        raise MaterialError(f"{origin}: material '{name}': {key} must be a number, got {brief(value)}")
     value = float(value)
     if math.isnan(value):
         raise MaterialError(f"{origin}: material '{name}': {key} is NaN")
@@ -277,9 +281,9 @@ class MaterialLibrary(Mapping[str, Material]):
         self._materials: dict[str, Material] = {}
         for key, mat in (materials or {}).items():
             if not isinstance(mat, Material):
-                raise MaterialError(f"library entry {key!r} is not a Material")
+                raise MaterialError(f"library entry {brief(key)} is not a Material")
             if _canonical(key) != mat.name:
-                raise MaterialError(f"library key {key!r} differs from material name {mat.name!r}")
+                raise MaterialError(f"library key {brief(key)} differs from material name {brief(mat.name)}")
             self._materials[mat.name] = mat
         self.bind: dict[str, str] = {str(k): self._resolve(v) for k, v in (bind or {}).items()}
         self.default: str | None = None if default is None else self._resolve(default)
@@ -323,10 +327,17 @@ class MaterialLibrary(Mapping[str, Material]):
         entries = data.get("materials") or {}
         if not isinstance(entries, Mapping):
             raise MaterialError(f"{origin}: 'materials' must be a mapping name -> properties")
+        spelled: dict[str, str] = {}  # canonical name -> the spelling of this file
         for raw_name, spec in entries.items():
             name = _canonical(raw_name)
             if name not in mats and name.startswith("itu_") and name[4:] in mats:
                 name = name[4:]
+            if name in spelled:  # Concrete and concrete: one material, given twice
+                raise MaterialError(
+                    f"{origin}: materials {brief(spelled[name])} and {brief(raw_name)} are one "
+                    f"material ({name}; names ignore case, '-' and blanks): give it once"
+                )
+            spelled[name] = str(raw_name)
             mats[name] = _material_from_spec(origin, name, spec, mats.get(name))
         bind_in = data.get("bind") or {}
         if not isinstance(bind_in, Mapping):
@@ -336,7 +347,7 @@ class MaterialLibrary(Mapping[str, Material]):
         for pattern, target in bind_in.items():
             if not isinstance(pattern, str) or not pattern:
                 raise MaterialError(
-                    f"{origin}: bind pattern {pattern!r} must be a non-empty string"
+                    f"{origin}: bind pattern {brief(pattern)} must be a non-empty string"
                 )
             if not isinstance(target, str):
                 raise MaterialError(f"{origin}: bind '{pattern}': material must be a name")
@@ -350,7 +361,7 @@ class MaterialLibrary(Mapping[str, Material]):
         if default is not None:
             if not isinstance(default, str) or default not in lib:
                 raise MaterialError(
-                    f"{origin}: default: unknown material {default!r} (known: {', '.join(lib.names)})"
+                    f"{origin}: default: unknown material {brief(default)} (known: {', '.join(lib.names)})"
                 )
         else:
             default = self.default
@@ -370,7 +381,7 @@ class MaterialLibrary(Mapping[str, Material]):
     def _resolve(self, name: str) -> str:
         key = self._key(name)
         if key is None:
-            raise MaterialError(f"unknown material {name!r} (known: {', '.join(self.names)})")
+            raise MaterialError(f"unknown material {brief(name)} (known: {', '.join(self.names)})")
         return key
 
     def __getitem__(self, name: str) -> Material:
@@ -393,7 +404,7 @@ class MaterialLibrary(Mapping[str, Material]):
     def __repr__(self) -> str:
         return (
             f"MaterialLibrary({len(self)} materials, {len(self.bind)} bindings, "
-            f"default={self.default!r})"
+            f"default={brief(self.default)})"
         )
 
     @property
@@ -449,7 +460,7 @@ def _material_from_spec(origin: str, name: str, spec: Any, existing: Material | 
     """One ``materials:`` entry of a YAML -> Material (validated, one-line errors)."""
     if not _NAME_RE.match(name):
         raise MaterialError(
-            f"{origin}: bad material name {name!r}: use letters, digits and '_', starting with a letter"
+            f"{origin}: bad material name {brief(name)}: use letters, digits and '_', starting with a letter"
         )
     if not isinstance(spec, Mapping) or not spec:
         raise MaterialError(

@@ -196,7 +196,9 @@ def measure_cells(
         stats = []
         for m in methods:
             fix = np.asarray(
-                locate(flat, paths.tx, m, tx_offsets_s=meas.tx_offset_s, height_m=height)
+                # every cell's fixes, whatever its geometry: the map shows where it fails
+                locate(flat, paths.tx, m, tx_offsets_s=meas.tx_offset_s, height_m=height,
+                       checks=False)  # fmt: skip
             )
             err = np.hypot(*(fix[:, :2] - true_xy).T).reshape(draws, n_c)
             stats.append((np.nanpercentile(err, 90, axis=0), np.nanmean(err, axis=0),

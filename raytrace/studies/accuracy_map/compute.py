@@ -97,6 +97,7 @@ def compute_map(
     names = list(bs_names) if bs_names is not None else [f"BS{i + 1}" for i in range(len(bs_xyz))]
     facts = SceneFacts.of(scene, inputs.block)  # the walk's one visit to the scene's facts
     grid = make_grid(scene, settings, inputs.point_names, inputs.point_xyz, area_xy, facts)
+    settings.check_grid(len(grid.cell_xyz), len(bs_xyz))
     band = get_band(settings.band)
     receiver = Receiver(settings.receiver, band)
     chunks = receiver_chunks(len(bs_xyz), len(grid.cell_xyz), settings.chunk_links)

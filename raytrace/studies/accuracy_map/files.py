@@ -18,7 +18,6 @@ import numpy as np
 from positioning.io.frames import MAP_CSV_SCHEMA, MAP_CSV_VERSION
 from positioning.twin.fingerprint import write_map
 
-from ...core.errors import HallrayError
 from ...core.fileio import write_atomic
 from ...scene.model import Scene
 from .compute import AccuracyMap
@@ -80,34 +79,34 @@ def _num(v: float, digits: int = 6) -> str:
     return "nan" if not np.isfinite(v) else f"{float(v):.{digits}g}"
 
 
-def check_output(out_dir: str | Path, force: bool) -> None:
-    """Refuse, before any work, an output path :func:`write_outputs` would refuse."""
-    out = Path(out_dir)
-    if out.exists() and not out.is_dir():
-        raise HallrayError(f"output path {out} exists and is not a directory")
-    if out.is_dir() and any(out.iterdir()) and not force:
-        raise HallrayError(f"output directory {out} is not empty (use --force to replace it)")
-    if not out.resolve().parent.is_dir():
-        raise HallrayError(f"parent directory of {out} does not exist")
+#: The name an accuracy map's marker records (:func:`hallray.safe_output.write_marker`).
+MAP_COMMAND = "accuracy-map"
+
+
+def check_output(
+    out_dir: str | Path, force: bool, inputs: Sequence[str | Path | None] = ()
+) -> None:
+    """Refuse, before any work, an output directory :func:`write_outputs` would refuse
+    (:func:`hallray.safe_output.check_output_dir`: no input inside or around it, only an earlier
+    accuracy map replaced, with ``force``)."""
+    from hallray.safe_output import check_output_dir
+
+    check_output_dir(out_dir, command=MAP_COMMAND, inputs=inputs, force=force)
 
 
 def write_outputs(
     out_dir: str | Path, scene: Scene, amap: AccuracyMap, *, force: bool = False,
-    pictures: bool = True,
+    pictures: bool = True, inputs: Sequence[str | Path | None] = (),
 ) -> list[Path]:  # fmt: skip
     """Write DIR/map.npz (:func:`positioning.twin.fingerprint.write_map`), DIR/map.csv, its schema
     DIR/map.json and the PNG heatmaps into a temporary directory beside ``out_dir``, renamed when
-    complete (no partial output). Returns the files' final paths."""
-    import shutil
-
-    from hallray.safe_output import commit_dir
-
-    from ...emulation.dataset.staging import stage_output
+    complete (no partial output; :func:`hallray.safe_output.output_dir`: ``force`` replaces an
+    earlier accuracy map, never a directory with other files or one holding ``inputs``). Returns
+    the files' final paths."""
+    from hallray.safe_output import output_dir
 
     out = Path(out_dir)
-    tmp = stage_output(out, force)
-    committed = False
-    try:
+    with output_dir(out, command=MAP_COMMAND, force=force, inputs=inputs) as tmp:
         write_map(tmp / "map.npz", amap.fmap)
         write_atomic(tmp / "map.csv", map_csv(amap))
         write_atomic(tmp / "map.json", map_csv_meta(amap))
@@ -116,11 +115,6 @@ def write_outputs(
             for name, png in map_pictures(scene, amap):
                 write_atomic(tmp / name, png)
                 names.append(name)
-        commit_dir(tmp, out)
-        committed = True
-    finally:
-        if not committed:
-            shutil.rmtree(tmp, ignore_errors=True)
     return [out / n for n in names]
 
 

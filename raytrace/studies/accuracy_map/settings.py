@@ -7,6 +7,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from hallray.limits import check_size
+
 from ...core.errors import HallrayError
 from ...emulation.bands import get_band
 from ...emulation.receivers.receiver import DEFAULT_TOA_METHOD, TOA_METHODS
@@ -98,3 +100,13 @@ class MapSettings:
             if (isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo
                     or (hi is not None and v > hi)):  # fmt: skip
                 raise HallrayError(f"{name} must be an integer in [{lo}, {hi or 'inf'}], got {v!r}")
+        check_size("draws", self.draws, f"--draws {self.draws}")
+        check_size("paths per link", self.paths, f"--paths {self.paths}")
+
+    def check_grid(self, n_cells: int, n_bs: int) -> None:
+        """The size limits on a grid of ``n_cells`` cells and ``n_bs`` base stations (before any
+        tracing): the fixes computed and the paths stored in all."""
+        check_size("map fixes", float(n_cells) * self.draws * len(self.methods),
+                   f"{n_cells} cells x --draws {self.draws} x {len(self.methods)} methods")  # fmt: skip
+        check_size("map paths", float(n_cells) * n_bs * self.paths,
+                   f"{n_cells} cells x {n_bs} base stations x --paths {self.paths}")  # fmt: skip

@@ -176,7 +176,9 @@ def _locate_fixes(
     true_xyz = np.tile(point_xyz, (n_e, 1))
     h = true_xyz[:, 2] if height == "known" else None
     fixes = {
-        m: np.asarray(locate(flat, bs_xyz, m, tx_offsets_s=tx_offset_s, height_m=h, **p))
+        # every cell's fixes, whatever its geometry (the sweep's table shows it)
+        m: np.asarray(locate(flat, bs_xyz, m, tx_offsets_s=tx_offset_s, height_m=h, checks=False,
+                             **p))  # fmt: skip
         for m, p in methods.items()
     }
     return fixes, true_xyz

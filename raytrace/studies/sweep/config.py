@@ -17,6 +17,9 @@ from typing import Any
 
 import numpy as np
 
+from hallray.errors import brief
+from hallray.limits import check_size
+
 from ...core.errors import HallrayError
 from ...core.fileio import read_yaml
 from ...emulation.receivers.receiver import DEFAULT_TOA_METHOD
@@ -201,10 +204,10 @@ def _parse_methods(data: Mapping[str, Any], source: str) -> dict[str, dict[str, 
     if isinstance(raw_methods, str):
         raw_methods = [raw_methods]
     if not isinstance(raw_methods, list) or not raw_methods:
-        _fail(source, f"methods: expected a non-empty list, got {raw_methods!r}")
+        _fail(source, f"methods: expected a non-empty list, got {brief(raw_methods)}")
     for m in raw_methods:
         if m not in METHODS:
-            _fail(source, f"methods: unknown method {m!r} (known: {', '.join(METHODS)})")
+            _fail(source, f"methods: unknown method {brief(m)} (known: {', '.join(METHODS)})")
     if len(set(raw_methods)) != len(raw_methods):
         _fail(source, "methods: listed twice")
     mparams = data.get("method_params") or {}
@@ -212,7 +215,7 @@ def _parse_methods(data: Mapping[str, Any], source: str) -> dict[str, dict[str, 
         _fail(source, "method_params: expected a mapping method -> {parameter: value}")
     for m, p in mparams.items():
         if m not in raw_methods:
-            _fail(source, f"method_params: {m!r} is not in methods")
+            _fail(source, f"method_params: {brief(m)} is not in methods")
         if not isinstance(p, Mapping):
             _fail(source, f"method_params.{m}: expected a mapping")
     return {m: dict(mparams.get(m, {})) for m in raw_methods}
@@ -229,7 +232,7 @@ def _parse_grid_and_fixed(
         _fail(source, "grid and fixed must be mappings of parameter -> value(s)")
     for k, v in grid.items():
         if not isinstance(v, list) or not v:
-            _fail(source, f"grid.{k}: expected a non-empty list of values, got {v!r}")
+            _fail(source, f"grid.{k}: expected a non-empty list of values, got {brief(v)}")
         if len({json.dumps(canonical(x), sort_keys=True) for x in v}) != len(v):
             _fail(source, f"grid.{k}: a value is listed twice")
     for where, block in (("grid", grid), ("fixed", fixed)):
@@ -237,7 +240,7 @@ def _parse_grid_and_fixed(
             if "." in k and where == "grid":
                 m, p = k.split(".", 1)
                 if m not in methods:
-                    _fail(source, f"grid.{k}: method {m!r} is not in methods")
+                    _fail(source, f"grid.{k}: method {brief(m)} is not in methods")
                 continue
             if k not in CELL_KEYS:
                 _fail(
@@ -247,7 +250,7 @@ def _parse_grid_and_fixed(
                 )
     both = sorted(set(grid) & set(fixed))
     if both:
-        _fail(source, f"{both[0]!r} is in both grid and fixed")
+        _fail(source, f"{brief(both[0])} is in both grid and fixed")
     if "profile" not in grid and "profile" not in fixed:
         _fail(source, "give the profile (InF-SL, InF-DL, InF-SH, InF-DH) in grid or fixed")
     return grid, fixed
@@ -277,18 +280,18 @@ def parse_sweep_config(data: Any, *, source: str = "") -> SweepConfig:
         _fail(source, "a sweep config is a mapping with 'grid', 'fixed', 'methods', ...")
     for k in data:
         if k not in _TOP_KEYS:
-            _fail(source, f"unknown key {k!r} (allowed: {', '.join(_TOP_KEYS)})")
+            _fail(source, f"unknown key {brief(k)} (allowed: {', '.join(_TOP_KEYS)})")
     methods = _parse_methods(data, source)
     grid, fixed = _parse_grid_and_fixed(data, methods, source)
     name = data.get("name", Path(source).stem if source else "sweep")
     if not isinstance(name, str) or not name:
-        _fail(source, f"name: expected a string, got {name!r}")
+        _fail(source, f"name: expected a string, got {brief(name)}")
     output = data.get("output")
     if output is not None and not isinstance(output, str):
-        _fail(source, f"output: expected a directory name, got {output!r}")
+        _fail(source, f"output: expected a directory name, got {brief(output)}")
     datasets = data.get("datasets", False)
     if not isinstance(datasets, bool):
-        _fail(source, f"datasets: expected true or false, got {datasets!r}")
+        _fail(source, f"datasets: expected true or false, got {brief(datasets)}")
     cfg = SweepConfig(
         name=name,
         grid={k: list(v) for k, v in grid.items()},
@@ -299,6 +302,8 @@ def parse_sweep_config(data: Any, *, source: str = "") -> SweepConfig:
         source=source,
         datasets=datasets,
     )
+    n_cells = float(np.prod([float(len(v)) for v in cfg.grid.values()]))
+    check_size("sweep cells", n_cells, f"{source or 'sweep'}: the grid")  # before listing them
     _check_cells(cfg)
     return cfg
 
@@ -338,20 +343,20 @@ def validate_cell(params: Mapping[str, Any]) -> None:
     get_band(params["band"])
     if params["toa_method"] not in TOA_METHODS:
         raise HallrayError(
-            f"unknown toa_method {params['toa_method']!r} (known: {', '.join(TOA_METHODS)})"
+            f"unknown toa_method {brief(params['toa_method'])} (known: {', '.join(TOA_METHODS)})"
         )
     if not isinstance(params["noise"], bool):
-        raise HallrayError(f"noise must be true or false, got {params['noise']!r}")
+        raise HallrayError(f"noise must be true or false, got {brief(params['noise'])}")
     for k in ("duration_s", "rate_hz", "inject_nlos_fraction", "inject_nlos_bias_m"):
         v = params[k]
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
-            raise HallrayError(f"{k} must be a finite number >= 0, got {v!r}")
+            raise HallrayError(f"{k} must be a finite number >= 0, got {brief(v)}")
     if params["duration_s"] <= 0 or params["rate_hz"] <= 0:
         raise HallrayError("duration_s and rate_hz must be > 0")
     n_epochs(params)  # at least one epoch
     if params["inject_nlos_fraction"] > 1:
         raise HallrayError(
-            f"inject_nlos_fraction must be in [0, 1], got {params['inject_nlos_fraction']!r}"
+            f"inject_nlos_fraction must be in [0, 1], got {brief(params['inject_nlos_fraction'])}"
         )
     if params["height"] not in ("known", "free"):
-        raise HallrayError(f"height must be 'known' or 'free', got {params['height']!r}")
+        raise HallrayError(f"height must be 'known' or 'free', got {brief(params['height'])}")

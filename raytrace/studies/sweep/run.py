@@ -15,6 +15,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from hallray.safe_output import MARKER, write_marker
+
 from ...core.errors import HallrayError
 from ...core.fileio import write_atomic
 from ..cluster import connect_dask, tune_malloc
@@ -125,13 +127,35 @@ def _execute_dask(
             client.close()
 
 
+#: The name a sweep directory's marker records (:func:`hallray.safe_output.write_marker`).
+SWEEP_COMMAND = "run-sweep"
+
+
 def _output_dir(cfg: SweepConfig, out_dir: str | os.PathLike[str] | None) -> Path:
-    """The sweep's output directory (:func:`default_output` if not given), checked."""
+    """The sweep's output directory (:func:`default_output` if not given), checked by the one
+    output rule (:func:`hallray.safe_output.check_output`: not an input, the working directory,
+    ...): new, empty, or this sweep's own (its marker or, from before markers, its
+    ``sweep.json``), never a directory with other content (a dataset, another sweep)."""
+    from hallray.safe_output import check_output, foreign_reason
+
     out = Path(out_dir) if out_dir is not None else default_output(cfg)
-    if out.exists() and not out.is_dir():
-        raise HallrayError(f"output {out} exists and is not a directory")
-    if not out.parent.is_dir():
-        raise HallrayError(f"cannot create {out}: directory {out.parent} does not exist")
+    real = check_output(out, inputs=[cfg.source or None], directory=True, what="output")
+    if real.is_dir() and any(real.iterdir()):
+        reason = foreign_reason(real, SWEEP_COMMAND)
+        if reason is not None and (real / "sweep.json").is_file():
+            reason = None  # a sweep written before the markers
+        if reason is None:
+            try:
+                name = json.loads((real / "sweep.json").read_text(encoding="utf-8")).get("name")
+            except (OSError, ValueError, AttributeError):
+                name = cfg.name
+            if name != cfg.name:
+                reason = f"holds the sweep {name!r}, not {cfg.name!r}"
+        if reason is not None:
+            raise HallrayError(
+                f"output {out} is not empty and {reason}: a sweep writes into a new or empty "
+                "directory, or resumes its own; choose another -o"
+            )
     return out
 
 
@@ -238,6 +262,8 @@ def run_sweep(
     # connect before writing anything: an unreachable scheduler leaves no output behind
     dask_client = connect_dask(scheduler) if scheduler is not None and todo else None
     out.mkdir(exist_ok=True)
+    if not (out / MARKER).exists():
+        write_marker(out, SWEEP_COMMAND, listed=False)  # resumable: never replaced, only resumed
     from ...solver.parallel import cpu_count
 
     n_workers = workers if workers is not None else cpu_count()

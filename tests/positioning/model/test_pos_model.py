@@ -171,7 +171,8 @@ def test_unsolvable_epochs_are_counted_not_raised():
         assert np.isnan(f.xyz[1]).all() and f.status[1] & Status.UNSOLVED
         np.testing.assert_allclose(f.xyz[[0, 2]], dev[[0, 2]], atol=POS_TOL_M)
         np.testing.assert_array_equal(f.n_used, [4, 2, 3])
-        f3 = locate(t, bs, m, return_info=True)
+        # 3D with every station at 4 m: locate refuses it (issue 40) unless told not to check
+        f3 = locate(t, bs, m, return_info=True, checks=False)
         assert f3.n_unsolved == 2 and np.isnan(f3.xyz[2]).all()
 
 
