@@ -77,25 +77,22 @@ def _gb(b: float) -> str:
     return f"{b / 1e9:.1f} GB"
 
 
-def check_load(n_triangles: int, name: str, available: float | None = None) -> None:
-    """SceneError (one line) when loading ``n_triangles`` needs more than is available."""
-    need = load_bytes(n_triangles)
-    have = available_bytes() if available is None else available
+def _refuse(need: float, have: float, n_triangles: int, name: str, doing: str) -> None:
     if need > have:
         raise SceneError(
-            f"scene {name} has {n_triangles:,} triangles: loading it needs about {_gb(need)}, "
+            f"scene {name} has {n_triangles:,} triangles: {doing} needs about {_gb(need)}, "
             f"this process can allocate {_gb(have)}; free memory, raise the limit, or simplify "
             "the mesh (fewer triangles)"
         )
 
 
+def check_load(n_triangles: int, name: str, available: float | None = None) -> None:
+    """SceneError (one line) when loading ``n_triangles`` needs more than is available."""
+    have = available_bytes() if available is None else available
+    _refuse(load_bytes(n_triangles), have, n_triangles, name, "loading it")
+
+
 def check_trace(n_triangles: int, name: str, available: float | None = None) -> None:
     """SceneError (one line) when a trace of the scene needs more than is available."""
-    need = trace_bytes(n_triangles)
     have = available_bytes() if available is None else available
-    if need > have:
-        raise SceneError(
-            f"scene {name} has {n_triangles:,} triangles: tracing it needs about {_gb(need)} "
-            f"more, this process can allocate {_gb(have)}; free memory, raise the limit, or "
-            "simplify the mesh (fewer triangles)"
-        )
+    _refuse(trace_bytes(n_triangles), have, n_triangles, name, "tracing it")

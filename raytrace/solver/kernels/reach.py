@@ -65,7 +65,10 @@ def facet_wedge_pairs_tree(f_ok, sgn, h_f, img_c, axis_c, cos_a, sin_a, apex_in,
 
     long kernel: one walk per facet with the per-edge tests at its leaves; split into helpers,
     the output buffers would be live across their branches (numba's reference counts per call,
-    :func:`raytrace.core.jit.inline`).
+    :func:`raytrace.core.jit.inline`). The per-edge tests are those of
+    :func:`~raytrace.solver.kernels.prune.facet_wedge_pairs`, written out again for that reason
+    (an inline helper of them reads the edge arrays after its first branch; numba also refuses
+    to inline it).
     """
     stack = np.empty(256, np.int64)
     for j in range(j0, len(f_ok)):
