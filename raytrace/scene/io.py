@@ -86,6 +86,7 @@ def load_scene(
         )  # fmt: skip
     except OSError as exc:  # a materials file or a mesh the XML names cannot be read
         raise SceneError(f"cannot read {exc.filename or p.name}: {exc.strerror or exc}") from None
+    scene.source = str(p)  # as a fresh build names it, also when read from the cache
     lo, hi = scene.bounds
     # a hall in mm (or cm, or km): refused before tracing
     check_extent(tuple(float(v) for v in hi - lo), f"scene {p.name}")
