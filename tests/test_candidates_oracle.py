@@ -1,4 +1,6 @@
-"""The tracer's candidates from the scene's trees (the default) against the exhaustive tables
+"""The tracer's candidates from the scene's trees (the default above
+:data:`raytrace.solver.kernels.TABLE_MAX_PAIRS`, forced here with ``TREES``) against the
+exhaustive tables
 (:data:`raytrace.solver.kernels.EXHAUSTIVE`, today's all-pairs path, kept as the oracle): the
 same paths on canonical scenes, the bundled hall and random cluttered scenes (issue 36).
 
@@ -43,7 +45,9 @@ def assert_same_paths(a, b) -> None:
 
 def _both(monkeypatch, scene, tx, rx, f=3.775e9, config=None, **kw):
     config = config or TraceConfig()
+    monkeypatch.setattr(kernels, "TREES", True)  # the trees, also on these small scenes
     fast = raytrace.trace(scene, tx, rx, f, config, threads=1, **kw)
+    monkeypatch.setattr(kernels, "TREES", False)
     monkeypatch.setattr(kernels, "EXHAUSTIVE", True)
     oracle = raytrace.trace(scene, tx, rx, f, config, threads=1, **kw)
     monkeypatch.setattr(kernels, "EXHAUSTIVE", False)

@@ -261,9 +261,34 @@ def _facet_wedge_pairs(
 def _triple_chunks(
     ctx: TraceContext, ends: np.ndarray, mixed_rdr: bool = False, keep: bool = False
 ) -> Iterator[tuple[np.ndarray, ...]]:
-    """The (end point, facet, wedge) triples of :func:`_facet_wedge_pairs`, in chunks of at most
-    about :data:`TRIPLE_CHUNK` (one end at a time: the triples of a wall and every edge of a
-    scanned machine are millions, and the stages expand and test each chunk before the next).
+    """The (end point, facet, wedge) triples of :func:`_facet_wedge_pairs`, in chunks of about
+    :data:`TRIPLE_CHUNK`: the ends' own chunks (:func:`_end_chunks`) joined in order until a
+    chunk holds that many, so that a small scene's ends make one batch (each batch pays the
+    stages' fixed costs: one per end was 35 % of the hall's trace) and a large one's stay
+    bounded."""
+    held: list[tuple[np.ndarray, ...]] = []
+    n = 0
+    for chunk in _end_chunks(ctx, ends, mixed_rdr, keep):
+        held.append(chunk)
+        n += len(chunk[0])
+        if n >= TRIPLE_CHUNK:
+            yield _joined(held)
+            held, n = [], 0
+    if held:
+        yield _joined(held)
+
+
+def _joined(chunks: list[tuple[np.ndarray, ...]]) -> tuple[np.ndarray, ...]:
+    return chunks[0] if len(chunks) == 1 else tuple(np.concatenate(a) for a in zip(*chunks))
+
+
+def _end_chunks(
+    ctx: TraceContext, ends: np.ndarray, mixed_rdr: bool = False, keep: bool = False
+) -> Iterator[tuple[np.ndarray, ...]]:
+    """The (end point, facet, wedge) triples of :func:`_facet_wedge_pairs`, one end at a time,
+    each end's in chunks of at most about :data:`TRIPLE_CHUNK` (the triples of a wall and every
+    edge of a scanned machine are millions, and the stages expand and test each chunk before
+    the next).
 
     ``ends`` are transmitters (for RD) or receivers (for DR); ``mixed_rdr`` keeps every pair (the
     restriction to some objects is applied to the joined RDR triples instead). Exact necessary
@@ -288,7 +313,7 @@ def _triple_chunks(
     else:
         f_chosen = np.ones(len(fc), dtype=bool)
         g_chosen = np.ones(len(geo.g_start), dtype=bool)
-    if kernels.EXHAUSTIVE:
+    if kernels.use_tables(len(fc), len(ctx.scene.wedges)):
         fixed = (*geo.facets[:2], f_chosen, *geo.facets[2:], *geo.groups, g_chosen, *geo.wedges,
                  *_wedge_frame(ctx).kernel_args, accel.PLANE_TOL_M, SPAN_PAD_M, kernels.PRUNE)  # fmt: skip
     else:
@@ -374,7 +399,7 @@ def _end_triples(fc, geo: _PairGeometry, fixed: tuple, end: np.ndarray, side_e: 
     c = np.ascontiguousarray
     per_facet = (f_ok, sgn, h_f, c(img_f.T), c(f_beam.axis.T), f_beam.cos_a, f_beam.sin_a,
                  f_beam.apex_inside)  # fmt: skip
-    if kernels.EXHAUSTIVE:
+    if kernels.use_tables(len(fc), len(geo.wedges[0])):
         *arrays, m = kernels.facet_wedge_pairs(*per_facet, *fixed, e, *_pair_buffers(PAIRS_PER_END))
         if m:
             yield tuple(x[:m] for x in arrays)

@@ -59,7 +59,7 @@ def first_order(ctx: TraceContext) -> list[Paths]:
     # (a facet that an end sees only through an opaque solid reflects nothing of it)
     side_tx = shadow.reflecting_sides(ctx, ctx.tx)  # (T, K)
     side_rx = shadow.reflecting_sides(ctx, ctx.rx)  # (R, K)
-    if kernels.EXHAUSTIVE:
+    if kernels.use_tables(len(fc), len(ctx.scene.wedges)):
         ok_tkr = (side_tx[:, :, None] != 0) & (side_tx[:, :, None] == side_rx.T[None])
         if ctx.facet_mask is not None:
             ok_tkr &= ctx.facet_mask[None, :, None]
@@ -179,7 +179,7 @@ def _second_images(ctx: TraceContext, t: int, in_shadow: np.ndarray) -> tuple[np
     # (a query on the facets' trees, output-sensitive: no (facets x facets) table)
     b1 = refl.beam(img1, centre[f1], radius[f1])
     # (for the paths of some objects only: a first facet on them, or a second one)
-    if kernels.EXHAUSTIVE:  # every pair of the (facets x facets) table
+    if kernels.use_tables(len(fc), len(ctx.scene.wedges)):  # the (facets x facets) table
         a, f2 = _table_pairs(fc, f1, ctx.facet_mask)
     else:
         a, f2 = accel.beam_facets(fc, b1, fc.normal[f1], fc.offset[f1], side_t[f1],
