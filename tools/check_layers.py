@@ -54,8 +54,21 @@ from collections import defaultdict
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
-# the tools' harness (one-line errors, exit status 2 on bad input): standard library only
-from hallray.harness import OneLineParser, run_command
+try:  # the tools' harness (one-line errors, exit status 2 on bad input): standard library only
+    from hallray.harness import OneLineParser, run_command
+except ModuleNotFoundError:  # a checkout nothing is installed from: this checker reads sources
+    # only, and CI-like hooks run it before any install; the same promises, in a few lines
+
+    class OneLineParser(argparse.ArgumentParser):  # type: ignore[no-redef]
+        def error(self, message: str) -> None:
+            self.exit(2, f"error: {message}\n")
+
+    def run_command(main, parser, argv=None, user_errors=()):  # type: ignore[no-redef]
+        try:
+            return main(parser.parse_args(argv))
+        except user_errors as exc:
+            print(f"error: {str(exc).splitlines()[0]}", file=sys.stderr)
+            return 2
 
 
 class LayerCheckError(Exception):
