@@ -27,7 +27,7 @@ import numpy as np
 
 from ..core.jit import carray, inline, kernel
 
-__all__ = ["LEAF_SIZE", "SphereTree", "build_tree", "query_boxes", "query_beams",
+__all__ = ["sphere_in_beam", "LEAF_SIZE", "SphereTree", "build_tree", "query_boxes", "query_beams",
            "query_beams_grouped"]
 
 #: Elements per leaf at most.
@@ -339,7 +339,7 @@ def query_boxes(tree: SphereTree, q_lo: np.ndarray, q_hi: np.ndarray) -> tuple[n
 
 
 @inline
-def _sphere_in_beam(ax, ay, az, ux, uy, uz, cos_a, sin_a, inside, cx, cy, cz, radius):
+def sphere_in_beam(ax, ay, az, ux, uy, uz, cos_a, sin_a, inside, cx, cy, cz, radius):
     """The beam (apex ``a``, unit axis ``u``, half-angle cosine and sine; ``inside``: the apex
     is inside the sphere the beam is cast through, every direction is in it) can meet the sphere
     (centre ``c``, ``radius``): the angle between the axis and the centre is at most the
@@ -397,7 +397,7 @@ def _query_beams(order, node_lo, node_hi, lo, hi, left, right, start, count, nod
             r = node_radius[node]
             if not _sphere_ahead(nx, ny, nz, off, sd, cx, cy, cz, r):
                 continue
-            if not _sphere_in_beam(ax, ay, az, ux, uy, uz, ca, sa, ins, cx, cy, cz, r):
+            if not sphere_in_beam(ax, ay, az, ux, uy, uz, ca, sa, ins, cx, cy, cz, r):
                 continue
             if left[node] >= 0:
                 top += 1
@@ -410,7 +410,7 @@ def _query_beams(order, node_lo, node_hi, lo, hi, left, right, start, count, nod
                 ex, ey, ez, er = centre[e, 0], centre[e, 1], centre[e, 2], radius[e]
                 if not _sphere_ahead(nx, ny, nz, off, sd, ex, ey, ez, er):
                     continue
-                if not _sphere_in_beam(ax, ay, az, ux, uy, uz, ca, sa, ins, ex, ey, ez, er):
+                if not sphere_in_beam(ax, ay, az, ux, uy, uz, ca, sa, ins, ex, ey, ez, er):
                     continue
                 if m == cap:
                     return q, m_q

@@ -21,6 +21,7 @@ import numpy as np
 from ...core.jit import helper, inline, kernel
 from ...core.vec import dot3
 from ...scene.accel import FACET_TEST_SIG, facet_box_test, in_triangles
+from ...scene.spatial import sphere_in_beam
 
 __all__ = ["surely_inside", "inside1", "beam_reaches1", "facet_wedge_pairs", "grown_pairs",
            "edge_span", "FRAME_SIG", "PAIRS_OUT_SIG", "along_and_off",
@@ -64,21 +65,10 @@ def surely_inside(t0, n0, t_start, n_start, cos_n, sin_n, prunable, m2_coef, min
     return out
 
 
-@inline
-def beam_reaches1(ax, ay, az, ux, uy, uz, cos_a, sin_a, inside, cx, cy, cz, radius):
-    """The beam (apex ``a``, unit axis ``u``, half-angle cos/sin) can meet the sphere (centre
-    ``c``, ``radius``): :func:`raytrace.solver.reflection.beam_reaches` times ``|c - a|``
-    (no division), a necessary condition."""
-    if inside:
-        return True
-    vx, vy, vz = cx - ax, cy - ay, cz - az
-    dt2 = vx * vx + vy * vy + vz * vz
-    r2 = radius * radius
-    if dt2 <= r2:
-        return True
-    dot = ux * vx + uy * vy + uz * vz
-    dt = np.sqrt(dt2)
-    return dot >= cos_a * np.sqrt(dt2 - r2) - sin_a * min(radius, dt) - 1e-7 * dt
+#: The beam (apex, unit axis, half-angle cos/sin) can meet the sphere (centre, radius):
+#: :func:`raytrace.solver.reflection.beam_reaches` times ``|c - a|``, the same test the scene's
+#: trees walk with (one function).
+beam_reaches1 = sphere_in_beam
 
 
 #: The numba signature of the (end, facet, wedge, image, span lo, hi) triples' buffers.
