@@ -19,6 +19,7 @@ bounding box. Every segment is then checked with Embree (penetrations allowed up
 from __future__ import annotations
 
 from collections.abc import Callable, Iterator
+from functools import partial
 
 import numpy as np
 
@@ -44,6 +45,10 @@ from .paths import DIFFRACTION, REFLECTION, Paths
 
 #: Work is split into chunks of about this many candidates.
 CHUNK = 300_000
+#: The RD and DR stages of a large scene (one traced with the trees, not the tables of
+#: :func:`raytrace.solver.kernels.use_tables`) are this many stages each, over every n-th end
+#: point, for the stage threads to share.
+LARGE_SCENE_PARTS = 2
 #: Padding (m) of the visible part of an edge used to prune diffraction points before the exact
 #: point-in-facet test: far above rounding, so the pruning never drops a valid path.
 SPAN_PAD_M = 1e-6
@@ -62,8 +67,14 @@ def stages(ctx: TraceContext) -> list[tuple[str, Callable[[], list[Paths]]]]:
     out: list[tuple[str, Callable[[], list[Paths]]]] = [("diffraction", lambda: [_pure(ctx)])]
     cfg = ctx.cfg
     if cfg.max_reflections >= 1 and cfg.max_interactions >= 2:
-        out.append(("reflection-diffraction", lambda: _one_reflection(ctx, before=True)))
-        out.append(("diffraction-reflection", lambda: _one_reflection(ctx, before=False)))
+        # on a large scene these two are most of a trace: each in parts (of its end points) so
+        # that the stage threads share them
+        fc, w = ctx.scene.facets, ctx.scene.wedges
+        parts = 1 if kernels.use_tables(len(fc), len(w)) else LARGE_SCENE_PARTS
+        for name, before, n_ends in (("reflection-diffraction", True, len(ctx.tx)),
+                                     ("diffraction-reflection", False, len(ctx.rx))):
+            n = max(1, min(parts, n_ends))
+            out.extend((name, partial(_one_reflection, ctx, before, i, n)) for i in range(n))
     if cfg.max_reflections >= 2 and cfg.max_interactions >= 3:
         out.append(("reflection-diffraction-reflection", lambda: _two_reflections(ctx)))
     return out
@@ -405,52 +416,56 @@ def _end_triples(fc, geo: _PairGeometry, fixed: tuple, end: np.ndarray, side_e: 
             yield tuple(x[:m] for x in arrays)
         return
     walks, tail = fixed
-    for tree_args, asks in walks:
+    for leaves, asks in walks:
         active = np.ones(len(f_ok), dtype=bool) if asks is None else c(asks[f_ok])
-        j = 0
+        j, rows = 0, PAIRS_PER_END
         while j < len(f_ok):
-            *arrays, m, j = kernels.facet_wedge_pairs_tree(
-                *per_facet, active, *geo.facets, *tree_args, *geo.wedges, *tail, e,
-                *_pair_buffers(PAIRS_PER_END)[:-1], 0, j, TRIPLE_CHUNK)  # fmt: skip
+            *arrays, _ = _pair_buffers(rows)
+            m, j_next = kernels.facet_wedge_pairs_tree(*per_facet, active, *geo.facets, *leaves,
+                                                       *tail, e, *arrays, j)  # fmt: skip
             if m:
                 yield tuple(x[:m] for x in arrays)
+            if j_next < len(f_ok):
+                # full: larger buffers next (one facet's triples never split), up to a chunk
+                rows = 2 * rows if m == 0 else min(2 * rows, max(rows, TRIPLE_CHUNK))
+            j = j_next
 
 
 def _wedge_walks(ctx: TraceContext, geo: _PairGeometry,
                  f_chosen: np.ndarray | None) -> tuple[list, tuple]:  # fmt: skip
-    """The trees of edges a facet's beam walks in :func:`_end_pairs` (the scene's, or for a
-    scene with moving objects the static scene's and the moving objects'), each with the facets
-    that ask it (None: all); with ``f_chosen`` (K,) bool (a trace of some objects only) the
-    chosen facets ask every tree and the others one over the chosen edges only. And what the
-    kernel takes after the edges (the wedge frames, tolerances, pruning)."""
+    """The trees of edges a facet's beam walks in :func:`_end_triples`
+    (:class:`raytrace.solver.kernels.EdgeLeaves`: the scene's, or for a scene with moving
+    objects the static scene's and the moving objects'; cached), each with the facets that ask
+    it (None: all); with ``f_chosen`` (K,) bool (a trace of some objects only) the chosen facets
+    ask every tree and the others one over the chosen edges only. And what the kernel takes
+    after the edges (the wedge frame's scalars, tolerances, pruning)."""
     w = ctx.scene.wedges
-    walks = []
-
-    def args(tree, w_of):
-        c = carray
-        return (c(tree.node_centre), c(tree.node_radius), c(tree.left, np.int64),
-                c(tree.right, np.int64), c(tree.start, np.int64), c(tree.count, np.int64),
-                c(tree.order, np.int64), c(w_of, np.int64))  # fmt: skip
-
-    if len(w):
-        for tree, first in accel.wedge_forest(w):
-            walks.append((args(tree, np.arange(tree.size) + first), f_chosen))
-        if f_chosen is not None:
-            chosen = np.flatnonzero(ctx.wedge_mask)
-            if len(chosen):
-                a, b = w.start[chosen], w.end[chosen]
-                tree = build_tree(np.minimum(a, b), np.maximum(a, b), 0.5 * (a + b),
-                                  0.5 * w.length[chosen] * (1 + 1e-9) + 1e-9)  # fmt: skip
-                walks.append((args(tree, chosen), ~f_chosen))
-    tail = (*_wedge_frame(ctx).kernel_args, accel.PLANE_TOL_M, SPAN_PAD_M, kernels.PRUNE)
+    frame = _wedge_frame(ctx).kernel_args
+    forest = accel.wedge_forest(w)
+    cached = w.cache.get("edge_leaves")
+    if cached is None or cached[0] is not forest:
+        leaves = [kernels.edge_leaves(tree, np.arange(tree.size) + first, geo.wedges, frame)
+                  for tree, first in forest]  # fmt: skip
+        cached = w.cache["edge_leaves"] = (forest, leaves)
+    walks = [(leaves, f_chosen) for leaves in cached[1]] if len(w) else []
+    if len(w) and f_chosen is not None:
+        chosen = np.flatnonzero(ctx.wedge_mask)
+        if len(chosen):
+            a, b = w.start[chosen], w.end[chosen]
+            tree = build_tree(np.minimum(a, b), np.maximum(a, b), 0.5 * (a + b),
+                              0.5 * w.length[chosen] * (1 + 1e-9) + 1e-9)  # fmt: skip
+            walks.append((kernels.edge_leaves(tree, chosen, geo.wedges, frame), ~f_chosen))
+    tail = (*frame[7:], accel.PLANE_TOL_M, SPAN_PAD_M, kernels.PRUNE)
     return walks, tail
 
 
-def _one_reflection(ctx: TraceContext, before: bool) -> list[Paths]:
+def _one_reflection(ctx: TraceContext, before: bool, part: int = 0, parts: int = 1) -> list[Paths]:
     """RD (``before=True``: reflection at the transmitter's side) or DR paths, one chunk of
-    (end, facet, wedge) triples at a time (:func:`_triple_chunks`)."""
+    (end, facet, wedge) triples at a time (:func:`_triple_chunks`); of the end points (the
+    transmitters for RD) ``part``, ``part + parts``, ... only."""
     fc, w = ctx.scene.facets, ctx.scene.wedges
     ends, others = (ctx.tx, ctx.rx) if before else (ctx.rx, ctx.tx)
+    mine = np.arange(part, len(ends), parts)
     side_e = carray(refl.reflecting_side(fc, ends), np.int8)
     # Keller's point in scalar form (see keller_points): t = ts + (td - ts) rho_s / (rho_s + rho_d)
     # with the end's image (ts, rho_s) per triple and the other end (td, rho_d) per wedge, so
@@ -476,8 +491,8 @@ def _one_reflection(ctx: TraceContext, before: bool) -> list[Paths]:
     wedge_obj = carray(w.object if len(w) else np.zeros(0), np.int64)
     n_o = len(others)
     step = max(1, CHUNK // max(n_o, 1))
-    for e_idx, f_idx, w_idx, img, t_lo, t_hi in _triple_chunks(ctx, ends, keep=before):
-        triples = (carray(e_idx, np.int64), carray(f_idx, np.int64), carray(w_idx, np.int64),
+    for e_idx, f_idx, w_idx, img, t_lo, t_hi in _triple_chunks(ctx, ends[mine], keep=before):
+        triples = (carray(mine[e_idx], np.int64), carray(f_idx, np.int64), carray(w_idx, np.int64),
                    carray(img), carray(t_lo), carray(t_hi))  # fmt: skip
         for c0 in range(0, len(e_idx), step):
             # the pruned pairs' exact tests, one pair at a time: Keller's point on the edge and

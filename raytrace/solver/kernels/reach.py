@@ -8,18 +8,20 @@ facet that grazes such an object tests all of its edges. Here the beam walks a t
 instead: a node is skipped when its sphere is entirely behind the facet's plane or outside the
 beam (the group test of the old loop on a node's sphere), and the edges of the leaves it reaches
 get the old loop's per-edge tests, in its arithmetic. The triples found are the old loop's
-(tests: ``tests/test_reach.py``); the candidates it finds, and so the paths, do not depend on the
-walk.
+(tests: ``tests/test_candidates_oracle.py``); the candidates it finds, and so the paths, do not
+depend on the walk.
 """
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
-from ...core.jit import helper, kernel
-from .prune import FRAME_SIG, PAIRS_OUT_SIG, beam_reaches1, edge_span, grown_pairs, inside1
+from ...core.jit import helper, inline, kernel
+from .prune import PAIRS_OUT_SIG, beam_reaches1, edge_span
 
-__all__ = ["facet_wedge_pairs_tree", "first_order_candidates"]
+__all__ = ["EdgeLeaves", "edge_leaves", "facet_wedge_pairs_tree", "first_order_candidates"]
 
 @helper
 def _grown(buf, m, cap):
@@ -29,53 +31,118 @@ def _grown(buf, m, cap):
     return out
 
 
+class EdgeLeaves(NamedTuple):
+    """A tree of edges (:class:`raytrace.scene.spatial.SphereTree`) with what the walk of
+    :func:`facet_wedge_pairs_tree` reads of each edge copied into the tree's leaf order: a leaf's
+    edges are consecutive rows, read in order, where reading them through the tree's ``order``
+    and the wedges' own order jumped about memory (half of the walk's time on a scanned hall).
+
+    Attributes
+    ----------
+    node_centre : (M, 3) float, node_radius : (M,) float, left, right, start, count : (M,) int:
+        the tree's nodes (:class:`raytrace.scene.spatial.SphereTree`)
+    wedge : (N,) int, the wedge in each leaf slot
+    geometry : (N, 11) float: start (3), end (3), middle (3), metres; half-length, length, metres
+    frame : (N, 10) float: the wedge frame of :func:`raytrace.solver.kernels.surely_inside`,
+        ``t0`` (3), ``n0`` (3), ``t_start``, ``n_start``, ``cos_n``, ``sin_n``
+    prunable : (N,) bool
+    """
+
+    node_centre: np.ndarray
+    node_radius: np.ndarray
+    left: np.ndarray
+    right: np.ndarray
+    start: np.ndarray
+    count: np.ndarray
+    wedge: np.ndarray
+    geometry: np.ndarray
+    frame: np.ndarray
+    prunable: np.ndarray
+
+
+def edge_leaves(tree, w_of: np.ndarray, wedges: tuple, frame: tuple) -> EdgeLeaves:
+    """:class:`EdgeLeaves` of ``tree``, whose element ``i`` is wedge ``w_of[i]``.
+
+    Parameters
+    ----------
+    tree : :class:`raytrace.scene.spatial.SphereTree`
+    w_of : (N,) int
+    wedges : (start, end, middle (W, 3), half-length, length (W,)), metres
+    frame : the wedge frame's arrays ``(t0, n0 (3, W), t_start, n_start, cos_n, sin_n (W,),
+        prunable (W,) bool)`` (the scalars after them are not read)
+    """
+    c = np.ascontiguousarray
+    w = c(np.asarray(w_of, np.int64)[tree.order])
+    w_start, w_end, w_mid, w_half, w_length = wedges
+    t0, n0, t_start, n_start, cos_n, sin_n, prunable = frame[:7]
+    geometry = c(np.column_stack([w_start[w], w_end[w], w_mid[w], w_half[w], w_length[w]]))
+    fr = c(np.column_stack([t0[:, w].T, n0[:, w].T, t_start[w], n_start[w], cos_n[w], sin_n[w]]))
+    return EdgeLeaves(c(tree.node_centre), c(tree.node_radius), c(tree.left, np.int64),
+                      c(tree.right, np.int64), c(tree.start, np.int64), c(tree.count, np.int64),
+                      w, geometry.reshape(-1, 11), fr.reshape(-1, 10), c(prunable[w], bool))
+
+
+@inline
+def _inside_row(fr, prunable, k, m2_coef, min_rho2, px, py, pz):
+    """:func:`raytrace.solver.kernels.prune.inside1` on row ``k`` of an :class:`EdgeLeaves`'
+    frame, in its arithmetic."""
+    ok, cn, sn = prunable[k], fr[k, 8], fr[k, 9]
+    x = px * fr[k, 0] + py * fr[k, 1] + pz * fr[k, 2] - fr[k, 6]
+    y = px * fr[k, 3] + py * fr[k, 4] + pz * fr[k, 5] - fr[k, 7]
+    if not ok:
+        return False
+    r2 = x * x + y * y
+    m2 = m2_coef * r2
+    side_n = cn * y - sn * x
+    return r2 > min_rho2 and y < 0 and y * y > m2 and side_n > 0 and side_n * side_n > m2
+
+
 _TREE_PAIRS_SIG = (
-    f"Tuple(({PAIRS_OUT_SIG}, i8, i8))("
+    "UniTuple(i8, 2)("
     # per facet of the end (F,): indices, side sign, end's distance from the plane, image
     # components (3, F), beam axis components (3, F), cos, sin of its half-angle, apex inside,
     # asked about this tree
     "i8[::1], f8[::1], f8[::1], f8[:, ::1], f8[:, ::1], f8[::1], f8[::1], b1[::1], b1[::1], "
     # facets (K,): normals (K, 3), offsets; boxes lo, hi (K, 3)
     "f8[:, ::1], f8[::1], f8[:, ::1], f8[:, ::1], "
-    # the tree: node centres (M, 3), radii, left, right, leaf start, count; element order and
-    # the wedge of each element
-    "f8[:, ::1], f8[::1], i8[::1], i8[::1], i8[::1], i8[::1], i8[::1], i8[::1], "
-    # wedges (W,): start, end, middle (W, 3), half-length, length
-    "f8[:, ::1], f8[:, ::1], f8[:, ::1], f8[::1], f8[::1], "
-    f"{FRAME_SIG}, f8, f8, b1, i8, {PAIRS_OUT_SIG}, i8, i8, i8)"
+    # the tree of edges in leaf order (EdgeLeaves)
+    "f8[:, ::1], f8[::1], i8[::1], i8[::1], i8[::1], i8[::1], i8[::1], f8[:, ::1], f8[:, ::1], "
+    "b1[::1], "
+    # frame scalars, tolerances, pruning, the end, the output buffers, the first facet
+    f"f8, f8, f8, f8, b1, i8, {PAIRS_OUT_SIG}, i8)"
 )
 
 
 @kernel(_TREE_PAIRS_SIG)
 def facet_wedge_pairs_tree(f_ok, sgn, h_f, img_c, axis_c, cos_a, sin_a, apex_in, f_active,
                            normal, offset, lo, hi,
-                           node_centre, node_radius, left, right, start, count, order, w_of,
-                           w_start, w_end, w_mid, w_half, w_length,
-                           t0, n0, t_start, n_start, cos_n, sin_n, prunable, m2_coef, min_rho2,
+                           node_centre, node_radius, left, right, start, count, leaf_w, geo,
+                           fr, prunable, m2_coef, min_rho2,
                            eps, pad, prune, e, out_e, out_f, out_w, out_img, out_lo, out_hi,
-                           m, j0, cap):  # fmt: skip
+                           j0):  # fmt: skip
     """The (facet, wedge) triples of one end point (``e``) where a reflection in the facet can
-    reach the edge, for the edges of one tree, written after the ``m`` rows already in the
-    output buffers: the conditions of :func:`raytrace.solver.kernels.prune.facet_wedge_pairs`,
-    condition 1 on the tree's node spheres instead of objects' groups. Only the facets with
-    ``f_active`` ask this tree. Same outputs as that function, and the first facet (index into
-    ``f_ok``) not asked: the facets are taken from ``j0`` on and no new one once the buffers
-    hold ``cap`` rows (one facet's triples are never split), so that a caller can stream an
-    end's triples in bounded chunks.
+    reach the edge, for the edges of one tree (:class:`EdgeLeaves`): the conditions of
+    :func:`raytrace.solver.kernels.prune.facet_wedge_pairs`, condition 1 on the tree's node
+    spheres instead of objects' groups. Only the facets with ``f_active`` ask this tree.
+
+    Written into the output buffers from their first row, facets from ``j0`` on (index into
+    ``f_ok``), whole facets only: returns ``(m, j)``, the rows written and the first facet not
+    done, ``len(f_ok)`` when all are. A facet whose triples do not fit in the rows left is left
+    for the next call (``m`` rows of the facets before it; ``m == 0``: the buffers are too small
+    for that one facet), so a caller streams an end's triples in chunks of the buffers' size.
 
     long kernel: one walk per facet with the per-edge tests at its leaves; split into helpers,
     the output buffers would be live across their branches (numba's reference counts per call,
     :func:`raytrace.core.jit.inline`). The per-edge tests are those of
-    :func:`~raytrace.solver.kernels.prune.facet_wedge_pairs`, written out again for that reason
-    (an inline helper of them reads the edge arrays after its first branch; numba also refuses
-    to inline it).
+    :func:`~raytrace.solver.kernels.prune.facet_wedge_pairs`, written out again for that reason.
     """
     stack = np.empty(256, np.int64)
+    cap = len(out_e)
+    m = 0
     for j in range(j0, len(f_ok)):
-        if m >= cap:
-            return out_e, out_f, out_w, out_img, out_lo, out_hi, m, j
         if not f_active[j]:
             continue
+        m_j = m
         f = f_ok[j]
         s_j = sgn[j]
         nx, ny, nz, off = normal[f, 0], normal[f, 1], normal[f, 2], offset[f]
@@ -83,6 +150,7 @@ def facet_wedge_pairs_tree(f_ok, sgn, h_f, img_c, axis_c, cos_a, sin_a, apex_in,
         ux, uy, uz = axis_c[0, j], axis_c[1, j], axis_c[2, j]
         ca, sa, ai = cos_a[j], sin_a[j], apex_in[j]
         h = h_f[j]
+        flx, fly, flz, fhx, fhy, fhz = lo[f, 0], lo[f, 1], lo[f, 2], hi[f, 0], hi[f, 1], hi[f, 2]
         top = 0
         stack[0] = 0
         while top >= 0:
@@ -101,13 +169,11 @@ def facet_wedge_pairs_tree(f_ok, sgn, h_f, img_c, axis_c, cos_a, sin_a, apex_in,
                 top += 1
                 stack[top] = left[node]
                 continue
-            if m + count[node] > len(out_e):
-                out_e, out_f, out_w, out_img, out_lo, out_hi = grown_pairs(
-                    out_e, out_f, out_w, out_img, out_lo, out_hi, m + count[node])  # fmt: skip
+            if m + count[node] > cap:
+                return m_j, j  # this facet does not fit: the next call starts with it
             for k in range(start[node], start[node] + count[node]):
-                w = w_of[order[k]]
-                ax, ay, az = w_start[w, 0], w_start[w, 1], w_start[w, 2]
-                bx, by, bz = w_end[w, 0], w_end[w, 1], w_end[w, 2]
+                ax, ay, az = geo[k, 0], geo[k, 1], geo[k, 2]
+                bx, by, bz = geo[k, 3], geo[k, 4], geo[k, 5]
                 da = (ax * nx + ay * ny + az * nz - off) * s_j
                 db = (bx * nx + by * ny + bz * nz - off) * s_j
                 # the rule, not a pruning: a reflection reaches only an edge with a part strictly
@@ -115,27 +181,25 @@ def facet_wedge_pairs_tree(f_ok, sgn, h_f, img_c, axis_c, cos_a, sin_a, apex_in,
                 if not (da > eps or db > eps):
                     continue
                 if not prune:
-                    out_e[m], out_f[m], out_w[m] = e, f, w
+                    out_e[m], out_f[m], out_w[m] = e, f, leaf_w[k]
                     out_img[m, 0], out_img[m, 1], out_img[m, 2] = ix, iy, iz
                     out_lo[m], out_hi[m] = -np.inf, np.inf
                     m += 1
                     continue
-                if not beam_reaches1(ix, iy, iz, ux, uy, uz, ca, sa, ai,
-                                     w_mid[w, 0], w_mid[w, 1], w_mid[w, 2], w_half[w]):  # fmt: skip
+                if not beam_reaches1(ix, iy, iz, ux, uy, uz, ca, sa, ai, geo[k, 6], geo[k, 7],
+                                     geo[k, 8], geo[k, 9]):  # fmt: skip
                     continue
-                if inside1(t0, n0, t_start, n_start, cos_n, sin_n, prunable, m2_coef, min_rho2,
-                           w, ix, iy, iz):  # fmt: skip
+                if _inside_row(fr, prunable, k, m2_coef, min_rho2, ix, iy, iz):
                     continue
                 ok, t_lo, t_hi = edge_span(ax, ay, az, bx, by, bz, ix, iy, iz, da, db, eps, h,
-                                            lo[f, 0], lo[f, 1], lo[f, 2], hi[f, 0], hi[f, 1],
-                                            hi[f, 2], w_length[w], pad)  # fmt: skip
+                                            flx, fly, flz, fhx, fhy, fhz, geo[k, 10], pad)  # fmt: skip
                 if not ok:
                     continue
-                out_e[m], out_f[m], out_w[m] = e, f, w
+                out_e[m], out_f[m], out_w[m] = e, f, leaf_w[k]
                 out_img[m, 0], out_img[m, 1], out_img[m, 2] = ix, iy, iz
                 out_lo[m], out_hi[m] = t_lo, t_hi
                 m += 1
-    return out_e, out_f, out_w, out_img, out_lo, out_hi, m, len(f_ok)
+    return m, len(f_ok)
 
 
 @kernel("Tuple((i8[::1], i8[::1], i8[::1]))(i1[:, ::1], i1[:, ::1], b1[::1], f8[:, ::1], "
