@@ -350,7 +350,7 @@ def facing(facets: Facets, i: np.ndarray, j: np.ndarray) -> np.ndarray:
 
 
 @helper
-def _sees(verts, start, count, nx, ny, nz, off, two_sided, tol):
+def facet_sees(verts, start, count, nx, ny, nz, off, two_sided, tol):
     """Some vertex ``verts[start:start + count]`` strictly in front of the plane (or behind it,
     for a two-sided facet)."""
     for k in range(start, start + count):
@@ -368,8 +368,8 @@ def _facing(i, j, verts, starts, counts, normal, offset, two_sided, tol):
         a, b = i[p], j[p]
         if a == b:
             continue
-        out[p] = _sees(verts, starts[a], counts[a], normal[b, 0], normal[b, 1], normal[b, 2],
-                       offset[b], two_sided[b], tol) and _sees(
+        out[p] = facet_sees(verts, starts[a], counts[a], normal[b, 0], normal[b, 1], normal[b, 2],
+                             offset[b], two_sided[b], tol) and facet_sees(
             verts, starts[b], counts[b], normal[a, 0], normal[a, 1], normal[a, 2], offset[a],
             two_sided[a], tol)  # fmt: skip
     return out

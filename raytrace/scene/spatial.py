@@ -27,8 +27,8 @@ import numpy as np
 
 from ..core.jit import carray, inline, kernel
 
-__all__ = ["sphere_in_beam", "LEAF_SIZE", "SphereTree", "build_tree", "query_boxes", "query_beams",
-           "query_beams_grouped"]
+__all__ = ["sphere_in_beam", "sphere_ahead", "LEAF_SIZE", "SphereTree", "build_tree", "query_boxes",
+           "query_beams", "query_beams_grouped"]
 
 #: Elements per leaf at most.
 LEAF_SIZE = 8
@@ -358,7 +358,7 @@ def sphere_in_beam(ax, ay, az, ux, uy, uz, cos_a, sin_a, inside, cx, cy, cz, rad
 
 
 @inline
-def _sphere_ahead(nx, ny, nz, off, side, cx, cy, cz, radius):
+def sphere_ahead(nx, ny, nz, off, side, cx, cy, cz, radius):
     """Some of the sphere is strictly on the ``side`` (+1, -1; 0: either) of the plane
     ``n . x = off``."""
     s = nx * cx + ny * cy + nz * cz - off
@@ -395,7 +395,7 @@ def _query_beams(order, node_lo, node_hi, lo, hi, left, right, start, count, nod
             top -= 1
             cx, cy, cz = node_centre[node, 0], node_centre[node, 1], node_centre[node, 2]
             r = node_radius[node]
-            if not _sphere_ahead(nx, ny, nz, off, sd, cx, cy, cz, r):
+            if not sphere_ahead(nx, ny, nz, off, sd, cx, cy, cz, r):
                 continue
             if not sphere_in_beam(ax, ay, az, ux, uy, uz, ca, sa, ins, cx, cy, cz, r):
                 continue
@@ -408,7 +408,7 @@ def _query_beams(order, node_lo, node_hi, lo, hi, left, right, start, count, nod
             for k in range(start[node], start[node] + count[node]):
                 e = order[k]
                 ex, ey, ez, er = centre[e, 0], centre[e, 1], centre[e, 2], radius[e]
-                if not _sphere_ahead(nx, ny, nz, off, sd, ex, ey, ez, er):
+                if not sphere_ahead(nx, ny, nz, off, sd, ex, ey, ez, er):
                     continue
                 if not sphere_in_beam(ax, ay, az, ux, uy, uz, ca, sa, ins, ex, ey, ez, er):
                     continue
