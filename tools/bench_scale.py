@@ -6,7 +6,8 @@ paths, for the bundled hall plus generated metal machines from 10^3 to 10^6 tria
 Run from a checkout: ``python tools/bench_scale.py [--max-triangles 1e6] [--dir DIR] [--json]``
 (``python tools/bench.py --scene-scale`` runs it). Each scene is measured in a fresh process (its
 own peak memory, a cold load with the disk cache off, then the first trace: trees and candidates
-built, then a warm trace). Generated scenes are kept in ``--dir`` for the next run.
+built, then a warm trace; wall time and this process' CPU time, the steadier figure on a shared
+machine: the trace's stage threads run in it). Generated scenes are kept in ``--dir`` for the next run.
 ``--scene FILE`` adds a scene of your own (a public city mesh). Not a test: it asserts nothing.
 """
 
@@ -40,16 +41,17 @@ def measure_one(path: str, f_hz: float) -> dict:
     if not len(inp.bs_xyz):
         inp = SceneMetadata.from_scene(load_scene("hall"))
     tx, rx = inp.bs_xyz, inp.point_xyz
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     paths = trace(scene, tx, rx, f_hz)
-    first_s = time.perf_counter() - t0
-    t0 = time.perf_counter()
+    first_s, first_cpu = time.perf_counter() - t0, time.process_time() - c0
+    t0, c0 = time.perf_counter(), time.process_time()
     trace(scene, tx, rx, f_hz)
-    warm_s = time.perf_counter() - t0
+    warm_s, warm_cpu = time.perf_counter() - t0, time.process_time() - c0
     return {
         "scene": Path(path).name, "triangles": int(len(scene.faces)), "wedges": len(scene.wedges),
         "links": len(tx) * len(rx), "load_s": load_s, "first_trace_s": first_s,
-        "warm_trace_s": warm_s, "paths": int(paths.n_paths),
+        "warm_trace_s": warm_s, "first_trace_cpu_s": first_cpu, "warm_trace_cpu_s": warm_cpu,
+        "paths": int(paths.n_paths),
         "peak_gb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6,
     }  # fmt: skip
 
@@ -118,7 +120,8 @@ def _main(args: argparse.Namespace) -> int:
             _print_row(r)
     ok = [r for r in rows if "error" not in r]
     out = {"rows": rows, "slope_load": slope(ok, "load_s"), "slope_first_trace": slope(ok, "first_trace_s"),
-           "slope_warm_trace": slope(ok, "warm_trace_s")}  # fmt: skip
+           "slope_warm_trace": slope(ok, "warm_trace_s"),
+           "slope_first_trace_cpu": slope(ok, "first_trace_cpu_s")}  # fmt: skip
     if args.json:
         print(json.dumps(out, indent=1))
     else:
@@ -132,7 +135,8 @@ def _print_row(r: dict) -> None:
         print(f"{r['scene']:>22}: {r['error']}")
         return
     print(f"{r['scene']:>22} {r['triangles']:>9,} tri {r['wedges']:>8,} wedges  load {r['load_s']:6.1f} s  "
-          f"first {r['first_trace_s']:6.1f} s  warm {r['warm_trace_s']:6.1f} s  {r['paths']:>7,} paths  "
+          f"first {r['first_trace_s']:6.1f} s ({r['first_trace_cpu_s']:.1f} s CPU)  "
+          f"warm {r['warm_trace_s']:6.1f} s ({r['warm_trace_cpu_s']:.1f} s CPU)  {r['paths']:>7,} paths  "
           f"peak {r['peak_gb']:.2f} GB", flush=True)  # fmt: skip
 
 
