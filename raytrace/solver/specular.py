@@ -159,8 +159,8 @@ def _second_images(ctx: TraceContext, t: int, in_shadow: np.ndarray) -> tuple[np
     s_img : (M,) int8, the side of the second facet the first image is on
     receiver_args : tuple, the per-image arguments of
         :func:`raytrace.solver.kernels.second_order_candidates` (``f2``, ``s_img``, the beams
-        from the second images through the second facets and from the first images through the
-        first facets, the second facets' planes), around ``side_rx``
+        from the second images through the second facets, per pair, and from the first images
+        through the first facets, per first image), around ``side_rx``
     exact_args : tuple, the arguments of its exact tests (``img1``, ``i1``, ``f1``, ``img2``,
         ``side_t``, writable copies)
     """
@@ -194,17 +194,21 @@ def _second_images(ctx: TraceContext, t: int, in_shadow: np.ndarray) -> tuple[np
     else:  # the same conditions, tested in the trees' walks (kernels.second_facets)
         a, f2, s_img = _second_facets(fc, f1, b1, side_t[f1], ctx.facet_mask)
     order = np.lexsort((f2, a))  # in (first image, second facet) order, as a table would give
-    a, f2, s_img = a[order], f2[order], s_img[order]
-    img2 = refl.mirror(img1[a], fc.normal[f2], fc.offset[f2])
+    c = lambda x, t=np.float64: np.array(x, dtype=t, order="C", copy=True)  # noqa: E731
+    a, f2, s_img = c(a[order], np.int64), c(f2[order], np.int64), c(s_img[order], np.int8)
+    img2 = c(refl.mirror(img1[a], fc.normal[f2], fc.offset[f2]))
     b2 = refl.beam(img2, centre[f2], radius[f2])
-    b1 = refl.beam(img1[a], centre[f1[a]], radius[f1[a]])
-    receiver_args = (f2, s_img, *_beam_args(b2), b2.sin_a, *_beam_args(b1), fc.normal[f2],
-                     fc.offset[f2])  # fmt: skip
-    # own writable copies: the kernel's signature takes writable arrays (it writes none)
-    receiver_args = tuple(np.array(x, order="C", copy=True) for x in receiver_args)
-    found = (side_t, img1, a, f1[a], f2, img2, s_img)
+    # the beams through the first facets stay one per first image (b1; the kernel reads row a):
+    # per pair, with the second facets' planes, they were most of what was kept
+    img1, f1a, side_t = c(img1), c(f1[a], np.int64), c(side_t, np.int8)
+    # own writable arrays (the kernel's signature takes writable arrays; it writes none), kept
+    # behind read-only views
+    receiver_args = (f2, s_img, img2, c(b2.axis), c(b2.cos_a), c(b2.apex_inside, bool),
+                     c(b2.sin_a), c(b1.apex), c(b1.axis), c(b1.cos_a),
+                     c(b1.apex_inside, bool))  # fmt: skip
     # and for its exact tests: the images, which first image and first facet, the side
-    exact_args = tuple(np.array(x, order="C", copy=True) for x in (img1, a, f1[a], img2, side_t))
+    exact_args = (img1, a, f1a, img2, side_t)
+    found = tuple(x.view() for x in (side_t, img1, a, f1a, f2, img2, s_img))
     for x in found:
         x.setflags(write=False)
     return keep(kept, key, (*found, receiver_args, exact_args), SECOND_IMAGES_KEPT)
@@ -269,7 +273,3 @@ def _table_pairs(fc, f1: np.ndarray, mask: np.ndarray | None) -> tuple[np.ndarra
         pairs = pairs & (mask[f1][:, None] | mask[None, :])
     return np.nonzero(pairs)
 
-
-def _beam_args(b: refl.Beam) -> tuple[np.ndarray, ...]:
-    """A beam as :func:`raytrace.solver.kernels.second_order_candidates` takes it."""
-    return carray(b.apex), carray(b.axis), carray(b.cos_a), carray(b.apex_inside, bool)

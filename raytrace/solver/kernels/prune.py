@@ -334,8 +334,10 @@ _BEAM = "f8[:, ::1], f8[:, ::1], f8[::1], b1[::1]"
 
 
 @inline
-def _in_both_beams(apex2, axis2, cos2, in2, apex1, axis1, cos1, in1, nx, ny, nz, off, rx, q, r):
-    """The beam tests of :func:`second_order_candidates` for second image ``q``, receiver ``r``."""
+def _in_both_beams(apex2, axis2, cos2, in2, apex1, axis1, cos1, in1, nx, ny, nz, off, rx, q, r,
+                   i):  # fmt: skip
+    """The beam tests of :func:`second_order_candidates` for second image ``q`` (its first
+    image ``i``), receiver ``r``."""
     px, py, pz = rx[r, 0], rx[r, 1], rx[r, 2]
     if not _point_in_beam(apex2[q, 0], apex2[q, 1], apex2[q, 2], axis2[q, 0], axis2[q, 1],
                           axis2[q, 2], cos2[q], in2[q], px, py, pz):  # fmt: skip
@@ -343,8 +345,8 @@ def _in_both_beams(apex2, axis2, cos2, in2, apex1, axis1, cos1, in1, nx, ny, nz,
     dist = px * nx + py * ny + pz * nz
     dist -= off
     mx, my, mz = px - 2.0 * dist * nx, py - 2.0 * dist * ny, pz - 2.0 * dist * nz
-    return _point_in_beam(apex1[q, 0], apex1[q, 1], apex1[q, 2], axis1[q, 0], axis1[q, 1],
-                          axis1[q, 2], cos1[q], in1[q], mx, my, mz)  # fmt: skip
+    return _point_in_beam(apex1[i, 0], apex1[i, 1], apex1[i, 2], axis1[i, 0], axis1[i, 1],
+                          axis1[i, 2], cos1[i], in1[i], mx, my, mz)  # fmt: skip
 
 
 @inline
@@ -360,12 +362,12 @@ def _plane_crossing(ax, ay, az, bx, by, bz, nx, ny, nz, off):
 
 @kernel(
     "Tuple((i8[::1], i8[::1], f8[:, ::1], i8))("
-    f"i8, i8, i8[::1], i1[::1], i1[:, ::1], {_BEAM}, f8[::1], {_BEAM}, f8[:, ::1], f8[::1], "
+    f"i8, i8, i8[::1], i1[::1], i1[:, ::1], {_BEAM}, f8[::1], {_BEAM}, "
     "f8[:, ::1], f8, f8, f8, f8, b1, f8[:, ::1], i8[::1], i8[::1], f8[:, ::1], f8[:, ::1], "
     f"f8[::1], i1[::1], {FACET_TEST_SIG}, b1)"
 )
 def second_order_candidates(q0, q1, f2, s_img, side_rx, apex2, axis2, cos2, in2, sin2, apex1,
-                            axis1, cos1, in1, n2, off2, rx, cx, cy, cz, radius, prune, img1, i1,
+                            axis1, cos1, in1, rx, cx, cy, cz, radius, prune, img1, i1,
                             f1, img2, normal, offset, side_t, lo, hi, rect, r_lo, r_hi,
                             tri_start, tri_count, corner, v0, v1, d00, d01, d11, den, bary_tol,
                             rect_inside, exact):  # fmt: skip
@@ -376,11 +378,12 @@ def second_order_candidates(q0, q1, f2, s_img, side_rx, apex2, axis2, cos2, in2,
     ``s_img`` of it) and receivers ``rx`` (R, 3): the receiver is on that side of the second
     facet (``side_rx`` (R, K)), within the beam from the second image through the second facet's
     bounding sphere (``apex2``, ``axis2`` (Q, 3), ``cos2``, ``in2``, ``sin2`` (Q,)), and its mirror
-    image in the second facet's plane (``n2`` (Q, 3), ``off2`` (Q,)) is within the beam from the
-    first image through the first facet (``apex1``...): unfolded at the second reflection, the
-    path is straight from the first image to that mirror image. A second image whose beam cannot
-    reach the receivers' bounding sphere (centre ``cx, cy, cz``, ``radius``, m) is skipped
-    whole. The side is the rule; the beams are necessary conditions, not tested with ``prune``
+    image in the second facet's plane is within the beam from the first image through the first
+    facet (``apex1``, ``axis1`` (F, 3), ``cos1``, ``in1`` (F,): row ``i1[q]``, one per first
+    image; a copy per pair was most of what a trace of a scanned hall kept): unfolded at the
+    second reflection, the path is straight from the first image to that mirror image. A second
+    image whose beam cannot reach the receivers' bounding sphere (centre ``cx, cy, cz``,
+    ``radius``, m) is skipped whole. The side is the rule; the beams are necessary conditions, not tested with ``prune``
     False.
 
     With ``exact``, the pairs must also pass the tests of
@@ -411,8 +414,8 @@ def second_order_candidates(q0, q1, f2, s_img, side_rx, apex2, axis2, cos2, in2,
                                        axis2[q, 1], axis2[q, 2], cos2[q], sin2[q], in2[q], cx,
                                        cy, cz, radius):  # fmt: skip
             continue
-        f, s, g = f2[q], s_img[q], f1[q]
-        nx, ny, nz, off = n2[q, 0], n2[q, 1], n2[q, 2], off2[q]
+        f, s, g, i = f2[q], s_img[q], f1[q], i1[q]
+        nx, ny, nz, off = normal[f, 0], normal[f, 1], normal[f, 2], offset[f]
         jx, jy, jz = img1[i1[q], 0], img1[i1[q], 1], img1[i1[q], 2]
         kx, ky, kz = img2[q, 0], img2[q, 1], img2[q, 2]
         gx, gy, gz, g_off, g_side = normal[g, 0], normal[g, 1], normal[g, 2], offset[g], side_t[g]
@@ -421,7 +424,7 @@ def second_order_candidates(q0, q1, f2, s_img, side_rx, apex2, axis2, cos2, in2,
             if side_rx[r, f] != s:
                 continue
             if prune and not _in_both_beams(apex2, axis2, cos2, in2, apex1, axis1, cos1, in1,
-                                            nx, ny, nz, off, rx, q, r):  # fmt: skip
+                                            nx, ny, nz, off, rx, q, r, i):  # fmt: skip
                 continue
             n_pairs += 1
             if exact:
