@@ -33,9 +33,9 @@ CHECK_MIN_TRIANGLES = 20_000
 LOAD_BASE_B = 400e6
 #: Load: bytes per triangle (measured 1.8 kB: trimesh's processing, facets, wedges, trees).
 LOAD_PER_TRIANGLE_B = 2.5e3
-#: Trace: bytes per triangle on top of the loaded scene (measured 15-26 kB at 83 200 triangles:
-#: candidate lists of the ends, trees, Embree's build).
-TRACE_PER_TRIANGLE_B = 30e3
+#: Trace: bytes per triangle on top of the loaded scene (measured 16.8 kB at 83 200 triangles and
+#: 9.2 kB at 247 040: the kept second images, candidate lists of the ends, trees, Embree's build).
+TRACE_PER_TRIANGLE_B = 20e3
 
 
 def available_bytes() -> float:

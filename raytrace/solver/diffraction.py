@@ -270,7 +270,8 @@ def _facet_wedge_pairs(
 
 
 def _triple_chunks(
-    ctx: TraceContext, ends: np.ndarray, mixed_rdr: bool = False, keep: bool = False
+    ctx: TraceContext, ends: np.ndarray, mixed_rdr: bool = False, keep: bool = False,
+    only: np.ndarray | None = None,
 ) -> Iterator[tuple[np.ndarray, ...]]:
     """The (end point, facet, wedge) triples of :func:`_facet_wedge_pairs`, in chunks of about
     :data:`TRIPLE_CHUNK`: the ends' own chunks (:func:`_end_chunks`) joined in order until a
@@ -279,7 +280,7 @@ def _triple_chunks(
     bounded."""
     held: list[tuple[np.ndarray, ...]] = []
     n = 0
-    for chunk in _end_chunks(ctx, ends, mixed_rdr, keep):
+    for chunk in _end_chunks(ctx, ends, mixed_rdr, keep, only):
         held.append(chunk)
         n += len(chunk[0])
         if n >= TRIPLE_CHUNK:
@@ -294,7 +295,8 @@ def _joined(chunks: list[tuple[np.ndarray, ...]]) -> tuple[np.ndarray, ...]:
 
 
 def _end_chunks(
-    ctx: TraceContext, ends: np.ndarray, mixed_rdr: bool = False, keep: bool = False
+    ctx: TraceContext, ends: np.ndarray, mixed_rdr: bool = False, keep: bool = False,
+    only: np.ndarray | None = None,
 ) -> Iterator[tuple[np.ndarray, ...]]:
     """The (end point, facet, wedge) triples of :func:`_facet_wedge_pairs`, one end at a time,
     each end's in chunks of at most about :data:`TRIPLE_CHUNK` (the triples of a wall and every
@@ -312,7 +314,8 @@ def _end_chunks(
     (:func:`raytrace.solver.kernels.facet_wedge_pairs_tree`). With ``keep`` (the transmitters),
     an end's triples, when at most :data:`KEEP_MAX_TRIPLES`, are kept on the scene for the next
     trace with the same end, restriction and pruning (:data:`END_PAIRS_KEPT`), the ones every
-    path of which an opaque solid blocks dropped first.
+    path of which an opaque solid blocks dropped first. With ``only`` (int indices of ``ends``),
+    those ends' triples only (``ends`` stays the trace's own, whose shadows are computed once).
     """
     fc = ctx.scene.facets
     side = shadow.reflecting_sides(ctx, ends)  # (E, K), none in a facet in the end's shadow
@@ -329,14 +332,15 @@ def _end_chunks(
                  *_wedge_frame(ctx).kernel_args, accel.PLANE_TOL_M, SPAN_PAD_M, kernels.PRUNE)  # fmt: skip
     else:
         fixed = _wedge_walks(ctx, geo, None if f_chosen.all() else f_chosen)
+    taken = range(len(ends)) if only is None else only
     if not keep:
-        for e in range(len(ends)):
+        for e in taken:
             yield from _end_triples(fc, geo, fixed, ends[e], side[e], e)
         return
     kept = ctx.scene.wedges.cache.setdefault("end_pairs", {})
     mask = (None if ctx.facet_mask is None or mixed_rdr
             else (ctx.facet_mask.tobytes(), ctx.wedge_mask.tobytes()))  # fmt: skip
-    for e in range(len(ends)):
+    for e in taken:
         key = (ends[e].tobytes(), side[e].tobytes(), mask, kernels.PRUNE, float(ctx.scene.margin),
                ctx.opaque.tobytes())
         found = kept.get(key)
@@ -465,7 +469,6 @@ def _one_reflection(ctx: TraceContext, before: bool, part: int = 0, parts: int =
     transmitters for RD) ``part``, ``part + parts``, ... only."""
     fc, w = ctx.scene.facets, ctx.scene.wedges
     ends, others = (ctx.tx, ctx.rx) if before else (ctx.rx, ctx.tx)
-    mine = np.arange(part, len(ends), parts)
     side_e = carray(refl.reflecting_side(fc, ends), np.int8)
     # Keller's point in scalar form (see keller_points): t = ts + (td - ts) rho_s / (rho_s + rho_d)
     # with the end's image (ts, rho_s) per triple and the other end (td, rho_d) per wedge, so
@@ -491,8 +494,9 @@ def _one_reflection(ctx: TraceContext, before: bool, part: int = 0, parts: int =
     wedge_obj = carray(w.object if len(w) else np.zeros(0), np.int64)
     n_o = len(others)
     step = max(1, CHUNK // max(n_o, 1))
-    for e_idx, f_idx, w_idx, img, t_lo, t_hi in _triple_chunks(ctx, ends[mine], keep=before):
-        triples = (carray(mine[e_idx], np.int64), carray(f_idx, np.int64), carray(w_idx, np.int64),
+    only = None if parts == 1 else np.arange(part, len(ends), parts)
+    for e_idx, f_idx, w_idx, img, t_lo, t_hi in _triple_chunks(ctx, ends, keep=before, only=only):
+        triples = (carray(e_idx, np.int64), carray(f_idx, np.int64), carray(w_idx, np.int64),
                    carray(img), carray(t_lo), carray(t_hi))  # fmt: skip
         for c0 in range(0, len(e_idx), step):
             # the pruned pairs' exact tests, one pair at a time: Keller's point on the edge and
