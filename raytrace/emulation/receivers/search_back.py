@@ -33,6 +33,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from positioning.model.lobefit import noise_gain, refine_lobe
 from positioning.model.pulse import envelope_table, pulse_table
 from positioning.model.searchback import clean, search_back
 
@@ -77,6 +78,8 @@ class SearchBackSettings:
         p90 unchanged; docs/channel.md)
     guard_t : float, periods T before the first lobe's crossing where the search ends (default 1:
         closer paths are part of that lobe)
+    two_pulse : bool, refine the reported lobe with two pulses where it is not one
+        (:mod:`positioning.model.lobefit`; default True)
     """
 
     components: int = 4
@@ -84,6 +87,7 @@ class SearchBackSettings:
     kappa: float = 0.5
     margin: float = 2.0
     guard_t: float = 1.0
+    two_pulse: bool = True
 
     def __post_init__(self) -> None:
         c = self.components
@@ -93,6 +97,8 @@ class SearchBackSettings:
         _number("kappa", self.kappa, 0.0, 10.0)
         _number("margin", self.margin, 0.0, 10.0)
         _number("guard_t", self.guard_t, 0.0, 8.0)
+        if not isinstance(self.two_pulse, (bool, np.bool_)):
+            raise HallrayError(f"search-back two_pulse must be True or False, got {self.two_pulse!r}")
 
     @property
     def depth(self) -> float:
@@ -155,6 +161,15 @@ def measure_search_back(
     toa, peak = search_back(res, n_s, t0, dt, period, tau, amp, win.gamma, limit, settings.kappa,
                             settings.margin, env, table)  # fmt: skip
     found = np.isfinite(toa)
+    if settings.two_pulse:
+        # the reported lobe, the first lobe's or the earlier one's, refined where not one pulse
+        lobe = np.where(found, toa, fl.toa_s[plan.links[win.rows]])
+        lobe, p2, fit = refine_lobe(win.signal, n_s, t0, dt, period, plan.pulse.oversampling, table,
+                                    lobe, plan.peak_time_s[win.rows], tau, amp, win.gamma,
+                                    win.sigma_hat2, plan.alpha, plan.rho, noise_gain(roll, span))  # fmt: skip
+        toa = np.where(found | fit.applied, lobe, np.nan)
+        peak = np.where(fit.applied, p2, peak)
+        found = np.isfinite(toa)
     if not found.any():
         return fl
     rows = win.rows[found]
