@@ -17,8 +17,8 @@ pure numpy beside the pulse, vectorised over rows (one row per link):
 2. :func:`refine_lobe`: the samples from :data:`LEAD_T` before the reported lobe top to
    :data:`TAIL_T` after it, or after the strongest peak where that is within
    :data:`REACH_T` (a lobe that is the precursor of a merged peak is fitted with it), the
-   profile's samples decimated to :data:`FIT_PER_T` per period, the cancelled lobes outside
-   removed. A lobe is not one pulse when the one-pulse fit leaves more than noise could,
+   profile's samples decimated to :data:`FIT_PER_T` per period, the cancelled lobes well
+   outside (:data:`FAR_T`) removed. A lobe is not one pulse when the one-pulse fit leaves more than noise could,
    ``E_1 >= sigma_hat^2 (N - 1.5 + alpha kappa_n)``: the noise's own energy in ``N`` samples
    less the fit's 1.5 complex degrees of freedom, plus what a pulse-shaped excursion at the
    CFAR threshold adds (``alpha`` the CFAR factor, ``kappa_n`` the noise power a pulse
@@ -54,9 +54,11 @@ TAIL_T = 1.75
 REACH_T = 2.0
 #: ... this many per period (the profile's band is 1 / (1.25 T) wide: 3.2 samples per 1/B).
 FIT_PER_T = 4
-#: Cancelled lobes farther than this (periods) from the lobe top and the strongest peak's span
-#: are removed before the fit.
-NEAR_T = 1.25
+#: Cancelled lobes more than this many periods outside the fit's samples are removed before
+#: the fit (their main lobes would bend its ends; those nearer are left to it: a cancelled
+#: lobe is one pulse's estimate of what may be several, and removing it there would bend the
+#: lobe itself).
+FAR_T = 0.5
 #: Two components closer than this (periods) are one: their amplitudes are not determined.
 MIN_SEPARATION_T = 0.08
 #: Largest standard error (periods) of the earlier component's delay (a fifth of the quarter
@@ -69,7 +71,7 @@ EARLY_RATIO = 0.5
 #: Starting pairs of the two-pulse fit, periods from the one-pulse fit's delay and from the
 #: strongest peak (besides the lobe top with each of them).
 STARTS_T = ((-0.5, 0.0), (0.0, 0.5), (-0.25, 0.25), (0.0, 0.75))
-PEAK_STARTS_T = ((0.0, 0.5),)
+PEAK_STARTS_T = ((0.0, 0.5), (-0.06, 0.06), (0.24, 0.36), (-0.36, -0.24), (0.44, 0.56), (-0.56, -0.44))
 START_SEP_T = 0.25
 #: Gauss-Newton rounds of each fit; a step is clipped to :data:`STEP_T` periods.
 ROUNDS = 8
@@ -138,6 +140,11 @@ def _solve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.linalg.solve(a, b[..., None])[..., 0]
 
 
+def _solve_matrix(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Batched ``a x = b`` for a matrix ``b (R, K, J)`` (column by column, :func:`_solve`)."""
+    return np.stack([_solve(a, b[:, :, j]) for j in range(b.shape[2])], axis=2)
+
+
 def fit_pulses(
     s: np.ndarray,
     t: np.ndarray,
@@ -168,28 +175,35 @@ def fit_pulses(
     k = tau.shape[1]
     pairs = [(i, j) for i in range(k) for j in range(i, k)]
 
-    def gram(x):  # (K, R, N) -> (R, K, K), sums along the contiguous last axis
+    def cross(x, y):  # (K, R, N) x (K, R, N) -> (R, K, K), sums along the contiguous last axis
         g = np.empty((x.shape[1], k, k))
-        for i, j in pairs:
-            g[:, i, j] = g[:, j, i] = np.einsum("rn,rn->r", x[i], x[j])
+        for i in range(k):
+            for j in range(k):
+                g[:, i, j] = np.einsum("rn,rn->r", x[i], y[j])
         return g
 
     for it in range(rounds + 1):
         # component-major (K, R, N): every product and sum runs over contiguous rows
         h, slope = _pulse_and_slope(t[None, :, :] - tau.T[:, :, None], period, table)
         h *= w[None]
+        hh = cross(h, h)
         br = np.einsum("krn,rn->rk", h, sr)
         bi = np.einsum("krn,rn->rk", h, si)
-        amp = _solve(gram(h), br + 1j * bi)
+        amp = _solve(hh, br + 1j * bi)
         er = sr - np.einsum("krn,rk->rn", h, amp.real)
         ei = si - np.einsum("krn,rk->rn", h, amp.imag)
         if it == rounds:
             break
-        # J = -a slope (complex, real parameter tau): J^H J = Re(conj(a_k) a_j) sum slope_k slope_j
+        # Gauss-Newton on the delays with the amplitudes projected out (variable projection,
+        # Kaufman's step): J_k = -a_k s'_k, s'_k the slope less its projection on the pulses,
+        # J^H J = Re(conj(a_k) a_j) s'_k . s'_j, J^H e = -Re(conj(a_k) s_k . e) (e is orthogonal
+        # to the pulses already)
         slope *= w[None]
-        jj = gram(slope) * np.real(np.conj(amp)[:, :, None] * amp[:, None, :])
-        # J^H e = -Re(conj(a_k) sum slope_k e)
-        je = -(amp.real * np.einsum("krn,rn->rk", slope, er) + amp.imag * np.einsum("krn,rn->rk", slope, ei))
+        hs = cross(h, slope)  # [r, j, k] = h_j . s_k
+        ss = cross(slope, slope) - np.swapaxes(hs, 1, 2) @ _solve_matrix(hh, hs)
+        jj = ss * np.real(np.conj(amp)[:, :, None] * amp[:, None, :])
+        je = -(amp.real * np.einsum("krn,rn->rk", slope, er)
+               + amp.imag * np.einsum("krn,rn->rk", slope, ei))  # fmt: skip
         step = _solve(jj, je)
         tau = tau + np.clip(step, -STEP_T * period, STEP_T * period)
     return tau, amp, np.sum(er**2 + ei**2, axis=1)
@@ -258,7 +272,7 @@ def _fit_region(sig, n_samples, t0, dt, period, oversampling, table, toa, until,
     idx = np.clip(idx, 0, w - 1)
     t = t0[:, None] + idx * dt
     s = np.take_along_axis(sig, idx, axis=1)
-    near_lo, near_hi = toa - NEAR_T * period, hi + NEAR_T * period
+    near_lo, near_hi = toa - (LEAD_T + FAR_T) * period, hi + (TAIL_T + FAR_T) * period
     far = np.isfinite(comp_tau) & ((comp_tau < near_lo[:, None]) | (comp_tau > near_hi[:, None]))
     for k in range(comp_tau.shape[1]):
         r = np.flatnonzero(far[:, k])
