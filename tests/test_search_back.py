@@ -74,11 +74,12 @@ def two_paths(n, sep_t, ratio_db, post_db, band=C_BAND, seed=0):
     return np.repeat(np.arange(n), 2), delay, gain, d0
 
 
-def crb_first_delay_t(sep_t, ratio_db, post_db, band=C_BAND, prs=PrsSettings()):
+def crb_first_delay_t(sep_t, ratio_db, post_db, band=C_BAND, comb=1):
     """Cramer-Rao standard deviation (in T) of the first of two anti-phase paths' delay, from the
     CFR itself (white noise per subcarrier, :func:`subcarrier_noise_std`): the bound of any
     receiver of the PRS, computed independently of the delay profile the receivers see."""
     T = PULSE.period_s(band)
+    prs = PrsSettings(comb=comb)
     f = prs.subcarrier_hz(band)
     a = amp_for_post_snr(post_db, band)
     g = np.array([a, -a * 10 ** (ratio_db / 20)])

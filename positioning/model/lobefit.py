@@ -68,16 +68,16 @@ SE_MAX_T = 0.05
 #: is weaker moves the merged lobe's top late, not early, and by less than their spacing; its
 #: delay is the one the fit determines worst.
 EARLY_RATIO = 0.5
-#: Starting pairs of the two-pulse fit, periods from the one-pulse fit's delay and from the
-#: strongest peak (besides the lobe top with each of them).
+#: Starting pairs of the two-pulse fit, periods from the one-pulse fit's delay ...
 STARTS_T = ((-0.5, 0.0), (0.0, 0.5), (-0.25, 0.25), (0.0, 0.75))
-PEAK_STARTS_T = ((0.0, 0.5), (-0.06, 0.06), (0.24, 0.36), (-0.36, -0.24), (0.44, 0.56), (-0.56, -0.44))
-START_SEP_T = 0.25
-#: Gauss-Newton rounds of each fit; a step is clipped to :data:`STEP_T` periods.
+#: ... and from the strongest peak (the region's core end; also the lobe top with it): close
+#: pairs too, from which an anti-phase pair a tenth of a period apart converges.
+PEAK_STARTS_T = ((0.0, 0.5), (-0.06, 0.06), (0.24, 0.36), (-0.36, -0.24), (0.44, 0.56),
+                 (-0.56, -0.44))  # fmt: skip
+#: Gauss-Newton rounds of a fit, of which every start gets :data:`SCOUT_ROUNDS` and the best
+#: start per row the rest; a step is clipped to :data:`STEP_T` periods.
 ROUNDS = 8
-#: Rounds of every start before the best one per row goes on.
 SCOUT_ROUNDS = 4
-_WIN = []
 STEP_T = 0.2
 #: Ridge of the normal equations, relative to their diagonal.
 _RIDGE = 1e-10
@@ -173,7 +173,6 @@ def fit_pulses(
     w = valid.astype(float)
     sr, si = s.real * w, s.imag * w
     k = tau.shape[1]
-    pairs = [(i, j) for i in range(k) for j in range(i, k)]
 
     def cross(x, y):  # (K, R, N) x (K, R, N) -> (R, K, K), sums along the contiguous last axis
         g = np.empty((x.shape[1], k, k))
@@ -282,8 +281,9 @@ def _fit_region(sig, n_samples, t0, dt, period, oversampling, table, toa, until,
 
 def _best_pair(s, t, valid, toa, hi, tau1, period, table):
     """The two-pulse fit of least residual from the starting pairs of :data:`STARTS_T` around
-    the one-pulse fit's delay ``tau1`` (M,) and around the strongest peak ``hi``, and the lobe
-    top with each of them: ``tau, amp, energy``. All starts of all rows are one batched fit."""
+    the one-pulse fit's delay ``tau1`` (M,), of :data:`PEAK_STARTS_T` around the strongest peak
+    ``hi`` and the lobe top with it: ``tau, amp, energy``. All starts of all rows are one batched
+    fit of :data:`SCOUT_ROUNDS` rounds; the best of each row goes on to :data:`ROUNDS`."""
     m = s.shape[0]
     off, off_hi = period * np.array(STARTS_T), period * np.array(PEAK_STARTS_T)  # (S, 2)
     starts = np.concatenate([tau1[:, None, None] + off[None], hi[:, None, None] + off_hi[None],
@@ -295,7 +295,6 @@ def _best_pair(s, t, valid, toa, hi, tau1, period, table):
                             SCOUT_ROUNDS)  # fmt: skip
     ek = np.where(np.all(np.isfinite(tk), axis=1), ek, np.inf).reshape(m, n_s)
     best = np.argmin(ek, axis=1)
-    _WIN.append(best)
     tk, ak, ek = fit_pulses(s, t, valid, tk[np.arange(m) * n_s + best], period, table,
                             ROUNDS - SCOUT_ROUNDS)  # fmt: skip
     return tk, ak, ek

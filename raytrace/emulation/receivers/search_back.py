@@ -19,11 +19,16 @@ evaluated in windows, as the first-lobe receiver is (:mod:`.first_lobe`).
    cancelled component above the noise threshold plus ``kappa`` times the cancelled lobes'
    sidelobe envelope plus the residual's own sidelobe bound is the first arrival
    (:func:`positioning.model.searchback.search_back`); its ToA is the top of its lobe with the
-   stronger lobes removed. Without one, the first lobe's ToA stands.
+   stronger lobes removed. Without one, the first lobe's ToA stands;
+4. (``two_pulse``) the reported lobe is fitted with one pulse and, where that leaves more than
+   noise, with two (:func:`positioning.model.lobefit.refine_lobe`): where the fit determines
+   them, the earlier of the two is the ToA (two paths merged in anti-phase top before the
+   first; in phase, between the two).
 
 A weak first path 20-30 dB under the strongest, a few periods before it, is found; the strongest
 path's sidelobes (predicted by the pulse, not by a fixed -12 dB) and noise (CFAR) are not taken
-for one; a path within about one period of the first lobe stays merged with it.
+for one; a path within about one period of the first lobe is separated by the two-pulse fit
+where the band and the other paths let it (docs/channel.md).
 """
 
 from __future__ import annotations
