@@ -15,18 +15,20 @@ pure numpy beside the pulse, vectorised over rows (one row per link):
 1. :func:`fit_pulses`: joint least-squares complex amplitudes and Gauss-Newton delays of ``K``
    pulses (eq. 2) on samples of a row (variable projection);
 2. :func:`refine_lobe`: the samples from :data:`LEAD_T` before the reported lobe top to
-   :data:`TAIL_T` after it, or after the strongest peak where that is within
-   :data:`REACH_T` (a lobe that is the precursor of a merged peak is fitted with it), the
-   profile's samples decimated to :data:`FIT_PER_T` per period, the cancelled lobes well
-   outside (:data:`FAR_T`) removed. A lobe is not one pulse when the one-pulse fit leaves more than noise could,
+   :data:`TAIL_T` after it, or after the strongest peak where that is within :data:`REACH_T`
+   (a lobe that is the precursor of a merged peak is fitted with it), the profile's samples
+   decimated to :data:`FIT_PER_T` per period, the cancelled lobes well outside (:data:`FAR_T`)
+   removed. A lobe is not one pulse when the one-pulse fit leaves more than noise could,
    ``E_1 >= sigma_hat^2 (N - 1.5 + alpha kappa_n)``: the noise's own energy in ``N`` samples
    less the fit's 1.5 complex degrees of freedom, plus what a pulse-shaped excursion at the
-   CFAR threshold adds (``alpha`` the CFAR factor, ``kappa_n`` the noise power a pulse
-   collects from the profile's correlated noise, :func:`noise_gain`); then the best two-pulse fit of a grid of starting pairs, and its earlier
-   component replaces the lobe top where
+   CFAR threshold adds (``alpha`` the CFAR factor, ``kappa_n`` the noise power a pulse collects
+   from the profile's correlated noise, :func:`noise_gain`). Then the best two-pulse fit from a
+   few starting pairs, and its earlier component replaces the lobe top where
 
    * both components are above the CFAR threshold ``gamma`` and within ``rho`` (the first
      lobe's relative threshold) of the stronger: paths, not noise;
+   * the earlier is at least :data:`EARLY_RATIO` of the later (a weaker earlier path pulls
+     the merged top late, not early);
    * they are at least :data:`MIN_SEPARATION_T` apart (closer, their amplitudes are not
      determined by the samples);
    * the earlier delay's standard error, from the fit's own residual (nonlinear least squares,
