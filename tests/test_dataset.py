@@ -337,7 +337,8 @@ def test_meta_json_carries_the_parameters(tmp_path):
     assert meta["obstacles_2d"][0]["polygon"] == [[4, 4], [5, 4], [5, 5], [4, 5]]
     assert meta["band_parameters"]["center_frequency_hz"] == 26.85e9
     assert meta["link_budget"]["tx_power_dbm"] == 20.0
-    assert meta["toa_method"] == "first-lobe"  # the realistic receiver is the default
+    assert meta["toa_method"] == "search-back"  # the default (docs/channel.md, receiver study)
+    assert meta["receiver_settings"]["search_back"]["two_pulse"] is True
     assert meta["first_lobe"] == {"relative_threshold_db": -12.0, "cfar_cells": 64}
     assert set(meta["summary"]) >= {"rows", "detected_fraction", "los_fraction"}
 

@@ -188,7 +188,11 @@ def test_absurd_epochs_are_refused_up_front(tmp_path, capsys, argv, what):
 
 @pytest.mark.parametrize(
     "argv, what",
-    [(["--draws", "1000000000"], "draws per cell"), (["--paths", "1000000"], "paths per link")],
+    [
+        (["--draws", "1000000000"], "draws per cell"),
+        # paths are stored for the receiver the twin re-synthesises (not the default's)
+        (["--paths", "1000000", "--receiver", "first-lobe"], "paths per link"),
+    ],
 )
 def test_absurd_map_counts_are_refused_up_front(tmp_path, capsys, argv, what):
     assert accuracy_map_main(["hall", *argv, "-q", "-o", str(tmp_path / "m")]) == 2

@@ -332,7 +332,7 @@ def test_sweep_dataset_is_byte_for_byte_what_make_dataset_writes(tmp_path):
                      datasets=True)
     )  # fmt: skip
     (cell,) = cfg.cells()
-    assert cell.params["toa_method"] == "first-lobe" and cell.params["noise"] is True
+    assert cell.params["toa_method"] == "search-back" and cell.params["noise"] is True
     run_sweep(cfg, tmp_path / "sweep", workers=1)
     p = cell.params
     spec = generate_hall(

@@ -16,6 +16,8 @@ semi-dynamic, C-band and mmWave, seed 1; the receivers of :data:`RECEIVERS` unle
   line-of-sight distance);
 * cost per link: the receiver's path-only work (prepare) on the static hall's links and one
   epoch's measurement, best of three (microseconds per link; the ratio to ``first-lobe``);
+* the early links: per receiver and band, every link (point, base station) reported early in at
+  least one epoch, with its share of epochs and its median range error;
 * Table II (``--no-table`` skips it): ``accuracy-report --methods ls,irls`` on each receiver's
   four datasets, mean and p90 of the 2D error.
 
@@ -76,6 +78,7 @@ def read_errors(directory: Path) -> dict[str, Any]:
         "method": meta["toa_method"],
         "band": meta["band"],
         "scenario": meta["scenario"],
+        "link": np.array([f"{r['point']}-{r['bs']}" for r in rows]),
         "error": err,
         "cls": np.array([first_class(r["first_kind"]) for r in rows]),
         "early_m": C0 * PERIOD_B / bandwidth / 4,
@@ -114,6 +117,21 @@ def accuracy(datasets: list[dict[str, Any]], by_scenario: bool) -> list[dict[str
                 row |= class_stats(sel, parts[0]["early_m"])
                 row["share"] = float(sel.size / err.size)
                 out.append(row)
+    return out
+
+
+def early_links(datasets: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Per receiver, band and scenario, the links reported early in at least one epoch: their
+    share of epochs early and median range error (m), most often early first."""
+    out = []
+    for d in datasets:
+        early = d["error"] < -d["early_m"]
+        for name in sorted(set(d["link"][early])):
+            sel = d["link"] == name
+            out.append({"receiver": d["method"], "band": d["band"], "scenario": d["scenario"],
+                        "link": str(name), "early_share": float(np.mean(early[sel])),
+                        "median_m": float(np.median(d["error"][sel]))})  # fmt: skip
+    out.sort(key=lambda r: (r["receiver"], r["band"], r["scenario"], -r["early_share"], r["link"]))
     return out
 
 
@@ -175,7 +193,7 @@ def _fmt(v: float, nd: int = 2) -> str:
     return "-" if not np.isfinite(v) else f"{v:.{nd}f}"
 
 
-def markdown(acc: list[dict], cost: list[dict], table: list[dict]) -> str:
+def markdown(acc: list[dict], cost: list[dict], table: list[dict], early: list[dict] = ()) -> str:
     """The study as markdown tables."""
     lines = ["## Range error per receiver, band and first-arrival class (both scenarios)", "",
              "| receiver | band | class | share | detected | median [m] | p90 [m] | p99 [m] | "
@@ -184,6 +202,13 @@ def markdown(acc: list[dict], cost: list[dict], table: list[dict]) -> str:
         lines.append(f"| {r['receiver']} | {r['band']} | {r['class']} | {_fmt(r['share'])} | "
                      f"{_fmt(r['detected'], 3)} | {_fmt(r['median_m'])} | {_fmt(r['p90_m'])} | "
                      f"{_fmt(r['p99_m'])} | {_fmt(100 * r['early'])} |")  # fmt: skip
+    if early:
+        lines += ["", "## Early links (reported early in at least one epoch)", "",
+                  "| receiver | band | scenario | link | epochs early | median error [m] |",
+                  "|---|---|---|---|---|---|"]  # fmt: skip
+        for r in early:
+            lines.append(f"| {r['receiver']} | {r['band']} | {r['scenario']} | {r['link']} | "
+                         f"{100 * r['early_share']:.0f} % | {r['median_m']:.2f} |")  # fmt: skip
     lines += ["", "## Cost per link (static hall, best of 3)", "",
               "| receiver | band | links | prepare [us] | measure [us] | total [us] | "
               "x first-lobe |", "|---|---|---|---|---|---|---|"]  # fmt: skip
@@ -236,11 +261,13 @@ def _main(args: Any) -> int:
     datasets = [d for d in datasets if d["method"] in receivers]
     acc = accuracy(datasets, by_scenario=False)
     acc_s = accuracy(datasets, by_scenario=True)
+    early = early_links(datasets)
     cost = [] if args.no_cost else receiver_cost(receivers)
     table = [] if args.no_table else table_two(ds_dir, out, receivers)
-    text = markdown(acc, cost, table)
+    text = markdown(acc, cost, table, early)
     blob = {"duration_s": args.duration, "receivers": receivers, "accuracy": acc,
-            "accuracy_by_scenario": acc_s, "cost": cost, "table_ii": table}  # fmt: skip
+            "accuracy_by_scenario": acc_s, "early_links": early, "cost": cost,
+            "table_ii": table}  # fmt: skip
     write_file(out / "receivers.json", json.dumps(blob, indent=1) + "\n")
     write_file(out / "receivers.md", text)
     print(text)

@@ -64,7 +64,7 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--receiver",
         default=None,
-        help="ToA receiver of the main report (default first-lobe); the reports of the paper's "
+        help="ToA receiver of the main report (default search-back); the reports of the paper's "
         "model (paper) and of the ideal receiver (first-path) are written beside it",
     )
     p.add_argument(

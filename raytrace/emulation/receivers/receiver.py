@@ -31,8 +31,9 @@ TOA_METHODS = (
 )  # fmt: skip
 #: The receivers that work on the PRS channel frequency response (:mod:`..channel.cfr`).
 CFR_METHODS = ("first-lobe-cfr", "search-back", "super-res")
-#: The default ToA estimator of datasets, sweeps and maps.
-DEFAULT_TOA_METHOD = TOA_METHODS[0]
+#: The default ToA estimator of datasets, sweeps and maps: ``search-back``, chosen by the receiver
+#: study (docs/channel.md, "Receiver study: the default").
+DEFAULT_TOA_METHOD = "search-back"
 
 
 @dataclass(frozen=True)

@@ -19,11 +19,16 @@ evaluated in windows, as the first-lobe receiver is (:mod:`.first_lobe`).
    cancelled component above the noise threshold plus ``kappa`` times the cancelled lobes'
    sidelobe envelope plus the residual's own sidelobe bound is the first arrival
    (:func:`positioning.model.searchback.search_back`); its ToA is the top of its lobe with the
-   stronger lobes removed. Without one, the first lobe's ToA stands.
+   stronger lobes removed. Without one, the first lobe's ToA stands;
+4. (``two_pulse``) the reported lobe is fitted with one pulse and, where that leaves more than
+   noise, with two (:func:`positioning.model.lobefit.refine_lobe`): where the fit determines
+   them, the earlier of the two is the ToA (two paths merged in anti-phase top before the
+   first; in phase, between the two).
 
 A weak first path 20-30 dB under the strongest, a few periods before it, is found; the strongest
 path's sidelobes (predicted by the pulse, not by a fixed -12 dB) and noise (CFAR) are not taken
-for one; a path within about one period of the first lobe stays merged with it.
+for one; a path within about one period of the first lobe is separated by the two-pulse fit
+where the band and the other paths let it (docs/channel.md).
 """
 
 from __future__ import annotations
@@ -33,6 +38,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from positioning.model.lobefit import noise_gain, refine_lobe
 from positioning.model.pulse import envelope_table, pulse_table
 from positioning.model.searchback import clean, search_back
 
@@ -77,6 +83,8 @@ class SearchBackSettings:
         p90 unchanged; docs/channel.md)
     guard_t : float, periods T before the first lobe's crossing where the search ends (default 1:
         closer paths are part of that lobe)
+    two_pulse : bool, refine the reported lobe with two pulses where it is not one
+        (:mod:`positioning.model.lobefit`; default True)
     """
 
     components: int = 4
@@ -84,6 +92,7 @@ class SearchBackSettings:
     kappa: float = 0.5
     margin: float = 2.0
     guard_t: float = 1.0
+    two_pulse: bool = True
 
     def __post_init__(self) -> None:
         c = self.components
@@ -93,6 +102,8 @@ class SearchBackSettings:
         _number("kappa", self.kappa, 0.0, 10.0)
         _number("margin", self.margin, 0.0, 10.0)
         _number("guard_t", self.guard_t, 0.0, 8.0)
+        if not isinstance(self.two_pulse, (bool, np.bool_)):
+            raise HallrayError(f"search-back two_pulse must be True or False, got {self.two_pulse!r}")
 
     @property
     def depth(self) -> float:
@@ -155,6 +166,15 @@ def measure_search_back(
     toa, peak = search_back(res, n_s, t0, dt, period, tau, amp, win.gamma, limit, settings.kappa,
                             settings.margin, env, table)  # fmt: skip
     found = np.isfinite(toa)
+    if settings.two_pulse:
+        # the reported lobe, the first lobe's or the earlier one's, refined where not one pulse
+        lobe = np.where(found, toa, fl.toa_s[plan.links[win.rows]])
+        lobe, p2, fit = refine_lobe(win.signal, n_s, t0, dt, period, plan.pulse.oversampling, table,
+                                    lobe, plan.peak_time_s[win.rows], tau, amp, win.gamma,
+                                    win.sigma_hat2, plan.alpha, plan.rho, noise_gain(roll, span))  # fmt: skip
+        toa = np.where(found | fit.applied, lobe, np.nan)
+        peak = np.where(fit.applied, p2, peak)
+        found = np.isfinite(toa)
     if not found.any():
         return fl
     rows = win.rows[found]

@@ -1,0 +1,380 @@
+"""Two-pulse refinement of a first lobe: when the lobe a receiver reports is not one pulse (paths
+within a pulse width merged into it), fit it with two pulses at free delays and complex
+amplitudes and report the earlier one where the fit determines it.
+
+Two paths a fraction of a period ``T`` apart merge into one lobe whose top lies between them when
+they are in phase (a late ToA) and *before the first* when they are in anti-phase (the difference
+of two pulses is close to the pulse's derivative, whose first lobe leads): the early ToAs of the
+lobe-top receivers on line-of-sight links (docs/channel.md, "Receiver study"). A receiver that
+knows the pulse sees that such a lobe is not one pulse: the one-pulse fit leaves a residual far
+above the noise.
+
+Used by the tracer's ``search-back`` receiver (:mod:`raytrace.emulation.receivers.search_back`);
+pure numpy beside the pulse, vectorised over rows (one row per link):
+
+1. :func:`fit_pulses`: joint least-squares complex amplitudes and Gauss-Newton delays of ``K``
+   pulses (eq. 2) on samples of a row (variable projection);
+2. :func:`refine_lobe`: the samples from :data:`LEAD_T` before the reported lobe top to
+   :data:`TAIL_T` after it, or after the strongest peak where that is within :data:`REACH_T`
+   (a lobe that is the precursor of a merged peak is fitted with it), the profile's samples
+   decimated to :data:`FIT_PER_T` per period, the cancelled lobes well outside (:data:`FAR_T`)
+   removed. A lobe is not one pulse when the one-pulse fit leaves more than noise could,
+   ``E_1 >= sigma_hat^2 (N - 1.5 + alpha kappa_n)``: the noise's own energy in ``N`` samples
+   less the fit's 1.5 complex degrees of freedom, plus what a pulse-shaped excursion at the
+   CFAR threshold adds (``alpha`` the CFAR factor, ``kappa_n`` the noise power a pulse collects
+   from the profile's correlated noise, :func:`noise_gain`). Then the best two-pulse fit from a
+   few starting pairs, and its earlier component replaces the lobe top where
+
+   * both components are above the CFAR threshold ``gamma`` and within ``rho`` (the first
+     lobe's relative threshold) of the stronger: paths, not noise;
+   * the earlier is at least :data:`EARLY_RATIO` of the later (a weaker earlier path pulls
+     the merged top late, not early);
+   * they are at least :data:`MIN_SEPARATION_T` apart (closer, their amplitudes are not
+     determined by the samples);
+   * the earlier delay's standard error, from the fit's own residual (nonlinear least squares,
+     :func:`delay_error`), is at most :data:`SE_MAX_T` periods: the early margin of a quarter
+     period is five of them. A lobe made of three or more comparable paths within a fraction
+     of ``T`` (dense multipath) leaves a residual that no two pulses explain; its two-pulse
+     delays are then not determined and the lobe top stands.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+import scipy.signal
+
+from .pulse import TABLE_PER_T, pulse_at, raised_cosine
+
+#: The fit's samples: from this many periods before the lobe top ...
+LEAD_T = 1.25
+#: ... to this many after it or after the strongest peak, ...
+TAIL_T = 1.75
+#: ... where the strongest peak is at most this many periods after the lobe top, ...
+REACH_T = 2.0
+#: ... this many per period (the profile's band is 1 / (1.25 T) wide: 3.2 samples per 1/B).
+FIT_PER_T = 4
+#: Cancelled lobes more than this many periods outside the fit's samples are removed before
+#: the fit (their main lobes would bend its ends; those nearer are left to it: a cancelled
+#: lobe is one pulse's estimate of what may be several, and removing it there would bend the
+#: lobe itself).
+FAR_T = 0.5
+#: Two components closer than this (periods) are one: their amplitudes are not determined.
+MIN_SEPARATION_T = 0.08
+#: Largest standard error (periods) of the earlier component's delay (a fifth of the quarter
+#: period that makes a ToA early).
+SE_MAX_T = 0.05
+#: The earlier component's amplitude over the later's, at least (-6 dB): an earlier path that
+#: is weaker moves the merged lobe's top late, not early, and by less than their spacing; its
+#: delay is the one the fit determines worst.
+EARLY_RATIO = 0.5
+#: Starting pairs of the two-pulse fit, periods from the one-pulse fit's delay ...
+STARTS_T = ((-0.5, 0.0), (0.0, 0.5), (-0.25, 0.25), (0.0, 0.75))
+#: ... and from the strongest peak (the region's core end; also the lobe top with it): close
+#: pairs too, from which an anti-phase pair a tenth of a period apart converges.
+PEAK_STARTS_T = ((0.0, 0.5), (-0.06, 0.06), (0.24, 0.36), (-0.36, -0.24), (0.44, 0.56),
+                 (-0.56, -0.44))  # fmt: skip
+#: Gauss-Newton rounds of a fit, of which every start gets :data:`SCOUT_ROUNDS` and the best
+#: start per row the rest; a step is clipped to :data:`STEP_T` periods.
+ROUNDS = 8
+SCOUT_ROUNDS = 4
+STEP_T = 0.2
+#: Ridge of the normal equations, relative to their diagonal.
+_RIDGE = 1e-10
+
+
+@lru_cache(maxsize=8)
+def noise_correlation(roll_off: float, span: int, per_t: int = 64) -> tuple[np.ndarray, np.ndarray]:
+    """Lags (periods, ``>= 0``) and the correlation coefficient of the delay profile's noise,
+    whose spectrum is the pulse's squared (a white CFR estimate windowed by the pulse's
+    spectrum): the pulse's autocorrelation ``(h * h)(x T) / (h * h)(0)``, on a grid of
+    ``1 / per_t`` (numerical convolution of eq. 2 over ``+-span`` periods)."""
+    x = np.arange(-span * per_t, span * per_t + 1) / per_t
+    h = raised_cosine(x, roll_off)
+    acf = scipy.signal.fftconvolve(h, h[::-1], mode="full")
+    mid = acf.size // 2
+    return np.arange(acf.size - mid) / per_t, acf[mid:] / acf[mid]
+
+
+@lru_cache(maxsize=8)
+def noise_gain(roll_off: float, span: int, per_t: int = FIT_PER_T) -> float:
+    """``kappa_n = p^T R p / p^T p``: the noise power, in units of one sample's, that the
+    projection on a pulse ``p`` sampled ``T / per_t`` apart collects from noise with the
+    correlation ``R`` of :func:`noise_correlation` (white noise: 1; band-limited noise sampled
+    above its rate: more)."""
+    lags, rho = noise_correlation(float(roll_off), int(span))
+    k = np.arange(-4 * per_t, 4 * per_t + 1) / per_t
+    p = raised_cosine(k, roll_off)
+    r = np.interp(np.abs(k[:, None] - k[None, :]), lags, rho)
+    return float(p @ r @ p / (p @ p))
+
+
+def _pulse_and_slope(lag: np.ndarray, period: float, table: tuple[np.ndarray, np.ndarray]):
+    """``T h(lag)`` and its derivative in ``lag`` (1/s) from the pulse table (one look-up)."""
+    value, step = table
+    u = np.abs(lag) * (TABLE_PER_T / period)
+    np.minimum(u, value.size - 2, out=u)
+    i = u.astype(np.intp)
+    d = step[i]
+    return (u - i) * d + value[i], np.sign(lag) * d * (TABLE_PER_T / period)
+
+
+def _ridge(a: np.ndarray) -> np.ndarray:
+    """``a (R, K, K)`` plus :data:`_RIDGE` times its largest diagonal element (keeps two
+    components that meet on one delay solvable)."""
+    diag = np.abs(np.einsum("rkk->rk", a)).max(axis=1, initial=0.0)
+    return a + (_RIDGE * np.maximum(diag, 1e-300))[:, None, None] * np.eye(a.shape[-1])[None]
+
+
+def _solve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Batched ``a x = b`` (``a (R, K, K)`` real symmetric, ``b (R, K)`` real or complex) with
+    the ridge; K <= 2 in closed form (the common case, much faster than a batched LAPACK call)."""
+    a = _ridge(a)
+    if a.shape[-1] == 1:
+        return b / a[:, :, 0]
+    if a.shape[-1] == 2:
+        det = a[:, 0, 0] * a[:, 1, 1] - a[:, 0, 1] * a[:, 1, 0]
+        x0 = (a[:, 1, 1] * b[:, 0] - a[:, 0, 1] * b[:, 1]) / det
+        x1 = (a[:, 0, 0] * b[:, 1] - a[:, 1, 0] * b[:, 0]) / det
+        return np.stack([x0, x1], axis=1)
+    return np.linalg.solve(a, b[..., None])[..., 0]
+
+
+def _solve_matrix(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Batched ``a x = b`` for a matrix ``b (R, K, J)`` (column by column, :func:`_solve`)."""
+    return np.stack([_solve(a, b[:, :, j]) for j in range(b.shape[2])], axis=2)
+
+
+def fit_pulses(
+    s: np.ndarray,
+    t: np.ndarray,
+    valid: np.ndarray,
+    tau: np.ndarray,
+    period: float,
+    table: tuple[np.ndarray, np.ndarray],
+    rounds: int = ROUNDS,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Least-squares fit of ``K`` pulses to each row: ``s ~ sum_k a_k T h(t - tau_k)``.
+
+    Parameters
+    ----------
+    s : (R, N) complex, 1/s, the samples; t : (R, N) float, s, their times
+    valid : (R, N) bool, samples that count
+    tau : (R, K) float, s, starting delays
+    period : float, s, T; table : :func:`positioning.model.pulse.pulse_table`
+    rounds : int, Gauss-Newton rounds on the delays (each step clipped to :data:`STEP_T`
+        periods), the amplitudes solved jointly by least squares at every round
+
+    Returns
+    -------
+    tau : (R, K) float, s; amp : (R, K) complex, 1/s (the pulses' peak values); energy : (R,)
+    float, ``sum |s - model|^2`` over the valid samples
+    """
+    w = valid.astype(float)
+    sr, si = s.real * w, s.imag * w
+    k = tau.shape[1]
+
+    def cross(x, y):  # (K, R, N) x (K, R, N) -> (R, K, K), sums along the contiguous last axis
+        g = np.empty((x.shape[1], k, k))
+        for i in range(k):
+            for j in range(k):
+                g[:, i, j] = np.einsum("rn,rn->r", x[i], y[j])
+        return g
+
+    for it in range(rounds + 1):
+        # component-major (K, R, N): every product and sum runs over contiguous rows
+        h, slope = _pulse_and_slope(t[None, :, :] - tau.T[:, :, None], period, table)
+        h *= w[None]
+        hh = cross(h, h)
+        br = np.einsum("krn,rn->rk", h, sr)
+        bi = np.einsum("krn,rn->rk", h, si)
+        amp = _solve(hh, br + 1j * bi)
+        er = sr - np.einsum("krn,rk->rn", h, amp.real)
+        ei = si - np.einsum("krn,rk->rn", h, amp.imag)
+        if it == rounds:
+            break
+        # Gauss-Newton on the delays with the amplitudes projected out (variable projection,
+        # Kaufman's step): J_k = -a_k s'_k, s'_k the slope less its projection on the pulses,
+        # J^H J = Re(conj(a_k) a_j) s'_k . s'_j, J^H e = -Re(conj(a_k) s_k . e) (e is orthogonal
+        # to the pulses already)
+        slope *= w[None]
+        hs = cross(h, slope)  # [r, j, k] = h_j . s_k
+        ss = cross(slope, slope) - np.swapaxes(hs, 1, 2) @ _solve_matrix(hh, hs)
+        jj = ss * np.real(np.conj(amp)[:, :, None] * amp[:, None, :])
+        je = -(amp.real * np.einsum("krn,rn->rk", slope, er)
+               + amp.imag * np.einsum("krn,rn->rk", slope, ei))  # fmt: skip
+        step = _solve(jj, je)
+        tau = tau + np.clip(step, -STEP_T * period, STEP_T * period)
+    return tau, amp, np.sum(er**2 + ei**2, axis=1)
+
+
+def delay_error(
+    t: np.ndarray,
+    valid: np.ndarray,
+    tau: np.ndarray,
+    amp: np.ndarray,
+    energy: np.ndarray,
+    period: float,
+    table: tuple[np.ndarray, np.ndarray],
+    kappa_n: float,
+) -> np.ndarray:
+    """(R, K) float, s: standard errors of fitted delays from the fit's own residual (nonlinear
+    least squares, ``s^2 (J^T J)^-1`` over the real parameters ``Re a_k, Im a_k, tau_k``; ``s^2``
+    the residual's power per degree of freedom times ``kappa_n``, the samples' correlation).
+    Noise alone makes it the delays' Cramer-Rao scale; a model that does not explain the lobe
+    (more paths than pulses) makes it large where the delay is not determined."""
+    k = tau.shape[1]
+    w = valid.astype(float)
+    h, slope = _pulse_and_slope(t[:, :, None] - tau[:, None, :], period, table)
+    h *= w[:, :, None]
+    d = -slope * w[:, :, None] * amp[:, None, :]
+    jc = np.concatenate([h, 1j * h, d], axis=2)  # (R, N, 3K)
+    jr = np.concatenate([jc.real, jc.imag], axis=1)
+    inv = np.linalg.inv(_ridge(np.swapaxes(jr, 1, 2) @ jr))
+    s2 = kappa_n * energy / np.maximum(valid.sum(axis=1) - 1.5 * k, 1.0)  # complex samples
+    var = np.einsum("rkk->rk", inv)[:, 2 * k :] * (0.5 * s2[:, None])
+    return np.sqrt(np.maximum(var, 0.0))
+
+
+@dataclass(frozen=True)
+class LobeFit:
+    """What :func:`refine_lobe` fitted to each row (``(M,)`` or ``(M, 2)`` arrays).
+
+    Attributes
+    ----------
+    one_pulse : bool, the one-pulse fit explains the lobe (no two-pulse fit was needed)
+    tau : (M, 2) float, s, the two-pulse fit's delays, earlier first (NaN: not fitted)
+    amp : (M, 2) complex, 1/s, their amplitudes
+    delay_se : (M, 2) float, s, their standard errors (:func:`delay_error`)
+    applied : bool, the earlier component replaced the lobe top
+    """
+
+    one_pulse: np.ndarray
+    tau: np.ndarray
+    amp: np.ndarray
+    delay_se: np.ndarray
+    applied: np.ndarray
+
+
+def _fit_region(sig, n_samples, t0, dt, period, oversampling, table, toa, until, comp_tau, comp_amp):
+    """Samples of the fit (decimated, the cancelled lobes outside the region removed): ``s, t,
+    valid`` (M, N) and the region's core end ``hi`` (M,)."""
+    m, w = sig.shape
+    hi = np.where(np.isfinite(until) & (until > toa) & (until - toa <= REACH_T * period), until, toa)
+    step = max(1, oversampling // FIT_PER_T)
+    span = (hi - toa) + (LEAD_T + TAIL_T) * period
+    n_fit = int(np.ceil(np.max(span) / (step * dt))) + 1
+    start = np.rint((toa - LEAD_T * period - t0) / dt).astype(np.int64)
+    idx = start[:, None] + step * np.arange(n_fit)[None, :]
+    t = t0[:, None] + idx * dt
+    valid = (idx >= 0) & (idx < np.asarray(n_samples)[:, None]) & (t <= (hi + TAIL_T * period)[:, None])
+    idx = np.clip(idx, 0, w - 1)
+    t = t0[:, None] + idx * dt
+    s = np.take_along_axis(sig, idx, axis=1)
+    near_lo, near_hi = toa - (LEAD_T + FAR_T) * period, hi + (TAIL_T + FAR_T) * period
+    far = np.isfinite(comp_tau) & ((comp_tau < near_lo[:, None]) | (comp_tau > near_hi[:, None]))
+    for k in range(comp_tau.shape[1]):
+        r = np.flatnonzero(far[:, k])
+        s[r] -= comp_amp[r, k, None] * pulse_at(t[r] - comp_tau[r, k, None], period, table)
+    return s, t, valid, hi
+
+
+def _best_pair(s, t, valid, toa, hi, tau1, period, table):
+    """The two-pulse fit of least residual from the starting pairs of :data:`STARTS_T` around
+    the one-pulse fit's delay ``tau1`` (M,), of :data:`PEAK_STARTS_T` around the strongest peak
+    ``hi`` and the lobe top with it: ``tau, amp, energy``. All starts of all rows are one batched
+    fit of :data:`SCOUT_ROUNDS` rounds; the best of each row goes on to :data:`ROUNDS`."""
+    m = s.shape[0]
+    off, off_hi = period * np.array(STARTS_T), period * np.array(PEAK_STARTS_T)  # (S, 2)
+    starts = np.concatenate([tau1[:, None, None] + off[None], hi[:, None, None] + off_hi[None],
+                             np.column_stack([toa, hi])[:, None, :]], axis=1)  # fmt: skip
+    n_s = starts.shape[1]
+    rep = np.repeat(np.arange(m), n_s)
+    # every start a few rounds, then the best of each row to convergence
+    tk, ak, ek = fit_pulses(s[rep], t[rep], valid[rep], starts.reshape(-1, 2), period, table,
+                            SCOUT_ROUNDS)  # fmt: skip
+    ek = np.where(np.all(np.isfinite(tk), axis=1), ek, np.inf).reshape(m, n_s)
+    best = np.argmin(ek, axis=1)
+    tk, ak, ek = fit_pulses(s, t, valid, tk[np.arange(m) * n_s + best], period, table,
+                            ROUNDS - SCOUT_ROUNDS)  # fmt: skip
+    return tk, ak, ek
+
+
+def refine_lobe(
+    sig: np.ndarray,
+    n_samples: np.ndarray,
+    t0: np.ndarray,
+    dt: float,
+    period: float,
+    oversampling: int,
+    table: tuple[np.ndarray, np.ndarray],
+    toa: np.ndarray,
+    until: np.ndarray,
+    comp_tau: np.ndarray,
+    comp_amp: np.ndarray,
+    gamma: np.ndarray,
+    sigma2: np.ndarray,
+    alpha: float,
+    rho: float,
+    kappa_n: float,
+) -> tuple[np.ndarray, np.ndarray, LobeFit]:
+    """The earlier of two pulses fitted to the lobe at ``toa``, where the lobe is not one pulse
+    and the fit determines it (module docstring).
+
+    Parameters
+    ----------
+    sig : (M, W) complex, 1/s, the noisy delay profile on ``t0 + k dt`` (rows zero-padded)
+    n_samples : (M,) int; t0 : (M,) float, s; dt, period : float, s
+    oversampling : int, samples per period of ``sig``
+    table : the pulse table (:func:`positioning.model.pulse.pulse_table`)
+    toa : (M,) float, s, the reported lobe top of each row
+    until : (M,) float, s, the strongest peak's time (the fit covers it where it is at most
+        :data:`REACH_T` periods later; NaN: the lobe alone)
+    comp_tau, comp_amp : (M, K) the cancelled lobes (:func:`positioning.model.searchback.clean`;
+        NaN / 0: none), removed where outside the fit's region
+    gamma : (M,) float, 1/s, CFAR threshold; sigma2 : (M,) float, the noise power estimate
+    alpha : float, CFAR power factor; rho : float, relative threshold (amplitude ratio)
+    kappa_n : float, :func:`noise_gain`
+
+    Returns
+    -------
+    toa : (M,) float, s, the earlier component's delay where the refinement applies, else the
+    input; peak : (M,) float, 1/s, that component's amplitude (NaN where unchanged); LobeFit
+    """
+    m = sig.shape[0]
+    toa = np.asarray(toa, dtype=float)
+    out, peak = toa.copy(), np.full(m, np.nan)
+    tau2, amp2, se2 = np.full((m, 2), np.nan), np.zeros((m, 2), complex), np.full((m, 2), np.nan)
+    one = np.ones(m, dtype=bool)
+    applied = np.zeros(m, dtype=bool)
+    if m:
+        s, t, valid, hi = _fit_region(sig, n_samples, t0, dt, period, oversampling, table, toa,
+                                      np.asarray(until, float), comp_tau, comp_amp)  # fmt: skip
+        tau1, _, e1 = fit_pulses(s, t, valid, toa[:, None].copy(), period, table)
+        dof = np.maximum(valid.sum(axis=1) - 1.5, 1.0)
+        one = e1 < sigma2 * (dof + alpha * kappa_n)
+        r = np.flatnonzero(~one)
+        if r.size:
+            tk, ak, ek = _best_pair(s[r], t[r], valid[r], toa[r], hi[r], tau1[r, 0], period, table)
+            ok = np.all(np.isfinite(tk), axis=1)
+            se = np.full((r.size, 2), np.inf)
+            se[ok] = delay_error(t[r][ok], valid[r][ok], tk[ok], ak[ok], ek[ok], period, table,
+                                 kappa_n)  # fmt: skip
+            order = np.argsort(np.where(ok[:, None], tk, 0.0), axis=1)
+            tau2[r] = np.take_along_axis(tk, order, axis=1)
+            amp2[r] = np.take_along_axis(ak, order, axis=1)
+            se2[r] = np.take_along_axis(se, order, axis=1)
+            mag = np.abs(amp2[r])
+            applied[r] = (
+                ok
+                & np.all(mag >= gamma[r, None], axis=1)
+                & np.all(mag >= rho * mag.max(axis=1, keepdims=True), axis=1)
+                & (tau2[r, 1] - tau2[r, 0] >= MIN_SEPARATION_T * period)
+                & (se2[r, 0] <= SE_MAX_T * period)
+                & (mag[:, 0] >= EARLY_RATIO * mag[:, 1])
+            )
+        out[applied] = tau2[applied, 0]
+        peak[applied] = np.abs(amp2[applied, 0])
+    return out, peak, LobeFit(one, tau2, amp2, se2, applied)
