@@ -23,6 +23,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..model.noise import (
+    LATE_MEAN_M,
     WIDE_PULSES,
     late_mean_excess,
     link_sigma,
@@ -34,6 +35,7 @@ from ..model.problem import Problem
 from ..model.residuals import pseudorange_model
 from ..model.tdoa import ranges_and_units
 from .fixes import Fixes, Status, config_params
+from .mixture_kernel import pairwise_mixture_nll
 from .robust import REGION_MARGIN, REJECT_WEIGHT, candidates
 from .solver import levenberg_marquardt
 
@@ -88,7 +90,6 @@ def grid_starts(prob: Problem, rows: np.ndarray, step_m: float, n_starts: int) -
         R = np.linalg.norm(xyz[:, :, None, :] - prob.bs[None, None], axis=3)  # (A, G, N)
         valid = prob.valid[idx][:, None, :]
         s = np.where(valid, prob.rho[idx][:, None, :] - R, 0.0)
-        r = s[:, :, None, :] - s[:, :, :, None]  # [a, g, beta from j, n]
         links = prob.links
         if links is not None:
             links = links.take(idx)
@@ -99,8 +100,11 @@ def grid_starts(prob: Problem, rows: np.ndarray, step_m: float, n_starts: int) -
                 lobe_width=links.lobe_width[:, None, None, :],
             )
         pw, pl = shares(links, R[:, :, None, :], valid[:, :, None, :])
-        nll, _ = mixture_nll(r, sigma[idx][:, None, None, :], pw, pl, s_w)
-        tot = np.sum(np.where(valid[:, :, None, :], nll, 0.0), axis=3)
+        # the mixture NLL of the residuals s[n] - s[j], [a, g, beta from j, n], 0 where n is
+        # not received (mixture_nll, compiled: the grid is most of nlos-map's time)
+        nll = pairwise_mixture_nll(s, prob.valid[idx], sigma[idx], pw[:, :, 0], pl[:, :, 0],
+                                   s_w, LATE_MEAN_M)  # fmt: skip
+        tot = np.sum(nll, axis=3)
         tot = np.where(prob.valid[idx][:, None, :], tot, np.inf)  # beta from received ones only
         jb = np.argmin(tot, axis=2)  # (A, G)
         best = np.take_along_axis(tot, jb[..., None], axis=2)[..., 0]
