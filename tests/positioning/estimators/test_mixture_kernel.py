@@ -10,8 +10,13 @@ from dataclasses import replace
 import numpy as np
 import pytest
 from pos_synth import PAPER_BS, nlos_scene
+from scipy.special import log_ndtr
 
-from positioning.estimators.mixture_kernel import pairwise_mixture_nll
+from positioning.estimators.mixture_kernel import (
+    deepest_by_numpy,
+    deepest_cells,
+    pairwise_mixture_nll,
+)
 from positioning.estimators.nlos import SEPARATION_PITCHES, grid_starts
 from positioning.model.area import ServiceArea
 from positioning.model.noise import (
@@ -125,3 +130,63 @@ def test_grid_starts_are_those_of_the_numpy_form():
     want = _numpy_grid_starts(prob, rows, 2.0, 3)
     assert np.isfinite(want).any()
     np.testing.assert_array_equal(got, want)
+
+
+def _random_grid(seed, A, G, N):
+    rng = np.random.default_rng(seed)
+    cells = np.column_stack([rng.uniform(0, 30, G), rng.uniform(0, 25, G)])
+    s = rng.normal(0.0, 3.0, (A, G, N)) + rng.normal(0.0, 10.0, (A, 1, N))
+    valid = rng.random((A, N)) > 0.15
+    valid[:, :2] = True
+    sigma = 10.0 ** rng.uniform(-1.5, 0.2, (A, N))
+    pw = rng.uniform(0.02, 0.3, (A, G, N))
+    pl = rng.uniform(0.05, 0.6, (A, G, N))
+    return s, valid, sigma, pw, pl, cells
+
+
+@pytest.mark.parametrize("N", [3, 4, 7, 8, 11, 20])
+def test_deepest_cells_are_numpys_argmins_of_the_whole_nll(N):
+    """Branch and bound picks the cells and references numpy picks from every total (the
+    totals summed in numpy's order: one by one under 8 stations, pairwise from 8), and
+    computes far fewer of them."""
+    A, G = 6, 150
+    s, valid, sigma, pw, pl, cells = _random_grid(N, A, G, N)
+    # a tie: two cells with the same numbers (numpy takes the lower index)
+    s[:, 7], pw[:, 7], pl[:, 7] = s[:, 90], pw[:, 90], pl[:, 90]
+    cells[7] = cells[90] + 0.01
+    nll = pairwise_mixture_nll(s, valid, sigma, pw, pl, 1.3, LATE_MEAN_M)
+    tot = np.where(valid[:, None, :], np.sum(nll, axis=3), np.inf)
+    want = deepest_by_numpy(tot, cells, 4.0, 3)
+    pick, ref, ok, n_exact = deepest_cells(s, valid, sigma, pw, pl, 1.3, LATE_MEAN_M, cells,
+                                           4.0, 3)  # fmt: skip
+    assert ok.all()
+    np.testing.assert_array_equal(pick, want[0])
+    np.testing.assert_array_equal(ref, want[1])
+    np.testing.assert_array_equal(ok, want[2])
+    assert n_exact < A * G * N
+
+
+def test_deepest_cells_of_a_non_finite_epoch_take_numpys_way():
+    s, valid, sigma, pw, pl, cells = _random_grid(5, 3, 40, 4)
+    s[1, 3, 2] = np.nan
+    nll = pairwise_mixture_nll(s, valid, sigma, pw, pl, 1.3, LATE_MEAN_M)
+    tot = np.where(valid[:, None, :], np.sum(nll, axis=3), np.inf)
+    want = deepest_by_numpy(tot, cells, 4.0, 2)
+    got = deepest_cells(s, valid, sigma, pw, pl, 1.3, LATE_MEAN_M, cells, 4.0, 2)
+    for g, w in zip(got[:3], want, strict=True):
+        np.testing.assert_array_equal(g, w)
+
+
+def test_deepest_cells_with_every_cell_taken_is_not_ok():
+    """More picks than separated cells: the rest are not ok, as numpy's inf scores say."""
+    s, valid, sigma, pw, pl, cells = _random_grid(9, 2, 5, 4)
+    cells[:] = [[0, 0], [1, 0], [2, 0], [10, 0], [11, 0]]
+    pick, ref, ok, _ = deepest_cells(s, valid, sigma, pw, pl, 1.3, LATE_MEAN_M, cells, 5.0, 4)
+    assert ok[:, :2].all() and not ok[:, 2:].any()
+
+
+def test_late_term_bound_holds_for_scipys_log_ndtr():
+    """The bound's premise: scipy's log_ndtr(x) <= -x^2/2 on -1e4 < x < -1 (by about
+    0.92 + ln(-x), far more than its rounding)."""
+    x = -np.concatenate([np.linspace(1.0, 50.0, 20001)[1:], np.geomspace(50.0, 1e4, 20001)[:-1]])
+    assert (log_ndtr(x) <= -0.5 * (x * x)).all()
