@@ -81,7 +81,7 @@ def test_reproduce_paper_interrupted_in_the_report_says_so_once(tmp_path, capsys
         raise KeyboardInterrupt
 
     def reports(argvs, processes):
-        assert processes == 2 and len(argvs) == 3
+        assert processes == 3 and len(argvs) == 3  # one process per report on two cores
         assert all(a[a.index("--workers") + 1] == "1" for a in argvs)  # the reports: the lanes
         raise KeyboardInterrupt
 

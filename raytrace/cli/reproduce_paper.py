@@ -173,9 +173,10 @@ def _build(
         print(f"  {Path(s['directory']).name:<33} {s['epochs']} epochs, receiver {s['toa_method']}")
     maps = _build_maps(args, receivers[0], tmp / "maps") if args.map_step > 0 else []
     reports, datasets, argvs = {}, {}, []
-    # with several cores, the reports side by side, one process each: a report's figures and
-    # its twin are serial, so three reports on two cores keep both busy where one report's
-    # datasets on two workers left one idle (the files do not depend on it)
+    # with several cores, the reports side by side, one process each (three on two cores too:
+    # the system shares the cores, and a report waiting for a free process would be a third of
+    # the stage on one core): a report's figures and its twin are serial, so one report's
+    # datasets on two workers left a core idle (the files do not depend on it)
     side_by_side = args.workers > 1 and len(receivers) > 1
     per_report = max(1, args.workers // len(receivers)) if side_by_side else args.workers
     for r in receivers:
@@ -193,7 +194,7 @@ def _build(
             argv += ["--methods", ",".join(m for m in methods if "twin" not in m)]
         argvs.append(argv)
     if side_by_side:
-        _reports_side_by_side(receivers, argvs, args.workers)
+        _reports_side_by_side(receivers, argvs, max(args.workers, len(receivers)))
     else:
         for r, argv in zip(receivers, argvs):
             print(f"\n== receiver {r} ==")
@@ -219,7 +220,7 @@ def _check_report(code: int) -> None:
 
 
 def _reports_side_by_side(receivers: Sequence[str], argvs: Sequence[list[str]], workers: int):
-    """The reports on ``workers`` spawned processes at once; what each printed, and its
+    """The reports on ``workers`` spawned processes (at most one per report) at once; what each printed, and its
     warnings, given here in the receivers' order, as the reports one after the other give them.
     An error or an interruption ends them all and reaches this command's harness."""
     import warnings
