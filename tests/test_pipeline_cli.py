@@ -63,8 +63,11 @@ def test_reproduce_paper_writes_both_receivers_and_the_comparison(tmp_path, caps
     assert (out / "maps" / "mmwave" / "map.npz").is_file()
 
 
-def test_reproduce_paper_interrupted_in_the_report_says_so_once(tmp_path, capsys, monkeypatch):
-    """Ctrl-C or SIGTERM while the accuracy report runs: the report does not turn it into an
+@pytest.mark.parametrize("workers", ["1", "2"])
+def test_reproduce_paper_interrupted_in_the_report_says_so_once(tmp_path, capsys, monkeypatch,
+                                                                workers):  # fmt: skip
+    """Ctrl-C or SIGTERM while the accuracy report runs (in this process with one worker, the
+    reports side by side on spawned processes with two): the report does not turn it into an
     exit status of its own; reproduce-paper reports the interruption once, exits 130 and
     leaves no output."""
     import positioning.cli.accuracy
@@ -77,10 +80,17 @@ def test_reproduce_paper_interrupted_in_the_report_says_so_once(tmp_path, capsys
     def report(args):
         raise KeyboardInterrupt
 
+    def reports(argvs, processes):
+        assert processes == 3 and len(argvs) == 3  # one process per report on two cores
+        assert all(a[a.index("--workers") + 1] == "1" for a in argvs)  # the reports: the lanes
+        raise KeyboardInterrupt
+
     monkeypatch.setattr(dataset, "make_datasets", datasets)
     monkeypatch.setattr(positioning.cli.accuracy, "_report", report)
+    monkeypatch.setattr(positioning.cli.accuracy, "accuracy_reports", reports)
     out = tmp_path / "run"
-    assert reproduce_paper_main(["-o", str(out), "-q", "--map-step", "0"]) == 130
+    argv = ["-o", str(out), "-q", "--map-step", "0", "--workers", workers]
+    assert reproduce_paper_main(argv) == 130
     err = capsys.readouterr().err
     assert err.count("interrupted") == 1, err
     assert not out.exists() and not list(tmp_path.iterdir())

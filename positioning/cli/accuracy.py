@@ -4,6 +4,9 @@ ToA datasets (:mod:`positioning.report`)."""
 from __future__ import annotations
 
 import argparse
+import contextlib
+import io
+import warnings
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -133,3 +136,44 @@ def accuracy_report(argv: Sequence[str]) -> int:
     own (``reproduce-paper``): bad input and interruptions (Ctrl-C, SIGTERM) propagate to the
     caller's harness as exceptions instead of becoming an exit status here."""
     return int(_report(_report_parser().parse_args(list(argv))))
+
+
+def _captured_report(argv: Sequence[str]) -> tuple[int, str, list[tuple[str, type[Warning]]]]:
+    """:func:`accuracy_report` with what it prints and the warnings it gives (message, category)
+    kept, for the caller to print and give in its own order."""
+    out = io.StringIO()
+    with warnings.catch_warnings(record=True) as caught, contextlib.redirect_stdout(out):
+        warnings.simplefilter("always")
+        code = accuracy_report(argv)
+    return code, out.getvalue(), [(str(w.message), w.category) for w in caught]
+
+
+def accuracy_reports(
+    argvs: Sequence[Sequence[str]], processes: int
+) -> list[tuple[int, str, list[tuple[str, type[Warning]]]]]:
+    """Several :func:`accuracy_report` runs side by side on ``processes`` spawned processes
+    (:func:`positioning.report.pool.spawn_pool`): per report, in the order of ``argvs``, its
+    exit status, the text it printed and the warnings it gave (message, category).
+
+    Each report is the one :func:`accuracy_report` writes in this process (its own output
+    directory, the same numbers; give each ``--workers 1`` where the reports are the
+    parallelism). An error in a report is raised here as it was raised there; an error or an
+    interruption ends the other reports at once (a report ended so leaves its staged directory
+    and lock file beside its output, as a killed one does: write the reports inside a staging
+    directory of the caller's, as ``reproduce-paper`` does).
+    """
+    from ..report.pool import spawn_pool
+
+    pool = spawn_pool(max(1, min(processes, len(argvs))))
+    done = False
+    try:
+        pending = [pool.apply_async(_captured_report, ([str(a) for a in argv],)) for argv in argvs]
+        results = [p.get() for p in pending]
+        done = True
+    finally:
+        if done:
+            pool.close()
+        else:
+            pool.terminate()
+        pool.join()
+    return results

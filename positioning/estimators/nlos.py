@@ -23,6 +23,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..model.noise import (
+    LATE_MEAN_M,
     WIDE_PULSES,
     late_mean_excess,
     link_sigma,
@@ -34,6 +35,7 @@ from ..model.problem import Problem
 from ..model.residuals import pseudorange_model
 from ..model.tdoa import ranges_and_units
 from .fixes import Fixes, Status, config_params
+from .mixture_kernel import deepest_cells
 from .robust import REGION_MARGIN, REJECT_WEIGHT, candidates
 from .solver import levenberg_marquardt
 
@@ -88,7 +90,6 @@ def grid_starts(prob: Problem, rows: np.ndarray, step_m: float, n_starts: int) -
         R = np.linalg.norm(xyz[:, :, None, :] - prob.bs[None, None], axis=3)  # (A, G, N)
         valid = prob.valid[idx][:, None, :]
         s = np.where(valid, prob.rho[idx][:, None, :] - R, 0.0)
-        r = s[:, :, None, :] - s[:, :, :, None]  # [a, g, beta from j, n]
         links = prob.links
         if links is not None:
             links = links.take(idx)
@@ -99,21 +100,17 @@ def grid_starts(prob: Problem, rows: np.ndarray, step_m: float, n_starts: int) -
                 lobe_width=links.lobe_width[:, None, None, :],
             )
         pw, pl = shares(links, R[:, :, None, :], valid[:, :, None, :])
-        nll, _ = mixture_nll(r, sigma[idx][:, None, None, :], pw, pl, s_w)
-        tot = np.sum(np.where(valid[:, :, None, :], nll, 0.0), axis=3)
-        tot = np.where(prob.valid[idx][:, None, :], tot, np.inf)  # beta from received ones only
-        jb = np.argmin(tot, axis=2)  # (A, G)
-        best = np.take_along_axis(tot, jb[..., None], axis=2)[..., 0]
-        # the deepest cells, each at least SEPARATION_PITCHES pitches from the ones taken before
-        score = best.copy()
+        # the deepest cells of the mixture NLL of the residuals s[n] - s[j] (beta from j), each
+        # at least SEPARATION_PITCHES pitches from the ones taken before (compiled, with the
+        # NLL computed only where a bound leaves a cell in contention: the grid was most of
+        # nlos-map's time)
+        pick, ref, ok, _ = deepest_cells(s, prob.valid[idx], sigma[idx], pw[:, :, 0],
+                                         pl[:, :, 0], s_w, LATE_MEAN_M, g,
+                                         SEPARATION_PITCHES * step_m, n_starts)  # fmt: skip
         ar = np.arange(A)
-        for m in range(min(n_starts, G)):
-            gi = np.argmin(score, axis=1)
-            ok = np.isfinite(score[ar, gi])
-            th = np.column_stack([g[gi], s[ar, gi, jb[ar, gi]]])
-            out[m, idx[ok]] = th[ok]
-            near = np.linalg.norm(g[None, :, :] - g[gi][:, None, :], axis=2)
-            score = np.where(near < SEPARATION_PITCHES * step_m, np.inf, score)
+        for m in range(pick.shape[1]):
+            th = np.column_stack([g[pick[:, m]], s[ar, pick[:, m], ref[:, m]]])
+            out[m, idx[ok[:, m]]] = th[ok[:, m]]
     return out
 
 

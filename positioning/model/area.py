@@ -116,7 +116,8 @@ class ServiceArea:
                                    for i in range(0, len(xy), block)])  # fmt: skip
         return self._contains(xy)
 
-    def _contains(self, xy: np.ndarray) -> np.ndarray:
+    def _contains(self, xy: np.ndarray, d: np.ndarray | None = None) -> np.ndarray:
+        """:meth:`contains` of one block; ``d`` the outline distances if already known."""
         a, b = self.edges
         x, y = xy[:, :1], xy[:, 1:]
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -125,14 +126,18 @@ class ServiceArea:
                 b[None, :, 1] - a[None, :, 1]
             )
             odd = np.count_nonzero(straddle & (x < xc), axis=1) % 2 == 1
-        _, d = self.nearest_on_outline(xy)
+        if d is None:
+            _, d = self.nearest_on_outline(xy)
         return np.isfinite(xy).all(axis=1) & (odd | (d <= BOUNDARY_TOL_M))
 
     def project(self, xy: np.ndarray) -> np.ndarray:
         """(A, 2): each point itself if inside, else its nearest outline point."""
         xy = np.asarray(xy, dtype=float).reshape(-1, 2)
-        inside = self.contains(xy)
-        foot, _ = self.nearest_on_outline(np.where(np.isfinite(xy), xy, 0.0))
+        foot, d = self.nearest_on_outline(np.where(np.isfinite(xy), xy, 0.0))
+        if len(xy) > max(1, _PAIRS_PER_BLOCK // len(self.polygon)):
+            inside = self.contains(xy)
+        else:  # the outline distances once: a point that is not finite is outside either way
+            inside = self._contains(xy, d)
         return np.where(inside[:, None], xy, foot)
 
     def outline(self, step_m: float) -> np.ndarray:

@@ -45,6 +45,22 @@ def groups_by_map(
     return [list(range(g, len(keys), n)) for g in range(n)]
 
 
+def spawn_pool(processes: int) -> Any:
+    """A ``multiprocessing`` pool of ``processes`` spawned workers, BLAS and OpenMP on one
+    thread each (see the module docstring); the caller closes or terminates it."""
+    ctx = multiprocessing.get_context("spawn")
+    saved = {k: os.environ.get(k) for k in _ONE_THREAD}
+    os.environ.update(_ONE_THREAD)  # inherited by the workers spawned now
+    try:
+        return ctx.Pool(processes)
+    finally:
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+
+
 def _evaluate_group(jobs: list[tuple]) -> list[DatasetResult]:
     """A worker's datasets, one after the other (the twin's map and raster kept between them)."""
     return [evaluate(ds, methods, params, height, outside=outside, alert_limit_m=limit)
@@ -87,17 +103,7 @@ def evaluate_all(
     groups = groups_by_map(params, workers) if workers > 1 else []
     if len(groups) < 2:
         return _evaluate_group(jobs)
-    ctx = multiprocessing.get_context("spawn")
-    saved = {k: os.environ.get(k) for k in _ONE_THREAD}
-    os.environ.update(_ONE_THREAD)  # inherited by the workers spawned now
-    try:
-        pool = ctx.Pool(min(workers, len(groups)))  # more groups (maps) wait for a worker
-    finally:
-        for k, v in saved.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
+    pool = spawn_pool(min(workers, len(groups)))  # more groups (maps) wait for a worker
     done = False
     try:
         pending = [pool.apply_async(_evaluate_in_worker, ([jobs[i] for i in g],))

@@ -172,11 +172,17 @@ def _build(
     for s in summaries:
         print(f"  {Path(s['directory']).name:<33} {s['epochs']} epochs, receiver {s['toa_method']}")
     maps = _build_maps(args, receivers[0], tmp / "maps") if args.map_step > 0 else []
-    reports, datasets = {}, {}
+    reports, datasets, argvs = {}, {}, []
+    # with several cores, the reports side by side, one process each (three on two cores too:
+    # the system shares the cores, and a report waiting for a free process would be a third of
+    # the stage on one core): a report's figures and its twin are serial, so one report's
+    # datasets on two workers left a core idle (the files do not depend on it)
+    side_by_side = args.workers > 1 and len(receivers) > 1
+    per_report = max(1, args.workers // len(receivers)) if side_by_side else args.workers
     for r in receivers:
         datasets[r] = [s["directory"] for s in summaries if s["toa_method"] == r]
         reports[r] = tmp / _report_name(r, receivers)
-        argv = [*datasets[r], "-o", str(reports[r]), "--workers", str(args.workers)]
+        argv = [*datasets[r], "-o", str(reports[r]), "--workers", str(per_report)]
         argv += ["--param", f"ls:reference={LS_REFERENCE}", "--param", f"ls:seed={args.seed}"]
         methods = method_names(include_map=False) + [
             m for m in EXTRA_METHODS if maps or "twin" not in m
@@ -186,12 +192,15 @@ def _build(
             argv += [a for m in maps for a in ("--map", str(m["path"]))]
         else:
             argv += ["--methods", ",".join(m for m in methods if "twin" not in m)]
-        print(f"\n== receiver {r} ==")
-        sys.stdout.flush()
-        # inside this command's harness: an interruption or an error is reported once, by it
-        code = accuracy_report(argv)
-        if code != 0:
-            raise HallrayError(f"the accuracy report failed (exit status {code}); nothing written")
+        argvs.append(argv)
+    if side_by_side:
+        _reports_side_by_side(receivers, argvs, max(args.workers, len(receivers)))
+    else:
+        for r, argv in zip(receivers, argvs):
+            print(f"\n== receiver {r} ==")
+            sys.stdout.flush()
+            # inside this command's harness: an interruption or an error is reported once, by it
+            _check_report(accuracy_report(argv))
     main_static = next(d for d in datasets[receivers[0]] if Path(d).name == "static-c-band")
     params: dict[str, dict[str, Any]] = {"ls": {"reference": LS_REFERENCE, "seed": args.seed}}
     if maps:
@@ -203,6 +212,30 @@ def _build(
     order = list(dict.fromkeys([PAPER_RECEIVER, *receivers]))
     return write_comparison(tmp / "paper.md", {r: reports[r] for r in order}, datasets,
                             costs=costs, main=receivers[0])  # fmt: skip
+
+
+def _check_report(code: int) -> None:
+    if code != 0:
+        raise HallrayError(f"the accuracy report failed (exit status {code}); nothing written")
+
+
+def _reports_side_by_side(receivers: Sequence[str], argvs: Sequence[list[str]], workers: int):
+    """The reports on ``workers`` spawned processes (at most one per report) at once; what each printed, and its
+    warnings, given here in the receivers' order, as the reports one after the other give them.
+    An error or an interruption ends them all and reaches this command's harness."""
+    import warnings
+
+    from positioning.cli.accuracy import accuracy_reports
+
+    said = []
+    for r, (code, text, caught) in zip(receivers, accuracy_reports(argvs, workers)):
+        print(f"\n== receiver {r} ==")
+        print(text, end="")
+        sys.stdout.flush()
+        _check_report(code)
+        said += caught
+    for message, category in dict.fromkeys(said):  # each once, as the "default" filter does
+        warnings.warn(message, category, stacklevel=2)
 
 
 def _build_maps(args: argparse.Namespace, receiver: str, folder: Path) -> list[dict[str, Any]]:

@@ -244,7 +244,9 @@ THREE_POINTS = np.array([[5.0, 6.0, 1.0], [14.0, 12.0, 1.0], [22.0, 19.0, 1.0]])
 def test_cli_area_counts_columns_and_untrustworthy_run(tmp_path, capsys):
     # a service area that leaves P01 outside: its fixes are bounded, then rejected
     area = {"polygon": [[10, 2], [28, 2], [28, 24], [10, 24]], "source": "test"}
-    ds = write_dataset(tmp_path / "d", points=THREE_POINTS, n_epochs=3, extra_meta={"service_area": area})
+    ds = write_dataset(
+        tmp_path / "d", points=THREE_POINTS, n_epochs=3, extra_meta={"service_area": area}
+    )
     out = tmp_path / "f.csv"
     assert estimate_positions_main([str(ds), "--method", "irls", "-o", str(out)]) == 0
     line = capsys.readouterr().out
@@ -259,7 +261,9 @@ def test_cli_area_counts_columns_and_untrustworthy_run(tmp_path, capsys):
     assert "availability 66.7 % (3 unsolved)" in capsys.readouterr().out
     # nothing inside: no trustworthy fix -> one-line error, exit 2, no file
     far = {"polygon": [[100, 100], [110, 100], [110, 110]], "source": "test"}
-    ds2 = write_dataset(tmp_path / "e", points=THREE_POINTS, n_epochs=2, extra_meta={"service_area": far})
+    ds2 = write_dataset(
+        tmp_path / "e", points=THREE_POINTS, n_epochs=2, extra_meta={"service_area": far}
+    )
     out2 = tmp_path / "g.csv"
     for extra in ([], ["--outside", "reject"]):
         assert estimate_positions_main([str(ds2), *extra, "-o", str(out2)]) == 2
@@ -291,6 +295,35 @@ def test_accuracy_report_workers_bit_identical(datasets, tmp_path, capsys):
     for name in names:
         assert (outs[1] / name).read_bytes() == (outs[2] / name).read_bytes(), name
     assert printed[1] == printed[2]
+
+
+def test_accuracy_reports_side_by_side_are_the_reports_of_one_process(datasets, tmp_path,
+                                                                       capsys):  # fmt: skip
+    """Two reports on spawned processes at once (reproduce-paper's receivers): each writes the
+    files the report written in this process writes, byte for byte, and returns what it
+    printed; a report's error is raised in the caller."""
+    from positioning.cli.accuracy import accuracy_reports
+    from positioning.errors import PositioningError
+
+    argvs = {n: [[str(datasets[0]), "-o", str(tmp_path / f"{n}{i}"), "--methods", m]
+                 for i, m in enumerate(("ls,irls", "nlos-map"))]
+             for n in ("alone", "side")}  # fmt: skip
+    printed = []
+    for argv in argvs["alone"]:
+        assert accuracy_report_main(argv) == 0
+        printed.append(capsys.readouterr().out.replace(argv[2], "OUT"))
+    got = accuracy_reports(argvs["side"], 2)
+    for i, (code, text, _) in enumerate(got):
+        assert code == 0
+        assert text.replace(argvs["side"][i][2], "OUT") == printed[i]
+        alone, side = tmp_path / f"alone{i}", tmp_path / f"side{i}"
+        names = sorted(p.name for p in alone.iterdir())
+        assert names == sorted(p.name for p in side.iterdir()) and "table.csv" in names
+        for name in names:
+            assert (alone / name).read_bytes() == (side / name).read_bytes(), name
+    bad = [str(tmp_path / "missing"), "-o", str(tmp_path / "bad")]
+    with pytest.raises(PositioningError):
+        accuracy_reports([argvs["side"][0], bad], 2)
 
 
 def test_accuracy_report_bad_workers(datasets, tmp_path, capsys):

@@ -43,3 +43,22 @@ def test_area_from_meta_fallbacks():
     for bad in ({"service_area": {"polygon": [[0, 0], [1, 1]]}}, {"hall_xy": [[0, 0]]}):
         with pytest.raises(PositioningError):
             area_from_meta(bad)
+
+
+def test_project_is_the_point_inside_and_the_nearest_outline_point_outside_bit_for_bit():
+    """project() measures the outline distances once: the same bits as contains() and
+    nearest_on_outline() called separately, for points inside, outside, on the outline and
+    not finite."""
+    area = ServiceArea(np.array([[0.0, 0.0], [30.0, 0.0], [30.0, 12.0], [18.0, 25.0],
+                                 [0.0, 25.0]]))  # fmt: skip
+    rng = np.random.default_rng(4)
+    xy = rng.uniform(-5.0, 35.0, (5000, 2))
+    xy[:10] = area.polygon[rng.integers(0, 5, 10)] + rng.normal(0.0, 1e-8, (10, 2))
+    xy[10, 0] = np.nan
+    xy[11] = np.inf
+    inside = area.contains(xy)
+    foot, _ = area.nearest_on_outline(np.where(np.isfinite(xy), xy, 0.0))
+    want = np.where(inside[:, None], xy, foot)
+    got = area.project(xy)
+    np.testing.assert_array_equal(got, want)
+    assert inside.any() and (~inside).any() and not inside[10:12].any()

@@ -1,0 +1,411 @@
+"""The mixture NLL of :func:`positioning.model.noise.mixture_nll` for every clock hypothesis of
+every grid cell, compiled: the inner loop of ``nlos-map``'s grid starts
+(:func:`positioning.estimators.nlos.grid_starts`).
+
+In numpy the grid's (A, G, N, N) residuals go through some forty array passes (three
+log-densities, the log-sum-exp, the responsibilities the grid does not use); here each element
+is computed once, in registers. The arithmetic is numpy's, in the same order (no ``fastmath``:
+no reassociation, no fused multiply-add), ``exp``/``log``/``log1p`` from the C library and
+``log_ndtr`` from scipy's own scalar routine (``scipy.special.cython_special``, the function
+scipy's ufunc loops over). Where numpy's ``exp`` and ``log`` are the C library's (x86-64
+without AVX-512: numpy vectorises them only there), the results are numpy's bit for bit;
+elsewhere they may differ in the last bits, which only the grid's comparisons (the deepest
+cells) see (tests/positioning/estimators/test_mixture_kernel.py).
+
+Compiled with the options of the tracer's kernels (:mod:`raytrace.core.jit`, which positioning
+may not import): an explicit signature, ``error_model="numpy"``, no ``fastmath``, ``nogil``, and
+the on-disk cache (without a writable cache directory, compiled in memory instead).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import llvmlite.binding as llvm
+import numba
+import numpy as np
+from numba import types
+from numba.extending import get_cython_function_address
+
+__all__ = ["deepest_by_numpy", "deepest_cells", "pairwise_mixture_nll"]
+
+# scipy's double-precision log_ndtr, called by name: a kernel that calls a symbol (not a ctypes
+# pointer, a "dynamic global") can be cached on disk
+llvm.add_symbol(
+    "positioning_log_ndtr",
+    get_cython_function_address("scipy.special.cython_special", "__pyx_fuse_1log_ndtr"),
+)
+_log_ndtr = types.ExternalFunction("positioning_log_ndtr", types.float64(types.float64))
+
+_OPTIONS: dict[str, Any] = dict(cache=True, nogil=True, error_model="numpy", fastmath=False)
+#: Above ln 3: the log of a sum of three terms, each at most 1 (the log-sum-exp's ``total``).
+_LOG3_UP = math.log(3.0) + 1e-12
+#: numpy's pairwise summation adds up to this many numbers in one block (PW_BLOCKSIZE).
+_NUMPY_BLOCK = 128
+
+
+def _compile(signature: str) -> Any:
+    def wrap(fn: Any) -> Any:
+        try:
+            return numba.njit(signature, **_OPTIONS)(fn)
+        except RuntimeError as exc:  # no cache locator (a read-only installation, no home)
+            if "no locator available" not in str(exc):
+                raise
+            return numba.njit(signature, **{**_OPTIONS, "cache": False})(fn)
+
+    return wrap
+
+
+def _inline(fn: Any) -> Any:
+    return numba.njit(inline="always", **_OPTIONS)(fn)
+
+
+@_inline
+def _exp_below(v, top):
+    """``exp(v - top)`` with the C library's bits, without calling it where they are known:
+    1 for the top itself, 0 where the exponential underflows (below -745.2)."""
+    d = v - top
+    if d == 0.0:
+        return 1.0
+    if d < -746.0:
+        return 0.0
+    return math.exp(d)
+
+
+@_inline
+def _nll(r, sig, sw, log_sig, log_sw, late0, sig_lam, c0, c1, c2, lam, half_log_2pi):
+    """The mixture NLL of one residuals ``r`` (m): :func:`~positioning.model.noise.mixture_nll`,
+    every expression in its order of evaluation (``c0, c1, c2`` the logs of the shares)."""
+    z = r / sig
+    zw = r / sw
+    # component_logpdf: core, wide, late; plus the log shares (mixture_nll)
+    a0 = (-0.5 * (z * z) - log_sig - half_log_2pi) + c0
+    a1 = (-0.5 * (zw * zw) - log_sw - half_log_2pi) + c1
+    pre = late0 - r / lam
+    x = z - sig_lam
+    top = a0
+    if a1 > top or a1 != a1:  # numpy's maximum: a NaN wins
+        top = a1 if top == top else top
+    if x < -1.0 and top == top:
+        # log_ndtr(x) < -x^2/2 - 0.9 for x < -1 (Mills' ratio): a late term under exp(-40) of
+        # the larger one cannot change the sum, which is >= 1 (adding less than half an ulp
+        # of it rounds back to it)
+        bound = (pre - 0.5 * (x * x)) + c2
+        slack = 40.0 + 1e-10 * (abs(pre) + 0.5 * (x * x) + abs(c2) + abs(top))
+        if bound < top - slack:
+            return -(top + math.log(_exp_below(a0, top) + _exp_below(a1, top)))
+    a2 = (pre + _log_ndtr(x)) + c2
+    if a2 > top or a2 != a2:
+        top = a2 if top == top else top
+    total = (_exp_below(a0, top) + _exp_below(a1, top)) + _exp_below(a2, top)
+    return -(top + math.log(total))
+
+
+@_inline
+def _nll_floor(r, sig, sw, log_sig, log_sw, late0, sig_lam, c0, c1, c2, lam, half_log_2pi):
+    """A lower bound of :func:`_nll`'s value (its floating-point value, not only the exact
+    one), without a transcendental function: ``-(max(a0, a1, u) + ln 3)`` with the core's and
+    the wide component's log-densities ``a0, a1`` as :func:`_nll` computes them and ``u`` at
+    least the late one's (``log_ndtr <= 0``; ``< -x^2/2`` for x < -1). Rounding is monotone, so
+    every step keeps the bound."""
+    z = r / sig
+    zw = r / sw
+    a0 = (-0.5 * (z * z) - log_sig - half_log_2pi) + c0
+    a1 = (-0.5 * (zw * zw) - log_sw - half_log_2pi) + c1
+    pre = late0 - r / lam
+    x = z - sig_lam
+    if -1e4 < x < -1.0:  # scipy's log_ndtr is within far less than 0.9 of -x^2/2 - ln(-x) - 0.92
+        u = (pre + (-0.5 * (x * x))) + c2
+    else:
+        u = pre + c2
+    return -(max(a0, a1, u) + _LOG3_UP)
+
+
+@_inline
+def _numpy_sum(v, n):
+    """``np.sum`` of ``v[:n]`` (n <= 128) as numpy adds a contiguous axis: one by one under 8
+    numbers, otherwise eight running sums combined pairwise, then the rest one by one."""
+    if n < 8:
+        res = 0.0
+        for i in range(n):
+            res += v[i]
+        return res
+    r0, r1, r2, r3 = v[0], v[1], v[2], v[3]
+    r4, r5, r6, r7 = v[4], v[5], v[6], v[7]
+    i = 8
+    while i < n - (n % 8):
+        r0 += v[i]
+        r1 += v[i + 1]
+        r2 += v[i + 2]
+        r3 += v[i + 3]
+        r4 += v[i + 4]
+        r5 += v[i + 5]
+        r6 += v[i + 6]
+        r7 += v[i + 7]
+        i += 8
+    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    while i < n:
+        res += v[i]
+        i += 1
+    return res
+
+
+@_compile(
+    "void(f8[:, :, ::1], b1[:, ::1], f8[:, :, ::1], f8[:, :, :, ::1], f8, f8, f8[:, :, :, ::1])"
+)
+def _pairwise_kernel(s, valid, per_link, log_share, lam, half_log_2pi, out):
+    """``out[a, g, j, n]``: the NLL of ``s[a, g, n] - s[a, g, j]`` for valid n and j (the other
+    entries are left as they are). ``per_link`` (6, A, N): sigma, the wide component's sigma,
+    their logs, the late log-density's constant and ``sigma / lam``; ``log_share`` (3, A, G, N):
+    the logs of the three shares."""
+    A, G, N = s.shape
+    for a in range(A):
+        for n in range(N):
+            if not valid[a, n]:
+                continue
+            sig, sw, log_sig = per_link[0, a, n], per_link[1, a, n], per_link[2, a, n]
+            log_sw, late0, sig_lam = per_link[3, a, n], per_link[4, a, n], per_link[5, a, n]
+            for g in range(G):
+                c0, c1, c2 = log_share[0, a, g, n], log_share[1, a, g, n], log_share[2, a, g, n]
+                sn = s[a, g, n]
+                for j in range(N):
+                    if valid[a, j]:
+                        out[a, g, j, n] = _nll(sn - s[a, g, j], sig, sw, log_sig, log_sw, late0,
+                                               sig_lam, c0, c1, c2, lam, half_log_2pi)  # fmt: skip
+
+
+@_inline
+def _cell_total(s, valid, per_link, log_share, lam, half_log_2pi, a, g, j, exact, terms):
+    """The grid's total NLL of cell g with base station j as the clock reference (``exact``)
+    or its lower bound: numpy's ``np.sum`` over n of the NLL, 0 for a station not received."""
+    N = s.shape[2]
+    sj = s[a, g, j]
+    for n in range(N):
+        if not valid[a, n]:
+            terms[n] = 0.0
+        elif exact:
+            terms[n] = _nll(s[a, g, n] - sj, per_link[0, a, n], per_link[1, a, n],
+                            per_link[2, a, n], per_link[3, a, n], per_link[4, a, n],
+                            per_link[5, a, n], log_share[0, a, g, n], log_share[1, a, g, n],
+                            log_share[2, a, g, n], lam, half_log_2pi)  # fmt: skip
+        else:
+            terms[n] = _nll_floor(s[a, g, n] - sj, per_link[0, a, n], per_link[1, a, n],
+                                  per_link[2, a, n], per_link[3, a, n], per_link[4, a, n],
+                                  per_link[5, a, n], log_share[0, a, g, n],
+                                  log_share[1, a, g, n], log_share[2, a, g, n], lam,
+                                  half_log_2pi)  # fmt: skip
+    return _numpy_sum(terms, N)
+
+
+@_compile(
+    "i8(f8[:, :, ::1], b1[:, ::1], f8[:, :, ::1], f8[:, :, :, ::1], f8, f8, f8[:, ::1], f8, "
+    "i8[:, ::1], i8[:, ::1], b1[:, ::1])"
+)
+def _deepest_kernel(s, valid, per_link, log_share, lam, half_log_2pi, cells, separation_m,
+                    pick, ref, ok):  # fmt: skip
+    """Per epoch a, the ``pick.shape[1]`` deepest cells of the grid's NLL (``pick[a]``), each
+    at least ``separation_m`` from the ones taken before, their clock reference ``ref[a]``
+    (the station whose residual is zero) and ``ok[a]`` (False: no cell left); numpy's argmin
+    order (the lowest index among equal values). Branch and bound: a cell's exact NLL (and a
+    reference's) is computed only where its lower bound :func:`_nll_floor` does not exceed the
+    best exact value found, so the picks are those of the exact NLL of every cell. Returns the
+    number of (cell, reference) totals computed exactly.
+
+    long kernel: the bound, the search and the separation share the per-epoch scratch arrays;
+    split into functions, each would take them all as arguments."""
+    A, G, N = s.shape
+    n_pick = pick.shape[1]
+    terms = np.empty(N)
+    floor = np.empty((G, N))
+    floor_cell = np.empty(G)
+    best = np.empty(G)
+    best_ref = np.zeros(G, dtype=np.int64)
+    done = np.zeros(G, dtype=np.bool_)
+    masked = np.zeros(G, dtype=np.bool_)
+    n_exact = 0
+    for a in range(A):
+        for g in range(G):
+            m = np.inf
+            for j in range(N):
+                floor[g, j] = np.inf
+                if valid[a, j]:
+                    floor[g, j] = _cell_total(s, valid, per_link, log_share, lam, half_log_2pi,
+                                              a, g, j, False, terms)  # fmt: skip
+                    m = min(m, floor[g, j])
+            floor_cell[g] = m
+        order = np.argsort(floor_cell)
+        done[:] = False
+        masked[:] = False
+        for k in range(n_pick):
+            cur = np.inf
+            cur_g = -1
+            for t in range(G):
+                g = order[t]
+                if masked[g]:
+                    continue
+                if floor_cell[g] > cur:
+                    break
+                if not done[g]:
+                    # the exact total of the references whose bound is not above the best one
+                    j0 = np.argmin(floor[g])
+                    bv = _cell_total(s, valid, per_link, log_share, lam, half_log_2pi, a, g,
+                                     j0, True, terms)  # fmt: skip
+                    bj = j0
+                    n_exact += 1
+                    for j in range(N):
+                        if j == j0 or not valid[a, j] or floor[g, j] > bv:
+                            continue
+                        v = _cell_total(s, valid, per_link, log_share, lam, half_log_2pi, a, g,
+                                        j, True, terms)  # fmt: skip
+                        n_exact += 1
+                        if v < bv or (v == bv and j < bj):
+                            bv, bj = v, j
+                    best[g], best_ref[g], done[g] = bv, bj, True
+                if best[g] < cur or (best[g] == cur and g < cur_g):
+                    cur, cur_g = best[g], g
+            if cur_g < 0 or not cur < np.inf:
+                break
+            pick[a, k], ref[a, k], ok[a, k] = cur_g, best_ref[cur_g], True
+            for g in range(G):  # np.linalg.norm of the 2D difference, as grid_starts had it
+                dx = cells[g, 0] - cells[cur_g, 0]
+                dy = cells[g, 1] - cells[cur_g, 1]
+                if math.sqrt(dx * dx + dy * dy) < separation_m:
+                    masked[g] = True
+    return n_exact
+
+
+def _link_terms(sigma: np.ndarray, s_wide: float, lam: float) -> np.ndarray:
+    """(6, A, N) per-measurement terms as numpy evaluates them in component_logpdf: sigma, the
+    wide component's sigma, their logs, the late density's ``-ln lam + sigma^2 / (2 lam^2)``
+    (before the residual enters) and ``sigma / lam``."""
+    sigma = np.asarray(sigma, dtype=np.float64)
+    wide_sigma = np.sqrt(sigma**2 + s_wide**2)
+    return np.stack([sigma, wide_sigma, np.log(sigma), np.log(wide_sigma),
+                     -np.log(lam) + sigma**2 / (2.0 * lam**2), sigma / lam])  # fmt: skip
+
+
+def _log_shares(p_wide: np.ndarray, p_late: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
+    """(3, A, G, N) logs of the core, wide and late shares, as mixture_nll takes them."""
+    p_wide = np.broadcast_to(p_wide, shape)
+    p_late = np.broadcast_to(p_late, shape)
+    return np.stack([np.log1p(-(p_wide + p_late)), np.log(p_wide), np.log(p_late)])
+
+
+def pairwise_mixture_nll(
+    s: np.ndarray,
+    valid: np.ndarray,
+    sigma: np.ndarray,
+    p_wide: np.ndarray,
+    p_late: np.ndarray,
+    s_wide: float,
+    lam: float,
+) -> np.ndarray:
+    """(A, G, N, N) NLL of the residuals ``s[a, g, n] - s[a, g, j]`` at ``[a, g, j, n]``:
+    :func:`~positioning.model.noise.mixture_nll` of ``r = s[:, :, None, :] - s[:, :, :, None]``
+    with the noise core ``sigma[:, None, None, :]``; 0 where measurement n or reference j is
+    not valid.
+
+    Parameters
+    ----------
+    s : (A, G, N) float, metres: pseudo-range less the candidate range per epoch, cell, station
+    valid : (A, N) bool, received measurements
+    sigma : (A, N) float, metres: the noise core of each measurement
+    p_wide, p_late : (A, G, N) float: the mixture's shares at each cell
+        (:func:`~positioning.model.noise.shares`)
+    s_wide : float, metres: the overlap spread
+    lam : float, metres: the mean NLoS excess of the late component
+    """
+    out = np.zeros(s.shape + s.shape[-1:])
+    _pairwise_kernel(np.ascontiguousarray(s, dtype=np.float64),
+                     np.ascontiguousarray(valid, dtype=np.bool_), _link_terms(sigma, s_wide, lam),
+                     _log_shares(p_wide, p_late, s.shape), float(lam),
+                     float(0.5 * np.log(2.0 * np.pi)), out)  # fmt: skip
+    return out
+
+
+def deepest_by_numpy(
+    tot: np.ndarray, cells: np.ndarray, separation_m: float, n_pick: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The picks of :func:`deepest_cells` from the totals ``tot`` (A, G, N) (inf for a
+    reference not received) by numpy's argmins: (pick, ref, ok), each (A, n_pick)."""
+    A, G, _ = tot.shape
+    jb = np.argmin(tot, axis=2)  # (A, G)
+    score = np.take_along_axis(tot, jb[..., None], axis=2)[..., 0].copy()
+    pick = np.zeros((A, n_pick), dtype=np.int64)
+    ref = np.zeros((A, n_pick), dtype=np.int64)
+    ok = np.zeros((A, n_pick), dtype=bool)
+    ar = np.arange(A)
+    for m in range(min(n_pick, G)):
+        gi = np.argmin(score, axis=1)
+        pick[:, m], ref[:, m], ok[:, m] = gi, jb[ar, gi], np.isfinite(score[ar, gi])
+        near = np.linalg.norm(cells[None, :, :] - cells[gi][:, None, :], axis=2)
+        score = np.where(near < separation_m, np.inf, score)
+    return pick, ref, ok
+
+
+def deepest_cells(
+    s: np.ndarray,
+    valid: np.ndarray,
+    sigma: np.ndarray,
+    p_wide: np.ndarray,
+    p_late: np.ndarray,
+    s_wide: float,
+    lam: float,
+    cells: np.ndarray,
+    separation_m: float,
+    n_pick: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """Per epoch, the ``n_pick`` deepest cells of the grid's total mixture NLL, each at least
+    ``separation_m`` from the ones taken before: the NLL of :func:`pairwise_mixture_nll`
+    summed over n, the best reference j per cell (argmin over the received ones), then the
+    cells by repeated argmin, as numpy would pick them from the whole (A, G, N, N) array, but
+    with the NLL computed only where a lower bound leaves a cell or reference in contention.
+
+    Parameters
+    ----------
+    s, valid, sigma, p_wide, p_late, s_wide, lam : as :func:`pairwise_mixture_nll`
+    cells : (G, 2) float, metres: the grid's cells
+    separation_m : float, metres
+    n_pick : int
+
+    Returns
+    -------
+    pick : (A, n_pick) int, cell indices
+    ref : (A, n_pick) int, the reference station at each pick
+    ok : (A, n_pick) bool, False where no cell was left (then pick and ref mean nothing)
+    n_exact : int, (epoch, cell, reference) totals computed exactly (A * G * N for numpy)
+    """
+    s = np.ascontiguousarray(s, dtype=np.float64)
+    valid = np.ascontiguousarray(valid, dtype=np.bool_)
+    A, G, N = s.shape
+    n_pick = min(n_pick, G)
+    per_link = _link_terms(sigma, s_wide, lam)
+    log_share = _log_shares(p_wide, p_late, s.shape)
+    h = float(0.5 * np.log(2.0 * np.pi))
+    # the bound's steps hold for finite numbers only; numpy's argmins for the rest (and for more
+    # stations than numpy adds in one block)
+    finite = (np.isfinite(s).all(axis=(1, 2)) & np.isfinite(per_link).all(axis=(0, 2))
+              & np.isfinite(log_share).all(axis=(0, 2, 3)))  # fmt: skip
+    fast = finite if N <= _NUMPY_BLOCK else np.zeros(A, dtype=bool)
+    pick = np.zeros((A, n_pick), dtype=np.int64)
+    ref = np.zeros((A, n_pick), dtype=np.int64)
+    ok = np.zeros((A, n_pick), dtype=bool)
+    n_exact = 0
+    if fast.any():
+        f = np.flatnonzero(fast)
+        p, r, o = pick[f], ref[f], ok[f]
+        n_exact += int(_deepest_kernel(s[f], valid[f], np.ascontiguousarray(per_link[:, f]),
+                                       np.ascontiguousarray(log_share[:, f]), float(lam), h,
+                                       np.ascontiguousarray(cells, dtype=np.float64),
+                                       float(separation_m), p, r, o))  # fmt: skip
+        pick[f], ref[f], ok[f] = p, r, o
+    if not fast.all():
+        f = np.flatnonzero(~fast)
+        nll = pairwise_mixture_nll(s[f], valid[f], np.asarray(sigma)[f],
+                                   np.broadcast_to(p_wide, s.shape)[f],
+                                   np.broadcast_to(p_late, s.shape)[f], s_wide, lam)  # fmt: skip
+        tot = np.where(valid[f][:, None, :], np.sum(nll, axis=3), np.inf)
+        pick[f], ref[f], ok[f] = deepest_by_numpy(tot, cells, separation_m, n_pick)
+        n_exact += f.size * G * N
+    return pick, ref, ok, n_exact
