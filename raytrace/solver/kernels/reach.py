@@ -18,10 +18,10 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ...core.jit import helper, inline, kernel
+from ...core.jit import helper, kernel
 from ...scene.accel import facet_sees
 from ...scene.spatial import sphere_ahead, sphere_in_beam
-from .prune import PAIRS_OUT_SIG, beam_reaches1, edge_span
+from .prune import FRAME_SIG, PAIRS_OUT_SIG, beam_reaches1, edge_span, inside1
 
 __all__ = ["EdgeLeaves", "edge_leaves", "facet_wedge_pairs_tree", "first_order_candidates",
            "second_facets"]
@@ -46,9 +46,9 @@ class EdgeLeaves(NamedTuple):
         the tree's nodes (:class:`raytrace.scene.spatial.SphereTree`)
     wedge : (N,) int, the wedge in each leaf slot
     geometry : (N, 11) float: start (3), end (3), middle (3), metres; half-length, length, metres
-    frame : (N, 10) float: the wedge frame of :func:`raytrace.solver.kernels.surely_inside`,
-        ``t0`` (3), ``n0`` (3), ``t_start``, ``n_start``, ``cos_n``, ``sin_n``
-    prunable : (N,) bool
+    t0, n0 : (3, N) float; t_start, n_start, cos_n, sin_n : (N,) float; prunable : (N,) bool:
+        the wedge frame of :func:`raytrace.solver.kernels.surely_inside` in leaf order (its
+        :func:`~raytrace.solver.kernels.prune.inside1` reads them at the leaf slot)
     """
 
     node_centre: np.ndarray
@@ -59,7 +59,12 @@ class EdgeLeaves(NamedTuple):
     count: np.ndarray
     wedge: np.ndarray
     geometry: np.ndarray
-    frame: np.ndarray
+    t0: np.ndarray
+    n0: np.ndarray
+    t_start: np.ndarray
+    n_start: np.ndarray
+    cos_n: np.ndarray
+    sin_n: np.ndarray
     prunable: np.ndarray
 
 
@@ -79,25 +84,10 @@ def edge_leaves(tree, w_of: np.ndarray, wedges: tuple, frame: tuple) -> EdgeLeav
     w_start, w_end, w_mid, w_half, w_length = wedges
     t0, n0, t_start, n_start, cos_n, sin_n, prunable = frame[:7]
     geometry = c(np.column_stack([w_start[w], w_end[w], w_mid[w], w_half[w], w_length[w]]))
-    fr = c(np.column_stack([t0[:, w].T, n0[:, w].T, t_start[w], n_start[w], cos_n[w], sin_n[w]]))
     return EdgeLeaves(c(tree.node_centre), c(tree.node_radius), c(tree.left, np.int64),
                       c(tree.right, np.int64), c(tree.start, np.int64), c(tree.count, np.int64),
-                      w, geometry.reshape(-1, 11), fr.reshape(-1, 10), c(prunable[w], bool))
-
-
-@inline
-def _inside_row(fr, prunable, k, m2_coef, min_rho2, px, py, pz):
-    """:func:`raytrace.solver.kernels.prune.inside1` on row ``k`` of an :class:`EdgeLeaves`'
-    frame, in its arithmetic."""
-    ok, cn, sn = prunable[k], fr[k, 8], fr[k, 9]
-    x = px * fr[k, 0] + py * fr[k, 1] + pz * fr[k, 2] - fr[k, 6]
-    y = px * fr[k, 3] + py * fr[k, 4] + pz * fr[k, 5] - fr[k, 7]
-    if not ok:
-        return False
-    r2 = x * x + y * y
-    m2 = m2_coef * r2
-    side_n = cn * y - sn * x
-    return r2 > min_rho2 and y < 0 and y * y > m2 and side_n > 0 and side_n * side_n > m2
+                      w, geometry.reshape(-1, 11), c(t0[:, w]), c(n0[:, w]), c(t_start[w]),
+                      c(n_start[w]), c(cos_n[w]), c(sin_n[w]), c(prunable[w], bool))
 
 
 _TREE_PAIRS_SIG = (
@@ -108,11 +98,10 @@ _TREE_PAIRS_SIG = (
     "i8[::1], f8[::1], f8[::1], f8[:, ::1], f8[:, ::1], f8[::1], f8[::1], b1[::1], b1[::1], "
     # facets (K,): normals (K, 3), offsets; boxes lo, hi (K, 3)
     "f8[:, ::1], f8[::1], f8[:, ::1], f8[:, ::1], "
-    # the tree of edges in leaf order (EdgeLeaves)
-    "f8[:, ::1], f8[::1], i8[::1], i8[::1], i8[::1], i8[::1], i8[::1], f8[:, ::1], f8[:, ::1], "
-    "b1[::1], "
-    # frame scalars, tolerances, pruning, the end, the output buffers, the first facet
-    f"f8, f8, f8, f8, b1, i8, {PAIRS_OUT_SIG}, i8)"
+    # the tree of edges in leaf order (EdgeLeaves), its wedge frame with the frame's scalars
+    f"f8[:, ::1], f8[::1], i8[::1], i8[::1], i8[::1], i8[::1], i8[::1], f8[:, ::1], {FRAME_SIG}, "
+    # tolerances, pruning, the end, the output buffers, the first facet
+    f"f8, f8, b1, i8, {PAIRS_OUT_SIG}, i8)"
 )
 
 
@@ -120,7 +109,7 @@ _TREE_PAIRS_SIG = (
 def facet_wedge_pairs_tree(f_ok, sgn, h_f, img_c, axis_c, cos_a, sin_a, apex_in, f_active,
                            normal, offset, lo, hi,
                            node_centre, node_radius, left, right, start, count, leaf_w, geo,
-                           fr, prunable, m2_coef, min_rho2,
+                           t0, n0, t_start, n_start, cos_n, sin_n, prunable, m2_coef, min_rho2,
                            eps, pad, prune, e, out_e, out_f, out_w, out_img, out_lo, out_hi,
                            j0):  # fmt: skip
     """The (facet, wedge) triples of one end point (``e``) where a reflection in the facet can
@@ -192,7 +181,8 @@ def facet_wedge_pairs_tree(f_ok, sgn, h_f, img_c, axis_c, cos_a, sin_a, apex_in,
                 if not beam_reaches1(ix, iy, iz, ux, uy, uz, ca, sa, ai, geo[k, 6], geo[k, 7],
                                      geo[k, 8], geo[k, 9]):  # fmt: skip
                     continue
-                if _inside_row(fr, prunable, k, m2_coef, min_rho2, ix, iy, iz):
+                if inside1(t0, n0, t_start, n_start, cos_n, sin_n, prunable, m2_coef, min_rho2, k,
+                           ix, iy, iz):  # fmt: skip
                     continue
                 ok, t_lo, t_hi = edge_span(ax, ay, az, bx, by, bz, ix, iy, iz, da, db, eps, h,
                                             flx, fly, flz, fhx, fhy, fhz, geo[k, 10], pad)  # fmt: skip
