@@ -16,7 +16,6 @@ import numpy as np
 from ..core.jit import carray
 from ..core.kept import keep
 from ..scene import accel
-from ..scene.spatial import build_tree
 from . import kernels, shadow
 from . import reflection as refl
 from .context import TraceContext
@@ -191,7 +190,7 @@ def _second_images(ctx: TraceContext, t: int, in_shadow: np.ndarray) -> tuple[np
         # first facet (bounding spheres: a necessary condition)
         beam = refl.cone_reaches(img1[a], centre[f1[a]], radius[f1[a]], centre[f2], radius[f2])
         a, f2, s_img = a[beam], f2[beam], s_img[beam]
-    else:  # the same conditions, tested in the trees' walks (kernels.second_facets)
+    else:  # the trees' beam queries, the same conditions in one compiled pass
         a, f2, s_img = _second_facets(fc, f1, b1, side_t[f1], ctx.facet_mask)
     order = np.lexsort((f2, a))  # in (first image, second facet) order, as a table would give
     c = lambda x, t=np.float64: np.array(x, dtype=t, order="C", copy=True)  # noqa: E731
@@ -217,51 +216,23 @@ def _second_images(ctx: TraceContext, t: int, in_shadow: np.ndarray) -> tuple[np
 def _second_facets(fc, f1: np.ndarray, b1: refl.Beam, side1: np.ndarray,
                    mask: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
     """(row of ``f1``, second facet, side of the first image) of the pairs of facets that can
-    exchange a reflection from the first images ``b1.apex`` (:func:`_second_images`), found by
-    :func:`raytrace.solver.kernels.second_facets` on every tree of
-    :func:`raytrace.scene.accel.facet_forest`; with ``mask`` (K,) bool (a trace of some objects
-    only) the pairs with a chosen facet: the rows of chosen first facets ask the forest, the
-    others a tree over the chosen facets."""
+    exchange a reflection from the first images ``b1.apex`` (:func:`_second_images`): the beam
+    queries of :func:`raytrace.scene.accel.beam_facets` (with ``mask`` (K,) bool, a trace of
+    some objects only: the pairs with a chosen facet), then their exact necessary conditions in
+    one compiled pass (:func:`raytrace.solver.kernels.second_facets`)."""
+    a, f2 = accel.beam_facets(fc, b1, fc.normal[f1], fc.offset[f1], side1, mask,
+                              None if mask is None else mask[f1])  # fmt: skip
     c = carray
-    beam_args = (c(b1.apex), c(b1.axis), c(b1.cos_a), c(b1.sin_a), c(b1.apex_inside, bool),
-                 c(f1, np.int64), c(side1, np.int8))  # fmt: skip
+    centre, radius = accel.facet_spheres(fc)
     starts = c(3 * (np.cumsum(fc.tri_count) - fc.tri_count), np.int64)
-    facet_args = (c(fc.normal), c(fc.offset), c(fc.two_sided, bool),
-                  c(fc.triangles.reshape(-1, 3)), starts, c(3 * fc.tri_count, np.int64),
-                  accel.PLANE_TOL_M)  # fmt: skip
-    parts = []
-
-    def ask(tree, elem_facet: np.ndarray, rows: np.ndarray) -> None:
-        tree_args = (c(tree.order, np.int64), c(tree.left, np.int64), c(tree.right, np.int64),
-                     c(tree.start, np.int64), c(tree.count, np.int64), c(tree.node_centre),
-                     c(tree.node_radius), c(tree.centre), c(tree.radius),
-                     c(elem_facet, np.int64), c(rows, np.int64))  # fmt: skip
-        q, size = 0, max(1024, 16 * len(rows))
-        while q < len(rows):
-            out = (np.empty(size, np.int64), np.empty(size, np.int64), np.empty(size, np.int8))
-            q_next, m = kernels.second_facets(*tree_args, *beam_args, *facet_args, q, *out)
-            parts.append(tuple(x[:m] for x in out))
-            if q_next == q and m == 0:
-                size *= 2  # one row's pairs do not fit
-            q = q_next
-
-    every = np.arange(len(f1))
-    if mask is None:
-        for tree, first in accel.facet_forest(fc):
-            ask(tree, np.arange(tree.size) + first, every)
-    else:
-        masked = mask[f1]
-        for tree, first in accel.facet_forest(fc):
-            ask(tree, np.arange(tree.size) + first, every[masked])
-        chosen = np.flatnonzero(mask)
-        if len(chosen) and not masked.all():
-            lo, hi = accel.facet_boxes(fc, 0.0)
-            centre, radius = accel.facet_spheres(fc)
-            ask(build_tree(lo[chosen], hi[chosen], centre[chosen], radius[chosen]), chosen,
-                every[~masked])  # fmt: skip
-    if not parts:
-        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int8)
-    return tuple(np.concatenate(x) for x in zip(*parts))
+    s_img = kernels.second_facets(
+        c(a, np.int64), c(f2, np.int64), c(b1.apex), c(b1.axis), c(b1.cos_a), c(b1.sin_a),
+        c(b1.apex_inside, bool), c(f1, np.int64), c(centre), c(radius), c(fc.normal),
+        c(fc.offset), c(fc.two_sided, bool), c(fc.triangles.reshape(-1, 3)), starts,
+        c(3 * fc.tri_count, np.int64), accel.PLANE_TOL_M,
+    )  # fmt: skip
+    ok = s_img != 0
+    return a[ok], f2[ok], s_img[ok]
 
 
 def _table_pairs(fc, f1: np.ndarray, mask: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:

@@ -20,7 +20,6 @@ import numpy as np
 
 from ...core.jit import helper, kernel
 from ...scene.accel import facet_sees
-from ...scene.spatial import sphere_ahead, sphere_in_beam
 from .prune import FRAME_SIG, PAIRS_OUT_SIG, beam_reaches1, edge_span, inside1
 
 __all__ = ["EdgeLeaves", "edge_leaves", "facet_wedge_pairs_tree", "first_order_candidates",
@@ -195,111 +194,58 @@ def facet_wedge_pairs_tree(f_ok, sgn, h_f, img_c, axis_c, cos_a, sin_a, apex_in,
     return m, len(f_ok)
 
 
-_SECOND_SIG = (
-    "UniTuple(i8, 2)("
-    # the facets' tree: order, left, right, start, count, node centres (M, 3), radii, the
-    # elements' spheres (N, 3), (N,), each element's facet
-    "i8[::1], i8[::1], i8[::1], i8[::1], i8[::1], f8[:, ::1], f8[::1], f8[:, ::1], f8[::1], "
-    "i8[::1], "
-    # the rows asking, and per first facet (F,): its beam (apex = the first image, axis (F, 3),
-    # cos, sin, apex inside), its facet, the transmitter's side of it
-    "i8[::1], f8[:, ::1], f8[:, ::1], f8[::1], f8[::1], b1[::1], i8[::1], i1[::1], "
-    # facets (K,): normals (K, 3), offsets, two-sided; corners (V, 3), each facet's run of them
-    "f8[:, ::1], f8[::1], b1[::1], f8[:, ::1], i8[::1], i8[::1], f8, "
-    # the first row to answer, the output buffers
-    "i8, i8[::1], i8[::1], i1[::1])"
-)
-
-
-@kernel(_SECOND_SIG)
-def second_facets(order, left, right, start, count, node_centre, node_radius, centre, radius,
-                  elem_facet, rows, apex, axis, cos_a, sin_a, inside, f1, side1,
-                  normal, offset, two_sided, corners, c_start, c_count, tol,
-                  q0, out_a, out_f, out_s):  # fmt: skip
-    """The second facets of double reflections from each first facet, in one walk: the facets
-    whose sphere the beam from the first image through the first facet's sphere can reach with
-    some part on the transmitter's side of the first facet (:func:`raytrace.scene.spatial.
-    query_beams` on the tree's elements), then the exact necessary conditions that the numpy
-    passes of :func:`raytrace.solver.specular.second_order` applied to each such pair, in their
-    arithmetic: the first image on a reflecting side of the second facet
+@kernel("i1[::1](i8[::1], i8[::1], f8[:, ::1], f8[:, ::1], f8[::1], f8[::1], b1[::1], i8[::1], "
+        "f8[:, ::1], f8[::1], f8[:, ::1], f8[::1], b1[::1], f8[:, ::1], i8[::1], i8[::1], f8)")
+def second_facets(a_idx, f2, apex, axis, cos_a, sin_a, inside, f1, centre, radius, normal, offset,
+                  two_sided, corners, c_start, c_count, tol):  # fmt: skip
+    """The exact necessary conditions of a double reflection on (first facet, second facet)
+    pairs, in one pass, with the arithmetic of the numpy passes they replaced (a million pairs
+    per transmitter of a scanned hall went through five passes and their temporaries): the
+    first image on a reflecting side of the second facet
     (:func:`raytrace.solver.reflection.side_of`), the two facets facing each other
-    (:func:`raytrace.scene.accel.facing`) and the beam test of
-    :func:`raytrace.solver.reflection.cone_reaches`. A million hits per transmitter went
-    through five numpy passes and their temporaries; here a hit that fails costs its tests.
+    (:func:`raytrace.scene.accel.facing`) and the beam from the first image through the first
+    facet reaching the second facet's sphere (:func:`raytrace.solver.reflection.cone_reaches`).
 
-    Writes ``(row, second facet, side of the image)`` for the rows ``rows[q0:]`` in order, each
-    row's pairs in the tree's leaf order, until the buffers cannot hold a row's: returns ``(q,
-    m)``, the first row not answered (``len(rows)`` when all are) and the pairs written.
+    Pairs: row ``a_idx`` (P,) of the first facets' arrays (``apex`` = the first images, the
+    beam's ``axis`` (F, 3), ``cos_a``, ``sin_a``, ``inside`` (F,), the facet ``f1`` (F,)) and the
+    second facet ``f2`` (P,). Facets (K,): bounding spheres ``centre`` (K, 3), ``radius``;
+    planes; ``two_sided``; corners (V, 3) and each facet's run of them.
 
-    long kernel: the walk with the pair tests at its leaves (see
-    :func:`facet_wedge_pairs_tree` for why they are written out).
+    Returns (P,) int8: the side of the second facet the first image is on, 0 where a condition
+    fails.
     """
-    stack = np.empty(256, np.int64)
-    cap = len(out_a)
-    m = 0
-    for q in range(q0, len(rows)):
-        m_q = m
-        a = rows[q]
+    out = np.zeros(len(a_idx), np.int8)
+    for p in range(len(a_idx)):
+        a, fb = a_idx[p], f2[p]
         fa = f1[a]
         ix, iy, iz = apex[a, 0], apex[a, 1], apex[a, 2]
-        ux, uy, uz = axis[a, 0], axis[a, 1], axis[a, 2]
-        ca, sa, ins = cos_a[a], sin_a[a], inside[a]
-        nx, ny, nz, off, sd = normal[fa, 0], normal[fa, 1], normal[fa, 2], offset[fa], side1[a]
-        top = 0
-        stack[0] = 0
-        while top >= 0:
-            node = stack[top]
-            top -= 1
-            cx, cy, cz = node_centre[node, 0], node_centre[node, 1], node_centre[node, 2]
-            r = node_radius[node]
-            if not sphere_ahead(nx, ny, nz, off, sd, cx, cy, cz, r):
-                continue
-            if not sphere_in_beam(ix, iy, iz, ux, uy, uz, ca, sa, ins, cx, cy, cz, r):
-                continue
-            if left[node] >= 0:
-                top += 1
-                stack[top] = right[node]
-                top += 1
-                stack[top] = left[node]
-                continue
-            for k in range(start[node], start[node] + count[node]):
-                el = order[k]
-                ex, ey, ez, er = centre[el, 0], centre[el, 1], centre[el, 2], radius[el]
-                if not sphere_ahead(nx, ny, nz, off, sd, ex, ey, ez, er):
-                    continue
-                if not sphere_in_beam(ix, iy, iz, ux, uy, uz, ca, sa, ins, ex, ey, ez, er):
-                    continue
-                fb = elem_facet[el]
-                # side_of: the first image against the second facet's plane
-                s = ix * normal[fb, 0] + iy * normal[fb, 1] + iz * normal[fb, 2] - offset[fb]
-                si = 0
-                if s > tol:
-                    si = 1
-                elif s < -tol and two_sided[fb]:
-                    si = -1
-                if si == 0:
-                    continue
-                # facing: each has a corner strictly on a reflecting side of the other
-                if fa == fb or not facet_sees(corners, c_start[fa], c_count[fa], normal[fb, 0],
-                                              normal[fb, 1], normal[fb, 2], offset[fb],
-                                              two_sided[fb], tol):  # fmt: skip
-                    continue
-                if not facet_sees(corners, c_start[fb], c_count[fb], nx, ny, nz, off,
-                                  two_sided[fa], tol):  # fmt: skip
-                    continue
-                # cone_reaches (reflection.beam_reaches' arithmetic)
-                vx, vy, vz = ex - ix, ey - iy, ez - iz
-                dt = np.sqrt(vx * vx + vy * vy + vz * vz)
-                cos_ang = (ux * vx + uy * vy + uz * vz) / dt
-                sb = min(er / dt, 1.0)
-                if not (cos_ang >= ca * np.sqrt(1.0 - sb * sb) - sa * sb - 1e-7 or ins
-                        or dt <= er):  # fmt: skip
-                    continue
-                if m == cap:
-                    return q, m_q  # full: the caller takes this row again with new buffers
-                out_a[m], out_f[m], out_s[m] = a, fb, si
-                m += 1
-    return len(rows), m
+        # side_of: the first image against the second facet's plane
+        s = ix * normal[fb, 0] + iy * normal[fb, 1] + iz * normal[fb, 2] - offset[fb]
+        si = 0
+        if s > tol:
+            si = 1
+        elif s < -tol and two_sided[fb]:
+            si = -1
+        if si == 0:
+            continue
+        # facing: each has a corner strictly on a reflecting side of the other
+        if fa == fb or not facet_sees(corners, c_start[fa], c_count[fa], normal[fb, 0],
+                                      normal[fb, 1], normal[fb, 2], offset[fb], two_sided[fb],
+                                      tol):  # fmt: skip
+            continue
+        if not facet_sees(corners, c_start[fb], c_count[fb], normal[fa, 0], normal[fa, 1],
+                          normal[fa, 2], offset[fa], two_sided[fa], tol):  # fmt: skip
+            continue
+        # cone_reaches (reflection.beam_reaches' arithmetic)
+        ex, ey, ez, er = centre[fb, 0], centre[fb, 1], centre[fb, 2], radius[fb]
+        vx, vy, vz = ex - ix, ey - iy, ez - iz
+        dt = np.sqrt(vx * vx + vy * vy + vz * vz)
+        cos_ang = (axis[a, 0] * vx + axis[a, 1] * vy + axis[a, 2] * vz) / dt
+        sb = min(er / dt, 1.0)
+        if cos_ang >= cos_a[a] * np.sqrt(1.0 - sb * sb) - sin_a[a] * sb - 1e-7 or inside[a] \
+                or dt <= er:  # fmt: skip
+            out[p] = si
+    return out
 
 
 @kernel("Tuple((i8[::1], i8[::1], i8[::1]))(i1[:, ::1], i1[:, ::1], b1[::1], f8[:, ::1], "
