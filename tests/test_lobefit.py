@@ -13,6 +13,10 @@ from scipy.integrate import quad
 
 from positioning.model.lobefit import (
     FIT_PER_T,
+    _cross,
+    _pulse_and_slope,
+    _ridge,
+    _weighted_pulses,
     delay_error,
     fit_pulses,
     noise_correlation,
@@ -86,6 +90,33 @@ def test_two_pulses_are_recovered_exactly_without_noise(sep, ratio_db, phase_deg
     assert tau[0] == pytest.approx([0.0, sep], abs=tol_t)
     assert a[0] == pytest.approx(amp, abs=tol_a)
     assert e[0] < 1e-6
+
+
+def test_compiled_pulses_are_numpys_bit_for_bit():
+    """The fit's compiled inner loop is the numpy formula it replaced, bit for bit (outputs of the
+    receiver must not move): pulse and slope at random lags (zero, beyond the table, exact
+    table nodes included) times the weights; the symmetric cross products and the ridge are the
+    plain ones."""
+    rng = np.random.default_rng(11)
+    r, n, k, period = 37, 21, 2, 3.7e-9
+    t = np.sort(rng.uniform(-20, 20, (r, n)), axis=1) * period
+    tau = rng.uniform(-2, 2, (r, k)) * period
+    t[0, :k] = tau[0]  # lag exactly 0
+    t[1, 0] = tau[1, 0] + 40 * period  # beyond the table
+    t[2, 0] = tau[2, 0] + 3 * period / 2048  # on a table node
+    w = (rng.uniform(size=(r, n)) < 0.8).astype(float)
+    h, slope = _weighted_pulses(t, tau, w, 2048 / period, *TABLE)
+    h0, s0 = _pulse_and_slope(t[None, :, :] - tau.T[:, :, None], period, TABLE)
+    h0 *= w[None]
+    s0 *= w[None]
+    assert h.tobytes() == h0.tobytes() and slope.tobytes() == s0.tobytes()
+    g = np.einsum("krn,jrn->rkj", h, h)
+    assert np.array_equal(_cross(h, h, symmetric=True), g)
+    a = g.copy()
+    a[3, 0, 1] = a[3, 1, 0] = -0.0
+    eye = np.eye(k)[None]
+    plain = a + (1e-10 * np.maximum(np.abs(np.einsum("rkk->rk", a)).max(axis=1), 1e-300))[:, None, None] * eye
+    assert _ridge(a).tobytes() == plain.tobytes()
 
 
 def test_one_pulse_fit_and_masked_samples():

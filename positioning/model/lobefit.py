@@ -43,6 +43,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from functools import lru_cache
 
+import numba
 import numpy as np
 import scipy.signal
 
@@ -121,17 +122,54 @@ def _pulse_and_slope(lag: np.ndarray, period: float, table: tuple[np.ndarray, np
     return (u - i) * d + value[i], np.sign(lag) * d * (TABLE_PER_T / period)
 
 
+@numba.njit(cache=True, nogil=True, error_model="numpy", fastmath=False)
+def _weighted_pulses(t, tau, w, scale, value, step):  # pragma: no cover - compiled
+    """:func:`_pulse_and_slope` of ``t (R, N) - tau (R, K)`` times the weights ``w (R, N)``,
+    component-major ``(K, R, N)``, each element computed once in registers (the fit's inner
+    loop: in numpy eight array passes). numpy's arithmetic in its order, no ``fastmath`` (no
+    fused multiply-add): bit for bit :func:`_pulse_and_slope`'s (tests/test_lobefit.py)."""
+    r_n, n_n = t.shape
+    k_n = tau.shape[1]
+    top = float(value.size - 2)
+    h = np.empty((k_n, r_n, n_n))
+    slope = np.empty((k_n, r_n, n_n))
+    for k in range(k_n):
+        for r in range(r_n):
+            tk = tau[r, k]
+            for n in range(n_n):
+                lag = t[r, n] - tk
+                u = abs(lag) * scale
+                if u > top:
+                    u = top
+                if u != u:  # NaN delays: NaN out (numpy would fail on the index)
+                    h[k, r, n] = u
+                    slope[k, r, n] = u
+                    continue
+                i = int(u)
+                d = step[i]
+                sg = 1.0 if lag > 0.0 else (-1.0 if lag < 0.0 else 0.0)
+                h[k, r, n] = ((u - i) * d + value[i]) * w[r, n]
+                slope[k, r, n] = sg * d * scale * w[r, n]
+    return h, slope
+
+
 def _ridge(a: np.ndarray) -> np.ndarray:
     """``a (R, K, K)`` plus :data:`_RIDGE` times its largest diagonal element (keeps two
     components that meet on one delay solvable)."""
-    diag = np.abs(np.einsum("rkk->rk", a)).max(axis=1, initial=0.0)
-    return a + (_RIDGE * np.maximum(diag, 1e-300))[:, None, None] * np.eye(a.shape[-1])[None]
+    k = a.shape[-1]
+    diag = a[:, np.arange(k), np.arange(k)]
+    ridge = _RIDGE * np.maximum(np.abs(diag).max(axis=1, initial=0.0), 1e-300)
+    out = a + 0.0  # a + ridge * I: off the diagonal + 0.0 (a -0.0 becomes +0.0, as there)
+    out[:, np.arange(k), np.arange(k)] = diag + ridge[:, None]
+    return out
 
 
-def _solve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+def _solve(a: np.ndarray, b: np.ndarray, ridged: bool = False) -> np.ndarray:
     """Batched ``a x = b`` (``a (R, K, K)`` real symmetric, ``b (R, K)`` real or complex) with
-    the ridge; K <= 2 in closed form (the common case, much faster than a batched LAPACK call)."""
-    a = _ridge(a)
+    the ridge (``ridged``: ``a`` has it already, :func:`_ridge`); K <= 2 in closed form (the
+    common case, much faster than a batched LAPACK call)."""
+    if not ridged:
+        a = _ridge(a)
     if a.shape[-1] == 1:
         return b / a[:, :, 0]
     if a.shape[-1] == 2:
@@ -143,8 +181,23 @@ def _solve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def _solve_matrix(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Batched ``a x = b`` for a matrix ``b (R, K, J)`` (column by column, :func:`_solve`)."""
-    return np.stack([_solve(a, b[:, :, j]) for j in range(b.shape[2])], axis=2)
+    """Batched ``a x = b`` for a matrix ``b (R, K, J)`` (column by column, :func:`_solve`; ``a``
+    with its ridge already)."""
+    return np.stack([_solve(a, b[:, :, j], ridged=True) for j in range(b.shape[2])], axis=2)
+
+
+def _cross(x: np.ndarray, y: np.ndarray, symmetric: bool = False) -> np.ndarray:
+    """``[r, i, j] = x_i[r] . y_j[r]`` of component-major ``(K, R, N)`` arrays, each sum along the
+    contiguous last axis (``symmetric``: ``x`` is ``y``, the lower triangle mirrored: a product
+    and its mirror are the same numbers summed in the same order)."""
+    k = x.shape[0]
+    g = np.empty((x.shape[1], k, k))
+    for i in range(k):
+        for j in range(i if symmetric else 0, k):
+            g[:, i, j] = np.einsum("rn,rn->r", x[i], y[j])
+            if symmetric:
+                g[:, j, i] = g[:, i, j]
+    return g
 
 
 def fit_pulses(
@@ -174,23 +227,16 @@ def fit_pulses(
     """
     w = valid.astype(float)
     sr, si = s.real * w, s.imag * w
-    k = tau.shape[1]
-
-    def cross(x, y):  # (K, R, N) x (K, R, N) -> (R, K, K), sums along the contiguous last axis
-        g = np.empty((x.shape[1], k, k))
-        for i in range(k):
-            for j in range(k):
-                g[:, i, j] = np.einsum("rn,rn->r", x[i], y[j])
-        return g
-
+    t = np.ascontiguousarray(t, dtype=float)
+    value, slope_table = table
+    scale = TABLE_PER_T / period
     for it in range(rounds + 1):
         # component-major (K, R, N): every product and sum runs over contiguous rows
-        h, slope = _pulse_and_slope(t[None, :, :] - tau.T[:, :, None], period, table)
-        h *= w[None]
-        hh = cross(h, h)
+        h, slope = _weighted_pulses(t, tau, w, scale, value, slope_table)
+        hh = _ridge(_cross(h, h, symmetric=True))
         br = np.einsum("krn,rn->rk", h, sr)
         bi = np.einsum("krn,rn->rk", h, si)
-        amp = _solve(hh, br + 1j * bi)
+        amp = _solve(hh, br + 1j * bi, ridged=True)
         er = sr - np.einsum("krn,rk->rn", h, amp.real)
         ei = si - np.einsum("krn,rk->rn", h, amp.imag)
         if it == rounds:
@@ -199,9 +245,8 @@ def fit_pulses(
         # Kaufman's step): J_k = -a_k s'_k, s'_k the slope less its projection on the pulses,
         # J^H J = Re(conj(a_k) a_j) s'_k . s'_j, J^H e = -Re(conj(a_k) s_k . e) (e is orthogonal
         # to the pulses already)
-        slope *= w[None]
-        hs = cross(h, slope)  # [r, j, k] = h_j . s_k
-        ss = cross(slope, slope) - np.swapaxes(hs, 1, 2) @ _solve_matrix(hh, hs)
+        hs = _cross(h, slope)  # [r, j, k] = h_j . s_k
+        ss = _cross(slope, slope, symmetric=True) - np.swapaxes(hs, 1, 2) @ _solve_matrix(hh, hs)
         jj = ss * np.real(np.conj(amp)[:, :, None] * amp[:, None, :])
         je = -(amp.real * np.einsum("krn,rn->rk", slope, er)
                + amp.imag * np.einsum("krn,rn->rk", slope, ei))  # fmt: skip
