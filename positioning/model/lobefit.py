@@ -220,6 +220,142 @@ def _cross(x: np.ndarray, y: np.ndarray, symmetric: bool = False) -> np.ndarray:
     return g
 
 
+_JIT = dict(cache=True, nogil=True, error_model="numpy", fastmath=False)
+
+
+@numba.njit(inline="always", **_JIT)
+def _solve_small(a, b, x):  # pragma: no cover - compiled
+    """``a x = b`` for a small ``a (K, K)`` (Gaussian elimination with partial pivoting; ``a``
+    and ``b`` are overwritten)."""
+    k_n = b.size
+    for c in range(k_n):
+        p = c
+        for i in range(c + 1, k_n):
+            if abs(a[i, c]) > abs(a[p, c]):
+                p = i
+        if p != c:
+            for j in range(k_n):
+                a[c, j], a[p, j] = a[p, j], a[c, j]
+            b[c], b[p] = b[p], b[c]
+        for i in range(c + 1, k_n):
+            f = a[i, c] / a[c, c]
+            for j in range(c, k_n):
+                a[i, j] -= f * a[c, j]
+            b[i] -= f * b[c]
+    for c in range(k_n - 1, -1, -1):
+        acc = b[c]
+        for j in range(c + 1, k_n):
+            acc -= a[c, j] * x[j]
+        x[c] = acc / a[c, c]
+
+
+@numba.njit(inline="always", **_JIT)
+def _add_ridge(a, ridge):  # pragma: no cover - compiled
+    """:func:`_ridge` of one matrix, in place."""
+    top = 0.0
+    for i in range(a.shape[0]):
+        top = max(top, abs(a[i, i]))
+    add = ridge * max(top, 1e-300)
+    for i in range(a.shape[0]):
+        a[i, i] += add
+
+
+@numba.njit(**_JIT)
+def _fit_kernel(sr, si, t, w, tau0, rounds, period, scale, value, step, step_max, ridge):  # pragma: no cover - compiled
+    """:func:`fit_pulses`, row by row in registers (long kernel: one Gauss-Newton round is one
+    pass over the row's samples per sum, and splitting it would allocate per round).
+
+    ``sr, si, t, w (R, N)``: the weighted samples' real and imaginary parts, times, weights;
+    ``tau0 (R, K)`` starting delays. Returns ``tau (R, K)``, ``amp_re, amp_im (R, K)``,
+    ``energy (R,)``."""
+    r_n, n_n = t.shape
+    k_n = tau0.shape[1]
+    tau = tau0.copy()
+    a_re, a_im, energy = np.empty((r_n, k_n)), np.empty((r_n, k_n)), np.empty(r_n)
+    h, sl = np.empty((k_n, n_n)), np.empty((k_n, n_n))
+    er, ei = np.empty(n_n), np.empty(n_n)
+    hh, m, hs, x = np.empty((k_n, k_n)), np.empty((k_n, k_n)), np.empty((k_n, k_n)), np.empty(k_n)
+    proj, jj = np.empty((k_n, k_n)), np.empty((k_n, k_n))
+    b, je, ar, ai = np.empty(k_n), np.empty(k_n), np.empty(k_n), np.empty(k_n)
+    top = float(value.size - 2)
+    for r in range(r_n):
+        for it in range(rounds + 1):
+            for k in range(k_n):
+                for n in range(n_n):
+                    lag = t[r, n] - tau[r, k]
+                    u = min(abs(lag) * scale, top)
+                    if u != u:
+                        h[k, n] = u
+                        sl[k, n] = u
+                        continue
+                    i = int(u)
+                    d = step[i]
+                    sg = 1.0 if lag > 0.0 else (-1.0 if lag < 0.0 else 0.0)
+                    h[k, n] = ((u - i) * d + value[i]) * w[r, n]
+                    sl[k, n] = sg * d * scale * w[r, n]
+            for i in range(k_n):
+                for j in range(k_n):
+                    acc = 0.0
+                    for n in range(n_n):
+                        acc += h[i, n] * h[j, n]
+                    hh[i, j] = acc
+            _add_ridge(hh, ridge)
+            for part in range(2):  # the amplitudes: real, then imaginary part
+                src = sr if part == 0 else si
+                for i in range(k_n):
+                    acc = 0.0
+                    for n in range(n_n):
+                        acc += h[i, n] * src[r, n]
+                    b[i] = acc
+                m[:, :] = hh
+                _solve_small(m, b, ar if part == 0 else ai)
+            for n in range(n_n):
+                vr, vi = sr[r, n], si[r, n]
+                for k in range(k_n):
+                    vr -= h[k, n] * ar[k]
+                    vi -= h[k, n] * ai[k]
+                er[n], ei[n] = vr, vi
+            if it == rounds:
+                break
+            # Gauss-Newton with the amplitudes projected out (fit_pulses): s'_k less its
+            # projection on the pulses, J^H J and J^H e
+            for j in range(k_n):
+                for k in range(k_n):
+                    acc = 0.0
+                    for n in range(n_n):
+                        acc += h[j, n] * sl[k, n]
+                    hs[j, k] = acc
+            for k in range(k_n):  # proj[:, k] = hh^-1 hs[:, k]
+                m[:, :] = hh
+                b[:] = hs[:, k]
+                _solve_small(m, b, x)
+                proj[:, k] = x
+            for i in range(k_n):
+                for j in range(k_n):
+                    acc = 0.0
+                    for n in range(n_n):
+                        acc += sl[i, n] * sl[j, n]
+                    for q in range(k_n):
+                        acc -= hs[q, i] * proj[q, j]
+                    jj[i, j] = acc * (ar[i] * ar[j] + ai[i] * ai[j])
+                sre, sie = 0.0, 0.0
+                for n in range(n_n):
+                    sre += sl[i, n] * er[n]
+                    sie += sl[i, n] * ei[n]
+                je[i] = -(ar[i] * sre + ai[i] * sie)
+            _add_ridge(jj, ridge)
+            _solve_small(jj, je, x)
+            for k in range(k_n):
+                tau[r, k] += min(max(x[k], -step_max), step_max)
+        acc = 0.0
+        for n in range(n_n):
+            acc += er[n] * er[n] + ei[n] * ei[n]
+        energy[r] = acc
+        a_re[r, :] = ar
+        a_im[r, :] = ai
+    return tau, a_re, a_im, energy
+
+
 def fit_pulses(
     s: np.ndarray,
     t: np.ndarray,
@@ -229,7 +365,44 @@ def fit_pulses(
     table: tuple[np.ndarray, np.ndarray],
     rounds: int = ROUNDS,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Least-squares fit of ``K`` pulses to each row: ``s ~ sum_k a_k T h(t - tau_k)``.
+    """Least-squares fit of ``K`` pulses to each row: ``s ~ sum_k a_k T h(t - tau_k)``, compiled
+    row by row (:func:`_fit_kernel`; :func:`fit_pulses_numpy` is the same fit in array passes).
+
+    Parameters
+    ----------
+    s : (R, N) complex, 1/s, the samples; t : (R, N) float, s, their times
+    valid : (R, N) bool, samples that count
+    tau : (R, K) float, s, starting delays
+    period : float, s, T; table : :func:`positioning.model.pulse.pulse_table`
+    rounds : int, Gauss-Newton rounds on the delays (each step clipped to :data:`STEP_T`
+        periods), the amplitudes solved jointly by least squares at every round
+
+    Returns
+    -------
+    tau : (R, K) float, s; amp : (R, K) complex, 1/s (the pulses' peak values); energy : (R,)
+    float, ``sum |s - model|^2`` over the valid samples
+    """
+    w = valid.astype(float)
+    tk, a_re, a_im, energy = _fit_kernel(
+        np.ascontiguousarray(s.real * w), np.ascontiguousarray(s.imag * w),
+        np.ascontiguousarray(t, dtype=float), w, np.ascontiguousarray(tau, dtype=float),
+        int(rounds), float(period), TABLE_PER_T / period, table[0], table[1],
+        STEP_T * period, _RIDGE)  # fmt: skip
+    return tk, a_re + 1j * a_im, energy
+
+
+def fit_pulses_numpy(
+    s: np.ndarray,
+    t: np.ndarray,
+    valid: np.ndarray,
+    tau: np.ndarray,
+    period: float,
+    table: tuple[np.ndarray, np.ndarray],
+    rounds: int = ROUNDS,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`fit_pulses` in numpy array passes (the reference its compiled kernel is tested
+    against; the same arithmetic but the order of the sums): least-squares fit of ``K`` pulses
+    to each row, ``s ~ sum_k a_k T h(t - tau_k)``.
 
     Parameters
     ----------
