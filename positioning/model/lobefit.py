@@ -10,7 +10,8 @@ knows the pulse sees that such a lobe is not one pulse: the one-pulse fit leaves
 above the noise.
 
 Used by the tracer's ``search-back`` receiver (:mod:`raytrace.emulation.receivers.search_back`);
-pure numpy beside the pulse, vectorised over rows (one row per link):
+numpy beside the pulse, vectorised over rows (one row per link), the pulse fit compiled row by row
+(numba, no fastmath; :func:`fit_pulses_numpy` is its numpy reference):
 
 1. :func:`fit_pulses`: joint least-squares complex amplitudes and Gauss-Newton delays of ``K``
    pulses (eq. 2) on samples of a row (variable projection);
