@@ -394,3 +394,18 @@ def test_unresolvable_clusters_are_not_reported_early(band, rel):
     link, delay, gain, d0 = cluster(200, rel, 60.0, band, seed=3)
     est = run("search-back", link, delay, gain, 200, band, noise=True, seed=5)
     assert np.mean(est.toa_s < d0 - QUARTER_T * T) <= 0.03
+
+
+@pytest.mark.parametrize("band", [C_BAND, MMWAVE])
+def test_sidelobe_of_a_merged_peak_is_not_reported_early(band):
+    """A pair in anti-phase 0.24 T apart (-1.5 dB) and a -10 dB path 0.49 T after the first at a
+    random phase, 40 and 60 dB, 200 links in noise: the merged peak's sidelobe ~1.7 T before the
+    first path crosses the first lobe's threshold on many links, beyond the lobe's own fit; the
+    fit with the peak (lobefit step 4) takes it back to the pair. At most 5 % of links more than
+    T/4 early (measured 1-2.5 %; with the lobe's fit alone 34-43 %)."""
+    T = PULSE.period_s(band)
+    for post_db in (40.0, 60.0):
+        link, delay, gain, d0 = cluster(200, [(0.24, -1.5, "anti"), (0.49, -10.0, "rand")], post_db,
+                                        band, seed=3)  # fmt: skip
+        est = run("search-back", link, delay, gain, 200, band, noise=True, seed=5)
+        assert np.mean(est.toa_s < d0 - QUARTER_T * T) <= 0.05, post_db

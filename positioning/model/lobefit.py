@@ -46,6 +46,12 @@ numpy beside the pulse, vectorised over rows (one row per link), the pulse fit c
    early margin (:data:`LEAD_MIN_T`) after the lobe top, the lobe top is not a path (paths
    merged in anti-phase top before them all) and the first component is the ToA. The rule only
    ever moves a ToA later: an earlier component is reported only where step 2 accepts it.
+4. A lobe :data:`REACH_T` to :data:`REACH_FAR_T` periods before the strongest peak may be that
+   peak's sidelobe (a peak of paths merged in anti-phase has higher sidelobes than one pulse,
+   and they can cross the first lobe's threshold). Where steps 2-3 on the lobe alone did not
+   accept an earlier component, steps 2-3 run again on the lobe with the peak, and their result
+   replaces the ToA only where it is later. (Fitting every lobe with a peak 3 T later instead
+   lets a strong, separate later path take the fit's pair: C-band P10-BS1 of the bundled hall.)
 """
 
 from __future__ import annotations
@@ -65,6 +71,8 @@ LEAD_T = 1.25
 TAIL_T = 1.75
 #: ... where the strongest peak is at most this many periods after the lobe top, ...
 REACH_T = 2.0
+#: ... or up to this many, in a second fit that may only move the ToA later (module docstring).
+REACH_FAR_T = 3.0
 #: ... this many per period (the profile's band is 1 / (1.25 T) wide: 3.2 samples per 1/B).
 FIT_PER_T = 4
 #: Cancelled lobes more than this many periods outside the fit's samples are removed before
@@ -489,8 +497,8 @@ class LobeFit:
     delay_se : (M, 2) float, s, their standard errors (:func:`delay_error`)
     applied : bool, a fitted component replaced the lobe top (the two-pulse fit's earlier one,
         or ``moved``)
-    moved : bool, the lobe top was not consistent with the best fit, whose first component
-        replaced it (module docstring)
+    moved : bool, a later fitted component replaced the lobe top: the best fit's first one, the
+        lobe top not consistent with it (step 3), or the fit with a farther peak's (step 4)
     order : int, pulses of the best fit (1: one pulse explained the lobe; 2; 3)
     """
 
@@ -503,11 +511,12 @@ class LobeFit:
     order: np.ndarray
 
 
-def _fit_region(sig, n_samples, t0, dt, period, oversampling, table, toa, until, comp_tau, comp_amp):
+def _fit_region(sig, n_samples, t0, dt, period, oversampling, table, toa, until, comp_tau, comp_amp,
+                reach_t=REACH_T):
     """Samples of the fit (decimated, the cancelled lobes outside the region removed): ``s, t,
     valid`` (M, N) and the region's core end ``hi`` (M,)."""
     m, w = sig.shape
-    hi = np.where(np.isfinite(until) & (until > toa) & (until - toa <= REACH_T * period), until, toa)
+    hi = np.where(np.isfinite(until) & (until > toa) & (until - toa <= reach_t * period), until, toa)
     step = max(1, oversampling // FIT_PER_T)
     span = (hi - toa) + (LEAD_T + TAIL_T) * period
     n_fit = int(np.ceil(np.max(span) / (step * dt))) + 1
@@ -644,7 +653,8 @@ def refine_lobe(
 ) -> tuple[np.ndarray, np.ndarray, LobeFit]:
     """The earlier of two pulses fitted to the lobe at ``toa``, where the lobe is not one pulse
     and the fit determines it; else the first component of the best fit where the lobe top is
-    inconsistent with it (module docstring, steps 2-3).
+    inconsistent with it; a later result of the fit with a peak up to :data:`REACH_FAR_T` later
+    (module docstring, steps 2-4).
 
     Parameters
     ----------
@@ -667,6 +677,31 @@ def refine_lobe(
     input; peak : (M,) float, 1/s, that component's amplitude (a moved lobe top: the fitted
     profile's magnitude there; NaN where unchanged); LobeFit
     """
+    until = np.asarray(until, dtype=float)
+    args = (dt, period, oversampling, table)
+    out, peak, fit = _refine(sig, n_samples, t0, *args, toa, until, comp_tau, comp_amp, gamma, sigma2,
+                             alpha, rho, kappa_n, REACH_T)  # fmt: skip
+    # a lobe up to REACH_FAR_T before the strongest peak may be that peak's sidelobe (a peak of
+    # paths merged in anti-phase has higher sidelobes than one pulse): where the lobe alone gave
+    # nothing, its top is tested against the fit of the lobe with the peak (step 3 only)
+    lead = until - np.asarray(toa, dtype=float)
+    far = np.flatnonzero((~fit.applied | fit.moved) & (lead > REACH_T * period)
+                         & (lead <= REACH_FAR_T * period))  # fmt: skip
+    if far.size:
+        o2, p2, f2 = _refine(sig[far], n_samples[far], t0[far], *args, np.asarray(toa, float)[far],
+                             until[far], comp_tau[far], comp_amp[far], gamma[far], sigma2[far],
+                             alpha, rho, kappa_n, REACH_FAR_T)  # fmt: skip
+        later = f2.applied & (o2 > out[far])
+        r = far[later]
+        out[r], peak[r] = o2[later], p2[later]
+        fit.applied[r] = fit.moved[r] = True
+        fit.order[r] = f2.order[later]
+    return out, peak, fit
+
+
+def _refine(sig, n_samples, t0, dt, period, oversampling, table, toa, until, comp_tau, comp_amp,
+            gamma, sigma2, alpha, rho, kappa_n, reach_t):
+    """:func:`refine_lobe` with the fit's reach ``reach_t`` (periods)."""
     m = sig.shape[0]
     toa = np.asarray(toa, dtype=float)
     out, peak = toa.copy(), np.full(m, np.nan)
@@ -676,7 +711,7 @@ def refine_lobe(
     order = np.ones(m, dtype=np.int64)
     if m:
         s, t, valid, hi = _fit_region(sig, n_samples, t0, dt, period, oversampling, table, toa,
-                                      np.asarray(until, float), comp_tau, comp_amp)  # fmt: skip
+                                      np.asarray(until, float), comp_tau, comp_amp, reach_t)  # fmt: skip
         tau1, _, e1 = fit_pulses(s, t, valid, toa[:, None].copy(), period, table)
         one = _explained(e1, valid, 1, sigma2, alpha, kappa_n)
         r = np.flatnonzero(~one)
