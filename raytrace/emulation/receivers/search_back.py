@@ -23,7 +23,9 @@ evaluated in windows, as the first-lobe receiver is (:mod:`.first_lobe`).
 4. (``two_pulse``) the reported lobe is fitted with one pulse and, where that leaves more than
    noise, with two (:func:`positioning.model.lobefit.refine_lobe`): where the fit determines
    them, the earlier of the two is the ToA (two paths merged in anti-phase top before the
-   first; in phase, between the two).
+   first; in phase, between the two); where it does not, a lobe top that the best fit of up to
+   three pulses places well before all its components (more than three standard errors and a
+   quarter period) gives way to that fit's first component.
 
 A weak first path 20-30 dB under the strongest, a few periods before it, is found; the strongest
 path's sidelobes (predicted by the pulse, not by a fixed -12 dB) and noise (CFAR) are not taken
