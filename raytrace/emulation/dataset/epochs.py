@@ -156,7 +156,9 @@ def measure_group(
         for chunk in _chunks(n, 10):
             collect(_run_epochs(g, chunk), len(chunk))
     else:
-        size = max(1, min(25, n // (4 * workers)))
+        # chunks of at most 10 epochs (~5 s of a semi-dynamic worker): the last chunk, which
+        # one worker finishes while the other idles, is short
+        size = max(1, min(10, n // (4 * workers)))
         chunks = _chunks(n, size)
         from ...solver.parallel import process_context, resolve_workers
 
