@@ -276,6 +276,34 @@ def test_first_lobe_datasets_identical_whatever_the_workers(tmp_path):
         assert b",LoS," in a  # the small scene has line-of-sight links
 
 
+def test_static_epochs_on_workers_equal_this_process(tmp_path, monkeypatch):
+    """A static group with a costly receiver (search-back) is measured on worker processes from
+    STATIC_POOL_EPOCHS epochs on, each worker preparing the paths itself: the files are those of
+    the epochs measured in this process, byte for byte."""
+    from raytrace.emulation.dataset import epochs
+
+    kw = dict(scene=_scene(), duration_s=2.0, rate_hz=5.0, seed=5,
+              toa_method=["search-back", "paper"])  # fmt: skip
+    pairs = [("static", "c-band"), ("static", "mmwave")]
+    make_datasets(tmp_path / "here", pairs, workers=1, **kw)
+    monkeypatch.setattr(epochs, "STATIC_POOL_EPOCHS", 2)
+    pooled = []
+    real = epochs.ProcessPoolExecutor
+
+    def spy(*args, **kwargs):
+        pooled.append(kwargs["max_workers"])
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(epochs, "ProcessPoolExecutor", spy)
+    make_datasets(tmp_path / "pool", pairs, workers=2, **kw)
+    assert pooled == [2]  # the static group went to two workers
+    subs = ["static-c-band", "static-c-band-paper", "static-mmwave", "static-mmwave-paper"]
+    for sub in subs:
+        for name in ("toa.csv", "meta.json"):
+            a = (tmp_path / "here" / sub / name).read_bytes()
+            assert a == (tmp_path / "pool" / sub / name).read_bytes(), (sub, name)
+
+
 def test_several_receivers_from_one_trace_equal_separate_runs(tmp_path):
     """Receivers written together share the traces; each dataset is byte-identical to the one a
     run with that receiver alone writes."""

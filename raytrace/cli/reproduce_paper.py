@@ -109,6 +109,10 @@ def _main(args: argparse.Namespace) -> int:
         raise HallrayError(f"--workers must be at least 1, got {args.workers}")
     if not (math.isfinite(args.map_step) and args.map_step >= 0):
         raise HallrayError(f"--map-step must be a number of metres >= 0, got {args.map_step!r}")
+    from ..scene.io import load_scene
+
+    # the scene is read and built once, for the grid check, the datasets and the maps
+    args.scene_obj = load_scene(args.scene)
     if args.map_step > 0:  # a grid step it refuses is refused before any work
         _check_map_grid(args, receiver)
     out = Path(args.output)
@@ -129,14 +133,13 @@ def _main(args: argparse.Namespace) -> int:
 def _check_map_grid(args: argparse.Namespace, receiver: str) -> None:
     """The maps' settings and grid size (cells, the size limits), before any dataset is built:
     a ``--map-step`` the maps would refuse is refused in seconds, not after the datasets."""
-    from ..scene.io import load_scene
     from ..scene.metadata import SceneMetadata
     from ..studies.accuracy_map.grid import make_grid
     from ..studies.accuracy_map.settings import MapSettings
 
     settings = MapSettings(step_m=args.map_step, receiver=receiver, draws=MAP_DRAWS)
     settings.check()
-    scene = load_scene(args.scene)
+    scene = args.scene_obj
     sites = SceneMetadata.from_scene(scene)
     grid = make_grid(scene, settings, sites.point_names, sites.point_xyz)
     settings.check_grid(len(grid.cell_xyz), len(sites.bs_xyz))
@@ -160,7 +163,7 @@ def _build(
     summaries = make_datasets(
         tmp / "datasets",
         PAIRS,
-        scene=args.scene,
+        scene=args.scene_obj,
         duration_s=args.duration,
         rate_hz=args.rate,
         seed=args.seed,
@@ -240,12 +243,11 @@ def _reports_side_by_side(receivers: Sequence[str], argvs: Sequence[list[str]], 
 
 def _build_maps(args: argparse.Namespace, receiver: str, folder: Path) -> list[dict[str, Any]]:
     """The static scene's fingerprint map per band (``accuracy-map``), timed and sized."""
-    from ..scene.io import load_scene
     from ..studies.accuracy_map.compute import compute_map
     from ..studies.accuracy_map.files import write_outputs
     from ..studies.accuracy_map.settings import MapSettings
 
-    scene = load_scene(args.scene)
+    scene = args.scene_obj
     out = []
     for band in ("c-band", "mmwave"):
         t0 = time.perf_counter()

@@ -25,6 +25,13 @@ from .config import DatasetConfig
 
 #: the group of this worker process (set by its initializer, :func:`_init_worker`)
 _WORKER: dict[str, Any] = {}
+#: Receivers whose static epochs cost milliseconds (one noise draw on prepared paths): a static
+#: group of these alone is measured in this process, whatever the workers.
+CHEAP_STATIC = ("first-path", "first-lobe", "paper")
+#: Fewest epochs for which a static group with a costlier receiver (search-back: ~40 ms per
+#: epoch and band) is measured on worker processes: below it the pool's start-up (~1 s) and each
+#: worker's own prepare outweigh the second core.
+STATIC_POOL_EPOCHS = 100
 
 
 @dataclass
@@ -145,14 +152,13 @@ def measure_group(
         if progress is not None:
             progress(n_done)
 
-    # static epochs with these receivers cost milliseconds: no processes
-    fast = ("first-path", "first-lobe", "paper", "first-lobe-cfr", "search-back")
-    cheap = g.static and all(m.receiver.method in fast for m in g.models)
-    if workers <= 1 or cheap or n < 2:
+    if workers <= 1 or n < 2 or _static_in_process(g, n):
         for chunk in _chunks(n, 10):
             collect(_run_epochs(g, chunk), len(chunk))
     else:
-        size = max(1, min(25, n // (4 * workers)))
+        # chunks of at most 10 epochs (~5 s of a semi-dynamic worker): the last chunk, which
+        # one worker finishes while the other idles, is short
+        size = max(1, min(10, n // (4 * workers)))
         chunks = _chunks(n, size)
         from ...solver.parallel import process_context, resolve_workers
 
@@ -170,6 +176,15 @@ def measure_group(
             for chunk, res in zip(chunks, pool.map(_run_chunk, chunks)):
                 collect(res, len(chunk))
     return ([] if sink is not None else [Measurements.concatenate(p) for p in parts]), stats
+
+
+def _static_in_process(g: ScenarioGroup, n: int) -> bool:
+    """Whether a static group is measured in this process: its receivers are all cheap, or its
+    epochs too few to pay for worker processes (each worker prepares the paths once itself; the
+    files do not depend on where the epochs are measured: each draws from its own streams)."""
+    if not g.static:
+        return False
+    return n < STATIC_POOL_EPOCHS or all(m.receiver.method in CHEAP_STATIC for m in g.models)
 
 
 def scenario_group(
