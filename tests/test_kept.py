@@ -1,10 +1,13 @@
-"""raytrace.core.kept: a bounded first-in-first-out store shared by threads."""
+"""raytrace.core.kept: a first-in-first-out store shared by threads, bounded in entries and
+bytes."""
 
 from __future__ import annotations
 
 import threading
 
-from raytrace.core.kept import keep
+import numpy as np
+
+from raytrace.core.kept import keep, nbytes
 
 
 def test_oldest_entries_go_first_and_a_key_is_kept_once():
@@ -37,3 +40,23 @@ def test_threads_keeping_into_one_store_never_fail_nor_overfill():
         t.join()
     assert not errors
     assert len(store) <= 16
+
+
+def test_nbytes_counts_arrays_once_through_views_and_nesting():
+    a = np.zeros(100)  # 800 bytes
+    b = np.zeros((10, 3), np.int8)  # 30 bytes
+    assert nbytes(a) == 800
+    assert nbytes((a, a[:10], a.reshape(10, 10).T, [b, {"x": b[1:]}], 7, "s")) == 830
+
+
+def test_a_byte_bound_drops_the_oldest_and_refuses_what_cannot_fit():
+    store: dict = {}
+    mb = lambda: np.zeros(1 << 17)  # noqa: E731 (1 MiB)
+    for i in range(3):
+        keep(store, i, (mb(),), limit=16, max_bytes=(5 << 20) // 2)  # 2.5 MiB
+    assert list(store) == [1, 2]  # two fit: the oldest went
+    big = (mb(), mb(), mb())
+    assert keep(store, "big", big, limit=16, max_bytes=(5 << 20) // 2) is big
+    assert "big" not in store and list(store) == [1, 2]  # too large alone: not kept, none dropped
+    keep(store, 1, (np.zeros(8),), limit=16, max_bytes=1 << 20)
+    assert list(store) == [1]  # re-kept under a tighter bound: the old entry made room

@@ -86,7 +86,9 @@ def _numpy_second_facets(fc, f1, b1, side1, mask):
 
 
 @pytest.mark.parametrize("restricted", [False, True])
-def test_second_facets_are_the_numpy_passes(restricted):
+@pytest.mark.parametrize("block", [1 << 15, 7])
+def test_second_facets_are_the_numpy_passes(monkeypatch, restricted, block):
+    monkeypatch.setattr(specular, "SECOND_FACETS_BLOCK", block)  # 7: the first facets in blocks
     base = _machines(4)
     extra = make_scene([("cart", box((4, 5, 0.05), (6, 6, 1.5)), "metal")])
     scene = extend_scene(base, extra)  # two trees: the static scene's and the cart's
@@ -106,5 +108,6 @@ def test_second_facets_are_the_numpy_passes(restricted):
     got = specular._second_facets(fc, f1, b1, side_t[f1], mask)
     key = lambda r: np.lexsort((r[1], r[0]))  # noqa: E731
     assert len(want[0]) > 500 and (want[1] >= len(base.facets)).any()
+    assert block > len(f1) or len(f1) > 10 * block
     for g, w in zip(got, want):
         np.testing.assert_array_equal(g[key(got)], w[key(want)])

@@ -142,6 +142,10 @@ def second_order(ctx: TraceContext) -> list[Paths]:
 #: Transmitters whose second images :func:`second_order` keeps per scene: a grid is traced in
 #: chunks of receivers against the same few transmitters, and these do not depend on them.
 SECOND_IMAGES_KEPT = 16
+#: ... and at most this many bytes of them, the oldest dropped first (a transmitter's take
+#: about 1.8 kB per facet of a scanned hall, 0.44 GB at 247 040 triangles: a million-triangle
+#: hall's are made again per trace rather than held between traces).
+SECOND_IMAGES_KEPT_BYTES = 1 << 30
 
 
 def _second_images(ctx: TraceContext, t: int, in_shadow: np.ndarray) -> tuple[np.ndarray, ...]:
@@ -210,7 +214,8 @@ def _second_images(ctx: TraceContext, t: int, in_shadow: np.ndarray) -> tuple[np
     found = tuple(x.view() for x in (side_t, img1, a, f1a, f2, img2, s_img))
     for x in found:
         x.setflags(write=False)
-    return keep(kept, key, (*found, receiver_args, exact_args), SECOND_IMAGES_KEPT)
+    return keep(kept, key, (*found, receiver_args, exact_args), SECOND_IMAGES_KEPT,
+                SECOND_IMAGES_KEPT_BYTES)
 
 
 def _second_facets(fc, f1: np.ndarray, b1: refl.Beam, side1: np.ndarray,
@@ -219,20 +224,39 @@ def _second_facets(fc, f1: np.ndarray, b1: refl.Beam, side1: np.ndarray,
     exchange a reflection from the first images ``b1.apex`` (:func:`_second_images`): the beam
     queries of :func:`raytrace.scene.accel.beam_facets` (with ``mask`` (K,) bool, a trace of
     some objects only: the pairs with a chosen facet), then their exact necessary conditions in
-    one compiled pass (:func:`raytrace.solver.kernels.second_facets`)."""
-    a, f2 = accel.beam_facets(fc, b1, fc.normal[f1], fc.offset[f1], side1, mask,
-                              None if mask is None else mask[f1])  # fmt: skip
+    one compiled pass (:func:`raytrace.solver.kernels.second_facets`). The first facets go in
+    blocks of :data:`SECOND_FACETS_BLOCK`: a transmitter of a million-triangle hall has tens of
+    millions of queried pairs, of which the conditions keep a few per cent, and the query's
+    arrays of all of them at once were gigabytes. The pairs are the same (the caller sorts
+    them)."""
     c = carray
     centre, radius = accel.facet_spheres(fc)
     starts = c(3 * (np.cumsum(fc.tri_count) - fc.tri_count), np.int64)
-    s_img = kernels.second_facets(
-        c(a, np.int64), c(f2, np.int64), c(b1.apex), c(b1.axis), c(b1.cos_a), c(b1.sin_a),
-        c(b1.apex_inside, bool), c(f1, np.int64), c(centre), c(radius), c(fc.normal),
-        c(fc.offset), c(fc.two_sided, bool), c(fc.triangles.reshape(-1, 3)), starts,
-        c(3 * fc.tri_count, np.int64), accel.PLANE_TOL_M,
-    )  # fmt: skip
-    ok = s_img != 0
-    return a[ok], f2[ok], s_img[ok]
+    facet_args = (c(centre), c(radius), c(fc.normal), c(fc.offset), c(fc.two_sided, bool),
+                  c(fc.triangles.reshape(-1, 3)), starts, c(3 * fc.tri_count, np.int64),
+                  accel.PLANE_TOL_M)  # fmt: skip
+    parts = []
+    for r0 in range(0, len(f1), SECOND_FACETS_BLOCK):
+        rows = slice(r0, r0 + SECOND_FACETS_BLOCK)
+        b = refl.Beam(*(x[rows] for x in b1))
+        f1_b = f1[rows]
+        a, f2 = accel.beam_facets(fc, b, fc.normal[f1_b], fc.offset[f1_b], side1[rows], mask,
+                                  None if mask is None else mask[f1_b])  # fmt: skip
+        s_img = kernels.second_facets(
+            c(a, np.int64), c(f2, np.int64), c(b.apex), c(b.axis), c(b.cos_a), c(b.sin_a),
+            c(b.apex_inside, bool), c(f1_b, np.int64), *facet_args,
+        )  # fmt: skip
+        ok = s_img != 0
+        parts.append((a[ok] + r0, f2[ok], s_img[ok]))
+    if not parts:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int8)
+    a, f2, s_img = (np.concatenate(x) for x in zip(*parts))
+    return a, f2, s_img
+
+
+#: First facets per block of :func:`_second_facets` (a block's queried pairs are about a
+#: hundred per first facet on a scanned hall: 16 bytes each, and as many again sorting them).
+SECOND_FACETS_BLOCK = 1 << 15
 
 
 def _table_pairs(fc, f1: np.ndarray, mask: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
