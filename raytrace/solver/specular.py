@@ -109,6 +109,9 @@ def second_order(ctx: TraceContext) -> list[Paths]:
 
     shadow_tx = shadow.shadows_of(ctx, ctx.tx)[0]
     for t in range(len(ctx.tx)):
+        # the last transmitter's images go first (unless kept): a million-triangle hall's are
+        # 1.7 GB, and two transmitters' at once were the trace's peak
+        f1a = f2 = receiver_args = exact_args = None
         _, _, _, f1a, f2, _, _, receiver_args, exact_args = _second_images(ctx, t, shadow_tx[t])
         if len(f1a) == 0:
             continue
