@@ -16,8 +16,8 @@ from typing import Any
 
 import numpy as np
 
-from ..core.errors import SceneError
 from ..core import vec
+from ..core.errors import SceneError
 from ..core.jit import carray, kernel
 from . import accel, spatial
 from .elements import Facets, SceneObject, Wedges
