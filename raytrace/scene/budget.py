@@ -33,8 +33,9 @@ CHECK_MIN_TRIANGLES = 20_000
 LOAD_BASE_B = 400e6
 #: Load: bytes per triangle (measured 1.8 kB: trimesh's processing, facets, wedges, trees).
 LOAD_PER_TRIANGLE_B = 2.5e3
-#: Trace: bytes per triangle on top of the loaded scene (measured 16.8 kB at 83 200 triangles and
-#: 9.2 kB at 247 040: the kept second images, candidate lists of the ends, trees, Embree's build).
+#: Trace: bytes per triangle on top of the loaded scene (measured 16.8 kB at 83 200 triangles,
+#: 9.2 kB at 247 040 and 6.0 kB at 984 320: the kept second images, at most 1 GiB, candidate
+#: lists of the ends, trees, Embree's build).
 TRACE_PER_TRIANGLE_B = 20e3
 
 
