@@ -18,17 +18,15 @@ the workers at once.
 from __future__ import annotations
 
 import multiprocessing
-import os
 import warnings
 from collections.abc import Mapping, Sequence
 from typing import Any
 
+from hallray.workerenv import ONE_THREAD, environ_set
+
 from ..evaluation.integrity import ALERT_LIMIT_M
 from ..io.dataset import ToaDataset
 from .runs import DatasetResult, evaluate
-
-#: Environment of the workers for BLAS and OpenMP libraries (the caller's own stays).
-_ONE_THREAD = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 
 
 def groups_by_map(
@@ -49,16 +47,8 @@ def spawn_pool(processes: int) -> Any:
     """A ``multiprocessing`` pool of ``processes`` spawned workers, BLAS and OpenMP on one
     thread each (see the module docstring); the caller closes or terminates it."""
     ctx = multiprocessing.get_context("spawn")
-    saved = {k: os.environ.get(k) for k in _ONE_THREAD}
-    os.environ.update(_ONE_THREAD)  # inherited by the workers spawned now
-    try:
+    with environ_set(ONE_THREAD):  # inherited by the workers spawned now
         return ctx.Pool(processes)
-    finally:
-        for k, v in saved.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
 
 
 def _evaluate_group(jobs: list[tuple]) -> list[DatasetResult]:

@@ -65,6 +65,8 @@ from concurrent.futures import Future, ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from typing import Any
 
+from hallray.workerenv import ONE_THREAD, environ_set
+
 from ..core.errors import HallrayError, TraceInputError
 from ..scene.model import Scene
 from .shared import remove_left_over
@@ -235,11 +237,6 @@ def process_context(preload: Sequence[str] = (), main: bool = False) -> Any:
     return _wrapped(ctx, main)
 
 
-#: The fork server's (and so its workers') environment for BLAS and OpenMP libraries: one thread
-#: each (a user's own settings stay in this process).
-_ONE_THREAD = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
-
-
 def _context(preload: Sequence[str]) -> Any:
     """:func:`process_context` (the caller holds the lock)."""
     import multiprocessing
@@ -258,22 +255,12 @@ def _context(preload: Sequence[str]) -> Any:
         ctx.set_forkserver_preload(list(dict.fromkeys([*PRELOAD, *preload])))
         # the fork server imports raytrace from where this process does (not another checkout)
         root = os.path.dirname(_PACKAGE)
-        saved = {k: os.environ.get(k) for k in ("PYTHONPATH", "PYTHONSAFEPATH", *_ONE_THREAD)}
-        old = saved["PYTHONPATH"]
-        os.environ["PYTHONPATH"] = root if not old else root + os.pathsep + old
-        os.environ["PYTHONSAFEPATH"] = "1"
-        # and loads BLAS with one thread: a worker is one lane, and the helper threads of
-        # numpy's BLAS spin for about 0.1 s after each product they share, on the cores the
-        # other lanes trace on (docs/tracing.md, "A twelfth round")
-        os.environ.update(_ONE_THREAD)
-        try:
+        old = os.environ.get("PYTHONPATH")
+        # and loads BLAS with one thread (hallray.workerenv; docs/tracing.md, "A twelfth round")
+        env = {"PYTHONPATH": root if not old else root + os.pathsep + old, "PYTHONSAFEPATH": "1",
+               **ONE_THREAD}  # fmt: skip
+        with environ_set(env):
             forkserver.ensure_running()
-        finally:
-            for k, v in saved.items():
-                if v is None:
-                    os.environ.pop(k, None)
-                else:
-                    os.environ[k] = v
         _STATE["forkserver_started"] = True
     return ctx
 
