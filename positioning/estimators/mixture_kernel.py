@@ -74,16 +74,24 @@ def _exp_below(v, top):
 
 
 @_inline
-def _nll(r, sig, sw, log_sig, log_sw, late0, sig_lam, c0, c1, c2, lam, half_log_2pi):
-    """The mixture NLL of one residuals ``r`` (m): :func:`~positioning.model.noise.mixture_nll`,
-    every expression in its order of evaluation (``c0, c1, c2`` the logs of the shares)."""
+def _terms(r, sig, sw, log_sig, log_sw, late0, sig_lam, c0, c1, lam, half_log_2pi):
+    """:func:`_nll`'s first terms for one residual ``r`` (m), in mixture_nll's order of
+    evaluation: the core's and the wide component's log-densities plus their log shares
+    (``a0``, ``a1``), the late one's exponent ``pre`` and its ``log_ndtr`` argument ``x``."""
     z = r / sig
     zw = r / sw
     # component_logpdf: core, wide, late; plus the log shares (mixture_nll)
     a0 = (-0.5 * (z * z) - log_sig - half_log_2pi) + c0
     a1 = (-0.5 * (zw * zw) - log_sw - half_log_2pi) + c1
-    pre = late0 - r / lam
-    x = z - sig_lam
+    return a0, a1, late0 - r / lam, z - sig_lam
+
+
+@_inline
+def _nll(r, sig, sw, log_sig, log_sw, late0, sig_lam, c0, c1, c2, lam, half_log_2pi):
+    """The mixture NLL of one residuals ``r`` (m): :func:`~positioning.model.noise.mixture_nll`,
+    every expression in its order of evaluation (``c0, c1, c2`` the logs of the shares)."""
+    a0, a1, pre, x = _terms(r, sig, sw, log_sig, log_sw, late0, sig_lam, c0, c1, lam,
+                            half_log_2pi)  # fmt: skip
     top = a0
     if a1 > top or a1 != a1:  # numpy's maximum: a NaN wins
         top = a1 if top == top else top
@@ -109,12 +117,8 @@ def _nll_floor(r, sig, sw, log_sig, log_sw, late0, sig_lam, c0, c1, c2, lam, hal
     the wide component's log-densities ``a0, a1`` as :func:`_nll` computes them and ``u`` at
     least the late one's (``log_ndtr <= 0``; ``< -x^2/2`` for x < -1). Rounding is monotone, so
     every step keeps the bound."""
-    z = r / sig
-    zw = r / sw
-    a0 = (-0.5 * (z * z) - log_sig - half_log_2pi) + c0
-    a1 = (-0.5 * (zw * zw) - log_sw - half_log_2pi) + c1
-    pre = late0 - r / lam
-    x = z - sig_lam
+    a0, a1, pre, x = _terms(r, sig, sw, log_sig, log_sw, late0, sig_lam, c0, c1, lam,
+                            half_log_2pi)  # fmt: skip
     if -1e4 < x < -1.0:  # scipy's log_ndtr is within far less than 0.9 of -x^2/2 - ln(-x) - 0.92
         u = (pre + (-0.5 * (x * x))) + c2
     else:

@@ -409,24 +409,9 @@ def fit_pulses_numpy(
     table: tuple[np.ndarray, np.ndarray],
     rounds: int = ROUNDS,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`fit_pulses` in numpy array passes (the reference its compiled kernel is tested
-    against; the same arithmetic but the order of the sums): least-squares fit of ``K`` pulses
-    to each row, ``s ~ sum_k a_k T h(t - tau_k)``.
-
-    Parameters
-    ----------
-    s : (R, N) complex, 1/s, the samples; t : (R, N) float, s, their times
-    valid : (R, N) bool, samples that count
-    tau : (R, K) float, s, starting delays
-    period : float, s, T; table : :func:`positioning.model.pulse.pulse_table`
-    rounds : int, Gauss-Newton rounds on the delays (each step clipped to :data:`STEP_T`
-        periods), the amplitudes solved jointly by least squares at every round
-
-    Returns
-    -------
-    tau : (R, K) float, s; amp : (R, K) complex, 1/s (the pulses' peak values); energy : (R,)
-    float, ``sum |s - model|^2`` over the valid samples
-    """
+    """:func:`fit_pulses` in numpy array passes, with its parameters and returns: the
+    reference its compiled kernel is tested against (the same arithmetic but the order of the
+    sums)."""
     w = valid.astype(float)
     sr, si = s.real * w, s.imag * w
     t = np.ascontiguousarray(t, dtype=float)
