@@ -16,6 +16,7 @@ from raytrace.scene.motion import FORKLIFT_CLEARANCE_M, Route, snapshot_times
 from raytrace.solver.config import TraceConfig
 from raytrace.solver.incremental import (
     Boxes,
+    PathSegments,
     SnapshotTracer,
     path_segments,
     segments_meet_boxes,
@@ -162,6 +163,29 @@ def test_segment_box_test_against_sampling():
     assert np.all(~inner | sampled)
     assert np.all(~sampled | outer)
     assert 50 < sampled.sum() < 1450  # both outcomes are exercised
+
+
+def test_affected_paths_equal_the_slab_test_per_segment():
+    """The compiled per-path test (prefilter, slab test, early exit per path) against
+    :func:`segments_meet_boxes` of every segment, path by path: random segments, some axis-
+    parallel in the boxes' frame (the flat slab case), paths of 1-4 segments, 3 boxes."""
+    rng = np.random.default_rng(11)
+    boxes = _random_boxes(rng, 3)
+    a = rng.uniform(-6, 6, (4000, 3))
+    b = rng.uniform(-6, 6, (4000, 3))
+    # segments parallel to a box's axis: the flat branch of the slab test
+    flat = slice(0, 400)
+    b[flat] = a[flat] + rng.uniform(-4, 4, (400, 1)) * boxes.rotation[0][:, 0]
+    path = np.sort(rng.integers(0, 1500, len(a)))
+    seg = PathSegments.__new__(PathSegments)
+    seg.n_paths, seg.a, seg.b, seg.path = 1500, a, b, path
+    seg.lo, seg.hi = np.minimum(a, b), np.maximum(a, b)
+    for grow in (0.0, 1e-3, 0.3):
+        got = seg.affected(boxes, grow)
+        want = np.zeros(1500, bool)
+        want[path[segments_meet_boxes(a, b, boxes, grow)]] = True
+        np.testing.assert_array_equal(got, want)
+        assert 100 < got.sum() < 1400
 
 
 def test_segment_box_axis_parallel_and_contained_cases():
