@@ -241,6 +241,19 @@ def test_extend_scene_equals_from_meshes():
     # the Embree scene names the added objects
     hit = joined.occluded(np.array([[3.0, 0.5, 1.0]]), np.array([[3.0, 4.5, 1.0]]))
     assert hit[0]
+    # the triangles Embree is given (the static objects' taken from the base when the extent
+    # is the same; the large ones cut), and with an object beyond the base's bounds
+    far = [("far", box((40.0, 1.0, 0.0), (41.0, 2.0, 1.0)), "wood")]
+    wider = Scene.from_meshes(static + far, lib)
+    for got, want in ((joined, whole),
+                      (extend_scene(Scene.from_meshes(static, lib), Scene.from_meshes(far, lib)),
+                       wider)):  # fmt: skip
+        got_m, want_m = got.embree_meshes(), want.embree_meshes()
+        assert len(got_m) == len(want_m)
+        for g, w in zip(got_m, want_m, strict=True):
+            for x, y in zip(g, w, strict=True):
+                np.testing.assert_array_equal(x, y)
+    assert any(len(t) > o.face_count for (_, t, _), o in zip(whole.embree_meshes(), whole.objects))
 
 
 def _sorted_rows(x, decimals=9):
