@@ -248,6 +248,7 @@ def test_extend_scene_equals_from_meshes():
     for got, want in ((joined, whole),
                       (extend_scene(Scene.from_meshes(static, lib), Scene.from_meshes(far, lib)),
                        wider)):  # fmt: skip
+        np.testing.assert_array_equal(got.convex_objects(), want.convex_objects())
         got_m, want_m = got.embree_meshes(), want.embree_meshes()
         assert len(got_m) == len(want_m)
         for g, w in zip(got_m, want_m, strict=True):
