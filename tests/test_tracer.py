@@ -327,3 +327,18 @@ def test_opaque_prepass_changes_no_path():
     np.testing.assert_array_equal(with_prepass.gain, without.gain)
     with pytest.raises(TraceInputError, match="one flag per object"):
         trace(sc, tx, rx, F_C, opaque=[True])
+
+
+def test_reevaluate_groups_the_sequences_as_numpy_unique_over_rows():
+    """reevaluate's grouping of paths by interaction sequence (rows read as integers) equals
+    ``np.unique(axis=0)``: the same sequences in the same order, the same groups; also with no
+    path and no vertex."""
+    from raytrace.solver.tracer import _unique_rows
+
+    rng = np.random.default_rng(3)
+    for n, k in ((0, 2), (6, 0), (1, 3), (4000, 2), (4000, 4)):
+        kinds = rng.integers(0, 4, (n, k)).astype(np.int8)
+        want_seq, want_group = np.unique(kinds, axis=0, return_inverse=True)
+        seq, group = _unique_rows(kinds)
+        np.testing.assert_array_equal(seq, want_seq)
+        np.testing.assert_array_equal(group.reshape(-1), want_group.reshape(-1))
