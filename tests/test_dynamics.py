@@ -22,6 +22,7 @@ from raytrace.solver.incremental import (
     segments_meet_boxes,
 )
 from raytrace.solver.paths import Paths
+from raytrace.solver.penetration import flat_sheet_arrays
 from raytrace.solver.tracer import reevaluate, trace
 
 F_C = 3.775e9
@@ -249,6 +250,8 @@ def test_extend_scene_equals_from_meshes():
                       (extend_scene(Scene.from_meshes(static, lib), Scene.from_meshes(far, lib)),
                        wider)):  # fmt: skip
         np.testing.assert_array_equal(got.convex_objects(), want.convex_objects())
+        for x, y in zip(flat_sheet_arrays(got), flat_sheet_arrays(want), strict=True):
+            np.testing.assert_array_equal(x, y)
         got_m, want_m = got.embree_meshes(), want.embree_meshes()
         assert len(got_m) == len(want_m)
         for g, w in zip(got_m, want_m, strict=True):

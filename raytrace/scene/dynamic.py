@@ -121,6 +121,7 @@ def extend_scene(base: Scene, extra: Scene) -> Scene:
         convex = convex_flags(scene.vertices, scene.faces, objects, facets, added, scene.extent)
         convex[:n_obj] = base.convex_objects()
         scene.caches.convex = convex
+        scene.caches.extends = base
     scene.build_embree()
     return scene
 

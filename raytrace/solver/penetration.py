@@ -216,6 +216,27 @@ def flat_sheet_arrays(
     cache = scene.caches.flat_sheet_arrays
     if cache is not None:
         return cache
+    base = scene.caches.extends
+    if base is None:
+        cache = _flat_sheets(scene, 0)
+    else:
+        # a snapshot (the static scene and more objects, the same extent): the static sheets'
+        # rows are the static scene's (kept on it), the added objects' are appended
+        n0 = len(base.objects)
+        head, tail = flat_sheet_arrays(base), _flat_sheets(scene, n0)
+        plane, reach, start, count = (x[n0:] for x in tail[:4])
+        edges = tail[4]
+        start = np.where(count > 0, start + len(head[4]), 0)
+        cache = (np.concatenate([head[0], plane]), np.concatenate([head[1], reach]),
+                 np.concatenate([head[2], start]), np.concatenate([head[3], count]),
+                 np.ascontiguousarray(np.concatenate([head[4], edges])))  # fmt: skip
+    scene.caches.flat_sheet_arrays = cache
+    return cache
+
+
+def _flat_sheets(scene: Scene, first: int) -> tuple[np.ndarray, ...]:
+    """:func:`flat_sheet_arrays` of the objects from ``first`` on (the rows of the others are
+    zero and their outlines left out)."""
     n_obj = len(scene.objects)
     plane = np.zeros((n_obj, 4))
     reach = np.zeros(n_obj)
@@ -224,7 +245,8 @@ def flat_sheet_arrays(
     parts = [np.zeros((0, 6))]
     tol = 1e-9 * max(scene.extent, 1.0) if len(scene.vertices) else 1e-9
     total = 0
-    for o, obj in enumerate(scene.objects):
+    for o in range(first, n_obj):
+        obj = scene.objects[o]
         if obj.closed or obj.face_count == 0:
             continue
         sl = slice(obj.face_start, obj.face_start + obj.face_count)
@@ -249,9 +271,7 @@ def flat_sheet_arrays(
         start[o], count[o] = total, len(ends)
         total += len(ends)
         parts.append(ends)
-    cache = (plane, reach, start, count, np.ascontiguousarray(np.concatenate(parts)))
-    scene.caches.flat_sheet_arrays = cache
-    return cache
+    return plane, reach, start, count, np.ascontiguousarray(np.concatenate(parts))
 
 
 def coincident_faces(scene: Scene) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
