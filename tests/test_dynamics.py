@@ -16,11 +16,13 @@ from raytrace.scene.motion import FORKLIFT_CLEARANCE_M, Route, snapshot_times
 from raytrace.solver.config import TraceConfig
 from raytrace.solver.incremental import (
     Boxes,
+    PathSegments,
     SnapshotTracer,
     path_segments,
     segments_meet_boxes,
 )
 from raytrace.solver.paths import Paths
+from raytrace.solver.penetration import flat_sheet_arrays
 from raytrace.solver.tracer import reevaluate, trace
 
 F_C = 3.775e9
@@ -164,6 +166,29 @@ def test_segment_box_test_against_sampling():
     assert 50 < sampled.sum() < 1450  # both outcomes are exercised
 
 
+def test_affected_paths_equal_the_slab_test_per_segment():
+    """The compiled per-path test (prefilter, slab test, early exit per path) against
+    :func:`segments_meet_boxes` of every segment, path by path: random segments, some axis-
+    parallel in the boxes' frame (the flat slab case), paths of 1-4 segments, 3 boxes."""
+    rng = np.random.default_rng(11)
+    boxes = _random_boxes(rng, 3)
+    a = rng.uniform(-6, 6, (4000, 3))
+    b = rng.uniform(-6, 6, (4000, 3))
+    # segments parallel to a box's axis: the flat branch of the slab test
+    flat = slice(0, 400)
+    b[flat] = a[flat] + rng.uniform(-4, 4, (400, 1)) * boxes.rotation[0][:, 0]
+    path = np.sort(rng.integers(0, 1500, len(a)))
+    seg = PathSegments.__new__(PathSegments)
+    seg.n_paths, seg.a, seg.b, seg.path = 1500, a, b, path
+    seg.lo, seg.hi = np.minimum(a, b), np.maximum(a, b)
+    for grow in (0.0, 1e-3, 0.3):
+        got = seg.affected(boxes, grow)
+        want = np.zeros(1500, bool)
+        want[path[segments_meet_boxes(a, b, boxes, grow)]] = True
+        np.testing.assert_array_equal(got, want)
+        assert 100 < got.sum() < 1400
+
+
 def test_segment_box_axis_parallel_and_contained_cases():
     boxes = Boxes(np.zeros((1, 3)), np.eye(3)[None], np.ones((1, 3)))
     a = np.array([[-3, 0.5, 0.5], [-3, 1.5, 0.0], [-0.5, 0, 0], [2, 2, 2], [-3, 1.0, 1.0]])
@@ -217,6 +242,22 @@ def test_extend_scene_equals_from_meshes():
     # the Embree scene names the added objects
     hit = joined.occluded(np.array([[3.0, 0.5, 1.0]]), np.array([[3.0, 4.5, 1.0]]))
     assert hit[0]
+    # the triangles Embree is given (the static objects' taken from the base when the extent
+    # is the same; the large ones cut), and with an object beyond the base's bounds
+    far = [("far", box((40.0, 1.0, 0.0), (41.0, 2.0, 1.0)), "wood")]
+    wider = Scene.from_meshes(static + far, lib)
+    for got, want in ((joined, whole),
+                      (extend_scene(Scene.from_meshes(static, lib), Scene.from_meshes(far, lib)),
+                       wider)):  # fmt: skip
+        np.testing.assert_array_equal(got.convex_objects(), want.convex_objects())
+        for x, y in zip(flat_sheet_arrays(got), flat_sheet_arrays(want), strict=True):
+            np.testing.assert_array_equal(x, y)
+        got_m, want_m = got.embree_meshes(), want.embree_meshes()
+        assert len(got_m) == len(want_m)
+        for g, w in zip(got_m, want_m, strict=True):
+            for x, y in zip(g, w, strict=True):
+                np.testing.assert_array_equal(x, y)
+    assert any(len(t) > o.face_count for (_, t, _), o in zip(whole.embree_meshes(), whole.objects))
 
 
 def _sorted_rows(x, decimals=9):

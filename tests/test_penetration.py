@@ -683,3 +683,29 @@ def test_a_sheet_lying_on_a_solids_face_is_crossed_with_it_whatever_the_bvh(upwa
         np.testing.assert_array_equal(objs, np.broadcast_to([0, 1], (n, 2)))
         np.testing.assert_allclose(thick[:, 0], board, rtol=1e-12)
         np.testing.assert_allclose(thick[:, 1], 0.6, atol=CHORD_TOL_M)
+
+
+def test_closed_solid_grid_lists_the_solids_of_each_cell():
+    """The grid of closed solids by cell (what the end probes look up) against its definition:
+    cell (i, j) lists, in index order, every closed solid whose padded bounding box meets it;
+    sheets and solids outside the footprint's cells are left out."""
+    from raytrace.solver import penetration
+
+    sc = make_scene([
+        ("floor", quad((0, 0, 0), (20, 0, 0), (0, 12, 0)), "concrete"),
+        ("a", box((1, 1, 0), (2.5, 7, 2)), "metal"),
+        ("b", box((2, 6, 0), (9, 6.5, 3)), "wood"),
+        ("c", box((15.2, 0.2, 0), (19.9, 11.8, 1)), "concrete"),
+        ("d", box((9.9, 5.9, 1), (10.1, 6.1, 1.2)), "metal"),
+    ])  # fmt: skip
+    x0, y0, cell, nx, ny, start, items, lo, hi = penetration._closed_solid_grid(sc)
+    pad = 10 * sc.margin
+    closed = np.flatnonzero(sc.object_closed)
+    assert len(closed) == 4 and len(start) == nx * ny + 1
+    for i in range(nx):
+        for j in range(ny):
+            c_lo = np.array([x0 + i * cell, y0 + j * cell])
+            meets = [o for o in closed if np.all(lo[o, :2] - pad < c_lo + cell)
+                     and np.all(hi[o, :2] + pad >= c_lo)]  # fmt: skip
+            got = items[start[i * ny + j] : start[i * ny + j + 1]]
+            np.testing.assert_array_equal(got, meets, err_msg=f"cell {i}, {j}")

@@ -118,8 +118,10 @@ def test_facing_pairs_extended_equals_recomputed():
     order_g, order_w = np.lexsort(got[::-1]), np.lexsort(want[::-1])
     np.testing.assert_array_equal(got[0][order_g], want[0][order_w])
     np.testing.assert_array_equal(got[1][order_g], want[1][order_w])
-    # the pairwise test against the table
+    # the pairwise test against the table; the joined scene's table extends the base's
     table = accel.facing_pairs(fresh)
+    np.testing.assert_array_equal(accel.facing_pairs(joined.facets), table)
+    assert "facing" in base.facets.cache
     i, j = np.divmod(np.arange(k * k), k)
     np.testing.assert_array_equal(accel.facing(fresh, i, j), table[i, j])
     assert table[: len(base.facets), len(base.facets) :].any()

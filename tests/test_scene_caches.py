@@ -16,7 +16,8 @@ from raytrace.solver.config import TraceConfig
 from raytrace.solver.tracer import trace
 
 #: The fields a trace with reflections, penetrations and diffractions fills on this scene (all).
-FILLED_BY_A_TRACE = {f.name for f in dataclasses.fields(SceneCaches)}
+#: (``extends`` is not derived: extend_scene sets it on a snapshot)
+FILLED_BY_A_TRACE = {f.name for f in dataclasses.fields(SceneCaches)} - {"extends"}
 
 
 def _traced():

@@ -327,3 +327,39 @@ def test_opaque_prepass_changes_no_path():
     np.testing.assert_array_equal(with_prepass.gain, without.gain)
     with pytest.raises(TraceInputError, match="one flag per object"):
         trace(sc, tx, rx, F_C, opaque=[True])
+
+
+def test_reevaluate_groups_the_sequences_as_numpy_unique_over_rows():
+    """reevaluate's grouping of paths by interaction sequence (rows read as integers) equals
+    ``np.unique(axis=0)``: the same sequences in the same order, the same groups; also with no
+    path and no vertex."""
+    from raytrace.solver.tracer import _unique_rows
+
+    rng = np.random.default_rng(3)
+    for n, k in ((0, 2), (6, 0), (1, 3), (4000, 2), (4000, 4)):
+        kinds = rng.integers(0, 4, (n, k)).astype(np.int8)
+        want_seq, want_group = np.unique(kinds, axis=0, return_inverse=True)
+        seq, group = _unique_rows(kinds)
+        np.testing.assert_array_equal(seq, want_seq)
+        np.testing.assert_array_equal(group.reshape(-1), want_group.reshape(-1))
+
+
+def test_no_penetration_is_the_full_trace_without_its_crossing_paths():
+    """With max_penetrations = 0 every object blocks (the shadows and the one-query opaque test
+    prune what the crossing walk would drop): the paths are exactly those of a trace allowing two
+    penetrations that cross nothing, bit for bit (interaction arrays trimmed to their depth)."""
+    from raytrace.scene.io import load_scene
+    from raytrace.scene.metadata import SceneMetadata
+
+    hall = load_scene("hall")
+    inp = SceneMetadata.from_scene(hall)
+    none = trace(hall, inp.bs_xyz, inp.point_xyz, 3.775e9, TraceConfig(max_penetrations=0))
+    full = trace(hall, inp.bs_xyz, inp.point_xyz, 3.775e9, TraceConfig(max_penetrations=2))
+    assert (full.n_penetrations > 0).sum() > 1000  # the hall's racks and walls are crossed
+    crossing_nothing = full.select(full.n_penetrations == 0)
+    depth = none.interaction.shape[1]
+    for k in none.PER_PATH:
+        a, b = getattr(none, k), getattr(crossing_nothing, k)
+        if a.ndim > 1:
+            b = b[:, :depth]
+        np.testing.assert_array_equal(a, b, err_msg=k)

@@ -387,11 +387,18 @@ def facing_pairs(facets: Facets, known: np.ndarray | None = None) -> np.ndarray:
     facets : Facets
     known : (k0, k0) bool, optional, the result for the first k0 facets (the same facets in the
         same order, e.g. a static scene that moving objects are appended to): only the rows and
-        columns of the others are computed
+        columns of the others are computed. By default, the table of the facets that
+        ``facets.cache["extends"]`` names, if any (set by
+        :func:`raytrace.scene.dynamic.extend_scene`).
     """
     cached = facets.cache.get("facing")
     if cached is not None:
         return cached
+    base = facets.cache.get("extends")
+    if known is None and base is not None:
+        # a snapshot's facets (:func:`raytrace.scene.dynamic.extend_scene`): the static block is
+        # the static scene's table, computed once and kept on its facets
+        known = facing_pairs(base)
     k = len(facets)
     k0 = 0 if known is None else int(known.shape[0])
     # sees[i, j]: any vertex of facet i on a reflecting side of facet j; a facet's vertices are

@@ -53,6 +53,9 @@ class SceneCaches:
     convex : (O,) bool, the convex closed solids (:func:`convex_flags`)
     object_boxes : ``(lo (O, 3), hi (O, 3))`` float, each object's bounding box, metres
         (:func:`object_boxes`; empty objects have ``lo = inf``, ``hi = -inf``)
+    extends : Scene or None, the scene this one extends by more objects, of the same extent
+        (:func:`raytrace.scene.dynamic.extend_scene`: a forklift snapshot): its objects are this
+        scene's first ones, so what is derived per object can be taken from it
 
     Solver (:mod:`raytrace.solver.penetration`, :mod:`raytrace.solver.shadow`)
     ---------------------------------------------------------------------------
@@ -86,6 +89,7 @@ class SceneCaches:
     object_face_start: np.ndarray | None = None
     convex: np.ndarray | None = None
     object_boxes: tuple[np.ndarray, np.ndarray] | None = None
+    extends: Any = None
     convex_planes: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
     convex_plane_arrays: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
     flat_sheet_arrays: tuple[np.ndarray, ...] | None = None

@@ -56,7 +56,8 @@ class TraceContext:
     f : float, Hz
     cfg : TraceConfig
     involving : object indices, optional: only facets and wedges of these objects take part
-    opaque : (O,) bool, optional: objects that block (default :func:`opaque_objects`)
+    opaque : (O,) bool, optional: objects that block (default :func:`opaque_objects`); with
+        ``cfg.max_penetrations == 0`` every object blocks (no path may cross one)
 
     Attributes
     ----------
@@ -109,6 +110,11 @@ class TraceContext:
                     f"opaque must have one flag per object ({len(scene.objects)}), "
                     f"got {self.opaque.shape[0]}"
                 )
+        if cfg.max_penetrations == 0:
+            # a path that crosses anything is dropped: every object blocks, so that the shadows
+            # prune candidates and one Embree query drops a blocked one before the crossing walk
+            # (a city model's buildings: 99 % of its mixed candidates)
+            self.opaque = np.ones(len(scene.objects), dtype=bool)
         self.stats: dict[str, int] = {}
         self._lock = threading.Lock()
         self.shadows: dict[str, tuple[np.ndarray, np.ndarray]] = {}

@@ -41,9 +41,11 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import SceneError
+from ..core.jit import carray
 from ..scene.dynamic import extend_scene, posed, yaw_rotations
 from ..scene.model import Scene
 from ..scene.motion import FORKLIFT_CLEARANCE_M, Route
+from . import kernels
 from .config import TraceConfig
 from .paths import Paths
 from .tracer import opaque_objects, reevaluate, trace
@@ -246,24 +248,15 @@ class PathSegments:
         self.hi = np.maximum(self.a, self.b)
 
     def affected(self, boxes: Boxes, grow: float) -> np.ndarray:
-        """(P,) bool: paths with a segment that meets a box grown by ``grow`` metres."""
-        mask = np.zeros(self.n_paths, dtype=bool)
-        for k in range(len(boxes)):  # a handful of boxes
-            # prefilter: the segment's bounding box meets the grown box's bounding box
-            ext = np.abs(boxes.rotation[k]) @ (boxes.half[k] + grow)
-            c = boxes.centre[k]
-            near = np.flatnonzero(
-                (self.lo[:, 0] <= c[0] + ext[0])
-                & (self.hi[:, 0] >= c[0] - ext[0])
-                & (self.lo[:, 1] <= c[1] + ext[1])
-                & (self.hi[:, 1] >= c[1] - ext[1])
-                & (self.lo[:, 2] <= c[2] + ext[2])
-                & (self.hi[:, 2] >= c[2] - ext[2])
-            )
-            one = Boxes(boxes.centre[k : k + 1], boxes.rotation[k : k + 1], boxes.half[k : k + 1])
-            hit = segments_meet_boxes(self.a[near], self.b[near], one, grow)
-            mask[self.path[near[hit]]] = True
-        return mask
+        """(P,) bool: paths with a segment that meets a box grown by ``grow`` metres (the slab
+        test of :func:`segments_meet_boxes`, after a bounding-box prefilter, compiled:
+        :func:`raytrace.solver.kernels.paths_meeting_boxes`)."""
+        half = np.ascontiguousarray(boxes.half + grow, dtype=float)
+        ext = np.ascontiguousarray(np.einsum("bij,bj->bi", np.abs(boxes.rotation), half))
+        return kernels.paths_meeting_boxes(
+            self.a, self.b, self.lo, self.hi, self.path, self.n_paths,
+            carray(boxes.centre), carray(boxes.rotation), half, ext,
+        )  # fmt: skip
 
 
 class SnapshotTracer:

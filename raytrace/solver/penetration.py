@@ -216,6 +216,27 @@ def flat_sheet_arrays(
     cache = scene.caches.flat_sheet_arrays
     if cache is not None:
         return cache
+    base = scene.caches.extends
+    if base is None:
+        cache = _flat_sheets(scene, 0)
+    else:
+        # a snapshot (the static scene and more objects, the same extent): the static sheets'
+        # rows are the static scene's (kept on it), the added objects' are appended
+        n0 = len(base.objects)
+        head, tail = flat_sheet_arrays(base), _flat_sheets(scene, n0)
+        plane, reach, start, count = (x[n0:] for x in tail[:4])
+        edges = tail[4]
+        start = np.where(count > 0, start + len(head[4]), 0)
+        cache = (np.concatenate([head[0], plane]), np.concatenate([head[1], reach]),
+                 np.concatenate([head[2], start]), np.concatenate([head[3], count]),
+                 np.ascontiguousarray(np.concatenate([head[4], edges])))  # fmt: skip
+    scene.caches.flat_sheet_arrays = cache
+    return cache
+
+
+def _flat_sheets(scene: Scene, first: int) -> tuple[np.ndarray, ...]:
+    """:func:`flat_sheet_arrays` of the objects from ``first`` on (the rows of the others are
+    zero and their outlines left out)."""
     n_obj = len(scene.objects)
     plane = np.zeros((n_obj, 4))
     reach = np.zeros(n_obj)
@@ -224,7 +245,8 @@ def flat_sheet_arrays(
     parts = [np.zeros((0, 6))]
     tol = 1e-9 * max(scene.extent, 1.0) if len(scene.vertices) else 1e-9
     total = 0
-    for o, obj in enumerate(scene.objects):
+    for o in range(first, n_obj):
+        obj = scene.objects[o]
         if obj.closed or obj.face_count == 0:
             continue
         sl = slice(obj.face_start, obj.face_start + obj.face_count)
@@ -249,9 +271,7 @@ def flat_sheet_arrays(
         start[o], count[o] = total, len(ends)
         total += len(ends)
         parts.append(ends)
-    cache = (plane, reach, start, count, np.ascontiguousarray(np.concatenate(parts)))
-    scene.caches.flat_sheet_arrays = cache
-    return cache
+    return plane, reach, start, count, np.ascontiguousarray(np.concatenate(parts))
 
 
 def coincident_faces(scene: Scene) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -319,15 +339,24 @@ def _closed_solid_grid(scene: Scene) -> tuple:
     b_lo, b_hi = scene.bounds
     cell = max(float((b_hi[:2] - b_lo[:2]).max()) / GRID_CELLS, 1e-3)
     nx, ny = (int(np.ceil((b_hi[i] - b_lo[i]) / cell)) + 1 for i in range(2))
-    cells: list[list[int]] = [[] for _ in range(nx * ny)]
-    for o in np.flatnonzero(scene.object_closed & np.isfinite(lo[:, 0])):
-        i0, j0 = np.floor((lo[o, :2] - pad - b_lo[:2]) / cell).astype(int)
-        i1, j1 = np.floor((hi[o, :2] + pad - b_lo[:2]) / cell).astype(int)
-        for i in range(max(i0, 0), min(i1, nx - 1) + 1):
-            for j in range(max(j0, 0), min(j1, ny - 1) + 1):
-                cells[i * ny + j].append(int(o))
-    start = np.concatenate([[0], np.cumsum([len(c) for c in cells])]).astype(np.int64)
-    items = np.array([o for c in cells for o in c], dtype=np.int64)
+    # every (cell, solid) of the solids' cell ranges, solids in index order within a cell (a
+    # snapshot of the hall builds this grid anew: numpy, not a loop over cells)
+    solids = np.flatnonzero(scene.object_closed & np.isfinite(lo[:, 0]))
+    i0, j0 = np.floor((lo[solids, :2] - pad - b_lo[:2]) / cell).astype(int).T
+    i1, j1 = np.floor((hi[solids, :2] + pad - b_lo[:2]) / cell).astype(int).T
+    i0, j0 = np.maximum(i0, 0), np.maximum(j0, 0)
+    ni = np.maximum(np.minimum(i1, nx - 1) + 1 - i0, 0)
+    nj = np.maximum(np.minimum(j1, ny - 1) + 1 - j0, 0)
+    per = ni * nj
+    owner = np.repeat(np.arange(len(solids)), per)
+    k = np.arange(len(owner)) - np.repeat(np.cumsum(per) - per, per)
+    ci = i0[owner] + k // np.maximum(nj[owner], 1)
+    cj = j0[owner] + k % np.maximum(nj[owner], 1)
+    cell_of = ci * ny + cj
+    order = np.argsort(cell_of, kind="stable")
+    items = solids[owner[order]].astype(np.int64)
+    start = np.concatenate([[0], np.cumsum(np.bincount(cell_of, minlength=nx * ny))])
+    start = start.astype(np.int64)
     cache = (float(b_lo[0]), float(b_lo[1]), cell, nx, ny, start, items, carray(lo), carray(hi))
     scene.caches.closed_solid_grid = cache
     return cache

@@ -487,7 +487,7 @@ def reevaluate(scene: Scene, paths: Paths, config: TraceConfig | None = None) ->
     depth = max(kinds.shape[1], 1) + cfg.max_penetrations
     parts = [Paths.empty(paths.tx, paths.rx, paths.frequency_hz, depth)]
     # one group per interaction sequence, so the back end sees rectangular arrays
-    seq, group = np.unique(kinds, axis=0, return_inverse=True)
+    seq, group = _unique_rows(kinds)
     for g, pattern in enumerate(seq if paths.n_paths else []):
         sel = np.flatnonzero(group.reshape(-1) == g)
         k = int((pattern > 0).sum())
@@ -507,3 +507,18 @@ def reevaluate(scene: Scene, paths: Paths, config: TraceConfig | None = None) ->
             )  # fmt: skip
         )
     return Paths.concatenate(parts).sorted()
+
+
+def _unique_rows(kinds: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``np.unique(kinds, axis=0, return_inverse=True)`` for small non-negative integer codes
+    (``kinds`` (n, k)): each row read as one integer in base ``max + 1``, whose order is the
+    rows' lexicographic order (numpy's unique over rows sorts a void view: 6 ms for the 3 000
+    paths of a forklift snapshot)."""
+    if kinds.size == 0 or kinds.shape[1] == 0:
+        return np.unique(kinds, axis=0, return_inverse=True)
+    base = int(kinds.max()) + 1
+    code = np.zeros(len(kinds), dtype=np.int64)
+    for j in range(kinds.shape[1]):
+        code = code * base + kinds[:, j]
+    _, first, group = np.unique(code, return_index=True, return_inverse=True)
+    return kinds[first], group

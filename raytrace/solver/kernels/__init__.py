@@ -19,6 +19,8 @@
   the ITU-R P.2040 coefficients computed on the way and the diffraction operators computed
   beforehand.
 * **Interaction sequences** (:mod:`.sequences`: :func:`interaction_sequences`).
+* **Moving boxes** (:mod:`.boxes`: :func:`paths_meeting_boxes`): the paths a snapshot's
+  forklifts affect (:mod:`raytrace.solver.incremental`).
 
 The kernels are re-exported here, so that the stages call them as ``kernels.<name>``.
 
@@ -30,6 +32,7 @@ the gains only (:mod:`.fields`).
 
 from __future__ import annotations
 
+from .boxes import paths_meeting_boxes
 from .fields import path_gains
 from .mixed import mixed_candidates, reflection_edge_points
 from .opaque import opaque_blocks, segment_rays
@@ -56,7 +59,7 @@ __all__ = ["PRUNE", "EXHAUSTIVE", "TREES", "TABLE_MAX_PAIRS", "use_tables", "sur
            "shadowed_groups", "shadowed_triples", "edge_distance",
            "opaque_blocks", "touch_rows", "entry_points", "end_probes",
            "walk_record", "unseen_entries", "walk_rays", "walk_hits", "segment_rays",
-           "path_gains", "interaction_sequences", "mixed_candidates"]
+           "path_gains", "interaction_sequences", "mixed_candidates", "paths_meeting_boxes"]
 
 #: The callers pass this as the kernels' ``prune``: False switches their pruning tests off (they
 #: then return every candidate that satisfies the rules, with unbounded spans), so that a trace
