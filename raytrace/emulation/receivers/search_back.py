@@ -16,10 +16,10 @@ evaluated in windows, as the first-lobe receiver is (:mod:`.first_lobe`).
 2. the ``components`` strongest lobes are cancelled with the known pulse (CLEAN,
    :func:`positioning.model.searchback.clean`);
 3. before the first lobe's crossing less ``guard_t`` periods, the earliest residual lobe or
-   cancelled component above the noise threshold plus ``kappa`` times the cancelled lobes'
-   sidelobe envelope plus the residual's own sidelobe bound is the first arrival
-   (:func:`positioning.model.searchback.search_back`); its ToA is the top of its lobe with the
-   stronger lobes removed. Without one, the first lobe's ToA stands;
+   cancelled component above ``kappa`` times the cancelled lobes' sidelobe envelope plus the
+   larger of the noise threshold over the residual's own sidelobe bound and ``margin`` times that
+   bound is the first arrival (:func:`positioning.model.searchback.search_back`); its ToA is the
+   top of its lobe with the stronger lobes removed. Without one, the first lobe's ToA stands;
 4. (``two_pulse``) the reported lobe is fitted with one pulse and, where that leaves more than
    noise, with two (:func:`positioning.model.lobefit.refine_lobe`): where the fit determines
    them, the earlier of the two is the ToA (two paths merged in anti-phase top before the
@@ -80,9 +80,9 @@ class SearchBackSettings:
         at the earliest path within it, and the cancellation stops there (default -40 dB)
     kappa : float, share of a cancelled lobe's sidelobe envelope the one-pulse model may miss
         (paths merged in one lobe are not one pulse; default 0.5)
-    margin : float, weight of the residual's own sidelobe bound (default 2: on the static hall
-        at mmWave the diffraction-first links' early ToAs fall from 1.4 % with 1 to 0.6 %, their
-        p90 unchanged; docs/channel.md)
+    margin : float, a sample must reach this many times the residual's own sidelobe bound, as well
+        as the noise threshold above it (default 2: merged lobes' sidelobes exceed the one-pulse
+        bound; :func:`positioning.model.searchback.search_back`, docs/channel.md)
     guard_t : float, periods T before the first lobe's crossing where the search ends (default 1:
         closer paths are part of that lobe)
     two_pulse : bool, refine the reported lobe with two pulses where it is not one
