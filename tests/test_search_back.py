@@ -442,6 +442,23 @@ def test_weak_first_path_beside_a_later_one_is_found_at_the_designed_rate():
     assert found >= want - SIGMAS * math.sqrt(var), (found, want)
 
 
+@pytest.mark.parametrize("post_db", [45.0, 60.0])
+def test_a_found_lobe_is_not_moved_onto_a_later_cluster(post_db):
+    """Noiseless: a path, then 2.3 T later a cluster 17 dB stronger (two paths 0.1 T apart in
+    anti-phase and one 0.7 T later; the semi-dynamic hall's C-band P07-BS1). The search finds
+    the first path (it stands out of the cluster's sidelobes by far: E(2.3) = -17 dB); the
+    refinement's consistency rule, made for first-lobe tops of unresolved clusters, must not
+    move it onto the cluster. Found within T/4 on at least 75 % of 200 links (measured 81 %;
+    moved: 36 %; the rest are not found by the search, the cluster's residual bound over them);
+    never early."""
+    T = PULSE.period_s(C_BAND)
+    rel = [(2.3, 17.0, "rand"), (2.4, 16.0, "anti"), (3.0, 14.0, "rand")]
+    link, delay, gain, d0 = cluster(200, rel, post_db, seed=3)
+    err = (run("search-back", link, delay, gain, 200).toa_s - d0) / T
+    assert np.mean(np.abs(err) < QUARTER_T) >= 0.75
+    assert not np.any(err < -QUARTER_T)
+
+
 #: The semi-dynamic hall's C-band P21-BS2 at epoch 20 (forklifts), its paths within -35 dB of
 #: the strongest (|gain| 1.3574e-4): delay after the line of sight in T, dB, phase in degrees.
 #: The first path (0.035 T) merges with five more within 0.1 T; their lobe's sidelobe 1.25 T

@@ -25,7 +25,8 @@ evaluated in windows, as the first-lobe receiver is (:mod:`.first_lobe`).
    them, the earlier of the two is the ToA (two paths merged in anti-phase top before the
    first; in phase, between the two); where it does not, a lobe top that the best fit of up to
    three pulses places well before all its components (more than three standard errors and a
-   quarter period) gives way to that fit's first component.
+   quarter period) gives way to that fit's first component (a lobe step 3 found stands out of
+   the later lobes' sidelobes: it moves by less than :data:`MOVE_T` periods, not onto them).
 
 A weak first path 20-30 dB under the strongest, a few periods before it, is found; the strongest
 path's sidelobes (predicted by the pulse, not by a fixed -12 dB) and noise (CFAR) are not taken
@@ -60,6 +61,11 @@ from .first_lobe import (
     measure_windows,
     prepare_first_lobe,
 )
+
+#: A lobe the search found is moved by the two-pulse step's consistency rule (a merged cluster
+#: tops before its paths) by less than this many periods: the pulse's first zero, beyond which a
+#: fitted component is another lobe (the far pass fits the found lobe with the strongest peak).
+MOVE_T = 1.0
 
 
 def _number(name: str, value: object, lo: float, hi: float) -> float:
@@ -174,8 +180,11 @@ def measure_search_back(
         lobe, p2, fit = refine_lobe(win.signal, n_s, t0, dt, period, plan.pulse.oversampling, table,
                                     lobe, plan.peak_time_s[win.rows], tau, amp, win.gamma,
                                     win.sigma_hat2, plan.alpha, plan.rho, noise_gain(roll, span))  # fmt: skip
-        toa = np.where(found | fit.applied, lobe, np.nan)
-        peak = np.where(fit.applied, p2, peak)
+        # a lobe the search found stands out of the later lobes' sidelobes: it may move within
+        # itself (a merged cluster tops before its paths) but not onto a lobe a period later
+        took = fit.applied & ~(found & fit.moved & (lobe - toa > MOVE_T * period))
+        toa = np.where(found & ~took, toa, np.where(took, lobe, np.nan))
+        peak = np.where(took, p2, peak)
         found = np.isfinite(toa)
     if not found.any():
         return fl
