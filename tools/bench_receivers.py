@@ -9,9 +9,12 @@ semi-dynamic, C-band and mmWave, seed 1; the receivers of :data:`RECEIVERS` unle
 ``--receivers``), then ``DIR/receivers.md`` and ``DIR/receivers.json``:
 
 * per receiver, band and first-arrival class of the link (``first_kind``: ``LoS``;
-  ``diffraction``, a first path with diffractions only; ``reflection``, one with a reflection):
-  the share of links, detection rate, range error ``c (toa_s - tx_offset_s - clock_offset_s) -
-  distance_m`` median / p90 / p99 (detected links, both scenarios), and false early detections,
+  ``diffraction``, a first path with diffractions only; ``reflection``, one with a reflection;
+  and, overlapping these, ``diffraction-first``, a first path with a diffraction, ``D``, ``DR``,
+  ``RD``, ..., issue 38's target class): the share of links, detection rate, range error
+  ``c (toa_s - tx_offset_s - clock_offset_s) - distance_m`` median / p90 / p99 and the p90 of
+  its magnitude (detected links; both scenarios, and per scenario in the JSON), and false early
+  detections,
   the share of links whose range error is below ``-c 1.25 / (4 B)`` (a quarter pulse before the
   line-of-sight distance);
 * cost per link: the receiver's path-only work (prepare) on the static hall's links and one
@@ -50,7 +53,7 @@ from raytrace.core.errors import HallrayError
 RECEIVERS = ("first-lobe", "first-lobe-cfr", "search-back", "super-res", "first-path")
 BANDS = ("c-band", "mmwave")
 SCENARIOS = ("static", "semi-dynamic")
-CLASSES = ("LoS", "diffraction", "reflection", "all")
+CLASSES = ("LoS", "diffraction", "reflection", "diffraction-first", "all")
 #: Pulse period over 1/B (eq. 2, beta = 0.25): an early ToA is a quarter of c T before the LoS.
 PERIOD_B = 1.25
 
@@ -81,21 +84,25 @@ def read_errors(directory: Path) -> dict[str, Any]:
         "link": np.array([f"{r['point']}-{r['bs']}" for r in rows]),
         "error": err,
         "cls": np.array([first_class(r["first_kind"]) for r in rows]),
+        "dfirst": np.array(["D" in r["first_kind"] for r in rows], dtype=bool),
         "early_m": C0 * PERIOD_B / bandwidth / 4,
     }
 
 
 def class_stats(err: np.ndarray, early_m: float) -> dict[str, float]:
-    """Links, detection rate, error median / p90 / p99 (m, detected) and early share."""
+    """Links, detection rate, error median / p90 / p99 and |error| p90 (m, detected) and early
+    share."""
     n = int(err.size)
     det = err[np.isfinite(err)]
     q = np.quantile(det, [0.5, 0.9, 0.99]) if det.size else np.full(3, np.nan)
+    abs_p90 = float(np.quantile(np.abs(det), 0.9)) if det.size else float("nan")
     return {
         "links": n,
         "detected": float(det.size / n) if n else float("nan"),
         "median_m": float(q[0]),
         "p90_m": float(q[1]),
         "p99_m": float(q[2]),
+        "abs_p90_m": abs_p90,
         "early": float(np.sum(det < -early_m) / n) if n else float("nan"),
     }
 
@@ -110,8 +117,9 @@ def accuracy(datasets: list[dict[str, Any]], by_scenario: bool) -> list[dict[str
                  and scen in ("both", d["scenario"])]  # fmt: skip
         err = np.concatenate([d["error"] for d in parts])
         cls = np.concatenate([d["cls"] for d in parts])
+        dfirst = np.concatenate([d["dfirst"] for d in parts])
         for c in CLASSES:
-            sel = err if c == "all" else err[cls == c]
+            sel = err if c == "all" else err[dfirst] if c == "diffraction-first" else err[cls == c]
             if sel.size:
                 row = {"receiver": method, "band": band, "scenario": scen, "class": c}
                 row |= class_stats(sel, parts[0]["early_m"])
@@ -193,15 +201,29 @@ def _fmt(v: float, nd: int = 2) -> str:
     return "-" if not np.isfinite(v) else f"{v:.{nd}f}"
 
 
-def markdown(acc: list[dict], cost: list[dict], table: list[dict], early: list[dict] = ()) -> str:
-    """The study as markdown tables."""
+def markdown(
+    acc: list[dict], cost: list[dict], table: list[dict], early: list[dict] = (),
+    by_scenario: list[dict] = (),
+) -> str:
+    """The study as markdown tables (``by_scenario``: the issue's targets per scenario)."""
     lines = ["## Range error per receiver, band and first-arrival class (both scenarios)", "",
              "| receiver | band | class | share | detected | median [m] | p90 [m] | p99 [m] | "
-             "early [%] |", "|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
+             "abs p90 [m] | early [%] |", "|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
     for r in acc:
         lines.append(f"| {r['receiver']} | {r['band']} | {r['class']} | {_fmt(r['share'])} | "
                      f"{_fmt(r['detected'], 3)} | {_fmt(r['median_m'])} | {_fmt(r['p90_m'])} | "
-                     f"{_fmt(r['p99_m'])} | {_fmt(100 * r['early'])} |")  # fmt: skip
+                     f"{_fmt(r['p99_m'])} | {_fmt(r['abs_p90_m'])} | {_fmt(100 * r['early'])} |")  # fmt: skip
+    if by_scenario:
+        lines += ["", "## Per scenario: LoS and diffraction-first links, all links' early share", "",
+                  "| receiver | band | scenario | LoS abs p90 [m] | diffraction-first abs p90 [m] | "
+                  "early, all links [%] |", "|---|---|---|---|---|---|"]  # fmt: skip
+        keys = sorted({(r["receiver"], r["band"], r["scenario"]) for r in by_scenario})
+        for key in keys:
+            got = {r["class"]: r for r in by_scenario if (r["receiver"], r["band"], r["scenario"]) == key}
+            los, dif, all_ = (got.get(c, {}) for c in ("LoS", "diffraction-first", "all"))
+            lines.append(f"| {key[0]} | {key[1]} | {key[2]} | {_fmt(los.get('abs_p90_m', np.nan))} | "
+                         f"{_fmt(dif.get('abs_p90_m', np.nan))} | "
+                         f"{_fmt(100 * all_.get('early', np.nan))} |")  # fmt: skip
     if early:
         lines += ["", "## Early links (reported early in at least one epoch)", "",
                   "| receiver | band | scenario | link | epochs early | median error [m] |",
@@ -264,7 +286,7 @@ def _main(args: Any) -> int:
     early = early_links(datasets)
     cost = [] if args.no_cost else receiver_cost(receivers)
     table = [] if args.no_table else table_two(ds_dir, out, receivers)
-    text = markdown(acc, cost, table, early)
+    text = markdown(acc, cost, table, early, acc_s)
     blob = {"duration_s": args.duration, "receivers": receivers, "accuracy": acc,
             "accuracy_by_scenario": acc_s, "early_links": early, "cost": cost,
             "table_ii": table}  # fmt: skip

@@ -16,16 +16,17 @@ evaluated in windows, as the first-lobe receiver is (:mod:`.first_lobe`).
 2. the ``components`` strongest lobes are cancelled with the known pulse (CLEAN,
    :func:`positioning.model.searchback.clean`);
 3. before the first lobe's crossing less ``guard_t`` periods, the earliest residual lobe or
-   cancelled component above the noise threshold plus ``kappa`` times the cancelled lobes'
-   sidelobe envelope plus the residual's own sidelobe bound is the first arrival
-   (:func:`positioning.model.searchback.search_back`); its ToA is the top of its lobe with the
-   stronger lobes removed. Without one, the first lobe's ToA stands;
+   cancelled component above ``kappa`` times the cancelled lobes' sidelobe envelope plus the
+   larger of the noise threshold over the residual's own sidelobe bound and ``margin`` times that
+   bound is the first arrival (:func:`positioning.model.searchback.search_back`); its ToA is the
+   top of its lobe with the stronger lobes removed. Without one, the first lobe's ToA stands;
 4. (``two_pulse``) the reported lobe is fitted with one pulse and, where that leaves more than
    noise, with two (:func:`positioning.model.lobefit.refine_lobe`): where the fit determines
    them, the earlier of the two is the ToA (two paths merged in anti-phase top before the
    first; in phase, between the two); where it does not, a lobe top that the best fit of up to
    three pulses places well before all its components (more than three standard errors and a
-   quarter period) gives way to that fit's first component.
+   quarter period) gives way to that fit's first component (a lobe step 3 found stands out of
+   the later lobes' sidelobes: it moves by less than :data:`MOVE_T` periods, not onto them).
 
 A weak first path 20-30 dB under the strongest, a few periods before it, is found; the strongest
 path's sidelobes (predicted by the pulse, not by a fixed -12 dB) and noise (CFAR) are not taken
@@ -61,6 +62,11 @@ from .first_lobe import (
     prepare_first_lobe,
 )
 
+#: A lobe the search found is moved by the two-pulse step's consistency rule (a merged cluster
+#: tops before its paths) by less than this many periods: the pulse's first zero, beyond which a
+#: fitted component is another lobe (the far pass fits the found lobe with the strongest peak).
+MOVE_T = 1.0
+
 
 def _number(name: str, value: object, lo: float, hi: float) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not lo <= value <= hi:
@@ -80,9 +86,9 @@ class SearchBackSettings:
         at the earliest path within it, and the cancellation stops there (default -40 dB)
     kappa : float, share of a cancelled lobe's sidelobe envelope the one-pulse model may miss
         (paths merged in one lobe are not one pulse; default 0.5)
-    margin : float, weight of the residual's own sidelobe bound (default 2: on the static hall
-        at mmWave the diffraction-first links' early ToAs fall from 1.4 % with 1 to 0.6 %, their
-        p90 unchanged; docs/channel.md)
+    margin : float, a sample must reach this many times the residual's own sidelobe bound, as well
+        as the noise threshold above it (default 2: merged lobes' sidelobes exceed the one-pulse
+        bound; :func:`positioning.model.searchback.search_back`, docs/channel.md)
     guard_t : float, periods T before the first lobe's crossing where the search ends (default 1:
         closer paths are part of that lobe)
     two_pulse : bool, refine the reported lobe with two pulses where it is not one
@@ -174,8 +180,11 @@ def measure_search_back(
         lobe, p2, fit = refine_lobe(win.signal, n_s, t0, dt, period, plan.pulse.oversampling, table,
                                     lobe, plan.peak_time_s[win.rows], tau, amp, win.gamma,
                                     win.sigma_hat2, plan.alpha, plan.rho, noise_gain(roll, span))  # fmt: skip
-        toa = np.where(found | fit.applied, lobe, np.nan)
-        peak = np.where(fit.applied, p2, peak)
+        # a lobe the search found stands out of the later lobes' sidelobes: it may move within
+        # itself (a merged cluster tops before its paths) but not onto a lobe a period later
+        took = fit.applied & ~(found & fit.moved & (lobe - toa > MOVE_T * period))
+        toa = np.where(found & ~took, toa, np.where(took, lobe, np.nan))
+        peak = np.where(took, p2, peak)
         found = np.isfinite(toa)
     if not found.any():
         return fl
