@@ -99,7 +99,8 @@ def evaluate(
     """Run ``methods`` on ``ds``; 2D errors and their summaries per method."""
     params = params or {}
     fixes, errors, summaries = {}, {}, {}
-    prob = dataset_problem(ds, height)
+    # the methods keep what they compute alike (the robust ones' hypothesis fits) in its memo
+    prob = dataset_problem(ds, height).with_memo()
     # the integrity figures' fault hypotheses depend on the measurements alone: fitted once for
     # all the methods (they were a seventh of a report's time, fitted again per method)
     hyps = HypothesisCache(prob)
