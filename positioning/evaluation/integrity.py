@@ -125,38 +125,12 @@ def hypotheses(prob: Problem, rows: np.ndarray) -> list[Hypothesis]:
     return out
 
 
-class HypothesisCache:
-    """The fault hypotheses of one problem (:func:`hypotheses`), computed once per set of
-    epochs and shared by every method's fixes: they depend on the measurements alone.
-
-    Parameters
-    ----------
-    prob : Problem, the problem every :meth:`get` is about
-    """
-
-    def __init__(self, prob: Problem) -> None:
-        self.prob = prob
-        self._by_rows: dict[bytes, list[Hypothesis]] = {}
-
-    def __len__(self) -> int:
-        """Sets of epochs fitted so far."""
-        return len(self._by_rows)
-
-    def get(self, rows: np.ndarray) -> list[Hypothesis]:
-        """:func:`hypotheses` of ``rows`` (E,) bool, computed at the first call for them."""
-        key = np.asarray(rows, dtype=bool).tobytes()
-        if key not in self._by_rows:
-            self._by_rows[key] = hypotheses(self.prob, rows)
-        return self._by_rows[key]
-
-
-def integrity(
-    prob: Problem, xyz: np.ndarray, status: np.ndarray, cache: HypothesisCache | None = None
-) -> tuple[np.ndarray, np.ndarray]:
+def integrity(prob: Problem, xyz: np.ndarray, status: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """HPL (E,) and chi2n (E,) of fixes ``xyz`` (E, 3) (see the module docstring).
 
-    NaN for unsolved fixes; chi2n NaN without redundancy. ``cache``: the hypotheses' fits of
-    ``prob`` kept from another method's fixes (a :class:`HypothesisCache` of this problem).
+    NaN for unsolved fixes; chi2n NaN without redundancy. The hypotheses depend on the
+    measurements alone: with a memo (:meth:`~positioning.model.problem.Problem.with_memo`) they
+    are fitted once per set of epochs for every method's fixes.
     """
     E, N = prob.rho.shape
     k = prob.dims + 1
@@ -168,9 +142,11 @@ def integrity(
     with np.errstate(invalid="ignore", divide="ignore"):
         chi2n = np.where(solved & (n > k), np.sum(W0 * r * r, axis=1) / (n - k), np.nan)
     rows = solved & prob.solvable
-    if cache is not None and cache.prob is not prob:
-        raise ValueError("integrity: the cache is of another problem")
-    hyps = cache.get(rows) if cache is not None else hypotheses(prob, rows)
+    if prob.memo is not None:
+        key = ("integrity hypotheses", rows.tobytes())
+        hyps = prob.memo.get(prob, key, lambda: hypotheses(prob, rows))
+    else:
+        hyps = hypotheses(prob, rows)
     hpl = np.full(E, -np.inf)
     for h in hyps:
         d = np.linalg.norm(np.nan_to_num(h.fit[:, :2] - xyz[:, :2]), axis=1)

@@ -4,7 +4,7 @@ the integrity figures) and the public entry point :func:`locate`."""
 from __future__ import annotations
 
 from dataclasses import replace
-from typing import TYPE_CHECKING, Any, Literal, overload
+from typing import Any, Literal, overload
 
 import numpy as np
 
@@ -17,9 +17,6 @@ from ..model.problem import LinkInfo, Problem, make_problem
 from ..model.scale import check_height, check_stations, check_toa_scale
 from ..model.tdoa import C0
 from .registry import METHODS, resolve_params
-
-if TYPE_CHECKING:
-    from ..evaluation.integrity import HypothesisCache
 
 #: What to do with a fix outside the service area: solve again inside it, or leave it unsolved.
 OUTSIDE_CHOICES = ("constrain", "reject")
@@ -65,7 +62,6 @@ def run_method(
     *,
     outside: str = "constrain",
     alert_limit_m: float | None = None,
-    hypotheses: HypothesisCache | None = None,
     **params: Any,
 ) -> Fixes:
     """Solve a prepared :class:`~positioning.model.problem.Problem` with one registered method.
@@ -75,8 +71,6 @@ def run_method(
     ``alert_limit_m`` the integrity figures (:mod:`positioning.evaluation.integrity`) are
     computed and fixes whose protection level exceeds it are flagged ``INTEGRITY``. The result is
     the method's :class:`Fixes` with the registered name, the resolved parameters and these.
-    ``hypotheses``: the integrity figures' fault hypotheses of ``prob``, shared by the methods
-    run on it (they do not depend on the fixes).
     """
     if outside not in OUTSIDE_CHOICES:
         raise PositioningError(
@@ -98,7 +92,7 @@ def run_method(
     if alert_limit_m is not None:
         from ..evaluation.integrity import integrity
 
-        hpl, chi2n = integrity(prob, xyz, status, hypotheses)
+        hpl, chi2n = integrity(prob, xyz, status)
         limit = float(alert_limit_m)
         solved = (status & int(Status.UNSOLVED)) == 0
         status |= np.where(solved & ~(hpl <= limit), int(Status.INTEGRITY), 0)

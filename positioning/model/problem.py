@@ -64,7 +64,8 @@ class LinkInfo:
 
 class Memo:
     """Results several estimators compute alike on the very same :class:`Problem` (the
-    hypothesis fits of the robust ones), kept for the next one that asks: see
+    hypothesis fits of the robust ones, the integrity figures' fault hypotheses), kept for the
+    next one that asks: see
     :meth:`Problem.with_memo`. It answers only for the problem it was made for (the same array
     objects): a sub-problem (:meth:`Problem.take`, ``dataclasses.replace``) computes afresh."""
 

@@ -13,7 +13,7 @@ import numpy as np
 from ..estimators.eq7 import reference_by_name
 from ..estimators.fixes import Fixes
 from ..estimators.track import check_params, split_method, track_fixes
-from ..evaluation.integrity import ALERT_LIMIT_M, HypothesisCache
+from ..evaluation.integrity import ALERT_LIMIT_M
 from ..evaluation.metrics import error_2d, summarize
 from ..io.dataset import ToaDataset
 from ..io.prepare import dataset_problem
@@ -61,30 +61,24 @@ def solve_dataset(
     alert_limit_m: float | None = ALERT_LIMIT_M,
     problem: Problem | None = None,
     track: Mapping[str, Any] | None = None,
-    hypotheses: HypothesisCache | None = None,
 ) -> Fixes:
     """Run one method on every fix of a dataset (schedule removed per measurement), bounded to
     the dataset's service area, with integrity figures at ``alert_limit_m``.
 
     ``METHOD+track``: the method's fixes tracked per point over time
     (:func:`positioning.estimators.track.track_fixes` with the ``track`` parameters).
-    ``hypotheses``: the integrity figures' fault hypotheses of ``problem``, kept between methods.
     """
     base, tracked = split_method(method)
     if tracked:
         single = solve_dataset(
-            ds, base, params, height, outside=outside, alert_limit_m=alert_limit_m,
-            problem=problem, hypotheses=hypotheses,
-        )  # fmt: skip
+            ds, base, params, height, outside=outside, alert_limit_m=alert_limit_m, problem=problem
+        )
         return track_fixes(single, ds.point, ds.time_s, check_params(track or {}))
     prob = problem if problem is not None else dataset_problem(ds, height)
     p = dict(params)
     if "reference" in p:
         p["reference"] = reference_by_name(p["reference"], list(ds.bs_names))
-    if hypotheses is not None and hypotheses.prob is not prob:
-        hypotheses = None  # of another problem
-    return run_method(prob, method, outside=outside, alert_limit_m=alert_limit_m,
-                      hypotheses=hypotheses, **p)  # fmt: skip
+    return run_method(prob, method, outside=outside, alert_limit_m=alert_limit_m, **p)
 
 
 def evaluate(
@@ -99,11 +93,9 @@ def evaluate(
     """Run ``methods`` on ``ds``; 2D errors and their summaries per method."""
     params = params or {}
     fixes, errors, summaries = {}, {}, {}
-    # the methods keep what they compute alike (the robust ones' hypothesis fits) in its memo
+    # the methods keep what they compute alike in its memo: the robust ones' hypothesis fits,
+    # the integrity figures' fault hypotheses (a seventh of a report's time, once per method)
     prob = dataset_problem(ds, height).with_memo()
-    # the integrity figures' fault hypotheses depend on the measurements alone: fitted once for
-    # all the methods (they were a seventh of a report's time, fitted again per method)
-    hyps = HypothesisCache(prob)
     single: dict[str, Fixes] = {}  # a tracked method reuses its base method's fixes
     for m in methods:
         base, tracked = split_method(m)
@@ -116,7 +108,6 @@ def evaluate(
                 outside=outside,
                 alert_limit_m=alert_limit_m,
                 problem=prob,
-                hypotheses=hyps,
             )
         f = single[base]
         if tracked:
