@@ -406,3 +406,57 @@ def test_preparing_some_links_again_gives_their_rows_of_the_full_plan():
     rows = np.searchsorted(every.links, some.links)
     for name in ("t0_s", "n_samples", "signal", "peak_signal", "peak_time_s"):
         np.testing.assert_array_equal(getattr(some, name), getattr(every, name)[rows], err_msg=name)
+
+
+def _random_paths(seed: int, n_links: int = 12, per_link: int = 30):
+    rng = np.random.default_rng(seed)
+    link = np.repeat(np.arange(n_links), per_link)
+    delay = 20e-9 + rng.uniform(0.0, 300e-9, link.size)
+    amp = 10.0 ** (rng.uniform(-120.0, -60.0, link.size) / 20.0)
+    gain = amp * np.exp(1j * rng.uniform(0.0, 2.0 * np.pi, link.size))
+    return link, delay, gain, n_links
+
+
+@pytest.mark.parametrize("band", ["c-band", "mmwave"])
+def test_receivers_sharing_one_set_of_paths_prepare_what_each_prepares_alone(band):
+    """A band's receivers given one SharedPaths (the CIR and first paths computed once) prepare
+    exactly what each prepares alone, array for array and bit for bit, and measure the same."""
+    from dataclasses import fields
+
+    from raytrace.emulation.channel.cir import SharedPaths
+
+    link, delay, gain, n = _random_paths(3)
+    shared = SharedPaths(link, delay, gain, n)
+    rxs = [Receiver(m, band) for m in ("search-back", "paper", "first-path", "first-lobe")]
+    rxs.append(Receiver("first-path", band, first_path_threshold=False))
+    for rx in rxs:
+        alone = rx.prepare(link, delay, gain, n)
+        together = rx.prepare(link, delay, gain, n, shared)
+        _assert_same(alone, together)
+        a = rx.measure(alone, np.random.default_rng(5))
+        b = rx.measure(together, np.random.default_rng(5))
+        for f in fields(a):
+            np.testing.assert_array_equal(getattr(a, f.name), getattr(b, f.name))
+    assert together.cir is shared.cir  # computed once for all of them
+    # paths other than the shared ones' arrays: the SharedPaths is not used
+    other = Receiver("paper", band).prepare(link, delay * 1.5, gain, n, shared)
+    _assert_same(other, Receiver("paper", band).prepare(link, delay * 1.5, gain, n))
+
+
+def _assert_same(a, b):
+    from dataclasses import fields, is_dataclass
+
+    assert type(a) is type(b)
+    for f in fields(a):
+        x, y = getattr(a, f.name), getattr(b, f.name)
+        if is_dataclass(x):
+            _assert_same(x, y)
+        elif isinstance(x, np.ndarray):
+            assert x.dtype == y.dtype
+            np.testing.assert_array_equal(x, y)
+        elif isinstance(x, tuple):
+            assert len(x) == len(y)
+            for u, v in zip(x, y):
+                np.testing.assert_array_equal(u, v)
+        else:
+            assert x == y, f.name

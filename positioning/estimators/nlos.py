@@ -135,12 +135,15 @@ def em_fit(
     iters = np.zeros(E, dtype=np.int64)
     weights = np.zeros((E, N))
     act = np.flatnonzero(rows & np.isfinite(theta0).all(axis=1))
+    here = None  # (nll, resp, r) at theta[act], when the last iteration computed them
     for _ in range(max_iter):
         if act.size == 0:
             break
         sub = prob.take(act)
         sig = sigma_all[act]
-        nll0, resp, r = _nll(sub, theta[act], sig, s_w)
+        # the E-step at an accepted M-step's end point is the NLL the test below computed there
+        # (every term is per measurement: the same numbers for the smaller batch)
+        nll0, resp, r = here if here is not None else _nll(sub, theta[act], sig, s_w)
         excess = late_mean_excess(r, sig)
         w = resp[0] / sig**2 + resp[1] / (sig**2 + s_w**2) + resp[2] / sig**2
         shift = resp[2] / sig**2 * excess / w
@@ -152,14 +155,16 @@ def em_fit(
         if prob.area is not None:  # the M-step stays on the floor
             th[:, :2] = prob.area.project(th[:, :2])
         step = np.linalg.norm(th - theta[act], axis=1)
-        nll1, _, _ = _nll(sub, np.nan_to_num(th), sig, s_w)
+        nll1, resp1, r1 = _nll(sub, np.nan_to_num(th), sig, s_w)
         # a descent method: a step that does not lower the NLL (the shares move with the
         # position, so plain EM is not monotone here) ends the iteration where it is
         ok = np.isfinite(step) & (nll1.sum(axis=1) < nll0.sum(axis=1))
         theta[act[ok]] = th[ok]
         weights[act] = W
         iters[act] += 1
-        act = act[ok & (step > tol_m)]
+        go = ok & (step > tol_m)  # a finite step: th is finite there, nan_to_num kept it
+        act = act[go]
+        here = (nll1[go], resp1[:, go], r1[go])
     nll_e, _, _ = _nll(prob, np.where(np.isfinite(theta), theta, 0.0), sigma_all, s_w)
     total = np.where(rows & np.isfinite(theta).all(axis=1), nll_e.sum(axis=1), np.inf)
     return theta, total, weights, iters

@@ -186,6 +186,17 @@ def candidates(
     all), ``sub`` (E,) bool, the epochs where the hypothesis applies (for a proper subset also: its
     fit is plausible), and the :class:`~positioning.estimators.solver.Solution`.
     """
+    if prob.memo is not None:  # m-estimator, nlos-aware and nlos-map fit the same ones
+        key = ("candidates", np.asarray(rows, bool).tobytes(), int(max_drop), float(margin))
+        yield from prob.memo.get(prob, key, lambda: list(_candidates(prob, rows, max_drop, margin)))
+        return
+    yield from _candidates(prob, rows, max_drop, margin)
+
+
+def _candidates(
+    prob: Problem, rows: np.ndarray, max_drop: int, margin: float
+) -> Iterator[tuple[tuple[int, ...], np.ndarray, Solution]]:
+    """:func:`candidates`, computed."""
     E, N = prob.rho.shape
     k = prob.dims + 1
     valid = prob.valid & rows[:, None]

@@ -23,6 +23,8 @@ For every method's fix, from the measurements alone (no truth):
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from scipy.stats import chi2
 
@@ -70,27 +72,36 @@ def _horizontal_sigma(prob: Problem, theta: np.ndarray, W: np.ndarray) -> np.nda
     return out
 
 
-def integrity(prob: Problem, xyz: np.ndarray, status: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """HPL (E,) and chi2n (E,) of fixes ``xyz`` (E, 3) (see the module docstring).
+@dataclass(frozen=True)
+class Hypothesis:
+    """One fault hypothesis's least-squares fit (see the module docstring): what of the HPL does
+    not depend on the fix.
 
-    NaN for unsolved fixes; chi2n NaN without redundancy.
+    Attributes
+    ----------
+    fit : (E, 3) float, metres, the hypothesis's fit
+    ok : (E,) bool, plausible (solved, converged, inside the area, consistent, not early)
+    sigma_h : (E,) float, metres, its horizontal standard deviation
     """
+
+    fit: np.ndarray
+    ok: np.ndarray
+    sigma_h: np.ndarray
+
+
+def hypotheses(prob: Problem, rows: np.ndarray) -> list[Hypothesis]:
+    """The fits of every fault hypothesis (none, then each base station excluded) on the epochs
+    ``rows`` (E,) bool; a hypothesis no epoch can take is left out."""
     E, N = prob.rho.shape
     k = prob.dims + 1
-    solved = ((status & int(Status.UNSOLVED)) == 0) & np.isfinite(xyz).all(axis=1)
     sigma = link_sigma(prob.links, (E, N))
     W0 = np.where(prob.valid, 1.0 / sigma**2, 0.0)
-    n = prob.n_valid
-    r = _residuals(prob, xyz, W0)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        chi2n = np.where(solved & (n > k), np.sum(W0 * r * r, axis=1) / (n - k), np.nan)
     s_wide = np.sqrt(sigma**2 + (WIDE_PULSES * pulse_width_m(prob.links)) ** 2)
     narrow = prob.links is not None and prob.links.lobe_width is not None
     early_tol = K_SIGMA * (
         np.where(prob.links.lobe_width < NARROW_LOBE, s_wide, sigma) if narrow else sigma
     )
-    hpl = np.full(E, -np.inf)
-    rows = solved & prob.solvable
+    out = []
     for j in range(-1, N):
         use = prob.valid.copy()
         if j >= 0:
@@ -110,9 +121,36 @@ def integrity(prob: Problem, xyz: np.ndarray, status: np.ndarray) -> tuple[np.nd
         ok &= (dof < 1) | (sse <= chi2.ppf(P_CONSISTENT, np.maximum(dof, 1)))
         if j >= 0:
             ok &= rh[:, j] >= -early_tol[:, j]
-        sig_h = _horizontal_sigma(prob, sol.theta, W)
-        d = np.linalg.norm(np.nan_to_num(fit[:, :2] - xyz[:, :2]), axis=1)
-        hpl = np.where(ok, np.maximum(hpl, d + K_SIGMA * sig_h), hpl)
+        out.append(Hypothesis(fit, ok, _horizontal_sigma(prob, sol.theta, W)))
+    return out
+
+
+def integrity(prob: Problem, xyz: np.ndarray, status: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """HPL (E,) and chi2n (E,) of fixes ``xyz`` (E, 3) (see the module docstring).
+
+    NaN for unsolved fixes; chi2n NaN without redundancy. The hypotheses depend on the
+    measurements alone: with a memo (:meth:`~positioning.model.problem.Problem.with_memo`) they
+    are fitted once per set of epochs for every method's fixes.
+    """
+    E, N = prob.rho.shape
+    k = prob.dims + 1
+    solved = ((status & int(Status.UNSOLVED)) == 0) & np.isfinite(xyz).all(axis=1)
+    sigma = link_sigma(prob.links, (E, N))
+    W0 = np.where(prob.valid, 1.0 / sigma**2, 0.0)
+    n = prob.n_valid
+    r = _residuals(prob, xyz, W0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        chi2n = np.where(solved & (n > k), np.sum(W0 * r * r, axis=1) / (n - k), np.nan)
+    rows = solved & prob.solvable
+    if prob.memo is not None:
+        key = ("integrity hypotheses", rows.tobytes())
+        hyps = prob.memo.get(prob, key, lambda: hypotheses(prob, rows))
+    else:
+        hyps = hypotheses(prob, rows)
+    hpl = np.full(E, -np.inf)
+    for h in hyps:
+        d = np.linalg.norm(np.nan_to_num(h.fit[:, :2] - xyz[:, :2]), axis=1)
+        hpl = np.where(h.ok, np.maximum(hpl, d + K_SIGMA * h.sigma_h), hpl)
     hpl = np.where(np.isfinite(hpl), hpl, np.inf)
     hpl = np.where(solved, hpl, np.nan)
     return hpl, chi2n

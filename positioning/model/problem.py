@@ -8,7 +8,9 @@ paper eqs. 4-6).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
 
@@ -60,6 +62,32 @@ class LinkInfo:
         )
 
 
+class Memo:
+    """Results several estimators compute alike on the very same :class:`Problem` (the
+    hypothesis fits of the robust ones, the integrity figures' fault hypotheses), kept for the
+    next one that asks: see
+    :meth:`Problem.with_memo`. It answers only for the problem it was made for (the same array
+    objects): a sub-problem (:meth:`Problem.take`, ``dataclasses.replace``) computes afresh."""
+
+    def __init__(self, prob: Problem) -> None:
+        self._of = _identity(prob)
+        self._kept: dict[object, Any] = {}
+
+    def get(self, prob: Problem, key: object, compute: Callable[[], Any]) -> Any:
+        """``compute()`` for ``key`` (hashable), once per key for this problem; a result the
+        caller only reads."""
+        if any(a is not b for a, b in zip(_identity(prob), self._of, strict=True)):
+            return compute()
+        if key not in self._kept:
+            self._kept[key] = compute()
+        return self._kept[key]
+
+
+def _identity(prob: Problem) -> tuple[Any, ...]:
+    """The problem's inputs themselves (held, so that no other object can take their place)."""
+    return tuple(getattr(prob, f) for f in ("rho", "valid", "bs", "height", "area", "links"))
+
+
 @dataclass(frozen=True)
 class Problem:
     """Validated positioning input of E epochs and N base stations.
@@ -81,6 +109,8 @@ class Problem:
     links : LinkInfo or None
         What the receiver reported about each measurement (SNR, first-lobe shape), for the
         estimators that use it (``nlos-map``, the integrity figures); None: not known.
+    memo : Memo or None
+        Work kept between the estimators run on this problem (:meth:`with_memo`); None: none.
     """
 
     rho: np.ndarray
@@ -89,6 +119,14 @@ class Problem:
     height: np.ndarray | None
     area: ServiceArea | None = None
     links: LinkInfo | None = None
+    memo: Memo | None = field(default=None, compare=False, repr=False)
+
+    def with_memo(self) -> Problem:
+        """This problem with a :class:`Memo`: the estimators run on it keep what they compute
+        alike (several methods on one dataset)."""
+        prob = replace(self, memo=None)
+        object.__setattr__(prob, "memo", Memo(prob))
+        return prob
 
     @property
     def dims(self) -> int:
@@ -126,6 +164,7 @@ class Problem:
             valid=self.valid[idx],
             height=None if self.height is None else self.height[idx],
             links=None if self.links is None else self.links.take(idx),
+            memo=None,
         )
 
     def position(self, theta: np.ndarray, idx: np.ndarray) -> np.ndarray:

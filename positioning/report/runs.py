@@ -93,7 +93,9 @@ def evaluate(
     """Run ``methods`` on ``ds``; 2D errors and their summaries per method."""
     params = params or {}
     fixes, errors, summaries = {}, {}, {}
-    prob = dataset_problem(ds, height)
+    # the methods keep what they compute alike in its memo: the robust ones' hypothesis fits,
+    # the integrity figures' fault hypotheses (a seventh of a report's time, once per method)
+    prob = dataset_problem(ds, height).with_memo()
     single: dict[str, Fixes] = {}  # a tracked method reuses its base method's fixes
     for m in methods:
         base, tracked = split_method(m)

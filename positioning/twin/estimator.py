@@ -202,7 +202,8 @@ def twin(
     stale = np.zeros((E, B), dtype=bool)
     bad = np.zeros(E, dtype=bool)
     if rows.size:
-        sub = prob.take(rows)
+        # every epoch: the problem itself, whose memo holds what its own map-free methods fitted
+        sub = prob if rows.size == E else prob.take(rows)
         fb = fallback(sub) if fallback is not None else irls(sub)
         cell_xy = fmap.cell_xyz[:, :2]
         cand = _cells_near(sub, lat, cell_xy, fb.xyz[:, :2], prior_m, config.top)

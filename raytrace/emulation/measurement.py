@@ -36,6 +36,7 @@ import numpy as np
 from ..solver.paths import Paths
 from .bands import Band
 from .channel.budget import LinkBudget
+from .channel.cir import SharedPaths
 from .channel.pulse import PulseShape
 from .receivers.first_lobe import FirstLobeSettings
 from .receivers.receiver import DEFAULT_TOA_METHOD, PreparedLinks, Receiver
@@ -111,9 +112,18 @@ def _kinds(paths: Paths, index: np.ndarray) -> np.ndarray:
     return kind.astype(str)
 
 
-def prepare_links(paths: Paths, receiver: Receiver) -> PreparedLinks:
-    """The receiver's path-only work for ``paths`` (reusable by every epoch of a snapshot)."""
-    return receiver.prepare(paths.link, paths.delay_s, paths.gain, paths.n_links)
+def prepare_links(
+    paths: Paths, receiver: Receiver, shared: SharedPaths | None = None
+) -> PreparedLinks:
+    """The receiver's path-only work for ``paths`` (reusable by every epoch of a snapshot);
+    ``shared``: :func:`shared_paths` of these paths, kept between the receivers of a band."""
+    return receiver.prepare(paths.link, paths.delay_s, paths.gain, paths.n_links, shared)
+
+
+def shared_paths(paths: Paths) -> SharedPaths:
+    """The paths' :class:`~raytrace.emulation.channel.cir.SharedPaths`: the CIR and first paths
+    that several receivers of the same paths compute once (:func:`prepare_links`)."""
+    return SharedPaths(paths.link, paths.delay_s, paths.gain, paths.n_links)
 
 
 def emulate_toa(
@@ -263,9 +273,10 @@ class ToaModel:
     delta_s: float = DELTA_S
     clock_offset_max_s: float = CLOCK_OFFSET_MAX_S
 
-    def prepare(self, paths: Paths) -> PreparedLinks:
-        """The receiver's path-only work (do it once for a scene that does not change)."""
-        return prepare_links(paths, self.receiver)
+    def prepare(self, paths: Paths, shared: SharedPaths | None = None) -> PreparedLinks:
+        """The receiver's path-only work (do it once for a scene that does not change);
+        ``shared``: :func:`shared_paths` of ``paths``, kept between the models of a band."""
+        return prepare_links(paths, self.receiver, shared)
 
     def measure(
         self, paths: Paths, epochs: Sequence[int], prepared: PreparedLinks | None = None

@@ -109,3 +109,42 @@ def first_detectable_path(
     first[1:] = lk[1:] != lk[:-1]
     out[lk[first]] = order[first]
     return out
+
+
+class SharedPaths:
+    """One set of paths, checked once, with what the receivers derive from the paths alone
+    (the CIR, each link's first path by a rule), computed at the first receiver that asks and
+    kept for the others: the receivers of one band measure the same paths every epoch.
+
+    Parameters
+    ----------
+    link, delay_s, gain, n_links : the paths, as :func:`discrete_cir` takes them
+    """
+
+    def __init__(self, link: np.ndarray, delay_s: np.ndarray, gain: np.ndarray, n_links: int):
+        self._source = (link, delay_s, gain, n_links)
+        self.link, self.delay_s, self.gain, self.n_links = check_paths(link, delay_s, gain, n_links)
+        self._cir: DiscreteCIR | None = None
+        self._first: list[tuple[object, np.ndarray]] = []
+
+    def holds(self, link: object, delay_s: object, gain: object, n_links: object) -> bool:
+        """Whether these are the very arrays (the same objects) it was made from."""
+        s = self._source
+        return s[0] is link and s[1] is delay_s and s[2] is gain and s[3] == n_links
+
+    @property
+    def cir(self) -> DiscreteCIR:
+        """:func:`discrete_cir` of the paths (its arrays are shared: read them only)."""
+        if self._cir is None:
+            self._cir = discrete_cir(self.link, self.delay_s, self.gain, self.n_links)
+        return self._cir
+
+    def first_path(self, rule: object, compute) -> np.ndarray:
+        """``compute()`` (the (n_links,) first path of each link by ``rule``, a value compared
+        with ``==``: e.g. a link budget and a band) at the first call for ``rule``; a copy."""
+        for key, first in self._first:
+            if key == rule:
+                return first.copy()
+        first = compute()
+        self._first.append((rule, first))
+        return first.copy()

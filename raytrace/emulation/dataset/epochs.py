@@ -19,7 +19,7 @@ from ...scene.model import Scene
 from ...solver.incremental import SnapshotTracer
 from ...solver.paths import Paths
 from ..bands import get_band
-from ..measurement import Measurements, ToaModel
+from ..measurement import Measurements, ToaModel, shared_paths
 from ..receivers.receiver import PreparedLinks
 from .config import DatasetConfig
 
@@ -103,7 +103,7 @@ def _run_epochs(g: ScenarioGroup, epochs: Sequence[int]) -> tuple[list[Measureme
     tr.stats = {}
     if g.static:
         if g.prepared is None:
-            g.prepared = [m.prepare(g.paths_of(tr.static_paths, k)) for k, m in enumerate(g.models)]
+            g.prepared = _prepare_all(g, tr.static_paths)
         out = [
             m.measure(g.paths_of(tr.static_paths, k), epochs, g.prepared[k])
             for k, m in enumerate(g.models)
@@ -112,9 +112,18 @@ def _run_epochs(g: ScenarioGroup, epochs: Sequence[int]) -> tuple[list[Measureme
     parts: list[list[Measurements]] = [[] for _ in g.models]
     for e in epochs:
         paths = tr.paths_at(float(g.times_s[e]))  # one trace of the snapshot for all datasets
+        prepared = _prepare_all(g, paths)
         for k, m in enumerate(g.models):
-            parts[k].append(m.measure(g.paths_of(paths, k), [e]))
+            parts[k].append(m.measure(g.paths_of(paths, k), [e], prepared[k]))
     return [Measurements.concatenate(p) for p in parts], dict(tr.stats)
+
+
+def _prepare_all(g: ScenarioGroup, paths: Sequence[Paths]) -> list[PreparedLinks]:
+    """Every dataset's receiver work on its band's ``paths``; the receivers of one band share
+    the CIR and first paths they all derive from the paths (computed once, not per receiver)."""
+    shared = [shared_paths(p) for p in paths]
+    return [m.prepare(g.paths_of(paths, k), shared[g.freq_index[k]])
+            for k, m in enumerate(g.models)]  # fmt: skip
 
 
 def _run_chunk(epochs: Sequence[int]) -> tuple[list[Measurements], dict]:

@@ -41,7 +41,7 @@ from ...core.jit import carray, helper, kernel
 from ...solver.config import MIN_POWER_DB
 from ..bands import Band
 from ..channel.budget import LinkBudget, toa_std_eq3_s
-from ..channel.cir import discrete_cir, first_detectable_path
+from ..channel.cir import DiscreteCIR, discrete_cir, first_detectable_path
 from ..channel.pulse import PulseShape, raised_cosine1
 
 #: A path whose power gain ``|gain|^2`` is below this (dB) is no MPC: the tracer's own floor
@@ -228,6 +228,7 @@ def lobe_tops(
     start_s: np.ndarray,
     band: Band,
     pulse: PulseShape,
+    cir: DiscreteCIR | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Top of the lobe of ``|sum_j A_j h(t - tau_j)|`` holding ``start_s[l]``, per link.
 
@@ -238,13 +239,15 @@ def lobe_tops(
     start_s : (n_links,) float, seconds, a time inside the wanted lobe (NaN: none)
     band : Band, its bandwidth sets the pulse period ``T = (1 + beta) / B``
     pulse : PulseShape, the raised cosine (its ``roll_off``; the pulse is not truncated)
+    cir : DiscreteCIR, optional, :func:`discrete_cir` of these paths, made before
 
     Returns
     -------
     top_s : (n_links,) float, seconds (NaN where none); path : (n_links,) int64, caller's index
     of the path contributing most at the top (-1 where none)
     """
-    cir = discrete_cir(link, delay_s, gain, n_links)
+    if cir is None:
+        cir = discrete_cir(link, delay_s, gain, n_links)
     top = np.empty(n_links)
     dominant = np.empty(n_links, dtype=np.int64)
     max_steps = int(round(MAX_CLIMB_T / CLIMB_STEP_T))
@@ -266,13 +269,19 @@ def prepare_paper(
     band: Band,
     budget: LinkBudget,
     pulse: PulseShape,
+    *,
+    first: np.ndarray | None = None,
+    cir: DiscreteCIR | None = None,
 ) -> PaperPlan:
-    """The noiseless part of the ``paper`` receiver (module docstring) for checked path arrays."""
-    first = first_traced_path(link, delay_s, gain, n_links)
+    """The noiseless part of the ``paper`` receiver (module docstring) for checked path arrays;
+    ``first`` (:func:`first_traced_path`) and ``cir`` (:func:`discrete_cir`) of these paths when
+    the caller has them."""
+    if first is None:
+        first = first_traced_path(link, delay_s, gain, n_links)
     has = first >= 0
     start = np.full(n_links, np.nan)
     start[has] = delay_s[first[has]]
-    top, dominant = lobe_tops(link, delay_s, gain, n_links, start, band, pulse)
+    top, dominant = lobe_tops(link, delay_s, gain, n_links, start, band, pulse, cir)
     snr = np.full(n_links, np.nan)
     snr[has] = budget.path_snr(gain[first[has]], band)
     sigma = np.asarray(

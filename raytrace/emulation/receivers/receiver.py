@@ -16,7 +16,7 @@ from ...core.errors import HallrayError
 from ..bands import Band, get_band
 from ..channel.budget import LinkBudget, toa_std_eq3_s
 from ..channel.cfr import PrsSettings
-from ..channel.cir import DiscreteCIR, check_paths, discrete_cir, first_detectable_path
+from ..channel.cir import DiscreteCIR, SharedPaths, first_detectable_path
 from ..channel.pulse import PulseShape
 from ..channel.response import pulse_toa
 from .first_lobe import FirstLobeSettings, LobePlan, measure_first_lobe, prepare_first_lobe
@@ -210,23 +210,41 @@ class Receiver:
         return out
 
     def prepare(
-        self, link: np.ndarray, delay_s: np.ndarray, gain: np.ndarray, n_links: int
+        self,
+        link: np.ndarray,
+        delay_s: np.ndarray,
+        gain: np.ndarray,
+        n_links: int,
+        shared: SharedPaths | None = None,
     ) -> PreparedLinks:
         """Deterministic part of the estimate for the paths ``link, delay_s, gain`` (see
-        :func:`estimate_toa`)."""
-        link, delay_s, gain, n_links = check_paths(link, delay_s, gain, n_links)
+        :func:`estimate_toa`).
+
+        ``shared``: a :class:`~raytrace.emulation.channel.cir.SharedPaths` of these very arrays
+        (another one is not used), whose CIR and first paths other receivers of the band
+        computed already; the result is the same.
+        """
+        if shared is None or not shared.holds(link, delay_s, gain, n_links):
+            shared = SharedPaths(link, delay_s, gain, n_links)
+        link, delay_s, gain, n_links = shared.link, shared.delay_s, shared.gain, shared.n_links
         band, budget = self.band, self.budget
         if self.method == "paper" or (
             self.method == "first-path" and not self.first_path_threshold
         ):
-            first = first_traced_path(link, delay_s, gain, n_links)
+            first = shared.first_path(
+                "traced", lambda: first_traced_path(link, delay_s, gain, n_links)
+            )
         else:
-            ok = budget.detectable(gain, band, link, n_links)
-            first = first_detectable_path(link, delay_s, ok, n_links)
+
+            def detectable_first() -> np.ndarray:
+                ok = budget.detectable(gain, band, link, n_links)
+                return first_detectable_path(link, delay_s, ok, n_links)
+
+            first = shared.first_path(("detectable", budget, band), detectable_first)
         has = first >= 0
         snr = np.full(n_links, np.nan)
         snr[has] = budget.path_snr(gain[first[has]], band)
-        cir = discrete_cir(link, delay_s, gain, n_links)
+        cir = shared.cir
         plan = None
         if self.method == "first-lobe":
             plan = prepare_first_lobe(cir, band, budget, self.pulse, self.first_lobe)
@@ -236,7 +254,8 @@ class Receiver:
                                depth.get(self.method))  # fmt: skip
         paper = None
         if self.method == "paper":
-            paper = prepare_paper(link, delay_s, gain, n_links, band, budget, self.pulse)
+            paper = prepare_paper(link, delay_s, gain, n_links, band, budget, self.pulse,
+                                  first=first.copy(), cir=cir)  # fmt: skip
         return PreparedLinks(n_links, link, delay_s, gain, first, snr, cir, plan, paper)
 
     def measure(

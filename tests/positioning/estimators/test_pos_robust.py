@@ -202,3 +202,42 @@ def test_nlos_loss_is_one_sided_and_smooth():
     np.testing.assert_allclose([left[0], right[0]], [k, k], atol=1e-5)
     # a 5 m late arrival costs far less than a 5 m early one (sigma 0.1 m)
     assert nlos_loss(np.array([50.0]), k)[0] < 0.015 * nlos_loss(np.array([-50.0]), k)[0]
+
+
+def test_candidates_are_fitted_once_per_problem_with_a_memo_and_are_the_same():
+    """With a memo, the robust estimators' hypothesis fits are made at the first method that
+    asks and handed to the others: the same fits, and every method's fixes bit for bit; a
+    sub-problem (another set of arrays) does not take them."""
+    from pos_synth import PAPER_BS, nlos_scene
+
+    from positioning.estimators import robust
+    from positioning.estimators.nlos import nlos_map
+    from positioning.model.problem import make_problem
+
+    _, toa, links = nlos_scene(11, 80, PAPER_BS, 1)
+    plain = make_problem(toa, PAPER_BS, height_m=1.0, links=links)
+    kept = plain.with_memo()
+    calls = []
+    real = robust._candidates
+
+    def counted(*a):
+        calls.append(1)
+        return real(*a)
+
+    mp = pytest.MonkeyPatch()
+    mp.setattr(robust, "_candidates", counted)
+    try:
+        for est in (robust.m_estimator, robust.nlos_aware, nlos_map):
+            a, b = est(plain), est(kept)
+            for name in ("xyz", "status", "weights", "iterations"):
+                np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+        assert len(calls) == 3 + 1  # plain: once per method; with the memo: once
+        sub = kept.take(np.arange(10))
+        assert sub.memo is None
+        from dataclasses import replace
+
+        other = replace(kept, rho=kept.rho + 1.0)  # carries the memo, not its arrays
+        list(robust.candidates(other, other.solvable, 1, 1.0))
+        assert len(calls) == 5
+    finally:
+        mp.undo()
