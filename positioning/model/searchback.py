@@ -26,6 +26,8 @@ samples, vectorised over rows (one row per link):
    rate; ``margin S`` covers merged lobes, whose sidelobes exceed the one-pulse envelope. The
    earliest such arrival is the first path; its ToA is the top of its lobe with the other
    components removed.
+3. :func:`explained`: whether a lobe (the receiver's first lobe) is the cancelled lobes'
+   sidelobe: not a component of its own, and what CLEAN leaves of it under that threshold.
 """
 
 from __future__ import annotations

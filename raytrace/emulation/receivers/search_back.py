@@ -19,7 +19,10 @@ evaluated in windows, as the first-lobe receiver is (:mod:`.first_lobe`).
    cancelled component above ``kappa`` times the cancelled lobes' sidelobe envelope plus the
    larger of the noise threshold over the residual's own sidelobe bound and ``margin`` times that
    bound is the first arrival (:func:`positioning.model.searchback.search_back`); its ToA is the
-   top of its lobe with the stronger lobes removed. Without one, the first lobe's ToA stands;
+   top of its lobe with the stronger lobes removed. Without one, the first lobe's ToA stands,
+   unless the cancelled lobes explain the first lobe (no component of its own, what is left of it
+   under that threshold: their summed sidelobe, :func:`positioning.model.searchback.explained`);
+   then the earliest component within the first-lobe rule's ``rho`` of the strongest stands for it;
 4. (``two_pulse``) the reported lobe is fitted with one pulse and, where that leaves more than
    noise, with two (:func:`positioning.model.lobefit.refine_lobe`): where the fit determines
    them, the earlier of the two is the ToA (two paths merged in anti-phase top before the
