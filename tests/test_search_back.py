@@ -547,21 +547,24 @@ def test_first_lobe_made_by_the_cancelled_lobes_sidelobes_is_not_reported():
 
 
 def test_explained_is_the_search_threshold_at_the_lobe():
-    """:func:`positioning.model.searchback.explained` against the threshold written out: a lobe
+    """:func:`positioning.model.searchback.explained` against its conditions written out: a lobe
     1.5 T before a cancelled component |A| = 1000 (no residual sidelobes: S = 0) is explained
-    up to ``kappa |A| E(1.5) + gamma`` and not beyond (1e-9 relative), never where a component
-    of its own lies within ``OWN_LOBE_T``, nor where there is no lobe (NaN)."""
+    where what is left of it is under ``kappa |A| E(1.5) + gamma`` and the lobe itself is at most
+    ``margin |A| E(1.5)``, not beyond either (1e-9 relative), never where a component of its own
+    lies within ``OWN_LOBE_T``, nor where there is no lobe (NaN)."""
     T, dt, w = 1.0, 0.125, 200
     env = envelope_table(PULSE.roll_off, PULSE.span)
-    kappa, gamma, a = 0.5, 10.0, 1000.0
-    thr = kappa * a * np.interp(1.5, *env) + gamma
+    kappa, margin, gamma, a = 0.5, 2.0, 10.0, 1000.0
+    e = np.interp(1.5, *env)
+    thr, reach = kappa * a * e + gamma, margin * a * e
     at = 40 * dt
-    comps = [[at + 1.5 * T], [at + 1.5 * T], [at + 0.5 * OWN_LOBE_T * T]]
-    values = [thr * (1 - 1e-9), thr * (1 + 1e-9), 0.0]
-    res = np.zeros((4, w), dtype=complex)
-    res[:3, 40] = values
-    tau = np.array(comps + [[at + 1.5 * T]])
-    amp = np.full((4, 1), a, dtype=complex)
-    out = explained(res, np.full(4, w), np.zeros(4), dt, T, tau, amp, np.full(4, gamma),
-                    np.array([at, at, at, np.nan]), kappa, 2.0, env)  # fmt: skip
-    assert out.tolist() == [True, False, False, False]
+    left = [thr * (1 - 1e-9), thr * (1 + 1e-9), thr * (1 - 1e-9), 0.0, 0.0]
+    lobe = [reach * (1 - 1e-9), reach * (1 - 1e-9), reach * (1 + 1e-9), reach / 2, 0.0]
+    res, sig = np.zeros((5, w), dtype=complex), np.zeros((5, w), dtype=complex)
+    res[:, 40], sig[:, 40] = left, lobe
+    tau = np.full((5, 1), at + 1.5 * T)
+    tau[3, 0] = at + 0.5 * OWN_LOBE_T * T
+    amp = np.full((5, 1), a, dtype=complex)
+    out = explained(sig, res, np.full(5, w), np.zeros(5), dt, T, tau, amp, np.full(5, gamma),
+                    np.array([at, at, at, at, np.nan]), kappa, margin, env)  # fmt: skip
+    assert out.tolist() == [True, False, False, False, False]

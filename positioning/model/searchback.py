@@ -143,6 +143,7 @@ def _envelope(lag_t: np.ndarray, env: tuple) -> np.ndarray:
 
 
 def explained(
+    sig: np.ndarray,
     res: np.ndarray,
     n_samples: np.ndarray,
     t0: np.ndarray,
@@ -157,14 +158,15 @@ def explained(
     env: tuple,
 ) -> np.ndarray:
     """Whether the lobe at ``t_at`` is the cancelled lobes' sidelobe: no cancelled component within
-    :data:`OWN_LOBE_T` periods of it (it was not cancelled as a lobe of its own) and the residual
-    there under :func:`search_back`'s threshold ``kappa sum_k |A_k| E + max(gamma + S, margin S)``
+    :data:`OWN_LOBE_T` periods of it (it was not cancelled as a lobe of its own), the lobe no
+    more than ``margin`` times their summed sidelobe envelope there, and the residual there under :func:`search_back`'s threshold ``kappa sum_k |A_k| E + max(gamma + S, margin S)``
     (what CLEAN's pulses leave of it is no more than their model error, the residual's sidelobes
     and noise: it was made by the later lobes' sidelobes, e.g. several comparable merged lobes
     whose sidelobes add up to -10 dB of the strongest, 1.3-1.7 T before it).
 
     Parameters
     ----------
+    sig : (M, W) complex, 1/s, the delay profile :func:`clean` took
     res, n_samples, t0, dt, period, tau, amp, gamma, kappa, margin, env : as :func:`search_back`
     t_at : (M,) float, s, the lobe's top (NaN: none)
 
@@ -194,7 +196,10 @@ def explained(
     s = np.sqrt(np.sum(np.where(top & (lag_l >= OWN_LOBE_T), (mag * _envelope(lag_l, env)) ** 2, 0.0),
                        axis=1))  # fmt: skip
     thr = kappa * g + _over_sidelobes(gamma, s, margin)
-    return ok & ~own & (mag[rows, i] < thr)
+    # and their sidelobes can make it: a lobe over ``margin`` times their summed envelope (the
+    # bound merged lobes may exceed) is a path CLEAN's pulses overlapped, not their sidelobe
+    reach = np.abs(sig[rows, i]) <= margin * g
+    return ok & ~own & reach & (mag[rows, i] < thr)
 
 
 def _first_lobe_top(mag: np.ndarray, ok: np.ndarray, n_samples: np.ndarray):

@@ -161,7 +161,7 @@ def _past_sidelobes(plan, win, fl, tau, amp, res, settings, env):
     it. Returns ``(toa, peak)``, ``(R,)`` s and 1/s; ``peak`` NaN where the first lobe stands."""
     first = fl.toa_s[plan.links[win.rows]]
     peak = np.full(first.shape, np.nan)
-    side = explained(res, plan.n_samples[win.rows], plan.t0_s[win.rows], plan.dt_s, plan.period_s,
+    side = explained(win.signal, res, plan.n_samples[win.rows], plan.t0_s[win.rows], plan.dt_s, plan.period_s,
                      tau, amp, win.gamma, first, settings.kappa, settings.margin, env)  # fmt: skip
     strong = np.isfinite(tau) & (np.abs(amp) >= plan.rho * win.pmax[:, None])
     t_comp = np.where(strong & (tau > first[:, None]), tau, np.inf)
