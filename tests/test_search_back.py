@@ -14,7 +14,8 @@ from scipy.optimize import minimize_scalar
 from scipy.stats import ncx2
 from test_dataset import _scene
 
-from positioning.model.pulse import raised_cosine
+from positioning.model.pulse import envelope_table, raised_cosine
+from positioning.model.searchback import OWN_LOBE_T, explained
 from raytrace.cli.make_dataset import make_dataset_main
 from raytrace.core.errors import HallrayError
 from raytrace.emulation.bands import get_band
@@ -509,3 +510,61 @@ def test_merged_lobes_sidelobe_is_not_taken_for_a_path():
             assert np.all(err < -1.0), margin
         else:
             assert np.all(np.abs(err) < QUARTER_T), margin
+
+
+#: The semi-dynamic hall's C-band P14-BS4 at epoch 29 (forklifts; line of sight), its paths within
+#: -25 dB of the strongest (|gain| 6.756e-4): delay after the line of sight in T, dB, phase in
+#: degrees. Three comparable lobes (0 / 0.44 T merged, 1.66 T, 1.94 T) whose sidelobes add up to
+#: a lobe -10 dB under the strongest 1.67 T before the line of sight, where no path is.
+HALL_P14_BS4 = [
+    (0.0, 0.0, 76), (0.107, -18.8, -161), (0.219, -20.6, -52), (0.443, -1.4, -75),
+    (0.459, -21.3, 168), (0.555, -20.5, -28), (1.614, -14.2, 11), (1.66, -4.4, 142),
+    (1.795, -22.9, -158), (1.898, -15.5, 57), (1.898, -23.6, -144), (1.94, -5.0, -122),
+    (2.061, -24.1, -26), (5.445, -18.1, -78), (5.921, -18.6, -71), (9.667, -18.7, 23),
+    (15.2, -23.4, 159), (17.322, -18.0, -67), (17.322, -24.7, 107), (19.226, -18.8, 0),
+]
+
+
+def test_first_lobe_made_by_the_cancelled_lobes_sidelobes_is_not_reported():
+    """The hall link above: the first-lobe rule crosses -12 dB on the three lobes' summed
+    sidelobe 1.67 T early (``first-lobe-cfr`` reports it, and search-back did before issue 38's
+    fourth round); CLEAN's cancelled pulses explain that lobe (what is left of it is under the
+    search's threshold), so search-back reports the earliest strong component instead: the line
+    of sight within T/4, noiseless and in 20 draws of noise."""
+    T = PULSE.period_s(C_BAND)
+    d, db, deg = np.array(HALL_P14_BS4).T
+    delay = 70e-9 + d * T
+    gain = 6.756e-4 * 10 ** (db / 20) * np.exp(1j * np.radians(deg))
+    link = np.zeros(d.size, dtype=np.int64)
+    fl = run("first-lobe-cfr", link, delay, gain, 1)
+    assert (fl.toa_s[0] - delay[0]) / T < -1.5  # the case: the first lobe is the sidelobe
+    rx = Receiver("search-back", C_BAND)
+    prep = rx.prepare(link, delay, gain, 1)
+    toa = [rx.measure(prep, None, noise=False).toa_s[0]]
+    toa += [rx.measure(prep, np.random.default_rng(s)).toa_s[0] for s in range(20)]
+    err = (np.array(toa) - delay[0]) / T
+    assert np.all(np.abs(err) < QUARTER_T), err
+
+
+def test_explained_is_the_search_threshold_at_the_lobe():
+    """:func:`positioning.model.searchback.explained` against its conditions written out: a lobe
+    1.5 T before a cancelled component |A| = 1000 (no residual sidelobes: S = 0) is explained
+    where what is left of it is under ``kappa |A| E(1.5) + gamma`` and the lobe itself is at most
+    ``margin |A| E(1.5)``, not beyond either (1e-9 relative), never where a component of its own
+    lies within ``OWN_LOBE_T``, nor where there is no lobe (NaN)."""
+    T, dt, w = 1.0, 0.125, 200
+    env = envelope_table(PULSE.roll_off, PULSE.span)
+    kappa, margin, gamma, a = 0.5, 2.0, 10.0, 1000.0
+    e = np.interp(1.5, *env)
+    thr, reach = kappa * a * e + gamma, margin * a * e
+    at = 40 * dt
+    left = [thr * (1 - 1e-9), thr * (1 + 1e-9), thr * (1 - 1e-9), 0.0, 0.0]
+    lobe = [reach * (1 - 1e-9), reach * (1 - 1e-9), reach * (1 + 1e-9), reach / 2, 0.0]
+    res, sig = np.zeros((5, w), dtype=complex), np.zeros((5, w), dtype=complex)
+    res[:, 40], sig[:, 40] = left, lobe
+    tau = np.full((5, 1), at + 1.5 * T)
+    tau[3, 0] = at + 0.5 * OWN_LOBE_T * T
+    amp = np.full((5, 1), a, dtype=complex)
+    out = explained(sig, res, np.full(5, w), np.zeros(5), dt, T, tau, amp, np.full(5, gamma),
+                    np.array([at, at, at, at, np.nan]), kappa, margin, env)  # fmt: skip
+    assert out.tolist() == [True, False, False, False, False]

@@ -26,6 +26,8 @@ samples, vectorised over rows (one row per link):
    rate; ``margin S`` covers merged lobes, whose sidelobes exceed the one-pulse envelope. The
    earliest such arrival is the first path; its ToA is the top of its lobe with the other
    components removed.
+3. :func:`explained`: whether a lobe (the receiver's first lobe) is the cancelled lobes'
+   sidelobe: not a component of its own, and what CLEAN leaves of it under that threshold.
 """
 
 from __future__ import annotations
@@ -138,6 +140,66 @@ def _over_sidelobes(gamma: np.ndarray, s: np.ndarray, margin: float) -> np.ndarr
 def _envelope(lag_t: np.ndarray, env: tuple) -> np.ndarray:
     x, e = env
     return np.interp(np.abs(lag_t), x, e, right=0.0)
+
+
+def explained(
+    sig: np.ndarray,
+    res: np.ndarray,
+    n_samples: np.ndarray,
+    t0: np.ndarray,
+    dt: float,
+    period: float,
+    tau: np.ndarray,
+    amp: np.ndarray,
+    gamma: np.ndarray,
+    t_at: np.ndarray,
+    kappa: float,
+    margin: float,
+    env: tuple,
+) -> np.ndarray:
+    """Whether the lobe at ``t_at`` is the cancelled lobes' sidelobe: no cancelled component within
+    :data:`OWN_LOBE_T` periods of it (it was not cancelled as a lobe of its own), the lobe no
+    more than ``margin`` times their summed sidelobe envelope there, and the residual there under :func:`search_back`'s threshold ``kappa sum_k |A_k| E + max(gamma + S, margin S)``
+    (what CLEAN's pulses leave of it is no more than their model error, the residual's sidelobes
+    and noise: it was made by the later lobes' sidelobes, e.g. several comparable merged lobes
+    whose sidelobes add up to -10 dB of the strongest, 1.3-1.7 T before it).
+
+    Parameters
+    ----------
+    sig : (M, W) complex, 1/s, the delay profile :func:`clean` took
+    res, n_samples, t0, dt, period, tau, amp, gamma, kappa, margin, env : as :func:`search_back`
+    t_at : (M,) float, s, the lobe's top (NaN: none)
+
+    Returns
+    -------
+    (M,) bool, True where the lobe is explained by the cancelled lobes
+    """
+    m, w = res.shape
+    if m == 0 or w < 5:
+        return np.zeros(m, dtype=bool)
+    n_samples = np.asarray(n_samples)
+    rows = np.arange(m)
+    ok = np.isfinite(t_at)
+    at = np.where(ok, t_at, t0)
+    i = np.clip(np.rint((at - t0) / dt).astype(np.int64), 0, np.maximum(n_samples - 1, 0))
+    mag = np.abs(res)
+    have = np.isfinite(tau)
+    lag = np.where(have, (tau - at[:, None]) / period, np.inf)
+    own = np.any(np.abs(lag) < OWN_LOBE_T, axis=1)
+    g = np.sum(np.where(have, np.abs(amp) * _envelope(lag, env), 0.0), axis=1)
+    # S at the one sample: the residual's local maxima at least OWN_LOBE_T periods later
+    idx = np.arange(w)[None, :]
+    top = np.zeros((m, w), dtype=bool)
+    top[:, 1:-1] = (mag[:, 1:-1] >= mag[:, :-2]) & (mag[:, 1:-1] > mag[:, 2:])
+    top &= idx < n_samples[:, None]
+    lag_l = (idx - i[:, None]) * dt / period
+    s = np.sqrt(np.sum(np.where(top & (lag_l >= OWN_LOBE_T), (mag * _envelope(lag_l, env)) ** 2, 0.0),
+                       axis=1))  # fmt: skip
+    thr = kappa * g + _over_sidelobes(gamma, s, margin)
+    # and their sidelobes can make it: a lobe over ``margin`` times their summed envelope (the
+    # bound merged lobes may exceed) is a path CLEAN's pulses overlapped, not their sidelobe
+    reach = np.abs(sig[rows, i]) <= margin * g
+    return ok & ~own & reach & (mag[rows, i] < thr)
 
 
 def _first_lobe_top(mag: np.ndarray, ok: np.ndarray, n_samples: np.ndarray):

@@ -19,7 +19,10 @@ evaluated in windows, as the first-lobe receiver is (:mod:`.first_lobe`).
    cancelled component above ``kappa`` times the cancelled lobes' sidelobe envelope plus the
    larger of the noise threshold over the residual's own sidelobe bound and ``margin`` times that
    bound is the first arrival (:func:`positioning.model.searchback.search_back`); its ToA is the
-   top of its lobe with the stronger lobes removed. Without one, the first lobe's ToA stands;
+   top of its lobe with the stronger lobes removed. Without one, the first lobe's ToA stands,
+   unless the cancelled lobes explain the first lobe (no component of its own, what is left of it
+   under that threshold: their summed sidelobe, :func:`positioning.model.searchback.explained`);
+   then the earliest component within the first-lobe rule's ``rho`` of the strongest stands for it;
 4. (``two_pulse``) the reported lobe is fitted with one pulse and, where that leaves more than
    noise, with two (:func:`positioning.model.lobefit.refine_lobe`): where the fit determines
    them, the earlier of the two is the ToA (two paths merged in anti-phase top before the
@@ -43,7 +46,7 @@ import numpy as np
 
 from positioning.model.lobefit import noise_gain, refine_lobe
 from positioning.model.pulse import envelope_table, pulse_table
-from positioning.model.searchback import clean, search_back
+from positioning.model.searchback import clean, explained, search_back
 
 from ...core.constants import linear_power_to_db
 from ...core.errors import HallrayError
@@ -151,6 +154,25 @@ def prepare_cfr(
     return prepare_first_lobe(folded, band, budget, pulse, first_lobe, options=options)
 
 
+def _past_sidelobes(plan, win, fl, tau, amp, res, settings, env):
+    """The first lobe's ToA per window row, past the cancelled lobes' sidelobes: where the first
+    lobe is their sidelobe (:func:`positioning.model.searchback.explained`), the earliest
+    cancelled component reaching the first-lobe rule's ``rho`` of the strongest peak stands for
+    it. Returns ``(toa, peak)``, ``(R,)`` s and 1/s; ``peak`` NaN where the first lobe stands."""
+    first = fl.toa_s[plan.links[win.rows]]
+    peak = np.full(first.shape, np.nan)
+    side = explained(win.signal, res, plan.n_samples[win.rows], plan.t0_s[win.rows], plan.dt_s, plan.period_s,
+                     tau, amp, win.gamma, first, settings.kappa, settings.margin, env)  # fmt: skip
+    strong = np.isfinite(tau) & (np.abs(amp) >= plan.rho * win.pmax[:, None])
+    t_comp = np.where(strong & (tau > first[:, None]), tau, np.inf)
+    k = np.argmin(t_comp, axis=1)
+    r = np.flatnonzero(side & np.isfinite(t_comp[np.arange(k.size), k]))
+    first = first.copy()
+    first[r] = tau[r, k[r]]
+    peak[r] = np.abs(amp[r, k[r]])
+    return first, peak
+
+
 def measure_search_back(
     plan: LobePlan, rng: np.random.Generator | None, settings: SearchBackSettings
 ) -> LobeMeasurement:
@@ -174,9 +196,11 @@ def measure_search_back(
     toa, peak = search_back(res, n_s, t0, dt, period, tau, amp, win.gamma, limit, settings.kappa,
                             settings.margin, env, table)  # fmt: skip
     found = np.isfinite(toa)
+    first, first_peak = _past_sidelobes(plan, win, fl, tau, amp, res, settings, env)
+    shifted = ~found & np.isfinite(first_peak)
     if settings.two_pulse:
         # the reported lobe, the first lobe's or the earlier one's, refined where not one pulse
-        lobe = np.where(found, toa, fl.toa_s[plan.links[win.rows]])
+        lobe = np.where(found, toa, first)
         lobe, p2, fit = refine_lobe(win.signal, n_s, t0, dt, period, plan.pulse.oversampling, table,
                                     lobe, plan.peak_time_s[win.rows], tau, amp, win.gamma,
                                     win.sigma_hat2, plan.alpha, plan.rho, noise_gain(roll, span))  # fmt: skip
@@ -185,7 +209,10 @@ def measure_search_back(
         took = fit.applied & ~(found & fit.moved & (lobe - toa > MOVE_T * period))
         toa = np.where(found & ~took, toa, np.where(took, lobe, np.nan))
         peak = np.where(took, p2, peak)
-        found = np.isfinite(toa)
+    # a first lobe that is the cancelled lobes' sidelobe gives way to their earliest strong one
+    keep = np.isnan(toa) & shifted
+    toa, peak = np.where(keep, first, toa), np.where(keep, first_peak, peak)
+    found = np.isfinite(toa)
     if not found.any():
         return fl
     rows = win.rows[found]
