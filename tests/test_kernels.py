@@ -590,3 +590,56 @@ def test_second_order_candidates_exact_tests_are_the_numpy_ones():
     np.testing.assert_array_equal(got_q, q[ok])
     np.testing.assert_array_equal(got_r, r[ok])
     np.testing.assert_array_equal(pts, np.concatenate([p1[ok], p2[ok]], axis=1))
+
+
+def test_second_pairs_too_many_to_keep_are_made_for_the_receivers_only(monkeypatch):
+    """A transmitter's double-reflection pairs too many to keep (a million-triangle hall's) are
+    made for the trace's receivers only: the pairs that reach none of them are dropped before
+    they are sorted, mirrored and given beams. The paths are those of the pairs made for any
+    receivers, bit for bit, with the same candidate count; nothing receiver-specific is kept;
+    and the filter does drop pairs (on the hall with its trees, and a room with boxes and a
+    noisy metal sphere)."""
+    import pickle
+
+    from conftest import shoebox_sheets
+    from test_candidates_oracle import _noisy_sphere
+
+    from raytrace import load_scene
+    from raytrace.core.kept import nbytes
+    from raytrace.scene.metadata import SceneMetadata
+    from raytrace.solver import specular
+    from raytrace.solver.paths import Paths
+    from raytrace.solver.tracer import trace
+
+    hall = load_scene("hall")
+    inp = SceneMetadata.from_scene(hall, require=True)
+    room = make_scene([*shoebox_sheets((14.0, 12.0, 5.0)),
+                       ("crate", box((2.0, 2.0, 0.0), (3.5, 4.0, 2.0)), "metal"),
+                       ("shelf", box((9.0, 7.0, 0.0), (12.0, 7.6, 3.0)), "wood"),
+                       ("blob", _noisy_sphere((6.0, 8.0, 1.4), 0.6, 2, 0.02, 3), "metal")])  # fmt: skip
+    room_tx = np.array([[1.0, 1.0, 4.0], [13.0, 11.0, 3.0]])
+    room_rx = np.random.default_rng(3).uniform((0.5, 0.5, 0.5), (13.5, 11.5, 2.5), (10, 3))
+    room_rx = room_rx[room.inside_solid(room_rx) < 0]
+    monkeypatch.setattr(kernels, "TREES", True)
+    cfg = TraceConfig(max_reflections=2, max_penetrations=1, max_diffractions=0)
+    for scene, t, r in ((hall, inp.bs_xyz, inp.point_xyz[::3]), (room, room_tx, room_rx)):
+        fresh = lambda scene=scene: pickle.loads(pickle.dumps(scene))  # noqa: E731  (no caches)
+        monkeypatch.setattr(specular, "SECOND_IMAGES_KEPT_BYTES", 1 << 30)
+        ctx = TraceContext(fresh(), t, r, 3.775e9, cfg)
+        in_shadow = shadow.shadows_of(ctx, ctx.tx)[0][0]
+        side_rx = carray(shadow.reflecting_sides(ctx, ctx.rx), np.int8)
+        every = specular._second_images(ctx, 0, in_shadow)
+        assert nbytes(every) == specular._kept_bytes(len(every[2]), len(every[1]),
+                                                     len(ctx.scene.facets))  # fmt: skip
+        big_st, small_st = {}, {}
+        big = trace(fresh(), t, r, 3.775e9, cfg, threads=1, stats=big_st)
+        monkeypatch.setattr(specular, "SECOND_IMAGES_KEPT_BYTES", 0)
+        ctx.scene.facets.cache.clear()
+        own = specular._second_images(ctx, 0, in_shadow, (side_rx, carray(ctx.rx)))
+        assert 0 < len(own[4]) < len(every[4]) // 2
+        assert not ctx.scene.facets.cache.get("second_images")
+        small = trace(fresh(), t, r, 3.775e9, cfg, threads=1, stats=small_st)
+        assert small.n_paths == big.n_paths > 0 and (small.n_reflections == 2).any()
+        for name in Paths.PER_PATH:
+            np.testing.assert_array_equal(getattr(small, name), getattr(big, name))
+        assert small_st["candidates_r2"] == big_st["candidates_r2"] > 0

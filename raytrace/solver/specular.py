@@ -112,7 +112,8 @@ def second_order(ctx: TraceContext) -> list[Paths]:
         # the last transmitter's images go first (unless kept): a million-triangle hall's are
         # 1.7 GB, and two transmitters' at once were the trace's peak
         f1a = f2 = receiver_args = exact_args = None
-        _, _, _, f1a, f2, _, _, receiver_args, exact_args = _second_images(ctx, t, shadow_tx[t])
+        _, _, _, f1a, f2, _, _, receiver_args, exact_args = _second_images(
+            ctx, t, shadow_tx[t], (side_rx, rx))
         if len(f1a) == 0:
             continue
         # receivers on the same side of the second facet as the first image, inside the
@@ -151,10 +152,18 @@ SECOND_IMAGES_KEPT = 16
 SECOND_IMAGES_KEPT_BYTES = 1 << 30
 
 
-def _second_images(ctx: TraceContext, t: int, in_shadow: np.ndarray) -> tuple[np.ndarray, ...]:
+def _second_images(ctx: TraceContext, t: int, in_shadow: np.ndarray,
+                   receivers: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, ...]:  # fmt: skip
     """Transmitter ``t``'s side of double reflections (cached on the facets, per transmitter
     position, facet restriction, facets in its shadow (``in_shadow`` (K,) bool: no first
     reflection there) and :data:`raytrace.solver.kernels.PRUNE`).
+
+    With ``receivers`` (``side_rx`` (R, K) int8, ``rx`` (R, 3), C-contiguous), pairs too many
+    to keep (:func:`_kept_bytes` beyond :data:`SECOND_IMAGES_KEPT_BYTES`) are made for these
+    receivers only: the pairs that can reach none of them
+    (:func:`raytrace.solver.kernels.second_pairs_reaching`) are dropped before they are sorted,
+    mirrored and given beams, and the result is not kept. On a million-triangle hall that was
+    most of a transmitter's tens of millions of pairs, for the same candidates.
 
     Returns
     -------
@@ -199,6 +208,15 @@ def _second_images(ctx: TraceContext, t: int, in_shadow: np.ndarray) -> tuple[np
         a, f2, s_img = a[beam], f2[beam], s_img[beam]
     else:  # the trees' beam queries, the same conditions in one compiled pass
         a, f2, s_img = _second_facets(fc, f1, b1, side_t[f1], ctx.facet_mask)
+        if (receivers is not None and kernels.PRUNE
+                and _kept_bytes(len(a), len(f1), len(fc)) > SECOND_IMAGES_KEPT_BYTES):  # fmt: skip
+            reach = kernels.second_pairs_reaching(
+                carray(a, np.int64), carray(f2, np.int64), carray(s_img, np.int8), carray(img1),
+                carray(b1.axis), carray(b1.cos_a), carray(b1.apex_inside, bool), carray(fc.normal),
+                carray(fc.offset), carray(centre), carray(radius), *receivers, PAIRS_SLACK,
+            )  # fmt: skip
+            a, f2, s_img = a[reach], f2[reach], s_img[reach]
+            key = None  # this trace's receivers' only: not kept
     order = np.lexsort((f2, a))  # in (first image, second facet) order, as a table would give
     c = lambda x, t=np.float64: np.array(x, dtype=t, order="C", copy=True)  # noqa: E731
     a, f2, s_img = c(a[order], np.int64), c(f2[order], np.int64), c(s_img[order], np.int8)
@@ -217,8 +235,24 @@ def _second_images(ctx: TraceContext, t: int, in_shadow: np.ndarray) -> tuple[np
     found = tuple(x.view() for x in (side_t, img1, a, f1a, f2, img2, s_img))
     for x in found:
         x.setflags(write=False)
+    if key is None:
+        return (*found, receiver_args, exact_args)
     return keep(kept, key, (*found, receiver_args, exact_args), SECOND_IMAGES_KEPT,
                 SECOND_IMAGES_KEPT_BYTES)
+
+
+#: Lowered from the beams' cosines in :func:`raytrace.solver.kernels.second_pairs_reaching`, so
+#: that its rounding never drops a pair the receivers' exact tests accept (those use 1e-7 already;
+#: the rounding of a cosine is about 1e-16).
+PAIRS_SLACK = 1e-9
+
+
+def _kept_bytes(n_pairs: int, n_first: int, n_facets: int) -> int:
+    """Bytes of a transmitter's second images as :func:`_second_images` keeps them
+    (:func:`raytrace.core.kept.nbytes`): per pair the row, both facets, the second image and its
+    beam (8 + 8 + 8 + 1 + 24 + 24 + 8 + 1 + 8), per first image the image and its beam (24 + 24 +
+    24 + 8 + 1), per facet the transmitter's side."""
+    return 90 * n_pairs + 81 * n_first + n_facets
 
 
 def _second_facets(fc, f1: np.ndarray, b1: refl.Beam, side1: np.ndarray,

@@ -23,7 +23,7 @@ from ...scene.accel import facet_sees
 from .prune import FRAME_SIG, PAIRS_OUT_SIG, beam_reaches1, edge_span, inside1
 
 __all__ = ["EdgeLeaves", "edge_leaves", "facet_wedge_pairs_tree", "first_order_candidates",
-           "second_facets"]
+           "second_facets", "second_pairs_reaching"]
 
 @helper
 def _grown(buf, m, cap):
@@ -298,3 +298,57 @@ def first_order_candidates(side_t, side_r, chosen, tx, rx, normal, offset, centr
                 out_t[m], out_k[m], out_r[m] = t, k, r
                 m += 1
     return out_t[:m].copy(), out_k[:m].copy(), out_r[:m].copy()
+
+
+@kernel("b1[::1](i8[::1], i8[::1], i1[::1], f8[:, ::1], f8[:, ::1], f8[::1], b1[::1], "
+        "f8[:, ::1], f8[::1], f8[:, ::1], f8[::1], i1[:, ::1], f8[:, ::1], f8)")
+def second_pairs_reaching(a_idx, f2, s_img, img1, axis1, cos1, in1, normal, offset, centre, radius,
+                          side_rx, rx, slack):  # fmt: skip
+    """Whether each (first image, second facet) pair of a double reflection can reach one of
+    the receivers: a looser form of the receiver tests of
+    :func:`raytrace.solver.kernels.prune.second_order_candidates`, for the pairs of a trace
+    that are not kept (a pair it rejects, that kernel rejects for every receiver).
+
+    Pairs: row ``a_idx`` (P,) of the first images ``img1`` (F, 3) and of their beams through
+    the first facets (``axis1`` (F, 3), ``cos1``, ``in1`` (F,)), second facet ``f2`` (P,), the
+    first image's side of it ``s_img`` (P,). The second image (the first mirrored in the second
+    facet's plane) and its beam through the second facet's bounding sphere (``centre`` (K, 3),
+    ``radius`` (K,)) are made here, as :func:`raytrace.solver.reflection.mirror` and
+    :func:`~raytrace.solver.reflection.beam` make them. A receiver (``rx`` (R, 3)) qualifies
+    when it is on the first image's side of the second facet (``side_rx`` (R, K), the rule),
+    within that beam, and its mirror image in the second facet within the first facet's beam;
+    the beams' cosines are lowered by ``slack`` (beyond the other kernel's own 1e-7) so that
+    rounding here never rejects what the exact arithmetic there accepts.
+
+    Returns (P,) bool.
+    """
+    out = np.zeros(len(a_idx), np.bool_)
+    for p in range(len(a_idx)):
+        a, f, s = a_idx[p], f2[p], s_img[p]
+        nx, ny, nz, off = normal[f, 0], normal[f, 1], normal[f, 2], offset[f]
+        jx, jy, jz = img1[a, 0], img1[a, 1], img1[a, 2]
+        d = jx * nx + jy * ny + jz * nz - off
+        kx, ky, kz = jx - 2.0 * d * nx, jy - 2.0 * d * ny, jz - 2.0 * d * nz
+        vx, vy, vz = centre[f, 0] - kx, centre[f, 1] - ky, centre[f, 2] - kz
+        dist = np.sqrt(vx * vx + vy * vy + vz * vz)
+        in2 = dist <= radius[f] * (1.0 + 1e-9)
+        ux, uy, uz = vx / dist, vy / dist, vz / dist
+        sa = min(radius[f] / dist, 1.0)
+        c2 = np.sqrt(1.0 - sa * sa) - slack
+        c1 = cos1[a] - slack
+        for r in range(rx.shape[0]):
+            if side_rx[r, f] != s:
+                continue
+            px, py, pz = rx[r, 0], rx[r, 1], rx[r, 2]
+            wx, wy, wz = px - kx, py - ky, pz - kz
+            dt = np.sqrt(wx * wx + wy * wy + wz * wz)
+            if not (ux * wx + uy * wy + uz * wz >= (c2 - 1e-7) * dt or in2 or dt <= 0.0):
+                continue
+            e = px * nx + py * ny + pz * nz - off
+            mx, my, mz = px - 2.0 * e * nx - jx, py - 2.0 * e * ny - jy, pz - 2.0 * e * nz - jz
+            dm = np.sqrt(mx * mx + my * my + mz * mz)
+            if (axis1[a, 0] * mx + axis1[a, 1] * my + axis1[a, 2] * mz >= (c1 - 1e-7) * dm
+                    or in1[a] or dm <= 0.0):  # fmt: skip
+                out[p] = True
+                break
+    return out
