@@ -25,11 +25,13 @@ import numpy as np
 from ..model.noise import (
     LATE_MEAN_M,
     WIDE_PULSES,
+    free_space_snr_db,
     late_mean_excess,
     link_sigma,
     mixture_nll,
     pulse_width_m,
     shares,
+    shares_at_deficit,
 )
 from ..model.problem import Problem
 from ..model.residuals import pseudorange_model
@@ -84,13 +86,18 @@ def grid_starts(prob: Problem, rows: np.ndarray, step_m: float, n_starts: int) -
         if idx.size == 0:
             continue
         A = idx.size
-        xyz = np.empty((A, G, 3))
+        # the cells' ranges and free-space SNRs once per device height (mostly one), not per
+        # epoch: the same numbers, gathered
+        heights, at = np.unique(prob.height[idx], return_inverse=True)
+        xyz = np.empty((heights.size, G, 3))
         xyz[..., :2] = g[None]
-        xyz[..., 2] = prob.height[idx, None]
-        R = np.linalg.norm(xyz[:, :, None, :] - prob.bs[None, None], axis=3)  # (A, G, N)
+        xyz[..., 2] = heights[:, None]
+        R_h = np.linalg.norm(xyz[:, :, None, :] - prob.bs[None, None], axis=3)  # (H, G, N)
+        R = R_h[at]  # (A, G, N)
         valid = prob.valid[idx][:, None, :]
         s = np.where(valid, prob.rho[idx][:, None, :] - R, 0.0)
         links = prob.links
+        deficit = None
         if links is not None:
             links = links.take(idx)
             links = replace(
@@ -99,7 +106,9 @@ def grid_starts(prob: Problem, rows: np.ndarray, step_m: float, n_starts: int) -
                 peak_ratio_db=links.peak_ratio_db[:, None, None, :],
                 lobe_width=links.lobe_width[:, None, None, :],
             )
-        pw, pl = shares(links, R[:, :, None, :], valid[:, :, None, :])
+            if links.snr_offset_db is not None and links.center_frequency_hz:
+                deficit = free_space_snr_db(links, R_h)[at][:, :, None, :] - links.snr_db
+        pw, pl = shares_at_deficit(links, deficit, valid[:, :, None, :])
         # the deepest cells of the mixture NLL of the residuals s[n] - s[j] (beta from j), each
         # at least SEPARATION_PITCHES pitches from the ones taken before (compiled, with the
         # NLL computed only where a bound leaves a cell in contention: the grid was most of

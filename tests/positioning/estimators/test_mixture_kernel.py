@@ -119,12 +119,15 @@ def _numpy_grid_starts(prob, rows, step_m, n_starts):
     return out
 
 
-def test_grid_starts_are_those_of_the_numpy_form():
+@pytest.mark.parametrize("heights", [(1.0,), (1.0, 1.5, 0.7)])
+def test_grid_starts_are_those_of_the_numpy_form(heights):
     """On NLoS-biased epochs with receiver reports: the same starts, bit for bit (the kernel
-    only decides which cells are deepest; the starts are the grid's own numbers)."""
+    only decides which cells are deepest; the starts are the grid's own numbers), also where
+    the device height varies (the cells' ranges are computed once per height)."""
     _, toa, links = nlos_scene(3, 120, PAPER_BS, 1)
     area = ServiceArea.box((-2.0, -2.0), (31.0, 27.0))
-    prob = make_problem(toa, PAPER_BS, None, np.full(len(toa), 1.0), area=area, links=links)
+    height = np.resize(np.array(heights), len(toa))
+    prob = make_problem(toa, PAPER_BS, None, height, area=area, links=links)
     rows = prob.solvable
     got = grid_starts(prob, rows, 2.0, 3)
     want = _numpy_grid_starts(prob, rows, 2.0, 3)
