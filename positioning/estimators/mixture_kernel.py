@@ -12,6 +12,11 @@ without AVX-512: numpy vectorises them only there), the results are numpy's bit 
 elsewhere they may differ in the last bits, which only the grid's comparisons (the deepest
 cells) see (tests/positioning/estimators/test_mixture_kernel.py).
 
+The same per-measurement arithmetic, with the shares of :func:`positioning.model.noise.shares`,
+is EM's E-step and M-step weights (:class:`MixtureEStep`, for
+:func:`positioning.estimators.nlos.em_fit`): there the values are the fixes' own numbers, so
+``nlos-map`` uses it only where it gives numpy's bits (:func:`numpy_is_libm`), else numpy.
+
 Compiled with the options of the tracer's kernels (:mod:`raytrace.core.jit`, which positioning
 may not import): an explicit signature, ``error_model="numpy"``, no ``fastmath``, ``nogil``, and
 the on-disk cache (without a writable cache directory, compiled in memory instead).
@@ -19,6 +24,7 @@ the on-disk cache (without a writable cache directory, compiled in memory instea
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import Any
 
@@ -28,7 +34,18 @@ import numpy as np
 from numba import types
 from numba.extending import get_cython_function_address
 
-__all__ = ["deepest_by_numpy", "deepest_cells", "pairwise_mixture_nll"]
+from ..model import noise
+from ..model.problem import LinkInfo
+from ..model.tdoa import C0
+
+__all__ = [
+    "MixtureEStep",
+    "deepest_by_numpy",
+    "deepest_cells",
+    "numpy_is_libm",
+    "pairwise_mixture_nll",
+    "share_terms",
+]
 
 # scipy's double-precision log_ndtr, called by name: a kernel that calls a symbol (not a ctypes
 # pointer, a "dynamic global") can be cached on disk
@@ -279,6 +296,104 @@ def _deepest_kernel(s, valid, per_link, log_share, lam, half_log_2pi, cells, sep
     return n_exact
 
 
+@_inline
+def _numpy_max(a, b):
+    """``np.maximum(a, b)``: a NaN wins."""
+    if b > a or b != b:
+        return b if a == a else a
+    return a
+
+
+@_inline
+def _shares_one(dist, snr, width, peak, share_terms):
+    """:func:`~positioning.model.noise.shares` of one measurement at range ``dist`` (m),
+    numpy's operations in its order: (p_wide, p_late). ``share_terms`` (:func:`share_terms`):
+    has a deficit (1/0), the SNR offset, the carrier wavelength, 4 pi, the shares' constants."""
+    p_late, p_wide = share_terms[4], share_terms[5]
+    if share_terms[0] != 0.0:
+        d = (share_terms[1] + 20.0 * math.log10(share_terms[2]
+                                                 / (share_terms[3] * _numpy_max(dist, 0.1))))
+        d = d - snr
+        if d != d:  # np.nan_to_num
+            d = 0.0
+        elif d == np.inf:
+            d = 1.7976931348623157e308
+        elif d == -np.inf:
+            d = -1.7976931348623157e308
+        s = 1.0 / (1.0 + math.exp(-(d - share_terms[8]) / share_terms[9]))
+        p_late = share_terms[4] + share_terms[6] * s
+        p_wide = share_terms[5] + share_terms[7] * s
+    if width > share_terms[10]:
+        p_late = _numpy_max(p_late, 0.5)
+    if width < share_terms[11]:
+        p_wide = _numpy_max(p_wide, 0.5)
+    if peak < share_terms[12]:
+        p_late = _numpy_max(p_late, 0.3)
+    tot = p_late + p_wide
+    scale = 0.95 / tot if tot > 0.95 else 1.0
+    return p_wide * scale, p_late * scale
+
+
+@_compile(
+    "void(i8[::1], f8[:, ::1], f8[::1], f8[:, ::1], b1[:, ::1], f8[:, :, ::1], f8[:, :, ::1], "
+    "f8[::1], f8, f8, f8[:, ::1], f8[:, :, ::1], f8[:, ::1])"
+)
+def _estep_kernel(idx, R, beta, rho, valid, reports, per_link, share_terms, lam, half_log_2pi,
+                  nll, resp, r_out):  # fmt: skip
+    """The E-step of epochs ``idx`` (A,) at ranges ``R`` (A, N) and clock terms ``beta`` (A,):
+    the residual ``r_out``, the NLL ``nll`` (0 where not received) and the three
+    responsibilities ``resp`` (3, A, N) of :func:`~positioning.model.noise.mixture_nll` with
+    the shares of :func:`~positioning.model.noise.shares`. ``rho``, ``valid`` (E, N),
+    ``reports`` (3, E, N: SNR, lobe width, peak ratio) and ``per_link`` (6, E, N, see
+    :func:`_link_terms`) are those of every epoch."""
+    A, N = R.shape
+    for a in range(A):
+        e = idx[a]
+        for n in range(N):
+            r = 0.0
+            if valid[e, n]:
+                r = (rho[e, n] - R[a, n]) - beta[a]
+                if not math.isfinite(r):
+                    r = 0.0
+            r_out[a, n] = r
+            pw, pl = _shares_one(R[a, n], reports[0, e, n], reports[1, e, n], reports[2, e, n],
+                                 share_terms)  # fmt: skip
+            a0, a1, pre, x = _terms(r, per_link[0, e, n], per_link[1, e, n], per_link[2, e, n],
+                                    per_link[3, e, n], per_link[4, e, n], per_link[5, e, n],
+                                    math.log1p(-(pw + pl)), math.log(pw), lam,
+                                    half_log_2pi)  # fmt: skip
+            a2 = (pre + _log_ndtr(x)) + math.log(pl)
+            top = _numpy_max(_numpy_max(a0, a1), a2)
+            lse = top + math.log((_exp_below(a0, top) + _exp_below(a1, top))
+                                 + _exp_below(a2, top))  # fmt: skip
+            nll[a, n] = -lse if valid[e, n] else 0.0
+            resp[0, a, n] = math.exp(a0 - lse)
+            resp[1, a, n] = math.exp(a1 - lse)
+            resp[2, a, n] = math.exp(a2 - lse)
+
+
+@_compile("void(f8[:, ::1], f8[:, :, ::1], f8[:, ::1], b1[:, ::1], f8[:, ::1], f8, f8, f8, "
+          "f8[:, ::1], f8[:, ::1])")  # fmt: skip
+def _mstep_kernel(r, resp, sig, valid, rho, s_w2, lam, half_log_2pi, W, rho_shifted):
+    """The M-step's weights ``W`` and shifted pseudo-ranges ``rho_shifted`` (A, N) from the
+    E-step (residuals ``r``, responsibilities ``resp``) and the noise core ``sig``, as
+    ``em_fit`` computes them in numpy (with
+    :func:`~positioning.model.noise.late_mean_excess`)."""
+    A, N = r.shape
+    for a in range(A):
+        for n in range(N):
+            sg = sig[a, n]
+            sg2 = sg * sg
+            mu = r[a, n] - sg2 / lam
+            z = mu / sg
+            ratio = math.exp(((-0.5 * z) * z - half_log_2pi) - _log_ndtr(z))
+            excess = _numpy_max(mu + sg * ratio, 0.0)
+            w = (resp[0, a, n] / sg2 + resp[1, a, n] / (sg2 + s_w2)) + resp[2, a, n] / sg2
+            shift = resp[2, a, n] / sg2 * excess / w
+            W[a, n] = w if valid[a, n] else 0.0
+            rho_shifted[a, n] = rho[a, n] - (shift if valid[a, n] else 0.0)
+
+
 def _link_terms(sigma: np.ndarray, s_wide: float, lam: float) -> np.ndarray:
     """(6, A, N) per-measurement terms as numpy evaluates them in component_logpdf: sigma, the
     wide component's sigma, their logs, the late density's ``-ln lam + sigma^2 / (2 lam^2)``
@@ -413,3 +528,90 @@ def deepest_cells(
         pick[f], ref[f], ok[f] = deepest_by_numpy(tot, cells, separation_m, n_pick)
         n_exact += f.size * G * N
     return pick, ref, ok, n_exact
+
+
+@functools.cache
+def numpy_is_libm() -> bool:
+    """numpy's float64 ``exp``, ``log``, ``log1p`` and ``log10`` are the C library's on this
+    machine (numpy vectorises them only with AVX-512): then the compiled E-step gives numpy's
+    bits, and ``nlos-map`` uses it."""
+    x = np.random.default_rng(7).normal(0.0, 20.0, 4096)
+    y = np.abs(x) + 1e-3
+    return bool(
+        all(np.exp(v) == math.exp(v) for v in x)
+        and all(np.log(v) == math.log(v) and np.log10(v) == math.log10(v) for v in y)
+        and all(np.log1p(-v / (1.0 + v)) == math.log1p(-v / (1.0 + v)) for v in y)
+    )
+
+
+def share_terms(links: LinkInfo | None) -> np.ndarray:
+    """(13,) the constants of :func:`~positioning.model.noise.shares` for the compiled E-step:
+    has a deficit (1/0), the SNR offset (dB), the carrier wavelength (m), 4 pi, P_LATE0,
+    P_WIDE0, the late and wide shares' rises, DEFICIT_DB, DEFICIT_SLOPE_DB, WIDE_LOBE,
+    NARROW_LOBE, WEAK_LOBE_DB."""
+    deficit = (links is not None and links.snr_offset_db is not None
+               and bool(links.center_frequency_hz))  # fmt: skip
+    return np.array([
+        1.0 if deficit else 0.0,
+        float(links.snr_offset_db) if deficit else 0.0,
+        C0 / float(links.center_frequency_hz) if deficit else 1.0,
+        4.0 * np.pi,
+        noise.P_LATE0, noise.P_WIDE0,
+        noise.P_LATE_BLOCKED - noise.P_LATE0, noise.P_WIDE_BLOCKED - noise.P_WIDE0,
+        noise.DEFICIT_DB, noise.DEFICIT_SLOPE_DB,
+        noise.WIDE_LOBE, noise.NARROW_LOBE, noise.WEAK_LOBE_DB,
+    ])  # fmt: skip
+
+
+class MixtureEStep:
+    """The compiled E-step and M-step weights of ``nlos-map``'s EM
+    (:func:`positioning.estimators.nlos.em_fit`) on one problem's epochs: the per-measurement
+    constants (noise core, its logs, the receiver reports) made once, not per iteration.
+
+    Parameters
+    ----------
+    rho : (E, N) float, metres; valid : (E, N) bool
+    links : LinkInfo or None, the receiver reports
+    sigma : (E, N) float, metres: the noise core (:func:`~positioning.model.noise.link_sigma`)
+    s_wide : float, metres: the overlap spread; lam : float, metres: the mean NLoS excess
+    """
+
+    def __init__(self, rho: np.ndarray, valid: np.ndarray, links: LinkInfo | None,
+                 sigma: np.ndarray, s_wide: float, lam: float) -> None:  # fmt: skip
+        self.rho = np.ascontiguousarray(rho, dtype=np.float64)
+        self.valid = np.ascontiguousarray(valid, dtype=np.bool_)
+        nan = np.full(self.rho.shape, np.nan)
+        self.reports = np.ascontiguousarray(np.stack(
+            [nan, nan, nan] if links is None
+            else [links.snr_db, links.lobe_width, links.peak_ratio_db]), dtype=np.float64)  # fmt: skip
+        self.sigma = np.ascontiguousarray(sigma, dtype=np.float64)
+        self.per_link = np.ascontiguousarray(_link_terms(self.sigma, s_wide, lam))
+        self.terms = share_terms(links)
+        self.s_w2 = s_wide**2
+        self.lam = float(lam)
+        self.h = float(0.5 * np.log(2.0 * np.pi))
+
+    def at(self, idx: np.ndarray, R: np.ndarray, beta: np.ndarray):
+        """NLL (A, N) (0 where not received), responsibilities (3, A, N) and residuals (A, N)
+        of epochs ``idx`` (A,) at ranges ``R`` (A, N, metres) and clock terms ``beta`` (A,)."""
+        idx = np.ascontiguousarray(idx, dtype=np.int64)
+        A, N = idx.size, self.rho.shape[1]
+        nll, resp, r = np.empty((A, N)), np.empty((3, A, N)), np.empty((A, N))
+        _estep_kernel(idx, np.ascontiguousarray(R, dtype=np.float64),
+                      np.ascontiguousarray(beta, dtype=np.float64), self.rho, self.valid,
+                      self.reports, self.per_link, self.terms, self.lam, self.h, nll, resp,
+                      r)  # fmt: skip
+        return nll, resp, r
+
+    def weights(self, idx: np.ndarray, r: np.ndarray, resp: np.ndarray):
+        """The M-step's weights (A, N) (0 where not received) and pseudo-ranges less the
+        expected NLoS excess (A, N, metres) of epochs ``idx`` from their E-step."""
+        idx = np.asarray(idx)
+        A, N = idx.size, self.rho.shape[1]
+        W, rho_shifted = np.empty((A, N)), np.empty((A, N))
+        _mstep_kernel(np.ascontiguousarray(r, dtype=np.float64),
+                      np.ascontiguousarray(resp, dtype=np.float64),
+                      np.ascontiguousarray(self.sigma[idx]), np.ascontiguousarray(self.valid[idx]),
+                      np.ascontiguousarray(self.rho[idx]), self.s_w2, self.lam, self.h, W,
+                      rho_shifted)  # fmt: skip
+        return W, rho_shifted

@@ -193,3 +193,51 @@ def test_late_term_bound_holds_for_scipys_log_ndtr():
     0.92 + ln(-x), far more than its rounding)."""
     x = -np.concatenate([np.linspace(1.0, 50.0, 20001)[1:], np.geomspace(50.0, 1e4, 20001)[:-1]])
     assert (log_ndtr(x) <= -0.5 * (x * x)).all()
+
+
+def _estep_problem(seed, links_kind):
+    """A problem with receiver reports of every kind the E-step meets: lobes wide, narrow and
+    weak, unknown reports (NaN), a station not received, or no reports at all."""
+    rng = np.random.default_rng(seed)
+    _, toa, links = nlos_scene(seed, 150, PAPER_BS, 1)
+    toa[rng.random(toa.shape) < 0.1] = np.nan
+    links = replace(links, lobe_width=rng.choice([0.9, 1.0, 1.2, np.nan], toa.shape),
+                    peak_ratio_db=rng.choice([0.0, -6.0, np.nan], toa.shape))  # fmt: skip
+    if links_kind == "no offset":
+        links = replace(links, snr_offset_db=None)
+    elif links_kind == "none":
+        links = None
+    prob = make_problem(toa, PAPER_BS, None, np.full(len(toa), 1.0), links=links)
+    theta = np.column_stack([rng.uniform(-5, 35, len(toa)), rng.uniform(-5, 30, len(toa)),
+                             rng.normal(0.0, 20.0, len(toa))])  # fmt: skip
+    return prob, theta
+
+
+@pytest.mark.parametrize("links_kind", ["reports", "no offset", "none"])
+def test_compiled_estep_is_numpys(links_kind):
+    """MixtureEStep's NLL, responsibilities, residuals, weights and shifted pseudo-ranges are
+    nlos-map's numpy E-step and M-step weights (em_fit before the kernel), bit for bit."""
+    from positioning.estimators.mixture_kernel import MixtureEStep
+    from positioning.estimators.nlos import _nll
+    from positioning.model.noise import late_mean_excess
+    from positioning.model.tdoa import ranges
+
+    prob, theta = _estep_problem(3, links_kind)
+    E, N = prob.rho.shape
+    sigma = link_sigma(prob.links, (E, N))
+    s_w = WIDE_PULSES * pulse_width_m(prob.links)
+    idx = np.flatnonzero(prob.solvable)[::2]
+    sub, sig, th = prob.take(idx), sigma[idx], theta[idx]
+    want = _nll(sub, th, sig, s_w)
+    step = MixtureEStep(prob.rho, prob.valid, prob.links, sigma, s_w, LATE_MEAN_M)
+    got = step.at(idx, ranges(prob.position(th, idx), prob.bs), th[:, 2])
+    for g, w in zip(got, want, strict=True):
+        _assert_same(g, w)
+    nll, resp, r = want
+    excess = late_mean_excess(r, sig)
+    w = resp[0] / sig**2 + resp[1] / (sig**2 + s_w**2) + resp[2] / sig**2
+    shift = resp[2] / sig**2 * excess / w
+    W, rho_shifted = step.weights(idx, r, resp)
+    _assert_same(W, np.where(sub.valid, w, 0.0))
+    _assert_same(rho_shifted, sub.rho - np.where(sub.valid, shift, 0.0))
+    assert (resp[2] > 0.5).any() and (resp[0] > 0.5).any()  # late and core both dominate
