@@ -305,15 +305,21 @@ def _numpy_max(a, b):
 
 
 @_inline
-def _shares_one(dist, snr, width, peak, share_terms):
-    """:func:`~positioning.model.noise.shares` of one measurement at range ``dist`` (m),
-    numpy's operations in its order: (p_wide, p_late). ``share_terms`` (:func:`share_terms`):
-    has a deficit (1/0), the SNR offset, the carrier wavelength, 4 pi, the shares' constants."""
+def _free_space_db(dist, share_terms):
+    """:func:`~positioning.model.noise.free_space_snr_db` at range ``dist`` (m)."""
+    return share_terms[1] + 20.0 * math.log10(share_terms[2]
+                                              / (share_terms[3] * _numpy_max(dist, 0.1)))
+
+
+@_inline
+def _shares_one(fs, snr, width, peak, share_terms):
+    """:func:`~positioning.model.noise.shares` of one measurement whose free-space SNR at the
+    candidate range is ``fs`` (dB), numpy's operations in its order: (p_wide, p_late).
+    ``share_terms`` (:func:`share_terms`): has a deficit (1/0), the SNR offset, the carrier
+    wavelength, 4 pi, the shares' constants."""
     p_late, p_wide = share_terms[4], share_terms[5]
     if share_terms[0] != 0.0:
-        d = (share_terms[1] + 20.0 * math.log10(share_terms[2]
-                                                 / (share_terms[3] * _numpy_max(dist, 0.1))))
-        d = d - snr
+        d = fs - snr
         if d != d:  # np.nan_to_num
             d = 0.0
         elif d == np.inf:
@@ -356,7 +362,8 @@ def _estep_kernel(idx, R, beta, rho, valid, reports, per_link, share_terms, lam,
                 if not math.isfinite(r):
                     r = 0.0
             r_out[a, n] = r
-            pw, pl = _shares_one(R[a, n], reports[0, e, n], reports[1, e, n], reports[2, e, n],
+            fs = _free_space_db(R[a, n], share_terms) if share_terms[0] != 0.0 else 0.0
+            pw, pl = _shares_one(fs, reports[0, e, n], reports[1, e, n], reports[2, e, n],
                                  share_terms)  # fmt: skip
             a0, a1, pre, x = _terms(r, per_link[0, e, n], per_link[1, e, n], per_link[2, e, n],
                                     per_link[3, e, n], per_link[4, e, n], per_link[5, e, n],
@@ -392,6 +399,53 @@ def _mstep_kernel(r, resp, sig, valid, rho, s_w2, lam, half_log_2pi, W, rho_shif
             shift = resp[2, a, n] / sg2 * excess / w
             W[a, n] = w if valid[a, n] else 0.0
             rho_shifted[a, n] = rho[a, n] - (shift if valid[a, n] else 0.0)
+
+
+@_compile("void(f8[:, :, ::1], i8[::1], f8[:, :, ::1], f8[::1], f8[:, :, :, ::1])")
+def _grid_log_shares_kernel(fs, at, reports, share_terms, out):
+    """``out`` (3, A, G, N): the logs of the core, wide and late shares (:func:`_log_shares`
+    of :func:`~positioning.model.noise.shares`) of epoch a at cell g, from the free-space SNR
+    ``fs`` (H, G, N, dB) of the cells at the epoch's height ``at[a]`` and its ``reports``
+    (3, A, N: SNR, lobe width, peak ratio)."""
+    A = at.size
+    G, N = fs.shape[1], fs.shape[2]
+    for a in range(A):
+        for g in range(G):
+            for n in range(N):
+                pw, pl = _shares_one(fs[at[a], g, n], reports[0, a, n], reports[1, a, n],
+                                     reports[2, a, n], share_terms)  # fmt: skip
+                out[0, a, g, n] = math.log1p(-(pw + pl))
+                out[1, a, g, n] = math.log(pw)
+                out[2, a, g, n] = math.log(pl)
+
+
+def grid_log_shares(fs: np.ndarray | None, at: np.ndarray, links: LinkInfo | None,
+                    G: int, N: int) -> np.ndarray:  # fmt: skip
+    """(3, A, G, N) logs of the mixture's shares at the grid's cells, compiled: what
+    :func:`~positioning.model.noise.shares` and the log of each give in numpy where
+    :func:`numpy_is_libm`.
+
+    Parameters
+    ----------
+    fs : (H, G, N) float, dB, or None: free-space SNR of each cell per device height (None:
+        no deficit known, the links have no SNR offset or carrier)
+    at : (A,) int, each epoch's height in ``fs``
+    links : LinkInfo or None, the epochs' receiver reports ((A, N) each)
+    G, N : int, cells and base stations
+    """
+    A = at.size
+    terms = share_terms(links)
+    if fs is None:
+        terms[0] = 0.0
+        fs = np.zeros((1, G, N))
+    nan = np.full((A, N), np.nan)
+    reports = np.stack([nan, nan, nan] if links is None
+                       else [links.snr_db, links.lobe_width, links.peak_ratio_db])  # fmt: skip
+    out = np.empty((3, A, G, N))
+    _grid_log_shares_kernel(np.ascontiguousarray(fs, dtype=np.float64),
+                            np.ascontiguousarray(at, dtype=np.int64),
+                            np.ascontiguousarray(reports, dtype=np.float64), terms, out)
+    return out
 
 
 def _link_terms(sigma: np.ndarray, s_wide: float, lam: float) -> np.ndarray:
@@ -474,6 +528,7 @@ def deepest_cells(
     cells: np.ndarray,
     separation_m: float,
     n_pick: int,
+    log_share: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
     """Per epoch, the ``n_pick`` deepest cells of the grid's total mixture NLL, each at least
     ``separation_m`` from the ones taken before: the NLL of :func:`pairwise_mixture_nll`
@@ -487,6 +542,8 @@ def deepest_cells(
     cells : (G, 2) float, metres: the grid's cells
     separation_m : float, metres
     n_pick : int
+    log_share : (3, A, G, N) float, optional: the logs of the shares, if already made
+        (:func:`grid_log_shares`); then ``p_wide`` and ``p_late`` are not used
 
     Returns
     -------
@@ -500,7 +557,8 @@ def deepest_cells(
     A, G, N = s.shape
     n_pick = min(n_pick, G)
     per_link = _link_terms(sigma, s_wide, lam)
-    log_share = _log_shares(p_wide, p_late, s.shape)
+    if log_share is None:
+        log_share = _log_shares(p_wide, p_late, s.shape)
     h = float(0.5 * np.log(2.0 * np.pi))
     # the bound's steps hold for finite numbers only; numpy's argmins for the rest (and for more
     # stations than numpy adds in one block)
@@ -512,7 +570,7 @@ def deepest_cells(
     ok = np.zeros((A, n_pick), dtype=bool)
     n_exact = 0
     if fast.any():
-        f = np.flatnonzero(fast)
+        f = np.flatnonzero(fast) if not fast.all() else slice(None)  # (no copy when all are)
         p, r, o = pick[f], ref[f], ok[f]
         n_exact += int(_deepest_kernel(s[f], valid[f], np.ascontiguousarray(per_link[:, f]),
                                        np.ascontiguousarray(log_share[:, f]), float(lam), h,
@@ -521,9 +579,10 @@ def deepest_cells(
         pick[f], ref[f], ok[f] = p, r, o
     if not fast.all():
         f = np.flatnonzero(~fast)
-        nll = pairwise_mixture_nll(s[f], valid[f], np.asarray(sigma)[f],
-                                   np.broadcast_to(p_wide, s.shape)[f],
-                                   np.broadcast_to(p_late, s.shape)[f], s_wide, lam)  # fmt: skip
+        nll = np.zeros((f.size, G, N, N))
+        _pairwise_kernel(np.ascontiguousarray(s[f]), np.ascontiguousarray(valid[f]),
+                         np.ascontiguousarray(per_link[:, f]),
+                         np.ascontiguousarray(log_share[:, f]), float(lam), h, nll)  # fmt: skip
         tot = np.where(valid[f][:, None, :], np.sum(nll, axis=3), np.inf)
         pick[f], ref[f], ok[f] = deepest_by_numpy(tot, cells, separation_m, n_pick)
         n_exact += f.size * G * N

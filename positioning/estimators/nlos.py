@@ -37,7 +37,7 @@ from ..model.problem import Problem
 from ..model.residuals import pseudorange_model
 from ..model.tdoa import ranges, ranges_and_units
 from .fixes import Fixes, Status, config_params
-from .mixture_kernel import MixtureEStep, deepest_cells, numpy_is_libm
+from .mixture_kernel import MixtureEStep, deepest_cells, grid_log_shares, numpy_is_libm
 from .robust import REGION_MARGIN, REJECT_WEIGHT, candidates
 from .solver import levenberg_marquardt
 
@@ -57,6 +57,33 @@ def _nll(prob: Problem, theta: np.ndarray, sigma: np.ndarray, s_w: float):
     pw, pl = shares(prob.links, R, prob.valid)
     nll, resp = mixture_nll(r, sigma, pw, pl, s_w)
     return np.where(prob.valid, nll, 0.0), resp, r
+
+
+def _grid_shares(links, idx: np.ndarray, R_h: np.ndarray, at: np.ndarray, G: int):
+    """The mixture's shares at the grid's cells for epochs ``idx``: (p_wide, p_late, None)
+    (A, G, N) in numpy, or (None, None, their logs (3, A, G, N)) compiled where that gives
+    numpy's bits (:func:`~positioning.estimators.mixture_kernel.numpy_is_libm`). ``R_h``
+    (H, G, N) the cells' ranges per device height, ``at`` (A,) each epoch's height."""
+    fs = None
+    if links is not None:
+        links = links.take(idx)
+        if links.snr_offset_db is not None and links.center_frequency_hz:
+            fs = free_space_snr_db(links, R_h)  # (H, G, N)
+    A, N = idx.size, R_h.shape[2]
+    if numpy_is_libm():
+        return None, None, grid_log_shares(fs, at, links, G, N)
+    deficit = None
+    if links is not None:
+        links = replace(
+            links,
+            snr_db=links.snr_db[:, None, None, :],
+            peak_ratio_db=links.peak_ratio_db[:, None, None, :],
+            lobe_width=links.lobe_width[:, None, None, :],
+        )
+        if fs is not None:
+            deficit = fs[at][:, :, None, :] - links.snr_db
+    pw, pl = shares_at_deficit(links, deficit, np.ones((A, 1, 1, N), dtype=bool))
+    return pw[:, :, 0], pl[:, :, 0], None
 
 
 def grid_starts(prob: Problem, rows: np.ndarray, step_m: float, n_starts: int) -> np.ndarray:
@@ -96,26 +123,14 @@ def grid_starts(prob: Problem, rows: np.ndarray, step_m: float, n_starts: int) -
         R = R_h[at]  # (A, G, N)
         valid = prob.valid[idx][:, None, :]
         s = np.where(valid, prob.rho[idx][:, None, :] - R, 0.0)
-        links = prob.links
-        deficit = None
-        if links is not None:
-            links = links.take(idx)
-            links = replace(
-                links,
-                snr_db=links.snr_db[:, None, None, :],
-                peak_ratio_db=links.peak_ratio_db[:, None, None, :],
-                lobe_width=links.lobe_width[:, None, None, :],
-            )
-            if links.snr_offset_db is not None and links.center_frequency_hz:
-                deficit = free_space_snr_db(links, R_h)[at][:, :, None, :] - links.snr_db
-        pw, pl = shares_at_deficit(links, deficit, valid[:, :, None, :])
+        pw, pl, log_share = _grid_shares(prob.links, idx, R_h, at, G)
         # the deepest cells of the mixture NLL of the residuals s[n] - s[j] (beta from j), each
         # at least SEPARATION_PITCHES pitches from the ones taken before (compiled, with the
         # NLL computed only where a bound leaves a cell in contention: the grid was most of
         # nlos-map's time)
-        pick, ref, ok, _ = deepest_cells(s, prob.valid[idx], sigma[idx], pw[:, :, 0],
-                                         pl[:, :, 0], s_w, LATE_MEAN_M, g,
-                                         SEPARATION_PITCHES * step_m, n_starts)  # fmt: skip
+        pick, ref, ok, _ = deepest_cells(s, prob.valid[idx], sigma[idx], pw, pl, s_w,
+                                         LATE_MEAN_M, g, SEPARATION_PITCHES * step_m, n_starts,
+                                         log_share)  # fmt: skip
         ar = np.arange(A)
         for m in range(pick.shape[1]):
             th = np.column_stack([g[pick[:, m]], s[ar, pick[:, m], ref[:, m]]])

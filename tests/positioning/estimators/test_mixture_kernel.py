@@ -241,3 +241,29 @@ def test_compiled_estep_is_numpys(links_kind):
     _assert_same(W, np.where(sub.valid, w, 0.0))
     _assert_same(rho_shifted, sub.rho - np.where(sub.valid, shift, 0.0))
     assert (resp[2] > 0.5).any() and (resp[0] > 0.5).any()  # late and core both dominate
+
+
+@pytest.mark.parametrize("links_kind", ["reports", "no offset", "none"])
+def test_compiled_grid_log_shares_are_numpys(links_kind):
+    """grid_log_shares: the logs of shares() at every cell, as grid_starts took them in numpy
+    (the cells' free-space SNR per height, two heights), bit for bit."""
+    from positioning.estimators.mixture_kernel import grid_log_shares
+    from positioning.model.noise import free_space_snr_db
+    from positioning.model.tdoa import ranges
+
+    prob, _ = _estep_problem(5, links_kind)
+    idx = np.arange(0, 60)
+    at = idx % 2
+    cells = np.column_stack([np.linspace(-3.0, 33.0, 50), np.linspace(28.0, -2.0, 50)])
+    R_h = np.stack([ranges(np.column_stack([cells, np.full(50, h)]), prob.bs) for h in (1.0, 1.6)])
+    links = None if prob.links is None else prob.links.take(idx)
+    fs = None if links is None or links.snr_offset_db is None else free_space_snr_db(links, R_h)
+    got = grid_log_shares(fs, at, links, len(cells), prob.n_bs)
+    R = R_h[at]
+    if links is not None:
+        links = replace(links, snr_db=links.snr_db[:, None, :],
+                        peak_ratio_db=links.peak_ratio_db[:, None, :],
+                        lobe_width=links.lobe_width[:, None, :])  # fmt: skip
+    pw, pl = shares(links, R, np.ones((len(idx), 1, prob.n_bs), dtype=bool))
+    pw, pl = np.broadcast_to(pw, R.shape), np.broadcast_to(pl, R.shape)
+    _assert_same(got, np.stack([np.log1p(-(pw + pl)), np.log(pw), np.log(pl)]))
