@@ -12,6 +12,11 @@ without AVX-512: numpy vectorises them only there), the results are numpy's bit 
 elsewhere they may differ in the last bits, which only the grid's comparisons (the deepest
 cells) see (tests/positioning/estimators/test_mixture_kernel.py).
 
+The same per-measurement arithmetic, with the shares of :func:`positioning.model.noise.shares`,
+is EM's E-step and M-step weights (:class:`MixtureEStep`, for
+:func:`positioning.estimators.nlos.em_fit`): there the values are the fixes' own numbers, so
+``nlos-map`` uses it only where it gives numpy's bits (:func:`numpy_is_libm`), else numpy.
+
 Compiled with the options of the tracer's kernels (:mod:`raytrace.core.jit`, which positioning
 may not import): an explicit signature, ``error_model="numpy"``, no ``fastmath``, ``nogil``, and
 the on-disk cache (without a writable cache directory, compiled in memory instead).
@@ -19,6 +24,7 @@ the on-disk cache (without a writable cache directory, compiled in memory instea
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import Any
 
@@ -28,7 +34,18 @@ import numpy as np
 from numba import types
 from numba.extending import get_cython_function_address
 
-__all__ = ["deepest_by_numpy", "deepest_cells", "pairwise_mixture_nll"]
+from ..model import noise
+from ..model.problem import LinkInfo
+from ..model.tdoa import C0
+
+__all__ = [
+    "MixtureEStep",
+    "deepest_by_numpy",
+    "deepest_cells",
+    "numpy_is_libm",
+    "pairwise_mixture_nll",
+    "share_terms",
+]
 
 # scipy's double-precision log_ndtr, called by name: a kernel that calls a symbol (not a ctypes
 # pointer, a "dynamic global") can be cached on disk
@@ -279,6 +296,158 @@ def _deepest_kernel(s, valid, per_link, log_share, lam, half_log_2pi, cells, sep
     return n_exact
 
 
+@_inline
+def _numpy_max(a, b):
+    """``np.maximum(a, b)``: a NaN wins."""
+    if b > a or b != b:
+        return b if a == a else a
+    return a
+
+
+@_inline
+def _free_space_db(dist, share_terms):
+    """:func:`~positioning.model.noise.free_space_snr_db` at range ``dist`` (m)."""
+    return share_terms[1] + 20.0 * math.log10(share_terms[2]
+                                              / (share_terms[3] * _numpy_max(dist, 0.1)))
+
+
+@_inline
+def _shares_one(fs, snr, width, peak, share_terms):
+    """:func:`~positioning.model.noise.shares` of one measurement whose free-space SNR at the
+    candidate range is ``fs`` (dB), numpy's operations in its order: (p_wide, p_late).
+    ``share_terms`` (:func:`share_terms`): has a deficit (1/0), the SNR offset, the carrier
+    wavelength, 4 pi, the shares' constants."""
+    p_late, p_wide = share_terms[4], share_terms[5]
+    if share_terms[0] != 0.0:
+        d = fs - snr
+        if d != d:  # np.nan_to_num
+            d = 0.0
+        elif d == np.inf:
+            d = 1.7976931348623157e308
+        elif d == -np.inf:
+            d = -1.7976931348623157e308
+        s = 1.0 / (1.0 + math.exp(-(d - share_terms[8]) / share_terms[9]))
+        p_late = share_terms[4] + share_terms[6] * s
+        p_wide = share_terms[5] + share_terms[7] * s
+    if width > share_terms[10]:
+        p_late = _numpy_max(p_late, 0.5)
+    if width < share_terms[11]:
+        p_wide = _numpy_max(p_wide, 0.5)
+    if peak < share_terms[12]:
+        p_late = _numpy_max(p_late, 0.3)
+    tot = p_late + p_wide
+    scale = 0.95 / tot if tot > 0.95 else 1.0
+    return p_wide * scale, p_late * scale
+
+
+@_compile(
+    "void(i8[::1], f8[:, ::1], f8[::1], f8[:, ::1], b1[:, ::1], f8[:, :, ::1], f8[:, :, ::1], "
+    "f8[::1], f8, f8, f8[:, ::1], f8[:, :, ::1], f8[:, ::1])"
+)
+def _estep_kernel(idx, R, beta, rho, valid, reports, per_link, share_terms, lam, half_log_2pi,
+                  nll, resp, r_out):  # fmt: skip
+    """The E-step of epochs ``idx`` (A,) at ranges ``R`` (A, N) and clock terms ``beta`` (A,):
+    the residual ``r_out``, the NLL ``nll`` (0 where not received) and the three
+    responsibilities ``resp`` (3, A, N) of :func:`~positioning.model.noise.mixture_nll` with
+    the shares of :func:`~positioning.model.noise.shares`. ``rho``, ``valid`` (E, N),
+    ``reports`` (3, E, N: SNR, lobe width, peak ratio) and ``per_link`` (6, E, N, see
+    :func:`_link_terms`) are those of every epoch."""
+    A, N = R.shape
+    for a in range(A):
+        e = idx[a]
+        for n in range(N):
+            r = 0.0
+            if valid[e, n]:
+                r = (rho[e, n] - R[a, n]) - beta[a]
+                if not math.isfinite(r):
+                    r = 0.0
+            r_out[a, n] = r
+            fs = _free_space_db(R[a, n], share_terms) if share_terms[0] != 0.0 else 0.0
+            pw, pl = _shares_one(fs, reports[0, e, n], reports[1, e, n], reports[2, e, n],
+                                 share_terms)  # fmt: skip
+            a0, a1, pre, x = _terms(r, per_link[0, e, n], per_link[1, e, n], per_link[2, e, n],
+                                    per_link[3, e, n], per_link[4, e, n], per_link[5, e, n],
+                                    math.log1p(-(pw + pl)), math.log(pw), lam,
+                                    half_log_2pi)  # fmt: skip
+            a2 = (pre + _log_ndtr(x)) + math.log(pl)
+            top = _numpy_max(_numpy_max(a0, a1), a2)
+            lse = top + math.log((_exp_below(a0, top) + _exp_below(a1, top))
+                                 + _exp_below(a2, top))  # fmt: skip
+            nll[a, n] = -lse if valid[e, n] else 0.0
+            resp[0, a, n] = math.exp(a0 - lse)
+            resp[1, a, n] = math.exp(a1 - lse)
+            resp[2, a, n] = math.exp(a2 - lse)
+
+
+@_compile("void(f8[:, ::1], f8[:, :, ::1], f8[:, ::1], b1[:, ::1], f8[:, ::1], f8, f8, f8, "
+          "f8[:, ::1], f8[:, ::1])")  # fmt: skip
+def _mstep_kernel(r, resp, sig, valid, rho, s_w2, lam, half_log_2pi, W, rho_shifted):
+    """The M-step's weights ``W`` and shifted pseudo-ranges ``rho_shifted`` (A, N) from the
+    E-step (residuals ``r``, responsibilities ``resp``) and the noise core ``sig``, as
+    ``em_fit`` computes them in numpy (with
+    :func:`~positioning.model.noise.late_mean_excess`)."""
+    A, N = r.shape
+    for a in range(A):
+        for n in range(N):
+            sg = sig[a, n]
+            sg2 = sg * sg
+            mu = r[a, n] - sg2 / lam
+            z = mu / sg
+            ratio = math.exp(((-0.5 * z) * z - half_log_2pi) - _log_ndtr(z))
+            excess = _numpy_max(mu + sg * ratio, 0.0)
+            w = (resp[0, a, n] / sg2 + resp[1, a, n] / (sg2 + s_w2)) + resp[2, a, n] / sg2
+            shift = resp[2, a, n] / sg2 * excess / w
+            W[a, n] = w if valid[a, n] else 0.0
+            rho_shifted[a, n] = rho[a, n] - (shift if valid[a, n] else 0.0)
+
+
+@_compile("void(f8[:, :, ::1], i8[::1], f8[:, :, ::1], f8[::1], f8[:, :, :, ::1])")
+def _grid_log_shares_kernel(fs, at, reports, share_terms, out):
+    """``out`` (3, A, G, N): the logs of the core, wide and late shares (:func:`_log_shares`
+    of :func:`~positioning.model.noise.shares`) of epoch a at cell g, from the free-space SNR
+    ``fs`` (H, G, N, dB) of the cells at the epoch's height ``at[a]`` and its ``reports``
+    (3, A, N: SNR, lobe width, peak ratio)."""
+    A = at.size
+    G, N = fs.shape[1], fs.shape[2]
+    for a in range(A):
+        for g in range(G):
+            for n in range(N):
+                pw, pl = _shares_one(fs[at[a], g, n], reports[0, a, n], reports[1, a, n],
+                                     reports[2, a, n], share_terms)  # fmt: skip
+                out[0, a, g, n] = math.log1p(-(pw + pl))
+                out[1, a, g, n] = math.log(pw)
+                out[2, a, g, n] = math.log(pl)
+
+
+def grid_log_shares(fs: np.ndarray | None, at: np.ndarray, links: LinkInfo | None,
+                    G: int, N: int) -> np.ndarray:  # fmt: skip
+    """(3, A, G, N) logs of the mixture's shares at the grid's cells, compiled: what
+    :func:`~positioning.model.noise.shares` and the log of each give in numpy where
+    :func:`numpy_is_libm`.
+
+    Parameters
+    ----------
+    fs : (H, G, N) float, dB, or None: free-space SNR of each cell per device height (None:
+        no deficit known, the links have no SNR offset or carrier)
+    at : (A,) int, each epoch's height in ``fs``
+    links : LinkInfo or None, the epochs' receiver reports ((A, N) each)
+    G, N : int, cells and base stations
+    """
+    A = at.size
+    terms = share_terms(links)
+    if fs is None:
+        terms[0] = 0.0
+        fs = np.zeros((1, G, N))
+    nan = np.full((A, N), np.nan)
+    reports = np.stack([nan, nan, nan] if links is None
+                       else [links.snr_db, links.lobe_width, links.peak_ratio_db])  # fmt: skip
+    out = np.empty((3, A, G, N))
+    _grid_log_shares_kernel(np.ascontiguousarray(fs, dtype=np.float64),
+                            np.ascontiguousarray(at, dtype=np.int64),
+                            np.ascontiguousarray(reports, dtype=np.float64), terms, out)
+    return out
+
+
 def _link_terms(sigma: np.ndarray, s_wide: float, lam: float) -> np.ndarray:
     """(6, A, N) per-measurement terms as numpy evaluates them in component_logpdf: sigma, the
     wide component's sigma, their logs, the late density's ``-ln lam + sigma^2 / (2 lam^2)``
@@ -359,6 +528,7 @@ def deepest_cells(
     cells: np.ndarray,
     separation_m: float,
     n_pick: int,
+    log_share: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
     """Per epoch, the ``n_pick`` deepest cells of the grid's total mixture NLL, each at least
     ``separation_m`` from the ones taken before: the NLL of :func:`pairwise_mixture_nll`
@@ -372,6 +542,8 @@ def deepest_cells(
     cells : (G, 2) float, metres: the grid's cells
     separation_m : float, metres
     n_pick : int
+    log_share : (3, A, G, N) float, optional: the logs of the shares, if already made
+        (:func:`grid_log_shares`); then ``p_wide`` and ``p_late`` are not used
 
     Returns
     -------
@@ -385,7 +557,8 @@ def deepest_cells(
     A, G, N = s.shape
     n_pick = min(n_pick, G)
     per_link = _link_terms(sigma, s_wide, lam)
-    log_share = _log_shares(p_wide, p_late, s.shape)
+    if log_share is None:
+        log_share = _log_shares(p_wide, p_late, s.shape)
     h = float(0.5 * np.log(2.0 * np.pi))
     # the bound's steps hold for finite numbers only; numpy's argmins for the rest (and for more
     # stations than numpy adds in one block)
@@ -397,7 +570,7 @@ def deepest_cells(
     ok = np.zeros((A, n_pick), dtype=bool)
     n_exact = 0
     if fast.any():
-        f = np.flatnonzero(fast)
+        f = np.flatnonzero(fast) if not fast.all() else slice(None)  # (no copy when all are)
         p, r, o = pick[f], ref[f], ok[f]
         n_exact += int(_deepest_kernel(s[f], valid[f], np.ascontiguousarray(per_link[:, f]),
                                        np.ascontiguousarray(log_share[:, f]), float(lam), h,
@@ -406,10 +579,98 @@ def deepest_cells(
         pick[f], ref[f], ok[f] = p, r, o
     if not fast.all():
         f = np.flatnonzero(~fast)
-        nll = pairwise_mixture_nll(s[f], valid[f], np.asarray(sigma)[f],
-                                   np.broadcast_to(p_wide, s.shape)[f],
-                                   np.broadcast_to(p_late, s.shape)[f], s_wide, lam)  # fmt: skip
+        nll = np.zeros((f.size, G, N, N))
+        _pairwise_kernel(np.ascontiguousarray(s[f]), np.ascontiguousarray(valid[f]),
+                         np.ascontiguousarray(per_link[:, f]),
+                         np.ascontiguousarray(log_share[:, f]), float(lam), h, nll)  # fmt: skip
         tot = np.where(valid[f][:, None, :], np.sum(nll, axis=3), np.inf)
         pick[f], ref[f], ok[f] = deepest_by_numpy(tot, cells, separation_m, n_pick)
         n_exact += f.size * G * N
     return pick, ref, ok, n_exact
+
+
+@functools.cache
+def numpy_is_libm() -> bool:
+    """numpy's float64 ``exp``, ``log``, ``log1p`` and ``log10`` are the C library's on this
+    machine (numpy vectorises them only with AVX-512): then the compiled E-step gives numpy's
+    bits, and ``nlos-map`` uses it."""
+    x = np.random.default_rng(7).normal(0.0, 20.0, 4096)
+    y = np.abs(x) + 1e-3
+    return bool(
+        all(np.exp(v) == math.exp(v) for v in x)
+        and all(np.log(v) == math.log(v) and np.log10(v) == math.log10(v) for v in y)
+        and all(np.log1p(-v / (1.0 + v)) == math.log1p(-v / (1.0 + v)) for v in y)
+    )
+
+
+def share_terms(links: LinkInfo | None) -> np.ndarray:
+    """(13,) the constants of :func:`~positioning.model.noise.shares` for the compiled E-step:
+    has a deficit (1/0), the SNR offset (dB), the carrier wavelength (m), 4 pi, P_LATE0,
+    P_WIDE0, the late and wide shares' rises, DEFICIT_DB, DEFICIT_SLOPE_DB, WIDE_LOBE,
+    NARROW_LOBE, WEAK_LOBE_DB."""
+    deficit = (links is not None and links.snr_offset_db is not None
+               and bool(links.center_frequency_hz))  # fmt: skip
+    return np.array([
+        1.0 if deficit else 0.0,
+        float(links.snr_offset_db) if deficit else 0.0,
+        C0 / float(links.center_frequency_hz) if deficit else 1.0,
+        4.0 * np.pi,
+        noise.P_LATE0, noise.P_WIDE0,
+        noise.P_LATE_BLOCKED - noise.P_LATE0, noise.P_WIDE_BLOCKED - noise.P_WIDE0,
+        noise.DEFICIT_DB, noise.DEFICIT_SLOPE_DB,
+        noise.WIDE_LOBE, noise.NARROW_LOBE, noise.WEAK_LOBE_DB,
+    ])  # fmt: skip
+
+
+class MixtureEStep:
+    """The compiled E-step and M-step weights of ``nlos-map``'s EM
+    (:func:`positioning.estimators.nlos.em_fit`) on one problem's epochs: the per-measurement
+    constants (noise core, its logs, the receiver reports) made once, not per iteration.
+
+    Parameters
+    ----------
+    rho : (E, N) float, metres; valid : (E, N) bool
+    links : LinkInfo or None, the receiver reports
+    sigma : (E, N) float, metres: the noise core (:func:`~positioning.model.noise.link_sigma`)
+    s_wide : float, metres: the overlap spread; lam : float, metres: the mean NLoS excess
+    """
+
+    def __init__(self, rho: np.ndarray, valid: np.ndarray, links: LinkInfo | None,
+                 sigma: np.ndarray, s_wide: float, lam: float) -> None:  # fmt: skip
+        self.rho = np.ascontiguousarray(rho, dtype=np.float64)
+        self.valid = np.ascontiguousarray(valid, dtype=np.bool_)
+        nan = np.full(self.rho.shape, np.nan)
+        self.reports = np.ascontiguousarray(np.stack(
+            [nan, nan, nan] if links is None
+            else [links.snr_db, links.lobe_width, links.peak_ratio_db]), dtype=np.float64)  # fmt: skip
+        self.sigma = np.ascontiguousarray(sigma, dtype=np.float64)
+        self.per_link = np.ascontiguousarray(_link_terms(self.sigma, s_wide, lam))
+        self.terms = share_terms(links)
+        self.s_w2 = s_wide**2
+        self.lam = float(lam)
+        self.h = float(0.5 * np.log(2.0 * np.pi))
+
+    def at(self, idx: np.ndarray, R: np.ndarray, beta: np.ndarray):
+        """NLL (A, N) (0 where not received), responsibilities (3, A, N) and residuals (A, N)
+        of epochs ``idx`` (A,) at ranges ``R`` (A, N, metres) and clock terms ``beta`` (A,)."""
+        idx = np.ascontiguousarray(idx, dtype=np.int64)
+        A, N = idx.size, self.rho.shape[1]
+        nll, resp, r = np.empty((A, N)), np.empty((3, A, N)), np.empty((A, N))
+        _estep_kernel(idx, np.ascontiguousarray(R, dtype=np.float64),
+                      np.ascontiguousarray(beta, dtype=np.float64), self.rho, self.valid,
+                      self.reports, self.per_link, self.terms, self.lam, self.h, nll, resp,
+                      r)  # fmt: skip
+        return nll, resp, r
+
+    def weights(self, idx: np.ndarray, r: np.ndarray, resp: np.ndarray):
+        """The M-step's weights (A, N) (0 where not received) and pseudo-ranges less the
+        expected NLoS excess (A, N, metres) of epochs ``idx`` from their E-step."""
+        idx = np.asarray(idx)
+        A, N = idx.size, self.rho.shape[1]
+        W, rho_shifted = np.empty((A, N)), np.empty((A, N))
+        _mstep_kernel(np.ascontiguousarray(r, dtype=np.float64),
+                      np.ascontiguousarray(resp, dtype=np.float64),
+                      np.ascontiguousarray(self.sigma[idx]), np.ascontiguousarray(self.valid[idx]),
+                      np.ascontiguousarray(self.rho[idx]), self.s_w2, self.lam, self.h, W,
+                      rho_shifted)  # fmt: skip
+        return W, rho_shifted

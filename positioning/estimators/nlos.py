@@ -25,17 +25,19 @@ import numpy as np
 from ..model.noise import (
     LATE_MEAN_M,
     WIDE_PULSES,
+    free_space_snr_db,
     late_mean_excess,
     link_sigma,
     mixture_nll,
     pulse_width_m,
     shares,
+    shares_at_deficit,
 )
 from ..model.problem import Problem
 from ..model.residuals import pseudorange_model
-from ..model.tdoa import ranges_and_units
+from ..model.tdoa import ranges, ranges_and_units
 from .fixes import Fixes, Status, config_params
-from .mixture_kernel import deepest_cells
+from .mixture_kernel import MixtureEStep, deepest_cells, grid_log_shares, numpy_is_libm
 from .robust import REGION_MARGIN, REJECT_WEIGHT, candidates
 from .solver import levenberg_marquardt
 
@@ -55,6 +57,33 @@ def _nll(prob: Problem, theta: np.ndarray, sigma: np.ndarray, s_w: float):
     pw, pl = shares(prob.links, R, prob.valid)
     nll, resp = mixture_nll(r, sigma, pw, pl, s_w)
     return np.where(prob.valid, nll, 0.0), resp, r
+
+
+def _grid_shares(links, idx: np.ndarray, R_h: np.ndarray, at: np.ndarray, G: int):
+    """The mixture's shares at the grid's cells for epochs ``idx``: (p_wide, p_late, None)
+    (A, G, N) in numpy, or (None, None, their logs (3, A, G, N)) compiled where that gives
+    numpy's bits (:func:`~positioning.estimators.mixture_kernel.numpy_is_libm`). ``R_h``
+    (H, G, N) the cells' ranges per device height, ``at`` (A,) each epoch's height."""
+    fs = None
+    if links is not None:
+        links = links.take(idx)
+        if links.snr_offset_db is not None and links.center_frequency_hz:
+            fs = free_space_snr_db(links, R_h)  # (H, G, N)
+    A, N = idx.size, R_h.shape[2]
+    if numpy_is_libm():
+        return None, None, grid_log_shares(fs, at, links, G, N)
+    deficit = None
+    if links is not None:
+        links = replace(
+            links,
+            snr_db=links.snr_db[:, None, None, :],
+            peak_ratio_db=links.peak_ratio_db[:, None, None, :],
+            lobe_width=links.lobe_width[:, None, None, :],
+        )
+        if fs is not None:
+            deficit = fs[at][:, :, None, :] - links.snr_db
+    pw, pl = shares_at_deficit(links, deficit, np.ones((A, 1, 1, N), dtype=bool))
+    return pw[:, :, 0], pl[:, :, 0], None
 
 
 def grid_starts(prob: Problem, rows: np.ndarray, step_m: float, n_starts: int) -> np.ndarray:
@@ -84,34 +113,60 @@ def grid_starts(prob: Problem, rows: np.ndarray, step_m: float, n_starts: int) -
         if idx.size == 0:
             continue
         A = idx.size
-        xyz = np.empty((A, G, 3))
+        # the cells' ranges and free-space SNRs once per device height (mostly one), not per
+        # epoch: the same numbers, gathered
+        heights, at = np.unique(prob.height[idx], return_inverse=True)
+        xyz = np.empty((heights.size, G, 3))
         xyz[..., :2] = g[None]
-        xyz[..., 2] = prob.height[idx, None]
-        R = np.linalg.norm(xyz[:, :, None, :] - prob.bs[None, None], axis=3)  # (A, G, N)
+        xyz[..., 2] = heights[:, None]
+        R_h = np.linalg.norm(xyz[:, :, None, :] - prob.bs[None, None], axis=3)  # (H, G, N)
+        R = R_h[at]  # (A, G, N)
         valid = prob.valid[idx][:, None, :]
         s = np.where(valid, prob.rho[idx][:, None, :] - R, 0.0)
-        links = prob.links
-        if links is not None:
-            links = links.take(idx)
-            links = replace(
-                links,
-                snr_db=links.snr_db[:, None, None, :],
-                peak_ratio_db=links.peak_ratio_db[:, None, None, :],
-                lobe_width=links.lobe_width[:, None, None, :],
-            )
-        pw, pl = shares(links, R[:, :, None, :], valid[:, :, None, :])
+        pw, pl, log_share = _grid_shares(prob.links, idx, R_h, at, G)
         # the deepest cells of the mixture NLL of the residuals s[n] - s[j] (beta from j), each
         # at least SEPARATION_PITCHES pitches from the ones taken before (compiled, with the
         # NLL computed only where a bound leaves a cell in contention: the grid was most of
         # nlos-map's time)
-        pick, ref, ok, _ = deepest_cells(s, prob.valid[idx], sigma[idx], pw[:, :, 0],
-                                         pl[:, :, 0], s_w, LATE_MEAN_M, g,
-                                         SEPARATION_PITCHES * step_m, n_starts)  # fmt: skip
+        pick, ref, ok, _ = deepest_cells(s, prob.valid[idx], sigma[idx], pw, pl, s_w,
+                                         LATE_MEAN_M, g, SEPARATION_PITCHES * step_m, n_starts,
+                                         log_share)  # fmt: skip
         ar = np.arange(A)
         for m in range(pick.shape[1]):
             th = np.column_stack([g[pick[:, m]], s[ar, pick[:, m], ref[:, m]]])
             out[m, idx[ok[:, m]]] = th[ok[:, m]]
     return out
+
+
+class _EStep:
+    """``em_fit``'s E-step (NLL, responsibilities, residuals) and M-step weights on the epochs
+    of ``prob``: compiled (:class:`~positioning.estimators.mixture_kernel.MixtureEStep`) where
+    that gives numpy's bits, else numpy (:func:`_nll`)."""
+
+    def __init__(self, prob: Problem, sigma: np.ndarray, s_w: float) -> None:
+        self.prob, self.sigma, self.s_w = prob, sigma, s_w
+        self.kernel = None
+        if numpy_is_libm():
+            self.kernel = MixtureEStep(prob.rho, prob.valid, prob.links, sigma, s_w, LATE_MEAN_M)
+
+    def at(self, idx: np.ndarray, theta: np.ndarray):
+        """:func:`_nll` of epochs ``idx`` (A,) at ``theta`` (A, dims+1)."""
+        if self.kernel is None:
+            return _nll(self.prob.take(idx), theta, self.sigma[idx], self.s_w)
+        p = self.prob.position(theta, idx)
+        R = ranges(np.where(np.isfinite(p), p, 0.0), self.prob.bs)
+        return self.kernel.at(idx, R, theta[:, self.prob.dims])
+
+    def weights(self, idx: np.ndarray, r: np.ndarray, resp: np.ndarray):
+        """The M-step's inverse-variance weights (A, N) and pseudo-ranges less the expected
+        NLoS excess (A, N) from the E-step of epochs ``idx``."""
+        if self.kernel is not None:
+            return self.kernel.weights(idx, r, resp)
+        sig, valid, s_w = self.sigma[idx], self.prob.valid[idx], self.s_w
+        excess = late_mean_excess(r, sig)
+        w = resp[0] / sig**2 + resp[1] / (sig**2 + s_w**2) + resp[2] / sig**2
+        shift = resp[2] / sig**2 * excess / w
+        return np.where(valid, w, 0.0), self.prob.rho[idx] - np.where(valid, shift, 0.0)
 
 
 def em_fit(
@@ -130,7 +185,7 @@ def em_fit(
     """
     E, N = prob.rho.shape
     sigma_all = link_sigma(prob.links, (E, N))
-    s_w = WIDE_PULSES * pulse_width_m(prob.links)
+    estep = _EStep(prob, sigma_all, WIDE_PULSES * pulse_width_m(prob.links))
     theta = theta0.copy()
     iters = np.zeros(E, dtype=np.int64)
     weights = np.zeros((E, N))
@@ -139,23 +194,20 @@ def em_fit(
     for _ in range(max_iter):
         if act.size == 0:
             break
-        sub = prob.take(act)
-        sig = sigma_all[act]
         # the E-step at an accepted M-step's end point is the NLL the test below computed there
         # (every term is per measurement: the same numbers for the smaller batch)
-        nll0, resp, r = here if here is not None else _nll(sub, theta[act], sig, s_w)
-        excess = late_mean_excess(r, sig)
-        w = resp[0] / sig**2 + resp[1] / (sig**2 + s_w**2) + resp[2] / sig**2
-        shift = resp[2] / sig**2 * excess / w
-        W = np.where(sub.valid, w, 0.0)
-        shifted = replace(sub, rho=sub.rho - np.where(sub.valid, shift, 0.0))
+        nll0, resp, r = here if here is not None else estep.at(act, theta[act])
+        W, rho_shifted = estep.weights(act, r, resp)
+        # the M-step's problem: only its pseudo-ranges, validity and heights enter the model
+        shifted = replace(prob, rho=rho_shifted, valid=prob.valid[act], links=None, memo=None,
+                          height=None if prob.height is None else prob.height[act])  # fmt: skip
         th, _, _ = levenberg_marquardt(
             pseudorange_model(shifted), theta[act], W, tol=tol_m, max_iter=gn_max_iter
         )
         if prob.area is not None:  # the M-step stays on the floor
             th[:, :2] = prob.area.project(th[:, :2])
         step = np.linalg.norm(th - theta[act], axis=1)
-        nll1, resp1, r1 = _nll(sub, np.nan_to_num(th), sig, s_w)
+        nll1, resp1, r1 = estep.at(act, np.nan_to_num(th))
         # a descent method: a step that does not lower the NLL (the shares move with the
         # position, so plain EM is not monotone here) ends the iteration where it is
         ok = np.isfinite(step) & (nll1.sum(axis=1) < nll0.sum(axis=1))
@@ -165,7 +217,7 @@ def em_fit(
         go = ok & (step > tol_m)  # a finite step: th is finite there, nan_to_num kept it
         act = act[go]
         here = (nll1[go], resp1[:, go], r1[go])
-    nll_e, _, _ = _nll(prob, np.where(np.isfinite(theta), theta, 0.0), sigma_all, s_w)
+    nll_e, _, _ = estep.at(np.arange(E), np.where(np.isfinite(theta), theta, 0.0))
     total = np.where(rows & np.isfinite(theta).all(axis=1), nll_e.sum(axis=1), np.inf)
     return theta, total, weights, iters
 
@@ -290,9 +342,8 @@ def nlos_map(prob: Problem, config: NlosMapConfig = NlosMapConfig()) -> Fixes:
     if config.estimate == "mean" and H > 1:
         xyz = posterior_mean(prob, xyz_h, score, best)
     W = np.stack(wts)[best, ar]
-    sigma = link_sigma(prob.links, (E, N))
-    s_w = WIDE_PULSES * pulse_width_m(prob.links)
-    _, resp, _ = _nll(prob, np.nan_to_num(theta[best, ar]), sigma, s_w)
+    estep = _EStep(prob, link_sigma(prob.links, (E, N)), WIDE_PULSES * pulse_width_m(prob.links))
+    _, resp, _ = estep.at(ar, np.nan_to_num(theta[best, ar]))
     trust = np.where(prob.valid, resp[0] + resp[1], 0.0)
     status = np.where(rows & np.stack(ills)[best, ar], int(Status.ILL_CONDITIONED), 0)
     rejected = (prob.valid & (trust < REJECT_WEIGHT)).any(axis=1)

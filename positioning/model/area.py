@@ -112,12 +112,18 @@ class ServiceArea:
         xy = np.asarray(xy, dtype=float).reshape(-1, 2)
         block = max(1, _PAIRS_PER_BLOCK // len(self.polygon))
         if len(xy) > block:
-            return np.concatenate([self._contains(xy[i : i + block])
+            return np.concatenate([self.contains(xy[i : i + block])
                                    for i in range(0, len(xy), block)])  # fmt: skip
-        return self._contains(xy)
+        _, d = self.nearest_on_outline(xy)
+        return np.isfinite(xy).all(axis=1) & (self._odd(xy) | (d <= BOUNDARY_TOL_M))
 
-    def _contains(self, xy: np.ndarray, d: np.ndarray | None = None) -> np.ndarray:
-        """:meth:`contains` of one block; ``d`` the outline distances if already known."""
+    def _odd(self, xy: np.ndarray) -> np.ndarray:
+        """(A,) bool: an odd number of the outline's edges cross the horizontal ray from each
+        point to +x (False for a point that is not finite), in blocks of points."""
+        block = max(1, _PAIRS_PER_BLOCK // len(self.polygon))
+        if len(xy) > block:
+            return np.concatenate([self._odd(xy[i : i + block])
+                                   for i in range(0, len(xy), block)])  # fmt: skip
         a, b = self.edges
         x, y = xy[:, :1], xy[:, 1:]
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -125,20 +131,21 @@ class ServiceArea:
             xc = a[None, :, 0] + (y - a[None, :, 1]) * (b[None, :, 0] - a[None, :, 0]) / (
                 b[None, :, 1] - a[None, :, 1]
             )
-            odd = np.count_nonzero(straddle & (x < xc), axis=1) % 2 == 1
-        if d is None:
-            _, d = self.nearest_on_outline(xy)
-        return np.isfinite(xy).all(axis=1) & (odd | (d <= BOUNDARY_TOL_M))
+            return np.count_nonzero(straddle & (x < xc), axis=1) % 2 == 1
 
     def project(self, xy: np.ndarray) -> np.ndarray:
         """(A, 2): each point itself if inside, else its nearest outline point."""
         xy = np.asarray(xy, dtype=float).reshape(-1, 2)
-        foot, d = self.nearest_on_outline(np.where(np.isfinite(xy), xy, 0.0))
-        if len(xy) > max(1, _PAIRS_PER_BLOCK // len(self.polygon)):
-            inside = self.contains(xy)
-        else:  # the outline distances once: a point that is not finite is outside either way
-            inside = self._contains(xy, d)
-        return np.where(inside[:, None], xy, foot)
+        # a point the crossing count puts inside is inside whatever its outline distance: the
+        # distances (most of the work) only for the others; every number is a point's own
+        out = xy.copy()
+        rest = np.flatnonzero(~self._odd(xy))
+        if rest.size:
+            p = xy[rest]
+            foot, d = self.nearest_on_outline(np.where(np.isfinite(p), p, 0.0))
+            on = np.isfinite(p).all(axis=1) & (d <= BOUNDARY_TOL_M)
+            out[rest] = np.where(on[:, None], p, foot)
+        return out
 
     def outline(self, step_m: float) -> np.ndarray:
         """(K, 2) points along the outline, at most ``step_m`` apart (farther when that would be

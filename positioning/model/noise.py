@@ -108,14 +108,26 @@ def shares(
       narrower than :data:`NARROW_LOBE`: ``p_wide >= 0.5`` (destructive interference);
     * lobe under the strongest peak by more than :data:`WEAK_LOBE_DB`: ``p_late >= 0.3``.
     """
+    deficit = None
+    if links is not None and dist_m is not None and links.snr_offset_db is not None \
+            and links.center_frequency_hz:  # fmt: skip
+        deficit = free_space_snr_db(links, dist_m) - links.snr_db
+    return shares_at_deficit(links, deficit, valid)
+
+
+def shares_at_deficit(
+    links: LinkInfo | None, deficit_db: np.ndarray | None, valid: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`shares` from the SNR deficit ``deficit_db`` (dB, the free-space SNR at the
+    candidate range less the reported one; None: no deficit known), for a caller that has the
+    free-space SNR of many epochs at once (the grid of ``nlos-map``: one per cell)."""
     shape = valid.shape
     p_late = np.full(shape, P_LATE0)
     p_wide = np.full(shape, P_WIDE0)
     if links is None:
         return p_wide, p_late
-    if dist_m is not None and links.snr_offset_db is not None and links.center_frequency_hz:
-        deficit = free_space_snr_db(links, dist_m) - links.snr_db
-        s = 1.0 / (1.0 + np.exp(-(np.nan_to_num(deficit, nan=0.0) - DEFICIT_DB) / DEFICIT_SLOPE_DB))
+    if deficit_db is not None:
+        s = 1.0 / (1.0 + np.exp(-(np.nan_to_num(deficit_db, nan=0.0) - DEFICIT_DB) / DEFICIT_SLOPE_DB))
         p_late = P_LATE0 + (P_LATE_BLOCKED - P_LATE0) * s
         p_wide = P_WIDE0 + (P_WIDE_BLOCKED - P_WIDE0) * s
     w = links.lobe_width

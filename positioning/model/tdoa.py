@@ -91,6 +91,16 @@ def range_differences(
     return C0 * signed_tdoa(toa_s, reference, tx_offsets_s)
 
 
+def ranges(p: np.ndarray, bs: np.ndarray) -> np.ndarray:
+    """(A, N) 3-D ranges ``|p - b_n|`` in metres of positions ``p`` (A, 3) from ``bs`` (N, 3):
+    :func:`ranges_and_units` without the gradient (the same numbers)."""
+    return _norms(p[:, None, :] - bs[None, :, :])
+
+
+def _norms(diff: np.ndarray) -> np.ndarray:
+    return np.sqrt(np.einsum("anj,anj->an", diff, diff))
+
+
 def ranges_and_units(p: np.ndarray, bs: np.ndarray, dims: int) -> tuple[np.ndarray, np.ndarray]:
     """3-D ranges and their gradient with respect to the unknown coordinates.
 
@@ -106,7 +116,7 @@ def ranges_and_units(p: np.ndarray, bs: np.ndarray, dims: int) -> tuple[np.ndarr
     U : (A, N, dims) float -- ``d R / d (x, y[, z]) = (p - b_n)[:dims] / R``
     """
     diff = p[:, None, :] - bs[None, :, :]
-    R = np.sqrt(np.einsum("anj,anj->an", diff, diff))
+    R = _norms(diff)
     # The gradient is undefined at a base station; 1e-12 m only avoids 0/0 there.
     U = diff[..., :dims] / np.maximum(R, 1e-12)[..., None]
     return R, U

@@ -119,12 +119,15 @@ def _numpy_grid_starts(prob, rows, step_m, n_starts):
     return out
 
 
-def test_grid_starts_are_those_of_the_numpy_form():
+@pytest.mark.parametrize("heights", [(1.0,), (1.0, 1.5, 0.7)])
+def test_grid_starts_are_those_of_the_numpy_form(heights):
     """On NLoS-biased epochs with receiver reports: the same starts, bit for bit (the kernel
-    only decides which cells are deepest; the starts are the grid's own numbers)."""
+    only decides which cells are deepest; the starts are the grid's own numbers), also where
+    the device height varies (the cells' ranges are computed once per height)."""
     _, toa, links = nlos_scene(3, 120, PAPER_BS, 1)
     area = ServiceArea.box((-2.0, -2.0), (31.0, 27.0))
-    prob = make_problem(toa, PAPER_BS, None, np.full(len(toa), 1.0), area=area, links=links)
+    height = np.resize(np.array(heights), len(toa))
+    prob = make_problem(toa, PAPER_BS, None, height, area=area, links=links)
     rows = prob.solvable
     got = grid_starts(prob, rows, 2.0, 3)
     want = _numpy_grid_starts(prob, rows, 2.0, 3)
@@ -190,3 +193,77 @@ def test_late_term_bound_holds_for_scipys_log_ndtr():
     0.92 + ln(-x), far more than its rounding)."""
     x = -np.concatenate([np.linspace(1.0, 50.0, 20001)[1:], np.geomspace(50.0, 1e4, 20001)[:-1]])
     assert (log_ndtr(x) <= -0.5 * (x * x)).all()
+
+
+def _estep_problem(seed, links_kind):
+    """A problem with receiver reports of every kind the E-step meets: lobes wide, narrow and
+    weak, unknown reports (NaN), a station not received, or no reports at all."""
+    rng = np.random.default_rng(seed)
+    _, toa, links = nlos_scene(seed, 150, PAPER_BS, 1)
+    toa[rng.random(toa.shape) < 0.1] = np.nan
+    links = replace(links, lobe_width=rng.choice([0.9, 1.0, 1.2, np.nan], toa.shape),
+                    peak_ratio_db=rng.choice([0.0, -6.0, np.nan], toa.shape))  # fmt: skip
+    if links_kind == "no offset":
+        links = replace(links, snr_offset_db=None)
+    elif links_kind == "none":
+        links = None
+    prob = make_problem(toa, PAPER_BS, None, np.full(len(toa), 1.0), links=links)
+    theta = np.column_stack([rng.uniform(-5, 35, len(toa)), rng.uniform(-5, 30, len(toa)),
+                             rng.normal(0.0, 20.0, len(toa))])  # fmt: skip
+    return prob, theta
+
+
+@pytest.mark.parametrize("links_kind", ["reports", "no offset", "none"])
+def test_compiled_estep_is_numpys(links_kind):
+    """MixtureEStep's NLL, responsibilities, residuals, weights and shifted pseudo-ranges are
+    nlos-map's numpy E-step and M-step weights (em_fit before the kernel), bit for bit."""
+    from positioning.estimators.mixture_kernel import MixtureEStep
+    from positioning.estimators.nlos import _nll
+    from positioning.model.noise import late_mean_excess
+    from positioning.model.tdoa import ranges
+
+    prob, theta = _estep_problem(3, links_kind)
+    E, N = prob.rho.shape
+    sigma = link_sigma(prob.links, (E, N))
+    s_w = WIDE_PULSES * pulse_width_m(prob.links)
+    idx = np.flatnonzero(prob.solvable)[::2]
+    sub, sig, th = prob.take(idx), sigma[idx], theta[idx]
+    want = _nll(sub, th, sig, s_w)
+    step = MixtureEStep(prob.rho, prob.valid, prob.links, sigma, s_w, LATE_MEAN_M)
+    got = step.at(idx, ranges(prob.position(th, idx), prob.bs), th[:, 2])
+    for g, w in zip(got, want, strict=True):
+        _assert_same(g, w)
+    nll, resp, r = want
+    excess = late_mean_excess(r, sig)
+    w = resp[0] / sig**2 + resp[1] / (sig**2 + s_w**2) + resp[2] / sig**2
+    shift = resp[2] / sig**2 * excess / w
+    W, rho_shifted = step.weights(idx, r, resp)
+    _assert_same(W, np.where(sub.valid, w, 0.0))
+    _assert_same(rho_shifted, sub.rho - np.where(sub.valid, shift, 0.0))
+    assert (resp[2] > 0.5).any() and (resp[0] > 0.5).any()  # late and core both dominate
+
+
+@pytest.mark.parametrize("links_kind", ["reports", "no offset", "none"])
+def test_compiled_grid_log_shares_are_numpys(links_kind):
+    """grid_log_shares: the logs of shares() at every cell, as grid_starts took them in numpy
+    (the cells' free-space SNR per height, two heights), bit for bit."""
+    from positioning.estimators.mixture_kernel import grid_log_shares
+    from positioning.model.noise import free_space_snr_db
+    from positioning.model.tdoa import ranges
+
+    prob, _ = _estep_problem(5, links_kind)
+    idx = np.arange(0, 60)
+    at = idx % 2
+    cells = np.column_stack([np.linspace(-3.0, 33.0, 50), np.linspace(28.0, -2.0, 50)])
+    R_h = np.stack([ranges(np.column_stack([cells, np.full(50, h)]), prob.bs) for h in (1.0, 1.6)])
+    links = None if prob.links is None else prob.links.take(idx)
+    fs = None if links is None or links.snr_offset_db is None else free_space_snr_db(links, R_h)
+    got = grid_log_shares(fs, at, links, len(cells), prob.n_bs)
+    R = R_h[at]
+    if links is not None:
+        links = replace(links, snr_db=links.snr_db[:, None, :],
+                        peak_ratio_db=links.peak_ratio_db[:, None, :],
+                        lobe_width=links.lobe_width[:, None, :])  # fmt: skip
+    pw, pl = shares(links, R, np.ones((len(idx), 1, prob.n_bs), dtype=bool))
+    pw, pl = np.broadcast_to(pw, R.shape), np.broadcast_to(pl, R.shape)
+    _assert_same(got, np.stack([np.log1p(-(pw + pl)), np.log(pw), np.log(pl)]))

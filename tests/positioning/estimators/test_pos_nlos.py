@@ -89,3 +89,19 @@ def test_em_fit_reuses_the_nll_of_the_accepted_step_exactly():
         theta, _, _, iters = em_fit(prob, s.theta, sub, **kw)
         assert iters.max() > 2  # several iterations: the reuse is exercised
         np.testing.assert_array_equal(theta, _em_fit_reference(prob, s.theta, sub, **kw))
+
+
+def test_em_fit_in_numpy_is_the_compiled_fit(monkeypatch):
+    """Without the compiled E-step (numpy's exp and log not the C library's) em_fit runs in
+    numpy: the same fit as the reference loop, bit for bit."""
+    from positioning.estimators import nlos
+    from positioning.estimators.robust import candidates
+    from positioning.model.problem import make_problem
+
+    monkeypatch.setattr(nlos, "numpy_is_libm", lambda: False)
+    dev, toa, links = nlos_scene(8, 120, PAPER_BS[:4], 1)
+    prob = make_problem(toa, PAPER_BS[:4], height_m=1.0, area=HALL, links=links)
+    _, sub, s = next(iter(candidates(prob, prob.solvable, 1, 1.0)))
+    kw = dict(tol_m=1e-4, max_iter=30, gn_max_iter=5)
+    theta, _, _, _ = nlos.em_fit(prob, s.theta, sub, **kw)
+    np.testing.assert_array_equal(theta, _em_fit_reference(prob, s.theta, sub, **kw))
