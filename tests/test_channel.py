@@ -295,6 +295,34 @@ def test_discrete_cir_groups_and_sorts():
     assert cir.link(3)[0].size == 0 and cir.n_links == 4
 
 
+@pytest.mark.parametrize("case", ["sorted", "ties", "one-swap", "shuffled", "one", "none"])
+def test_cir_and_first_path_orders_are_lexsorts_whether_sorted_or_not(case):
+    # the tracer's paths come sorted (link, delay): the order is then found without a sort;
+    # it must be np.lexsort's permutation in every case
+    rng = np.random.default_rng(7)
+    n = {"one": 1, "none": 0}.get(case, 400)
+    link = np.sort(rng.integers(0, 9, n))
+    delay = rng.choice(np.arange(40) * 1e-9, n)  # repeated delays: ties within a link
+    for lk in np.unique(link):
+        delay[link == lk] = np.sort(delay[link == lk])
+    if case == "one-swap":
+        delay[[10, 11]] = delay[[11, 10]] + np.array([0.0, 1e-9])
+    if case == "shuffled":
+        p = rng.permutation(n)
+        link, delay = link[p], delay[p]
+    gain = rng.normal(size=n) + 1j * rng.normal(size=n)
+    cir = discrete_cir(link, delay, gain, 10)
+    order = np.lexsort((np.arange(n), delay, link))
+    assert cir.path_index.dtype == np.int64 and np.array_equal(cir.path_index, order)
+    assert np.array_equal(cir.delay_s, delay[order]) and np.array_equal(cir.gain, gain[order])
+    ok = rng.random(n) < 0.5
+    idx = np.flatnonzero(ok)
+    want = np.full(10, -1)
+    for i in idx[np.lexsort((idx, delay[idx], link[idx]))][::-1]:
+        want[link[i]] = i  # the earliest (delay, index) of each link is written last
+    assert first_detectable_path(link, delay, ok, 10).tolist() == want.tolist()
+
+
 # --------------------------------------------------------------------------------------------
 # Raised-cosine pulse, eq. 2
 # --------------------------------------------------------------------------------------------

@@ -25,6 +25,7 @@ from raytrace.emulation.measurement import (
     ToaModel,
     emulate_toa,
     epoch_rngs,
+    link_los,
 )
 from raytrace.emulation.receivers import Receiver
 from raytrace.solver.tracer import trace
@@ -115,6 +116,19 @@ def _small_paths(band):
     tx = np.array([p for _, p in BS])
     rx = np.array([p for _, p in POINTS])
     return trace(_scene(), tx, rx, get_band(band).center_frequency_hz)
+
+
+def test_los_flags_given_once_are_those_each_epoch_computes():
+    """The datasets compute the links' LoS flags once per band and snapshot for all its models:
+    the same flags (an independent per-link test) and the same measurements as without."""
+    paths = _small_paths("c-band")
+    los = link_los(paths)
+    want = np.array([paths.los[paths.link == k].any() for k in range(paths.n_links)])
+    assert los.dtype == bool and los.tolist() == want.tolist()
+    model = ToaModel(Receiver("first-path", "c-band"), seed=3)
+    a, b = model.measure(paths, [0, 4]), model.measure(paths, [0, 4], None, los)
+    for name in Measurements.__dataclass_fields__:
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
 
 
 def test_measurement_model_is_schedule_plus_clock_plus_first_detectable_delay():
@@ -549,10 +563,10 @@ def test_failure_midway_leaves_no_output(tmp_path, monkeypatch):
 
     real = ToaModel.measure
 
-    def failing(self, paths, epochs, prepared=None):
+    def failing(self, paths, epochs, prepared=None, los=None):
         if 3 in epochs:
             raise HallrayError("simulated failure in epoch 3")
-        return real(self, paths, epochs, prepared)
+        return real(self, paths, epochs, prepared, los)
 
     monkeypatch.setattr(ToaModel, "measure", failing)
     sc = _scene()

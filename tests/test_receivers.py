@@ -9,6 +9,7 @@ import pytest
 from scipy.integrate import quad
 from scipy.optimize import minimize_scalar
 
+from positioning.model.pulse import TABLE_PER_T, pulse_at, pulse_table
 from raytrace.core.constants import C0
 from raytrace.core.errors import HallrayError
 from raytrace.emulation.bands import get_band
@@ -286,6 +287,24 @@ def test_windowed_receiver_equals_the_brute_force_definition():
     ok = np.isfinite(expected)
     assert ok.sum() >= 35
     assert np.max(np.abs(est.toa_s[ok] - expected[ok])) < MERGED_TOL_T * T
+
+
+@pytest.mark.parametrize("band", [C_BAND, MMWAVE])
+def test_pulse_matrix_kernel_gives_the_bits_of_pulse_at(band):
+    """The windows' pulse matrix in one compiled pass is positioning's pulse_at of the lag
+    matrix bit for bit (the datasets must not change): lags inside the table, on its grid,
+    beyond its span and at zero."""
+    T = period(band)
+    rng = np.random.default_rng(3)
+    table = pulse_table(float(BETA), int(PULSE.span))
+    delay = np.sort(rng.uniform(0.0, 60 * T, 300))
+    t = np.concatenate([delay[:5], rng.uniform(-30 * T, 90 * T, 40) + np.arange(40) * T / 8,
+                        delay[-3:] + 20 * T])  # fmt: skip
+    want = pulse_at(t[None, :] - delay[:, None], T, table)
+    got = np.full_like(want, np.nan)
+    receivers.pulse_matrix_kernel(t, delay, TABLE_PER_T / T, table[0], table[1], got)
+    assert np.array_equal(got.view(np.int64), want.view(np.int64))
+    assert (want == 0).any() and (want == 1).any()  # beyond the span, on a path
 
 
 def test_short_windows_fall_back_to_the_whole_response(monkeypatch):

@@ -126,6 +126,12 @@ def shared_paths(paths: Paths) -> SharedPaths:
     return SharedPaths(paths.link, paths.delay_s, paths.gain, paths.n_links)
 
 
+def link_los(paths: Paths) -> np.ndarray:
+    """(L,) bool: the links of ``paths`` with an unobstructed line-of-sight path (detectable or
+    not)."""
+    return np.bincount(paths.link[paths.los], minlength=paths.n_links) > 0
+
+
 def emulate_toa(
     paths: Paths,
     band: Band | str,
@@ -138,6 +144,7 @@ def emulate_toa(
     noise: bool = True,
     receiver: Receiver | None = None,
     prepared: PreparedLinks | None = None,
+    los: np.ndarray | None = None,
 ) -> LinkToA:
     """Times of arrival of every link of ``paths`` (:class:`raytrace.emulation.receivers.Receiver`)
     with the first path's kind and the link's line-of-sight flag.
@@ -151,6 +158,7 @@ def emulate_toa(
     receiver : Receiver, optional, used instead of ``band, method, budget, pulse, first_lobe``
     prepared : PreparedLinks, optional, ``prepare_links(paths, receiver)`` done before (a scene
         that does not change between epochs)
+    los : (L,) bool, optional, :func:`link_los` of ``paths`` computed before
 
     Returns
     -------
@@ -159,9 +167,8 @@ def emulate_toa(
     rx = receiver or Receiver(method, band, budget=budget, pulse=pulse, first_lobe=first_lobe)
     prep = prepared if prepared is not None else prepare_links(paths, rx)
     est = rx.measure(prep, rng, noise=noise)
-    n = paths.n_links
     first = np.asarray(est.first_path, dtype=np.int64)
-    los = np.bincount(paths.link[paths.los], minlength=n) > 0
+    los = link_los(paths) if los is None else los
     return LinkToA(
         toa_s=np.asarray(est.toa_s, dtype=float),
         detected=np.asarray(est.detected, dtype=bool),
@@ -279,7 +286,11 @@ class ToaModel:
         return prepare_links(paths, self.receiver, shared)
 
     def measure(
-        self, paths: Paths, epochs: Sequence[int], prepared: PreparedLinks | None = None
+        self,
+        paths: Paths,
+        epochs: Sequence[int],
+        prepared: PreparedLinks | None = None,
+        los: np.ndarray | None = None,
     ) -> Measurements:
         """Measure the given epochs on the same paths (base stations = the paths' transmitters,
         points = their receivers).
@@ -289,6 +300,7 @@ class ToaModel:
         paths : Paths, of B transmitters (base stations) and N receivers (points)
         epochs : sequence of int, epoch indices (each draws from its own streams)
         prepared : PreparedLinks, optional, :meth:`prepare` of ``paths`` done before
+        los : (L,) bool, optional, :func:`link_los` of ``paths`` (the models of a band share it)
 
         Returns
         -------
@@ -297,6 +309,7 @@ class ToaModel:
         n_b, n_p = len(paths.tx), len(paths.rx)
         n_e = len(epochs)
         prep = prepared if prepared is not None else self.prepare(paths)
+        los = link_los(paths) if los is None else los  # the same for every epoch of the paths
         tx_offset = tx_offsets_s(n_b, self.delta_s)
         clock = np.empty((n_e, n_p))
         per_link: dict[str, list[np.ndarray]] = {k: [] for k in ("toa_s", *_LINK_FIELDS)}
@@ -306,7 +319,7 @@ class ToaModel:
             clock[i] = streams[CLOCK_STREAM].uniform(0.0, self.clock_offset_max_s, n_p)
             est = emulate_toa(
                 paths, self.receiver.band, receiver=self.receiver, prepared=prep,
-                rng=streams[NOISE_STREAM], noise=self.noise,
+                rng=streams[NOISE_STREAM], noise=self.noise, los=los,
             )  # fmt: skip
             for name, values in per_link.items():
                 # link = bs * N + point -> (N, B)

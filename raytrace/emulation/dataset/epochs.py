@@ -19,7 +19,7 @@ from ...scene.model import Scene
 from ...solver.incremental import SnapshotTracer
 from ...solver.paths import Paths
 from ..bands import get_band
-from ..measurement import Measurements, ToaModel, shared_paths
+from ..measurement import Measurements, ToaModel, link_los, shared_paths
 from ..receivers.receiver import PreparedLinks
 from .config import DatasetConfig
 
@@ -104,8 +104,9 @@ def _run_epochs(g: ScenarioGroup, epochs: Sequence[int]) -> tuple[list[Measureme
     if g.static:
         if g.prepared is None:
             g.prepared = _prepare_all(g, tr.static_paths)
+        los = [link_los(p) for p in tr.static_paths]
         out = [
-            m.measure(g.paths_of(tr.static_paths, k), epochs, g.prepared[k])
+            m.measure(g.paths_of(tr.static_paths, k), epochs, g.prepared[k], los[g.freq_index[k]])
             for k, m in enumerate(g.models)
         ]
         return out, dict(tr.stats)
@@ -113,8 +114,9 @@ def _run_epochs(g: ScenarioGroup, epochs: Sequence[int]) -> tuple[list[Measureme
     for e in epochs:
         paths = tr.paths_at(float(g.times_s[e]))  # one trace of the snapshot for all datasets
         prepared = _prepare_all(g, paths)
+        los = [link_los(p) for p in paths]  # per band, for all its datasets
         for k, m in enumerate(g.models):
-            parts[k].append(m.measure(g.paths_of(paths, k), [e], prepared[k]))
+            parts[k].append(m.measure(g.paths_of(paths, k), [e], prepared[k], los[g.freq_index[k]]))
     return [Measurements.concatenate(p) for p in parts], dict(tr.stats)
 
 

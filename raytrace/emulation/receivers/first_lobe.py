@@ -48,6 +48,7 @@ import numpy as np
 from scipy.optimize import brentq
 
 from positioning.model.pulse import (
+    TABLE_PER_T,
     envelope_table,
     precursor_extent_t,
     pulse_at,
@@ -57,6 +58,7 @@ from positioning.model.pulse import (
 
 from ...core.constants import linear_power_to_db
 from ...core.errors import HallrayError
+from ...core.jit import carray, kernel
 from ..bands import Band
 from ..channel.budget import LinkBudget
 from ..channel.cir import DiscreteCIR
@@ -171,10 +173,29 @@ def _response(
     b = np.searchsorted(delay, t.max() + half_width, side="right")
     if b <= a:
         return np.zeros(t.size, dtype=complex)
-    h = pulse_at(t[None, :] - delay[a:b, None], period, table)
+    # pulse_at(t[None, :] - delay[a:b, None], period, table) in one pass (the same bits)
+    h = np.empty((b - a, t.size))
+    value, step = table
+    pulse_matrix_kernel(carray(t), carray(delay[a:b]), TABLE_PER_T / period, value, step, h)
     g = gain[a:b] / period
     ri = np.stack([g.real, g.imag]) @ h  # two real products, no complex copy of h
     return ri[0] + 1j * ri[1]
+
+
+@kernel("void(f8[::1], f8[::1], f8, f8[::1], f8[::1], f8[:, ::1])")
+def pulse_matrix_kernel(t, delay, scale, value, step, out):
+    """``out[j, k] = T h(t[k] - delay[j])``: :func:`positioning.model.pulse.pulse_at` of the lag
+    matrix (``scale = TABLE_PER_T / period``, ``value, step`` its table) with its operations in
+    its order (abs, scale, clip to the table, linear interpolation), so its very bits, without
+    the lag matrix and the six temporaries numpy makes of it."""
+    top = float(value.size - 2)
+    for j in range(delay.size):
+        for k in range(t.size):
+            u = abs(t[k] - delay[j]) * scale
+            if u > top:
+                u = top
+            i = int(u)
+            out[j, k] = (u - i) * step[i] + value[i]
 
 
 def _key(cir: DiscreteCIR, link_of_path: np.ndarray, pad: float) -> tuple[np.ndarray, float, float]:
