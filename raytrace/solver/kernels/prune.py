@@ -320,7 +320,7 @@ def expand_over_others(ts, rho_s, t_lo, t_hi, w_idx, td_w, rho_w, open_w, start,
 
 
 @inline
-def _point_in_beam(ax, ay, az, ux, uy, uz, cos_a, inside, px, py, pz):
+def point_in_beam1(ax, ay, az, ux, uy, uz, cos_a, inside, px, py, pz):
     """The point is within the beam's half-angle (``cos(angle) >= cos_a - 1e-7``, multiplied by
     the distance: no division): :func:`raytrace.solver.reflection.cone_reaches` with a target of
     radius 0, a necessary condition."""
@@ -339,13 +339,13 @@ def _in_both_beams(apex2, axis2, cos2, in2, apex1, axis1, cos1, in1, nx, ny, nz,
     """The beam tests of :func:`second_order_candidates` for second image ``q`` (its first
     image ``i``), receiver ``r``."""
     px, py, pz = rx[r, 0], rx[r, 1], rx[r, 2]
-    if not _point_in_beam(apex2[q, 0], apex2[q, 1], apex2[q, 2], axis2[q, 0], axis2[q, 1],
+    if not point_in_beam1(apex2[q, 0], apex2[q, 1], apex2[q, 2], axis2[q, 0], axis2[q, 1],
                           axis2[q, 2], cos2[q], in2[q], px, py, pz):  # fmt: skip
         return False
     dist = px * nx + py * ny + pz * nz
     dist -= off
     mx, my, mz = px - 2.0 * dist * nx, py - 2.0 * dist * ny, pz - 2.0 * dist * nz
-    return _point_in_beam(apex1[i, 0], apex1[i, 1], apex1[i, 2], axis1[i, 0], axis1[i, 1],
+    return point_in_beam1(apex1[i, 0], apex1[i, 1], apex1[i, 2], axis1[i, 0], axis1[i, 1],
                           axis1[i, 2], cos1[i], in1[i], mx, my, mz)  # fmt: skip
 
 

@@ -18,9 +18,9 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ...core.jit import helper, kernel
+from ...core.jit import helper, inline, kernel
 from ...scene.accel import facet_sees
-from .prune import FRAME_SIG, PAIRS_OUT_SIG, beam_reaches1, edge_span, inside1
+from .prune import FRAME_SIG, PAIRS_OUT_SIG, beam_reaches1, edge_span, inside1, point_in_beam1
 
 __all__ = ["EdgeLeaves", "edge_leaves", "facet_wedge_pairs_tree", "first_order_candidates",
            "second_facets", "second_pairs_reaching"]
@@ -248,6 +248,22 @@ def second_facets(a_idx, f2, apex, axis, cos_a, sin_a, inside, f1, centre, radiu
     return out
 
 
+@inline
+def image_beam1(px, py, pz, nx, ny, nz, off, cx, cy, cz, r):
+    """The mirror image of a point in a plane (``n . x = off``), as
+    :func:`raytrace.solver.reflection.mirror` makes it, and the beam from it through a sphere
+    (centre ``c``, radius ``r``), as :func:`~raytrace.solver.reflection.beam` makes it, in
+    scalars: ``(ix, iy, iz, ux, uy, uz, cos_a, sin_a, dist)``, the image, the axis, the
+    half-angle's cosine and sine and the image's distance from the centre (the apex is inside
+    the sphere where ``dist <= r``)."""
+    d = px * nx + py * ny + pz * nz - off
+    ix, iy, iz = px - 2.0 * d * nx, py - 2.0 * d * ny, pz - 2.0 * d * nz
+    vx, vy, vz = cx - ix, cy - iy, cz - iz
+    dist = np.sqrt(vx * vx + vy * vy + vz * vz)
+    sa = min(r / dist, 1.0)
+    return ix, iy, iz, vx / dist, vy / dist, vz / dist, np.sqrt(1.0 - sa * sa), sa, dist
+
+
 @kernel("Tuple((i8[::1], i8[::1], i8[::1]))(i1[:, ::1], i1[:, ::1], b1[::1], f8[:, ::1], "
         "f8[:, ::1], f8[:, ::1], f8[::1], f8[:, ::1], f8[::1], f8, f8, f8, f8, b1)")
 def first_order_candidates(side_t, side_r, chosen, tx, rx, normal, offset, centre, radius, cx, cy,
@@ -271,16 +287,10 @@ def first_order_candidates(side_t, side_r, chosen, tx, rx, normal, offset, centr
             s = side_t[t, k]
             if s == 0 or not chosen[k]:
                 continue
-            nx, ny, nz = normal[k, 0], normal[k, 1], normal[k, 2]
-            d = px * nx + py * ny + pz * nz - offset[k]
-            ix, iy, iz = px - 2.0 * d * nx, py - 2.0 * d * ny, pz - 2.0 * d * nz
-            # the beam from the image through the facet's sphere
-            vx, vy, vz = centre[k, 0] - ix, centre[k, 1] - iy, centre[k, 2] - iz
-            dist = np.sqrt(vx * vx + vy * vy + vz * vz)
+            ix, iy, iz, ux, uy, uz, ca, sa, dist = image_beam1(
+                px, py, pz, normal[k, 0], normal[k, 1], normal[k, 2], offset[k], centre[k, 0],
+                centre[k, 1], centre[k, 2], radius[k])  # fmt: skip
             inside = dist <= radius[k]
-            ux, uy, uz = vx / dist, vy / dist, vz / dist
-            sa = min(radius[k] / dist, 1.0)
-            ca = np.sqrt(1.0 - sa * sa)
             if prune and not beam_reaches1(ix, iy, iz, ux, uy, uz, ca, sa, inside, cx, cy, cz,
                                            rx_radius):  # fmt: skip
                 continue
@@ -327,28 +337,23 @@ def second_pairs_reaching(a_idx, f2, s_img, img1, axis1, cos1, in1, normal, offs
         a, f, s = a_idx[p], f2[p], s_img[p]
         nx, ny, nz, off = normal[f, 0], normal[f, 1], normal[f, 2], offset[f]
         jx, jy, jz = img1[a, 0], img1[a, 1], img1[a, 2]
-        d = jx * nx + jy * ny + jz * nz - off
-        kx, ky, kz = jx - 2.0 * d * nx, jy - 2.0 * d * ny, jz - 2.0 * d * nz
-        vx, vy, vz = centre[f, 0] - kx, centre[f, 1] - ky, centre[f, 2] - kz
-        dist = np.sqrt(vx * vx + vy * vy + vz * vz)
+        ux1, uy1, uz1, c1, in1_a = axis1[a, 0], axis1[a, 1], axis1[a, 2], cos1[a] - slack, in1[a]
+        kx, ky, kz, ux, uy, uz, c2, _, dist = image_beam1(jx, jy, jz, nx, ny, nz, off,
+                                                           centre[f, 0], centre[f, 1],
+                                                           centre[f, 2], radius[f])  # fmt: skip
         in2 = dist <= radius[f] * (1.0 + 1e-9)
-        ux, uy, uz = vx / dist, vy / dist, vz / dist
-        sa = min(radius[f] / dist, 1.0)
-        c2 = np.sqrt(1.0 - sa * sa) - slack
-        c1 = cos1[a] - slack
+        c2 -= slack
         for r in range(rx.shape[0]):
             if side_rx[r, f] != s:
                 continue
             px, py, pz = rx[r, 0], rx[r, 1], rx[r, 2]
-            wx, wy, wz = px - kx, py - ky, pz - kz
-            dt = np.sqrt(wx * wx + wy * wy + wz * wz)
-            if not (ux * wx + uy * wy + uz * wz >= (c2 - 1e-7) * dt or in2 or dt <= 0.0):
+            if not point_in_beam1(kx, ky, kz, ux, uy, uz, c2, in2, px, py, pz):
                 continue
+            # the receiver's mirror image in the second facet, in the first facet's beam
             e = px * nx + py * ny + pz * nz - off
-            mx, my, mz = px - 2.0 * e * nx - jx, py - 2.0 * e * ny - jy, pz - 2.0 * e * nz - jz
-            dm = np.sqrt(mx * mx + my * my + mz * mz)
-            if (axis1[a, 0] * mx + axis1[a, 1] * my + axis1[a, 2] * mz >= (c1 - 1e-7) * dm
-                    or in1[a] or dm <= 0.0):  # fmt: skip
+            if point_in_beam1(jx, jy, jz, ux1, uy1, uz1, c1, in1_a, px - 2.0 * e * nx,
+                              py - 2.0 * e * ny, pz - 2.0 * e * nz):  # fmt: skip
                 out[p] = True
                 break
     return out
+
