@@ -65,6 +65,24 @@ def add_scene_arguments(p: argparse.ArgumentParser) -> None:
         help="edges bending less than this are smooth (a tessellated curve), not diffracting "
         "wedges [1]",
     )
+    model = p.add_mutually_exclusive_group()
+    model.add_argument(
+        "--surfaces",
+        dest="surfaces",
+        action="store_const",
+        const=True,
+        help="every mesh is surfaces, each face a slab of its material's thickness, a closed "
+        "mesh a hollow shell (Sionna RT's model; the default for a Mitsuba XML hallray did not "
+        "write)",
+    )
+    model.add_argument(
+        "--solids",
+        dest="surfaces",
+        action="store_const",
+        const=False,
+        help="a closed (watertight) mesh is a solid crossed along its chord (the default for "
+        "mesh files and hallray's own XML)",
+    )
     p.add_argument(
         "--no-scene-cache",
         action="store_true",
@@ -79,6 +97,7 @@ def scene_options(args: argparse.Namespace) -> dict[str, Any]:
     return {
         "default_material": args.default_material,
         "smooth_angle_deg": args.smooth_angle,
+        "surfaces": args.surfaces,
         "cache": False if args.no_scene_cache else None,
     }
 

@@ -205,6 +205,9 @@ def _print_summary(s: dict[str, Any]) -> None:
     print(
         f"objects    {s['objects']} ({s['closed_solids']} closed solids, {s['open_sheets']} open sheets)"
     )
+    if s.get("surfaces"):
+        print("model      surfaces: every face a slab of its material's thickness, closed meshes "
+              "hollow (Sionna RT's; --solids for solids)")  # fmt: skip
     print(f"materials  {mats}")
     print(f"triangles  {s['triangles']}   facets {s['facets']}   wedges {s['wedges']}")
 

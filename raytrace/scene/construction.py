@@ -43,15 +43,20 @@ JUNCTION_MIN_EXCESS_RAD = WEDGE_MIN_ANGLE_RAD
 
 
 def scene_parts(
-    meshes: list[tuple[str, Any, str]], source: str = "", smooth_angle_deg: float | None = None
+    meshes: list[tuple[str, Any, str]],
+    source: str = "",
+    smooth_angle_deg: float | None = None,
+    surfaces: bool = False,
 ) -> dict[str, Any]:
     """The arrays of a scene built from ``(name, trimesh.Trimesh, material_name)`` triples, as
     :class:`~raytrace.scene.model.Scene`'s keyword arguments: ``vertices``, ``faces``,
     ``face_object``, ``face_normal``, ``objects``, ``material_names``, ``facets``, ``wedges``
     (before the buried and junction edges are resolved) and ``n_degenerate_dropped``.
 
-    Closed (watertight) meshes are oriented outward; everything else is an open sheet.
-    Degenerate triangles are dropped and counted. An edge whose two faces' normals differ by
+    Closed (watertight) meshes are oriented outward; everything else is an open sheet. With
+    ``surfaces`` every mesh is an open sheet, closed or not (Sionna RT's model: each face a slab
+    of its material's thickness, a closed mesh a hollow shell). Degenerate triangles are dropped
+    and counted. An edge whose two faces' normals differ by
     less than ``smooth_angle_deg`` (default :data:`WEDGE_MIN_ANGLE_RAD`, 1 degree) is smooth: a
     tessellated curve, not a diffracting wedge.
 
@@ -90,7 +95,7 @@ def scene_parts(
             continue
         m = trimesh.Trimesh(vertices=v, faces=f[keep], process=True, validate=False)
         m.remove_unreferenced_vertices()
-        closed = bool(m.is_watertight) and bool(m.is_winding_consistent)
+        closed = not surfaces and bool(m.is_watertight) and bool(m.is_winding_consistent)
         if closed:
             trimesh.repair.fix_normals(m)
             if m.volume < 0:
@@ -127,6 +132,7 @@ def scene_parts(
         "material_names": material_names,
         "smooth_angle_deg": DEFAULT_SMOOTH_ANGLE_DEG if smooth_angle_deg is None
         else float(smooth_angle_deg),
+        "surfaces": bool(surfaces),
         "facets": facets,
         "wedges": wedges,
         "n_degenerate_dropped": n_dropped,

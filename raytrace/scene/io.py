@@ -28,6 +28,7 @@ def load_scene(
     *,
     default_material: str | None = None,
     smooth_angle_deg: float | None = None,
+    surfaces: bool | None = None,
     cache: bool | None = None,
 ) -> Scene:
     """Read a scene and bind a material to every object.
@@ -47,6 +48,13 @@ def load_scene(
         Edges whose two faces bend by less than this (degrees; default 1) are smooth, not
         diffracting wedges: the tessellated curves of scanned and CAD meshes (docs/scene.md,
         "Smooth edges", measures the field error of larger angles).
+    surfaces : bool, optional
+        True: every mesh is a set of surfaces, each face a slab of its material's thickness, a
+        closed mesh a hollow shell (Sionna RT's model; points inside a closed mesh are then in
+        the open). False: a closed (watertight) mesh is a solid, crossed along its chord
+        (hallray's model). Default (None): surfaces for a Mitsuba / Sionna RT XML without a
+        hallray sidecar (a scene hallray did not write), solids otherwise (docs/scene.md,
+        "Solids or surfaces").
     cache : bool, optional
         Keep the scene's preprocessing on disk beside the file (``.hallray-cache/``, keyed by
         the content hash of the file, the materials and these options) and reuse it on the next
@@ -79,10 +87,12 @@ def load_scene(
         )
     check_smooth_angle(smooth_angle_deg)
     options = {"default_material": default_material, "smooth_angle_deg": smooth_angle_deg}
+    if surfaces is not None:  # the default's key stays that of caches written before the option
+        options["surfaces"] = bool(surfaces)
     try:
         scene = cached_build(
             p.resolve(), materials, options,
-            lambda: _build(p, materials, default_material, smooth_angle_deg), cache,
+            lambda: _build(p, materials, default_material, smooth_angle_deg, surfaces), cache,
         )  # fmt: skip
     except OSError as exc:  # a materials file or a mesh the XML names cannot be read
         raise SceneError(f"cannot read {exc.filename or p.name}: {exc.strerror or exc}") from None
@@ -94,12 +104,18 @@ def load_scene(
 
 
 def _build(
-    p: Path, materials: Any, default_material: str | None, smooth_angle_deg: float | None
+    p: Path,
+    materials: Any,
+    default_material: str | None,
+    smooth_angle_deg: float | None,
+    surfaces: bool | None = None,
 ) -> Scene:
     """:func:`load_scene` without the cache: read, estimate the memory, bind the materials,
     build."""
     if p.suffix.lower() == ".xml":
-        named, metadata, xml_materials = _read_mitsuba(p)
+        named, metadata, xml_materials, xml_surfaces = _read_mitsuba(p)
+        if surfaces is None:  # Sionna RT's model, unless hallray wrote it as solids (its sidecar)
+            surfaces = xml_surfaces
     else:
         named, metadata = _read_trimesh(p)
         xml_materials = {}
@@ -151,7 +167,8 @@ def _build(
             "add a 'bind' pattern, or give a default material"
         )
     return Scene.from_meshes(bound, library, metadata=metadata, source=str(p),
-                             smooth_angle_deg=smooth_angle_deg)  # fmt: skip
+                             smooth_angle_deg=smooth_angle_deg,
+                             surfaces=bool(surfaces))  # fmt: skip
 
 
 def _read_trimesh(p: Path) -> tuple[list[tuple[str, Any, list[str]]], dict[str, Any]]:
@@ -192,10 +209,11 @@ def _read_trimesh(p: Path) -> tuple[list[tuple[str, Any, list[str]]], dict[str, 
 
 def _read_mitsuba(
     p: Path,
-) -> tuple[list[tuple[str, Any, list[str]]], dict[str, Any], dict[str, Any]]:
+) -> tuple[list[tuple[str, Any, list[str]]], dict[str, Any], dict[str, Any], bool]:
     """A Mitsuba 3 / Sionna RT scene: ply/obj shapes referencing radio materials (ITU types,
     Sionna RT 1.x radio-materials, or BSDF ids naming a material); with the hallray sidecar of
-    :mod:`.mitsuba` beside it, also the object names, exact materials and metadata."""
+    :mod:`.mitsuba` beside it, also the object names, exact materials and metadata. The last
+    value: whether its meshes are surfaces (:class:`~raytrace.scene.mitsuba.BsdfReading`)."""
     import trimesh
 
     from .mitsuba import read_bsdfs
@@ -237,4 +255,4 @@ def _read_mitsuba(
         named.append((name, mesh, hints))
     if not named:
         raise SceneError(f"scene XML {p.name} has no ply/obj shapes")
-    return named, reading.metadata, reading.materials
+    return named, reading.metadata, reading.materials, reading.surfaces

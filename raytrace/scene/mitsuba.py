@@ -304,6 +304,9 @@ def sidecar_dict(
             for s in shapes
         ],  # fmt: skip
         "hallray": meta if isinstance(meta, dict) else {},
+        # how the meshes are read back: closed meshes as solids (hallray's model) or every mesh
+        # as surfaces (Sionna RT's, a scene first read from a foreign XML)
+        "surfaces": bool(getattr(scene, "surfaces", False)),
     }
 
 
@@ -393,12 +396,15 @@ class BsdfReading:
     materials : material name -> YAML spec (overrides of, or additions to, the library)
     shape_names : shape id -> object name (from the sidecar)
     metadata : the scene's metadata (``{"hallray": ...}`` from the sidecar, else ``{}``)
+    surfaces : every mesh read as surfaces (:func:`raytrace.scene.io.load_scene`'s default for
+        the XML): Sionna RT's model without a sidecar, the sidecar's record with one
     """
 
     material_of: dict[str, str]
     materials: dict[str, Any]
     shape_names: dict[str, str]
     metadata: dict[str, Any]
+    surfaces: bool = True
 
 
 def _material_name(bsdf_id: str) -> str:
@@ -520,4 +526,5 @@ def read_bsdfs(root: ET.Element, xml_path: Path) -> BsdfReading:
         block = side.get("hallray")
         if isinstance(block, dict) and block:
             metadata = {"hallray": block}
-    return BsdfReading(material_of, materials, shape_names, metadata)
+    surfaces = side is None or side.get("surfaces") is True
+    return BsdfReading(material_of, materials, shape_names, metadata, surfaces)

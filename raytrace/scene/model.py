@@ -74,6 +74,9 @@ class Scene(EmbreeQueries):
     n_junction_wedges: int = 0
     n_composite_wedges: int = 0
     smooth_angle_deg: float = 1.0
+    #: Built with every mesh an open surface (:func:`~raytrace.scene.construction.scene_parts`'s
+    #: ``surfaces``: Sionna RT's model, the default for a Mitsuba XML that hallray did not write).
+    surfaces: bool = False
     caches: SceneCaches = field(default_factory=SceneCaches, init=False, repr=False,
                                 compare=False)
 
@@ -86,16 +89,17 @@ class Scene(EmbreeQueries):
         metadata: dict[str, Any] | None = None,
         source: str = "",
         smooth_angle_deg: float | None = None,
+        surfaces: bool = False,
     ) -> Scene:
         """Build a scene from ``(name, trimesh.Trimesh, material_name)`` triples.
 
-        Closed (watertight) meshes are oriented outward; everything else is an open sheet.
-        Degenerate triangles are dropped and counted. Edges bending by less than
+        Closed (watertight) meshes are oriented outward; everything else is an open sheet (every
+        mesh with ``surfaces``: :func:`~raytrace.scene.construction.scene_parts`). Degenerate triangles are dropped and counted. Edges bending by less than
         ``smooth_angle_deg`` (default 1 degree) are smooth, not wedges. The edges that are not free are dropped
         or resolved (:func:`raytrace.scene.construction.buried_wedges`,
         :func:`~raytrace.scene.construction.resolve_junctions`).
         """
-        parts = scene_parts(meshes, source, smooth_angle_deg)
+        parts = scene_parts(meshes, source, smooth_angle_deg, surfaces)
         n_dropped = parts["n_degenerate_dropped"]
         if n_dropped:
             warnings.warn(
@@ -281,6 +285,7 @@ class Scene(EmbreeQueries):
             "junction_wedges_dropped": self.n_junction_wedges,
             "composite_wedges": self.n_composite_wedges,
             "smooth_angle_deg": self.smooth_angle_deg,
+            "surfaces": self.surfaces,
         }
 
 

@@ -123,7 +123,8 @@ def check_positions(
         i = int(np.argmax(inside >= 0))
         raise TraceInputError(
             f"{what} {i} at {p[i].round(3).tolist()} is inside the solid "
-            f"{scene.objects[inside[i]].name!r}"
+            f"{scene.objects[inside[i]].name!r} (a closed mesh is a solid; to read it as a "
+            "hollow shell of surfaces, as Sionna RT does, load it with surfaces=True, --surfaces)"
         )
     return p
 
