@@ -566,3 +566,33 @@ def test_inside_solid_of_a_non_convex_solid_by_parity():
     assert sc.inside_solid(outside).tolist() == [-1, -1, -1]
     both = np.vstack([outside, [[0.0, 0.0, 0.0], [0.5, -0.3, 0.2]]])
     assert sc.inside_solid(both).tolist() == [-1, -1, -1, 0, 0]
+
+
+def test_a_closed_mesh_read_as_surfaces_diffracts_whichever_way_it_is_wound():
+    """Read as surfaces (Sionna RT's model), a closed box is a folded sheet: its fold edges
+    diffract on their convex side whatever the file's winding (an inward-wound box lost every
+    edge's diffraction), and the same as the box read as a solid (the metal slab's R for the
+    faces' terms instead of the half-space's: within 1e-12)."""
+    import raytrace
+    from raytrace.physics.materials import MaterialLibrary
+    from raytrace.scene.model import Scene
+
+    lib = MaterialLibrary.itu()
+    tx, rx = np.array([[-8.0, 1.0, 1.0]]), np.array([[1.5, 2.5, 1.5]])  # round the (-2, 2) edge
+
+    def gain(surfaces: bool, inward: bool) -> np.ndarray:
+        m = trimesh.creation.box(extents=(4.0, 4.0, 4.0))
+        m.apply_translation((0.0, 0.0, 2.0))
+        if inward:
+            m.invert()
+        s = Scene.from_meshes([("box", m, "metal")], lib, surfaces=surfaces)
+        assert s.surfaces == surfaces and np.all(s.wedges.n == 1.5)
+        with pytest.warns(UserWarning, match="far outside"):
+            p = raytrace.trace(s, tx, rx, 3.5e9, raytrace.TraceConfig(max_penetrations=0))
+        assert p.to_pandas()["kind"].tolist() == ["D"]
+        return p.gain
+
+    outward, inward = gain(True, False), gain(True, True)
+    assert len(outward) == 1
+    np.testing.assert_array_equal(inward, outward)
+    np.testing.assert_allclose(gain(False, False), outward, rtol=1e-12)

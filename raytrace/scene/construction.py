@@ -398,9 +398,13 @@ def wedges_of(
         if closed:
             sel &= convex
         if sel.any():
-            segs.append(verts[edges[sel]])
-            n0s.append(fn[adj[sel, 0]])
-            n1s.append(fn[adj[sel, 1]])
+            seg, n0, n1 = verts[edges[sel]], fn[adj[sel, 0]], fn[adj[sel, 1]]
+            if not closed:
+                n0, n1 = _fold_outward(seg, n0, n1, centroids[adj[sel, 0]],
+                                       centroids[adj[sel, 1]])  # fmt: skip
+            segs.append(seg)
+            n0s.append(n0)
+            n1s.append(n1)
             c0s.append(centroids[adj[sel, 0]])
     if not closed:
         # free edges: used by one face only; the wedge is a half-plane (n = 2)
@@ -460,6 +464,34 @@ def wedges_of(
         "object": np.full(w, obj_id, dtype=np.int64),
         "material": np.full(w, mat_id, dtype=np.int64),
     }
+
+
+def _fold_outward(seg: np.ndarray, n0: np.ndarray, n1: np.ndarray, c0: np.ndarray,
+                  c1: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """A sheet's fold edges with both face normals turned to the fold's larger side: a sheet has
+    no outside, and a wedge's normals say where its exterior is, so a fold is diffracting on its
+    convex side (exterior angle above pi) whichever way the file wound the faces (a closed mesh
+    read as surfaces and wound inward lost every edge's diffraction).
+
+    Parameters
+    ----------
+    seg : (E, 2, 3) float, m, the edges; n0, n1 : (E, 3) float, unit normals of their two faces;
+    c0, c1 : (E, 3) float, m, the faces' centroids
+
+    Returns
+    -------
+    n0, n1 : (E, 3) float, each normal pointing away from the other face (unchanged where it did)
+    """
+    u = seg[:, 1] - seg[:, 0]
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+
+    def across(c: np.ndarray) -> np.ndarray:  # from the edge into a face, across the edge
+        v = c - seg[:, 0]
+        return v - np.einsum("ij,ij->i", v, u)[:, None] * u
+
+    flip0 = np.einsum("ij,ij->i", n0, across(c1)) > 0
+    flip1 = np.einsum("ij,ij->i", n1, across(c0)) > 0
+    return np.where(flip0[:, None], -n0, n0), np.where(flip1[:, None], -n1, n1)
 
 
 def _merge_collinear(
