@@ -84,6 +84,10 @@ def parser() -> argparse.ArgumentParser:
                     help="skip the checks of the exact solution (Helmholtz residual etc.)")
     ap.add_argument("--out", type=Path, default=None,
                     help="folder for report.md, results.npz and the exported scenes")
+    ap.add_argument("--sionna-scenes", type=Path, default=None, metavar="DIR",
+                    help="instead: Sionna RT's own canonical scenes in DIR (sionna-rt's "
+                         "sionna/rt/scenes, or tests/data/sionna_rt), one link each, both tools "
+                         "reading the same files (sionna_scenes.py)")
     return ap
 
 
@@ -223,6 +227,8 @@ def write_outputs(out: Path, results: list[SweepResult], report: str) -> None:
 
 def _main(a: argparse.Namespace) -> int:
     check_args(a)
+    if a.sionna_scenes is not None:
+        return _sionna_scenes(a)
     scenes = build_scenes(a.n_arc, a.delta_rad, a.elevation_m, a.solid_thickness_m)
     names = list(scenes) if a.scenes == "all" else [x.strip() for x in a.scenes.split(",")]
     unknown = [x for x in names if x not in scenes]
@@ -242,6 +248,29 @@ def _main(a: argparse.Namespace) -> int:
     if a.out:
         write_outputs(a.out, results, report)
     return 0
+
+
+def _sionna_scenes(a: argparse.Namespace) -> int:
+    """``--sionna-scenes``: Sionna RT's canonical scenes path by path (sionna_scenes.py)."""
+    import sionna_scenes
+
+    with tempfile.TemporaryDirectory(prefix="compare_sionna_") as tmp:
+        print("compare_sionna: Sionna RT's canonical scenes; running Sionna RT ...", file=sys.stderr)
+        sres, seconds = sionna_scenes.run(a.sionna_python, a.sionna_scenes, a.frequency_hz,
+                                          a.samples, a.seed, Path(tmp))  # fmt: skip
+    table, summary = sionna_scenes.compare(sres, a.sionna_scenes, a.frequency_hz)
+    versions = json.loads(str(sres["versions"]))
+    report = (f"Sionna RT's canonical scenes at {a.frequency_hz / 1e9:g} GHz, {versions} "
+              f"({seconds:.1f} s): {summary['matched']} paths matched, "
+              f"{summary['sionna_only']} found by Sionna only, {summary['hallray_only']} by "
+              f"hallray only; largest differences: {summary['max_db']:.2g} dB, "
+              f"{summary['max_ps']:.2g} ps, {summary['max_deg_reflection']:.2g} deg without "
+              f"transmission\n\n{table}\n")  # fmt: skip
+    print(report)
+    if a.out:
+        a.out.mkdir(parents=True, exist_ok=True)
+        write_atomic(a.out / "sionna_scenes.md", report.encode("utf-8"))
+    return 0 if summary["sionna_only"] == summary["hallray_only"] == 0 else 1
 
 
 def main(argv: list[str] | None = None) -> int:
