@@ -35,6 +35,9 @@ JOBS = (
     ("floor_wall", (-1.5, -0.8, 1.2), (-0.4, 1.1, 2.2), 2, False),
     ("box_one_screen", (-2.0, 0.5, 1.5), (2.5, -0.3, 1.5), 2, True),
     ("double_reflector", (-0.2, 0.1, 2.0), (-0.5, -0.1, 4.0), 2, False),
+    ("triple_reflector", (-1.0, 0.3, 3.0), (1.0, -0.2, 4.0), 2, False),
+    ("box_two_screens", (-3.0, 0.5, 1.5), (3.0, -0.4, 2.0), 2, True),
+    ("simple_street_canyon", (-30.0, 0.0, 10.0), (20.0, 5.0, 1.5), 2, True),
 )
 #: Paths whose geometric delays differ by less than this are the same path, s.
 MATCH_S = 1e-12
