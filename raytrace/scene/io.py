@@ -160,8 +160,12 @@ def _read_trimesh(p: Path) -> tuple[list[tuple[str, Any, list[str]]], dict[str, 
 
     try:
         # unprocessed: trimesh's processing silently drops NaN/inf vertices (and the faces using
-        # them), turning a closed wall into an open sheet; each mesh is processed below
-        loaded = trimesh.load(str(p), force="scene", process=False)
+        # them), turning a closed wall into an open sheet; each mesh is processed below. An OBJ's
+        # objects (o) and groups (g) are objects here: trimesh's default joins every object of
+        # one material into one mesh, and a CAD hall's walls, floor and machines, welded into
+        # one, are no longer closed solids
+        kwargs = {"split_objects": True, "split_groups": True} if p.suffix.lower() == ".obj" else {}
+        loaded = trimesh.load(str(p), force="scene", process=False, **kwargs)
     except Exception as exc:  # trimesh raises many types for unreadable files
         raise SceneError(
             f"cannot read scene {p.name}: {type(exc).__name__}: {exc}".splitlines()[0]
