@@ -22,12 +22,17 @@ from ..core.jit import carray, kernel
 from . import accel, spatial
 from .elements import Facets, SceneObject, Wedges
 
-__all__ = ["DEGENERATE_AREA_M2", "DEFAULT_SMOOTH_ANGLE_DEG", "WEDGE_MIN_ANGLE_RAD", "MAX_SMOOTH_ANGLE_DEG", "BURIED_PROBE_M",
+__all__ = ["DEGENERATE_AREA_M2", "WELD_TOL_M", "DEFAULT_SMOOTH_ANGLE_DEG", "WEDGE_MIN_ANGLE_RAD", "MAX_SMOOTH_ANGLE_DEG", "BURIED_PROBE_M",
            "JUNCTION_MIN_EXCESS_RAD", "scene_parts", "facets_of", "wedges_of", "buried_wedges",
-           "resolve_junctions", "check_smooth_angle"]
+           "resolve_junctions", "check_smooth_angle", "weld_vertices"]
 
 #: Triangles with an area below this (m^2) are degenerate and dropped.
 DEGENERATE_AREA_M2 = 1e-10
+#: Vertices of one object closer than this (m) are one vertex (:func:`weld_vertices`): the
+#: welding gaps of CAD exports and triangle soups (1e-7 to 1e-5 m), far below the tracer's
+#: smallest end margin (:func:`raytrace.scene.caches.margin_of`, 1e-4 m), which cannot tell
+#: such points apart anyway.
+WELD_TOL_M = 1e-4
 #: Default smooth angle: two adjacent faces whose normals differ by less than this (rad) meet
 #: at a smooth edge, not a wedge (``smooth_angle_deg`` of :func:`scene_parts` chooses another;
 #: docs/scene.md, "Smooth edges", has the measurement behind the default).
@@ -69,6 +74,7 @@ def scene_parts(
     objects: list[SceneObject] = []
     material_names: list[str] = []
     n_dropped = 0
+    n_welded = 0
     facet_parts: list[dict[str, np.ndarray]] = []
     wedge_parts: list[dict[str, np.ndarray]] = []
     v_offset = 0
@@ -80,6 +86,8 @@ def scene_parts(
             raise SceneError(f"object {name!r} has NaN or infinite vertex coordinates")
         if f.size == 0:
             continue
+        v, f, welded = weld_vertices(v, f)
+        n_welded += welded
         tri = v[f]
         area = 0.5 * np.linalg.norm(
             np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1
@@ -130,7 +138,54 @@ def scene_parts(
         "facets": facets,
         "wedges": wedges,
         "n_degenerate_dropped": n_dropped,
+        "n_welded": n_welded,
     }
+
+
+def weld_vertices(
+    vertices: np.ndarray, faces: np.ndarray, tol: float = WELD_TOL_M
+) -> tuple[np.ndarray, np.ndarray, int]:
+    """One object's vertices closer than ``tol`` made one: the faces of a triangle soup or of a
+    CAD export with welding gaps then share their edges, so that a closed solid is found closed
+    and its edges are wedges between two faces, not free edges of separate triangles.
+
+    Vertices within ``tol`` of each other, directly or through a chain of such neighbours, take
+    the position of the lowest-indexed of them. Exact duplicates are left for trimesh's own
+    merge, so a mesh with no distinct vertices within ``tol`` comes back unchanged (the same
+    arrays).
+
+    Parameters
+    ----------
+    vertices : (V, 3) float, metres
+    faces : (F, 3) int
+    tol : float, metres
+
+    Returns
+    -------
+    vertices : (V, 3) float, metres (``vertices`` itself when nothing was welded)
+    faces : (F, 3) int, re-indexed to the surviving vertices
+    n_welded : int, the distinct vertices moved onto another
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
+    if len(vertices) < 2:
+        return vertices, faces, 0
+    pairs = cKDTree(vertices).query_pairs(tol, output_type="ndarray")
+    if len(pairs):
+        pairs = pairs[(vertices[pairs[:, 0]] != vertices[pairs[:, 1]]).any(axis=1)]
+    if not len(pairs):
+        return vertices, faces, 0
+    n = len(vertices)
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+    _, label = connected_components(graph, directed=False)
+    first = np.full(label.max() + 1, n, dtype=np.int64)
+    np.minimum.at(first, label, np.arange(n))
+    rep = first[label]
+    moved = rep != np.arange(n)
+    n_welded = len(np.unique(vertices[moved], axis=0)) if moved.any() else 0
+    return vertices, rep[faces], int(n_welded)
 
 
 def buried_wedges(w: Wedges, inside_solid: Callable[..., np.ndarray]) -> np.ndarray:

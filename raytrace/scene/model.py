@@ -30,7 +30,13 @@ import numpy as np
 
 from ..physics.materials import MaterialLibrary
 from .caches import SceneCaches, bounds_of, margin_of
-from .construction import DEFAULT_SMOOTH_ANGLE_DEG, buried_wedges, resolve_junctions, scene_parts
+from .construction import (
+    DEFAULT_SMOOTH_ANGLE_DEG,
+    WELD_TOL_M,
+    buried_wedges,
+    resolve_junctions,
+    scene_parts,
+)
 from .elements import Facets, SceneObject, Wedges
 from .queries import EmbreeQueries
 
@@ -97,6 +103,13 @@ class Scene(EmbreeQueries):
         """
         parts = scene_parts(meshes, source, smooth_angle_deg)
         n_dropped = parts["n_degenerate_dropped"]
+        n_welded = parts.pop("n_welded")
+        if n_welded:
+            warnings.warn(
+                f"{n_welded} vertices of {source or 'scene'} welded to a neighbour closer than "
+                f"{WELD_TOL_M * 1e3:g} mm (gaps of a CAD export or a triangle soup)",
+                stacklevel=2,
+            )
         if n_dropped:
             warnings.warn(
                 f"{n_dropped} degenerate triangle(s) dropped from {source or 'scene'}",
