@@ -28,7 +28,13 @@ from . import accel
 from .elements import Facets, SceneObject
 
 __all__ = ["SceneCaches", "embree_meshes", "embree_scene", "subset_scene", "bounds_of",
-           "margin_of", "convex_flags", "object_boxes"]
+           "margin_of", "embree_origin_of", "convex_flags", "object_boxes", "EMBREE_LOCAL_M"]
+
+#: A scene whose coordinates all lie within this distance of the origin (m) is given to Embree
+#: as it is; one farther out (survey or CAD-origin coordinates: 1e5 to 1e7 m) is given relative
+#: to its own centre (:func:`embree_origin_of`). Embree works in float32, whose spacing at 1e5 m
+#: is 8 mm (at 1e3 m, 0.06 mm: below the tracer's end margin of 0.1 mm).
+EMBREE_LOCAL_M = 1000.0
 
 
 @dataclass(eq=False, slots=True)
@@ -43,7 +49,10 @@ class SceneCaches:
     prim_start : (O,) int, each object's first Embree primitive; prim_face : (T,) int, the
         scene face of each Embree triangle (built with ``embree``)
     embree_meshes : list of O ``(points (P, 3) float32, triangles (T, 3) int32, face (T,) int)``,
-        each object's triangles as Embree is given them (:func:`embree_meshes`)
+        each object's triangles as Embree is given them (:func:`embree_meshes`), relative to
+        ``embree_origin``
+    embree_origin : (3,) float, metres, the origin of Embree's frame (:func:`embree_origin_of`:
+        zero but for a scene far from the origin)
     subset_embree : dict, ``objects.tobytes()`` -> ``(EmbreeScene, members)``, the scenes of
         :meth:`~raytrace.scene.model.Scene.first_hit_among` (:func:`subset_scene`)
     bounds : (2, 3) float, read-only, metres (:func:`bounds_of`)
@@ -81,6 +90,7 @@ class SceneCaches:
     prim_start: np.ndarray | None = None
     prim_face: np.ndarray | None = None
     embree_meshes: list[tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None
+    embree_origin: np.ndarray | None = None
     subset_embree: dict[bytes, tuple[Any, np.ndarray]] = field(default_factory=dict)
     bounds: np.ndarray | None = None
     margin: float | None = None
@@ -181,6 +191,18 @@ def bounds_of(vertices: np.ndarray) -> np.ndarray:
     out = np.stack([vertices.min(axis=0), vertices.max(axis=0)])
     out.setflags(write=False)
     return out
+
+
+def embree_origin_of(bounds: np.ndarray) -> np.ndarray:
+    """(3,) float, metres: the origin of the frame the scene is given to Embree in. Zero for a
+    scene within :data:`EMBREE_LOCAL_M` of the origin (every hall built or exported in its own
+    coordinates: their queries are unchanged); else the centre of its bounding box ``bounds``
+    (2, 3), rounded to the metre (a coordinate minus it is then exact in float64), so that
+    float32 resolves the scene as finely as if it were at the origin."""
+    b = np.asarray(bounds, dtype=float)
+    if not np.isfinite(b).all() or np.abs(b).max() <= EMBREE_LOCAL_M:
+        return np.zeros(3)
+    return np.round(0.5 * (b[0] + b[1]))
 
 
 def margin_of(extent: float) -> float:
