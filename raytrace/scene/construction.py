@@ -73,8 +73,7 @@ def scene_parts(
     verts, faces, face_obj, normals = [], [], [], []
     objects: list[SceneObject] = []
     material_names: list[str] = []
-    n_dropped = 0
-    n_welded = 0
+    repairs = {"degenerate": 0, "welded": 0, "duplicate": 0, "rewound": 0}
     facet_parts: list[dict[str, np.ndarray]] = []
     wedge_parts: list[dict[str, np.ndarray]] = []
     v_offset = 0
@@ -86,18 +85,11 @@ def scene_parts(
             raise SceneError(f"object {name!r} has NaN or infinite vertex coordinates")
         if f.size == 0:
             continue
-        v, f, welded = weld_vertices(v, f)
-        n_welded += welded
-        tri = v[f]
-        area = 0.5 * np.linalg.norm(
-            np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1
-        )
-        keep = area > DEGENERATE_AREA_M2
-        n_dropped += int((~keep).sum())
-        if not keep.any():
+        m, counts = _repaired(v, f)
+        for key, c in counts.items():
+            repairs[key] += c
+        if m is None:
             continue
-        m = trimesh.Trimesh(vertices=v, faces=f[keep], process=True, validate=False)
-        m.remove_unreferenced_vertices()
         closed = bool(m.is_watertight) and bool(m.is_winding_consistent)
         if closed:
             trimesh.repair.fix_normals(m)
@@ -137,9 +129,37 @@ def scene_parts(
         else float(smooth_angle_deg),
         "facets": facets,
         "wedges": wedges,
-        "n_degenerate_dropped": n_dropped,
-        "n_welded": n_welded,
+        "n_degenerate_dropped": repairs.pop("degenerate"),
+        "repairs": repairs,
     }
+
+
+def _repaired(v: np.ndarray, f: np.ndarray) -> tuple[Any, dict[str, int]]:
+    """One object's mesh (trimesh, processed) once repaired, or None if no triangle is left, and
+    what was repaired: vertices ``welded`` (:func:`weld_vertices`), ``degenerate`` triangles
+    dropped (area below :data:`DEGENERATE_AREA_M2`), ``duplicate`` triangles dropped (the same
+    three vertices twice, in either winding: a CAD export's doubled faces, which left a closed
+    solid open), and ``rewound`` (1 if a closed mesh's faces had to be turned to one consistent
+    winding: flipped faces also left it open). A clean mesh is built as before, unchanged."""
+    import trimesh
+
+    v, f, welded = weld_vertices(v, f)
+    tri = v[f]
+    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    keep = area > DEGENERATE_AREA_M2
+    counts = {"welded": welded, "degenerate": int((~keep).sum()), "duplicate": 0, "rewound": 0}
+    if not keep.any():
+        return None, counts
+    m = trimesh.Trimesh(vertices=v, faces=f[keep], process=True, validate=False)
+    unique = m.unique_faces()
+    if not unique.all():
+        counts["duplicate"] = int((~unique).sum())
+        m.update_faces(unique)
+    m.remove_unreferenced_vertices()
+    if m.is_watertight and not m.is_winding_consistent:
+        trimesh.repair.fix_winding(m)
+        counts["rewound"] = int(bool(m.is_winding_consistent))
+    return m, counts
 
 
 def weld_vertices(

@@ -103,13 +103,13 @@ class Scene(EmbreeQueries):
         """
         parts = scene_parts(meshes, source, smooth_angle_deg)
         n_dropped = parts["n_degenerate_dropped"]
-        n_welded = parts.pop("n_welded")
-        if n_welded:
-            warnings.warn(
-                f"{n_welded} vertices of {source or 'scene'} welded to a neighbour closer than "
-                f"{WELD_TOL_M * 1e3:g} mm (gaps of a CAD export or a triangle soup)",
-                stacklevel=2,
-            )
+        repairs = parts.pop("repairs")
+        said = {"welded": f"vertices welded to a neighbour closer than {WELD_TOL_M * 1e3:g} mm",
+                "duplicate": "duplicate triangles dropped",
+                "rewound": "closed objects' faces turned to one winding"}  # fmt: skip
+        done = [f"{repairs[k]} {text}" for k, text in said.items() if repairs[k]]
+        if done:
+            warnings.warn(f"{source or 'scene'} repaired: {', '.join(done)}", stacklevel=2)
         if n_dropped:
             warnings.warn(
                 f"{n_dropped} degenerate triangle(s) dropped from {source or 'scene'}",
