@@ -644,7 +644,10 @@ def _junction_pieces(
         # slack across a side crossed at a grazing angle would stretch along the edge)
         c0 = np.einsum("ij,ij->i", m, a - v)
         c1 = np.einsum("ij,ij->i", m, d)
-        along = np.abs(c1) <= 1e-6
+        # a side along the edge: parallel, or within tol of it over the edge's whole length (a
+        # side of a mesh with welding gaps runs at ~1e-7 rad to the edge it borders, and cut it
+        # at random points)
+        along = (np.abs(c1) <= 1e-6) | ((np.abs(c0) <= tol) & (np.abs(c0 + c1 * length) <= tol))
         with np.errstate(divide="ignore", invalid="ignore"):
             bound = -c0 / c1
         lo = np.where(~along & (c1 > 0), np.maximum(lo, bound), lo)
