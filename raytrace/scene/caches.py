@@ -220,8 +220,9 @@ def convex_flags(
     extent: float,
 ) -> np.ndarray:
     """(O,) bool: the closed solids (``closed`` (O,) bool) that are convex, every vertex on or
-    behind every facet plane of the object (within a rounding tolerance ``tol`` of the scene's
-    ``extent``, m).
+    behind every facet plane of the object (within a tolerance ``tol``: the rounding of the
+    scene's ``extent``, m, or twice the largest distance of a facet's own corners from its plane,
+    whichever is larger).
 
     The definition costs (vertices x facets) per object: 10^8 operations for one scanned
     machine of 20 000 triangles. A solid that is far from convex is recognised first by its
@@ -234,7 +235,7 @@ def convex_flags(
     """
     from scipy.spatial import ConvexHull, QhullError
 
-    tol = 1e-9 * max(extent, 1.0) + 1e-9
+    rounding = 1e-9 * max(extent, 1.0) + 1e-9
     convex = closed.copy()
     for o in np.flatnonzero(convex):
         obj = objects[o]
@@ -242,6 +243,9 @@ def convex_flags(
         ids = np.unique(f)
         v = vertices[ids]
         k = facets.object == o
+        # a facet's own corners may lie off its plane by more than rounding (a box welded from
+        # a mesh with 1e-6 m gaps): behind within twice that still counts as behind
+        tol = max(rounding, 2.0 * float(accel.facet_off_plane(facets)[k].max(initial=0.0)))
         if len(ids) > 64:  # a box or prism: the definition's test is cheaper than a hull
             tri = vertices[f]
             volume = abs(np.einsum("ij,ij->i", tri[:, 0], np.cross(tri[:, 1], tri[:, 2])).sum()) / 6
