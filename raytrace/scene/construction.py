@@ -43,6 +43,10 @@ MAX_SMOOTH_ANGLE_DEG = 60.0
 #: Distance (m) from an edge along its outward bisector at which a wedge is probed for being
 #: buried in another solid (then it is not a free, diffracting edge).
 BURIED_PROBE_M = 5e-3
+#: A triangle's side at an angle (rad) below this to an edge it covers gets the slack of the
+#: margin across it (:func:`resolve_junctions`): the sides of a mesh welded from one with gaps
+#: run at ~1e-5 rad to the edges they border.
+NEAR_PARALLEL = 1e-3
 #: Angle (rad) by which the air around a junction edge must exceed pi to stay a (convex) wedge.
 JUNCTION_MIN_EXCESS_RAD = WEDGE_MIN_ANGLE_RAD
 
@@ -337,8 +341,10 @@ def _air_sectors(w: Wedges, fc: Facets, wi: np.ndarray, mid: np.ndarray, cover: 
         rays = np.concatenate([u, -u])
         owner = np.concatenate([facets, facets])
         probe = m_i + BURIED_PROBE_M * rays
-        on_plane = probe - np.einsum("ij,ij->i", probe - m_i, fc.normal[owner])[:, None] \
-            * fc.normal[owner]  # fmt: skip
+        # onto each facet's own plane (the edge of a mesh welded from one with gaps lies off
+        # it by up to the gaps, and a probe in the edge's plane would miss a facet it is on)
+        on_plane = probe - (np.einsum("ij,ij->i", probe, fc.normal[owner])
+                            - fc.offset[owner])[:, None] * fc.normal[owner]  # fmt: skip
         frames.append((t0, nrm0, rays))
         probes.append(on_plane)
         owners.append(owner)
@@ -644,12 +650,13 @@ def _junction_pieces(
         # slack across a side crossed at a grazing angle would stretch along the edge)
         c0 = np.einsum("ij,ij->i", m, a - v)
         c1 = np.einsum("ij,ij->i", m, d)
-        # a side along the edge: parallel, or within tol of it over the edge's whole length (a
-        # side of a mesh with welding gaps runs at ~1e-7 rad to the edge it borders, and cut it
-        # at random points)
-        along = (np.abs(c1) <= 1e-6) | ((np.abs(c0) <= tol) & (np.abs(c0 + c1 * length) <= tol))
+        along = np.abs(c1) <= 1e-6
+        # a side at a small angle to the edge (a side of a mesh with welding gaps runs at
+        # ~1e-5 rad to the edge it borders) would cut it where the two lines cross, anywhere
+        # along it: such a side gets the slack of tol across it too
+        slack = np.where(np.abs(c1) <= NEAR_PARALLEL, tol, 0.0)
         with np.errstate(divide="ignore", invalid="ignore"):
-            bound = -c0 / c1
+            bound = -(c0 + slack) / c1
         lo = np.where(~along & (c1 > 0), np.maximum(lo, bound), lo)
         hi = np.where(~along & (c1 < 0), np.minimum(hi, bound), hi)
         hi = np.where(along & (c0 < -tol), -np.inf, hi)
@@ -685,7 +692,7 @@ def _junction_pieces(
 
 def _facets_near_edges(w: Wedges, fc: Facets, tol: float) -> tuple[np.ndarray, np.ndarray]:
     """(wedge, facet) pairs, in (wedge, facet) order, where the edge lies in the plane of a
-    facet of another object (both end points within ``tol``, m).
+    facet of another object (the ends of its part within the facet's box within ``tol``, m).
 
     The facets are found through the facets' tree (:func:`raytrace.scene.accel.facet_tree`):
     only those whose box meets the edge's box grown by twice ``tol``. A facet farther than that
@@ -701,12 +708,35 @@ def _facets_near_edges(w: Wedges, fc: Facets, tol: float) -> tuple[np.ndarray, n
     offsets, hits = spatial.query_boxes(accel.facet_tree(fc), lo, hi)
     wi = np.repeat(np.arange(len(w)), np.diff(offsets))
     fk = hits
-    da = np.einsum("ij,ij->i", w.start[wi], fc.normal[fk]) - fc.offset[fk]
-    db = np.einsum("ij,ij->i", w.end[wi], fc.normal[fk]) - fc.offset[fk]
+    # the part of the edge within the facet's box (grown): a small facet of a mesh with
+    # welding gaps is tilted by ~1e-4 rad, and its plane leaves a long edge it covers a part of
+    box_lo, box_hi = accel.facet_boxes(fc, grow)
+    t0, t1 = _clip_to_boxes(w.start[wi], w.direction[wi], w.length[wi], box_lo[fk], box_hi[fk])
+    pa = w.start[wi] + t0[:, None] * w.direction[wi]
+    pb = w.start[wi] + t1[:, None] * w.direction[wi]
+    da = np.einsum("ij,ij->i", pa, fc.normal[fk]) - fc.offset[fk]
+    db = np.einsum("ij,ij->i", pb, fc.normal[fk]) - fc.offset[fk]
     near = (np.abs(da) <= tol) & (np.abs(db) <= tol) & (w.object[wi] != fc.object[fk])
     wi, fk = wi[near], fk[near]
     order = np.lexsort((fk, wi))
     return wi[order], fk[order]
+
+
+def _clip_to_boxes(a: np.ndarray, d: np.ndarray, length: np.ndarray, lo: np.ndarray,
+                   hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """The part ``[t0, t1]`` (n,) of segments ``a + t d``, ``0 <= t <= length`` (metres), within
+    boxes ``lo``, ``hi`` (n, 3) (slab clipping; the whole segment where it misses the box, so
+    that the caller's test then judges the segment as a whole)."""
+    t0, t1 = np.zeros(len(a)), length.astype(float).copy()
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for k in range(3):
+            flat = d[:, k] == 0.0
+            u = (lo[:, k] - a[:, k]) / d[:, k]
+            v = (hi[:, k] - a[:, k]) / d[:, k]
+            t0 = np.where(flat, t0, np.maximum(t0, np.minimum(u, v)))
+            t1 = np.where(flat, t1, np.minimum(t1, np.maximum(u, v)))
+    miss = t0 > t1
+    return np.where(miss, 0.0, t0), np.where(miss, length, t1)
 
 
 def _line_key(a: np.ndarray, b: np.ndarray) -> tuple:
