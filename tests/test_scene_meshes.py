@@ -114,31 +114,23 @@ def test_a_triangle_soup_gives_the_welded_halls_paths(clean, tmp_path, suffix):
     assert_same_paths(ref, _trace(soup, TX, rx))
 
 
-@pytest.mark.parametrize("gap", [1e-7, 1e-6])
-def test_welding_gaps_are_closed(clean, tmp_path, gap):
-    """Gaps of 1e-7 and 1e-6 m (OBJ keeps them: 8 decimals): every solid closed again and every
-    clean path found to 1 ps. The paths added at 1e-7 m reflect on a face exactly at the edge
-    they then diffract at (a reflection point on the edge of a face moved by the gap): the same
-    point twice. At 1e-6 m a corner piece of an edge is left as a wedge (a few diffractions
-    more: docs/scene.md, "Meshes from CAD and scans")."""
+@pytest.mark.parametrize("gap", [1e-7, 1e-6, 1e-5])
+def test_welding_gaps_give_the_welded_halls_paths(clean, tmp_path, gap):
+    """Gaps of 1e-7 to 1e-5 m (OBJ keeps them: 8 decimals): every solid closed again, the same
+    facets, the same wedges (at 1e-5 m, at most a few sub-millimetre pieces more where slabs
+    and walls meet), and the clean hall's paths to 1 ps."""
     scene, rx, ref = clean
     rng = np.random.default_rng(0)
     objects = [(n, _soup(m, gap, rng)) for n, m in hall_objects()]
     with pytest.warns(UserWarning, match=r"repaired: \d+ vertices welded"):
         moved = load_scene(_write(tmp_path / "gaps.obj", objects))
     assert moved.object_closed.all() and len(moved.facets) == len(scene.facets)
-    got = _trace(moved, TX, rx)
-    a, b = _groups(ref), _groups(got)
-    for key, delays in a.items():
-        assert len(b.get(key, [])) >= len(delays), key
-        for d in delays:
-            assert np.min(np.abs(np.asarray(b[key]) - d)) <= DELAY_TOL_S, key
-    extra = got.n_paths - ref.n_paths
-    assert 0 <= extra < 0.02 * ref.n_paths
-    if gap == 1e-7:
-        assert len(moved.wedges) == len(scene.wedges)
-        same_point = np.linalg.norm(got.points[:, 1] - got.points[:, 0], axis=1) < 1e-4
-        assert extra == int(same_point.sum())
+    extra = len(moved.wedges) - len(scene.wedges)
+    if gap < 1e-5:
+        assert extra == 0
+    else:
+        assert 0 <= extra <= 2 and np.sort(moved.wedges.length)[:extra].max(initial=0) < 1e-3
+    assert_same_paths(ref, _trace(moved, TX, rx))
 
 
 def test_the_weld_leaves_clean_meshes_as_they_are():
