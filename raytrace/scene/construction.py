@@ -21,18 +21,12 @@ from ..core.errors import SceneError
 from ..core.jit import carray, kernel
 from . import accel, spatial
 from .elements import Facets, SceneObject, Wedges
+from .repair import DEGENERATE_AREA_M2, REPAIRS, WELD_TOL_M, repaired_parts
 
 __all__ = ["DEGENERATE_AREA_M2", "WELD_TOL_M", "DEFAULT_SMOOTH_ANGLE_DEG", "WEDGE_MIN_ANGLE_RAD", "MAX_SMOOTH_ANGLE_DEG", "BURIED_PROBE_M",
            "JUNCTION_MIN_EXCESS_RAD", "scene_parts", "facets_of", "wedges_of", "buried_wedges",
-           "resolve_junctions", "check_smooth_angle", "weld_vertices"]
+           "resolve_junctions", "check_smooth_angle"]
 
-#: Triangles with an area below this (m^2) are degenerate and dropped.
-DEGENERATE_AREA_M2 = 1e-10
-#: Vertices of one object closer than this (m) are one vertex (:func:`weld_vertices`): the
-#: welding gaps of CAD exports and triangle soups (1e-7 to 1e-5 m), far below the tracer's
-#: smallest end margin (:func:`raytrace.scene.caches.margin_of`, 1e-4 m), which cannot tell
-#: such points apart anyway.
-WELD_TOL_M = 1e-4
 #: Default smooth angle: two adjacent faces whose normals differ by less than this (rad) meet
 #: at a smooth edge, not a wedge (``smooth_angle_deg`` of :func:`scene_parts` chooses another;
 #: docs/scene.md, "Smooth edges", has the measurement behind the default).
@@ -77,7 +71,7 @@ def scene_parts(
     verts, faces, face_obj, normals = [], [], [], []
     objects: list[SceneObject] = []
     material_names: list[str] = []
-    repairs = {"degenerate": 0, "welded": 0, "duplicate": 0, "rewound": 0}
+    repairs = dict.fromkeys(["degenerate", *REPAIRS], 0)
     facet_parts: list[dict[str, np.ndarray]] = []
     wedge_parts: list[dict[str, np.ndarray]] = []
     v_offset = 0
@@ -89,29 +83,28 @@ def scene_parts(
             raise SceneError(f"object {name!r} has NaN or infinite vertex coordinates")
         if f.size == 0:
             continue
-        m, counts = _repaired(v, f)
+        parts, counts = repaired_parts(name, v, f)
         for key, c in counts.items():
             repairs[key] += c
-        if m is None:
-            continue
-        closed = bool(m.is_watertight) and bool(m.is_winding_consistent)
-        if closed:
-            trimesh.repair.fix_normals(m)
-            if m.volume < 0:
-                m.invert()
-        if mat not in material_names:
-            material_names.append(mat)
-        mat_id = material_names.index(mat)
-        obj_id = len(objects)
-        objects.append(SceneObject(name, mat, closed, f_offset, len(m.faces)))
-        verts.append(np.asarray(m.vertices, dtype=np.float64))
-        faces.append(np.asarray(m.faces, dtype=np.int64) + v_offset)
-        face_obj.append(np.full(len(m.faces), obj_id, dtype=np.int64))
-        normals.append(np.asarray(m.face_normals, dtype=np.float64))
-        facet_parts.append(facets_of(m, obj_id, mat_id, closed))
-        wedge_parts.append(wedges_of(m, obj_id, mat_id, closed, smooth_rad))
-        v_offset += len(m.vertices)
-        f_offset += len(m.faces)
+        for part_name, m in parts:
+            closed = bool(m.is_watertight) and bool(m.is_winding_consistent)
+            if closed:
+                trimesh.repair.fix_normals(m)
+                if m.volume < 0:
+                    m.invert()
+            if mat not in material_names:
+                material_names.append(mat)
+            mat_id = material_names.index(mat)
+            obj_id = len(objects)
+            objects.append(SceneObject(part_name, mat, closed, f_offset, len(m.faces)))
+            verts.append(np.asarray(m.vertices, dtype=np.float64))
+            faces.append(np.asarray(m.faces, dtype=np.int64) + v_offset)
+            face_obj.append(np.full(len(m.faces), obj_id, dtype=np.int64))
+            normals.append(np.asarray(m.face_normals, dtype=np.float64))
+            facet_parts.append(facets_of(m, obj_id, mat_id, closed))
+            wedge_parts.append(wedges_of(m, obj_id, mat_id, closed, smooth_rad))
+            v_offset += len(m.vertices)
+            f_offset += len(m.faces)
     if not objects:
         raise SceneError(f"scene {source or '<memory>'} has no triangles")
     facets = Facets(**{k: _cat([p[k] for p in facet_parts]) for k in facet_parts[0]})
@@ -136,80 +129,6 @@ def scene_parts(
         "n_degenerate_dropped": repairs.pop("degenerate"),
         "repairs": repairs,
     }
-
-
-def _repaired(v: np.ndarray, f: np.ndarray) -> tuple[Any, dict[str, int]]:
-    """One object's mesh (trimesh, processed) once repaired, or None if no triangle is left, and
-    what was repaired: vertices ``welded`` (:func:`weld_vertices`), ``degenerate`` triangles
-    dropped (area below :data:`DEGENERATE_AREA_M2`), ``duplicate`` triangles dropped (the same
-    three vertices twice, in either winding: a CAD export's doubled faces, which left a closed
-    solid open), and ``rewound`` (1 if a closed mesh's faces had to be turned to one consistent
-    winding: flipped faces also left it open). A clean mesh is built as before, unchanged."""
-    import trimesh
-
-    v, f, welded = weld_vertices(v, f)
-    tri = v[f]
-    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
-    keep = area > DEGENERATE_AREA_M2
-    counts = {"welded": welded, "degenerate": int((~keep).sum()), "duplicate": 0, "rewound": 0}
-    if not keep.any():
-        return None, counts
-    m = trimesh.Trimesh(vertices=v, faces=f[keep], process=True, validate=False)
-    unique = m.unique_faces()
-    if not unique.all():
-        counts["duplicate"] = int((~unique).sum())
-        m.update_faces(unique)
-    m.remove_unreferenced_vertices()
-    if m.is_watertight and not m.is_winding_consistent:
-        trimesh.repair.fix_winding(m)
-        counts["rewound"] = int(bool(m.is_winding_consistent))
-    return m, counts
-
-
-def weld_vertices(
-    vertices: np.ndarray, faces: np.ndarray, tol: float = WELD_TOL_M
-) -> tuple[np.ndarray, np.ndarray, int]:
-    """One object's vertices closer than ``tol`` made one: the faces of a triangle soup or of a
-    CAD export with welding gaps then share their edges, so that a closed solid is found closed
-    and its edges are wedges between two faces, not free edges of separate triangles.
-
-    Vertices within ``tol`` of each other, directly or through a chain of such neighbours, take
-    the position of the lowest-indexed of them. Exact duplicates are left for trimesh's own
-    merge, so a mesh with no distinct vertices within ``tol`` comes back unchanged (the same
-    arrays).
-
-    Parameters
-    ----------
-    vertices : (V, 3) float, metres
-    faces : (F, 3) int
-    tol : float, metres
-
-    Returns
-    -------
-    vertices : (V, 3) float, metres (``vertices`` itself when nothing was welded)
-    faces : (F, 3) int, re-indexed to the surviving vertices
-    n_welded : int, the distinct vertices moved onto another
-    """
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-    from scipy.spatial import cKDTree
-
-    if len(vertices) < 2:
-        return vertices, faces, 0
-    pairs = cKDTree(vertices).query_pairs(tol, output_type="ndarray")
-    if len(pairs):
-        pairs = pairs[(vertices[pairs[:, 0]] != vertices[pairs[:, 1]]).any(axis=1)]
-    if not len(pairs):
-        return vertices, faces, 0
-    n = len(vertices)
-    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
-    _, label = connected_components(graph, directed=False)
-    first = np.full(label.max() + 1, n, dtype=np.int64)
-    np.minimum.at(first, label, np.arange(n))
-    rep = first[label]
-    moved = rep != np.arange(n)
-    n_welded = len(np.unique(vertices[moved], axis=0)) if moved.any() else 0
-    return vertices, rep[faces], int(n_welded)
 
 
 def buried_wedges(w: Wedges, inside_solid: Callable[..., np.ndarray]) -> np.ndarray:
@@ -716,7 +635,12 @@ def _facets_near_edges(w: Wedges, fc: Facets, tol: float) -> tuple[np.ndarray, n
     pb = w.start[wi] + t1[:, None] * w.direction[wi]
     da = np.einsum("ij,ij->i", pa, fc.normal[fk]) - fc.offset[fk]
     db = np.einsum("ij,ij->i", pb, fc.normal[fk]) - fc.offset[fk]
-    near = (np.abs(da) <= tol) & (np.abs(db) <= tol) & (w.object[wi] != fc.object[fk])
+    # another object's facet, or one of the edge's own open sheet across it (a shelf and its
+    # wall in one mesh: the shelf's edge lies on the wall's faces, sharing no edge with them)
+    across = np.maximum(np.abs(np.einsum("ij,ij->i", fc.normal[fk], w.normal0[wi])),
+                        np.abs(np.einsum("ij,ij->i", fc.normal[fk], w.normal1[wi]))) < 1 - 1e-6
+    other = (w.object[wi] != fc.object[fk]) | (fc.two_sided[fk] & across)
+    near = (np.abs(da) <= tol) & (np.abs(db) <= tol) & other
     wi, fk = wi[near], fk[near]
     order = np.lexsort((fk, wi))
     return wi[order], fk[order]

@@ -30,15 +30,10 @@ import numpy as np
 
 from ..physics.materials import MaterialLibrary
 from .caches import SceneCaches, bounds_of, margin_of
-from .construction import (
-    DEFAULT_SMOOTH_ANGLE_DEG,
-    WELD_TOL_M,
-    buried_wedges,
-    resolve_junctions,
-    scene_parts,
-)
+from .construction import DEFAULT_SMOOTH_ANGLE_DEG, buried_wedges, resolve_junctions, scene_parts
 from .elements import Facets, SceneObject, Wedges
 from .queries import EmbreeQueries
+from .repair import REPAIRS
 
 
 @dataclass
@@ -104,10 +99,7 @@ class Scene(EmbreeQueries):
         parts = scene_parts(meshes, source, smooth_angle_deg)
         n_dropped = parts["n_degenerate_dropped"]
         repairs = parts.pop("repairs")
-        said = {"welded": f"vertices welded to a neighbour closer than {WELD_TOL_M * 1e3:g} mm",
-                "duplicate": "duplicate triangles dropped",
-                "rewound": "closed objects' faces turned to one winding"}  # fmt: skip
-        done = [f"{repairs[k]} {text}" for k, text in said.items() if repairs[k]]
+        done = [f"{repairs[k]} {text}" for k, text in REPAIRS.items() if repairs[k]]
         if done:
             warnings.warn(f"{source or 'scene'} repaired: {', '.join(done)}", stacklevel=2)
         if n_dropped:
