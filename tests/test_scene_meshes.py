@@ -12,7 +12,7 @@ import warnings
 import numpy as np
 import pytest
 import trimesh
-from conftest import box, make_scene
+from conftest import box, make_scene, quad
 
 import raytrace
 from raytrace import TraceConfig
@@ -134,7 +134,7 @@ def test_welding_gaps_give_the_welded_halls_paths(clean, tmp_path, gap):
 
 
 def test_the_weld_leaves_clean_meshes_as_they_are():
-    from raytrace.scene.construction import weld_vertices
+    from raytrace.scene.repair import weld_vertices
 
     b = box((0, 0, 0), (1, 1, 1))
     v, f, n = weld_vertices(np.asarray(b.vertices), np.asarray(b.faces))
@@ -231,6 +231,80 @@ def test_nan_vertex_is_one_line_naming_the_file(tmp_path, capsys):
     assert "scan.stl" in line and "NaN" in line
 
 
+def test_a_t_junction_in_a_closed_box_is_split(clean):
+    """A machine whose top face is three triangles meeting at a vertex on the middle of its
+    south edge, where the side face below is not split (a T-junction): closed again, the clean
+    hall's paths."""
+    _, rx, ref = clean
+
+    def t_junction(m):
+        tri = [t for t in np.asarray(m.triangles) if not np.allclose(t[:, 2], 3.0)]
+        a, b, c, d, t = ([5, 4, 3.0], [8, 4, 3.0], [8, 7, 3.0], [5, 7, 3.0], [6.5, 4, 3.0])
+        tri += [np.array(x) for x in ((a, t, d), (t, b, c), (t, c, d))]
+        tri = np.array(tri).reshape(-1, 3)
+        return trimesh.Trimesh(tri, np.arange(len(tri)).reshape(-1, 3))
+
+    with pytest.warns(UserWarning, match="1 T-junctions closed"):
+        scene = _scene(_edit("machine_a_metal", t_junction))
+    assert scene.object_closed.all()
+    assert_same_paths(ref, _trace(scene, TX, rx))
+
+
+@pytest.mark.parametrize("gap", [0.0, 1e-6])
+def test_a_hall_in_one_stl_is_split_into_its_solids(tmp_path, gap):
+    """The whole hall as one STL (one object, a triangle soup; walls touching the slabs along
+    edges of four faces): split into its nine closed solids, the paths of the nine objects
+    (per link, the same interaction sequences with delays to 1 ps; the objects are named
+    hall.stl#1 .. hall.stl#9: an STL names its one object after the file)."""
+    rng = np.random.default_rng(0)
+    metal = [(n.rsplit("_", 1)[0] + "_metal", m) for n, m in hall_objects()]
+    ref_scene = _scene(metal)
+    rx = _rx(ref_scene)
+    mesh = trimesh.util.concatenate([_soup(m, gap, rng) for _, m in metal])
+    mesh.export(str(tmp_path / "hall.stl"))
+    with pytest.warns(UserWarning, match="9 closed solids split out"):
+        scene = load_scene(tmp_path / "hall.stl", default_material="metal")
+    assert scene.object_closed.all() and len(scene.objects) == 9
+    assert sorted(o.name for o in scene.objects) == sorted(f"hall.stl#{k}" for k in range(1, 10))
+    assert (len(scene.facets), len(scene.wedges)) == (len(ref_scene.facets), len(ref_scene.wedges))
+
+    def kinds(p):
+        out = {}
+        for i in range(p.n_paths):
+            key = (int(p.tx_index[i]), int(p.rx_index[i]), tuple(np.asarray(p.interaction[i]).tolist()))
+            out.setdefault(key, []).append(float(p.delay_s[i]))
+        return out
+
+    a, b = kinds(_trace(ref_scene, TX, rx)), kinds(_trace(scene, TX, rx))
+    assert sorted(a) == sorted(b)
+    for key in a:
+        np.testing.assert_allclose(sorted(b[key]), sorted(a[key]), rtol=0, atol=DELAY_TOL_S)
+
+
+def test_a_shelf_on_its_wall_in_one_sheet_has_no_edge_there(clean):
+    """A wall sheet and a shelf sheet standing out of it, as one object (the shelf's edge on the
+    wall's faces, or on an edge the wall shares with it: three faces) traced as the two
+    objects: no diffraction at the T, where the air is 90, 180 and 90 degrees."""
+    _, rx, _ = clean
+    shelf = quad((12, 2, 2), (2, 0, 0), (0, 6, 0))
+    wall = quad((12, 2, 0), (0, 6, 0), (0, 0, 4))
+    split_wall = trimesh.util.concatenate([quad((12, 2, 0), (0, 6, 0), (0, 0, 2)),
+                                           quad((12, 2, 2), (0, 6, 0), (0, 0, 2))])  # fmt: skip
+    hall = [(n, m, n.rsplit("_", 1)[1]) for n, m in hall_objects()]
+    two = make_scene(hall + [("shelf", shelf, "metal"), ("wall", wall, "metal")])
+    ref = _trace(two, TX, rx)
+    ref.objects[ref.objects == len(hall) + 1] = len(hall)  # the two as one object
+    for w in (wall, split_wall):
+        with warnings.catch_warnings(record=True) as said:
+            warnings.simplefilter("always")
+            one = make_scene(hall + [("tee", trimesh.util.concatenate([shelf, w]), "metal")])
+        # the shelf's corners on the whole wall's side edges are T-junctions too
+        assert [str(x.message) for x in said] == (["scene repaired: 2 T-junctions closed (a vertex "
+                                                   "on another triangle's edge)"] if w is wall else [])
+        assert len(one.wedges) == len(two.wedges)
+        assert_same_paths(ref, _trace(one, TX, rx))
+
+
 # -- survey coordinates and units ----------------------------------------------------------------
 @pytest.mark.parametrize("shift", [(1e5, 1e5, 0.0), (1e6, 1e6, 0.0), (4.5e5, 5.4e6, 120.0)])
 def test_a_hall_in_survey_coordinates_gives_the_same_paths(clean, shift):
@@ -265,6 +339,7 @@ def test_trace_scene_in_survey_coordinates(clean, tmp_path, capsys):
     assert_same_paths(ref, Paths.load(tmp_path / "p.npz"))
 
 
+@pytest.mark.filterwarnings("ignore:.*repaired")
 def test_an_stl_in_millimetres_is_refused_in_one_line(tmp_path, capsys):
     m = trimesh.util.concatenate([m for _, m in hall_objects()])
     m.apply_scale(1000.0)
