@@ -184,6 +184,24 @@ def test_duplicate_and_flipped_faces_are_repaired(clean):
         assert_same_paths(ref, _trace(scene, TX, rx))
 
 
+def test_a_doubled_object_is_dropped_and_z_fighting_is_named(clean):
+    """The same machine twice (a CAD export's doubled instance, another name, faces in another
+    order): dropped, the clean hall's paths (it added 107 of 805 and 8 wedges). A crate
+    overlapping a machine (their top and bottom faces in one plane, facing the same way): both
+    kept, one warning naming them."""
+    _, rx, ref = clean
+    m = dict(hall_objects())["machine_a_metal"]
+    copy = trimesh.Trimesh(m.vertices, m.faces[::-1][:, [1, 2, 0]], process=False)
+    hall = [(n, x, n.rsplit("_", 1)[1]) for n, x in hall_objects()]
+    with pytest.warns(UserWarning, match="1 objects dropped that repeat another object's"):
+        scene = make_scene(hall + [("machine_a_copy", copy, "metal")])
+    assert [o.name for o in scene.objects] == [n for n, _, _ in hall]
+    assert_same_paths(ref, _trace(scene, TX, rx))
+    with pytest.warns(UserWarning, match=r"2 facet pair\(s\) .* \(z-fighting: crate_wood and "
+                                         r"machine_a_metal\)"):
+        make_scene(hall + [("crate_wood", box((6, 5, 0), (9, 6, 3.0)), "wood")])
+
+
 def test_degenerate_triangles_are_dropped(clean):
     _, rx, ref = clean
 

@@ -21,11 +21,11 @@ from ..core.errors import SceneError
 from ..core.jit import carray, kernel
 from . import accel, spatial
 from .elements import Facets, SceneObject, Wedges
-from .repair import DEGENERATE_AREA_M2, REPAIRS, WELD_TOL_M, repaired_parts
+from .repair import DEGENERATE_AREA_M2, REPAIRS, WELD_TOL_M, geometry_key, repaired_parts
 
 __all__ = ["DEGENERATE_AREA_M2", "WELD_TOL_M", "DEFAULT_SMOOTH_ANGLE_DEG", "WEDGE_MIN_ANGLE_RAD", "MAX_SMOOTH_ANGLE_DEG", "BURIED_PROBE_M",
            "JUNCTION_MIN_EXCESS_RAD", "scene_parts", "facets_of", "wedges_of", "buried_wedges",
-           "resolve_junctions", "check_smooth_angle"]
+           "resolve_junctions", "check_smooth_angle", "coplanar_overlaps"]
 
 #: Default smooth angle: two adjacent faces whose normals differ by less than this (rad) meet
 #: at a smooth edge, not a wedge (``smooth_angle_deg`` of :func:`scene_parts` chooses another;
@@ -72,6 +72,7 @@ def scene_parts(
     objects: list[SceneObject] = []
     material_names: list[str] = []
     repairs = dict.fromkeys(["degenerate", *REPAIRS], 0)
+    seen: set[bytes] = set()
     facet_parts: list[dict[str, np.ndarray]] = []
     wedge_parts: list[dict[str, np.ndarray]] = []
     v_offset = 0
@@ -87,6 +88,11 @@ def scene_parts(
         for key, c in counts.items():
             repairs[key] += c
         for part_name, m in parts:
+            key = geometry_key(m)
+            if key in seen:  # the same triangles again (a CAD export's doubled instance)
+                repairs["duplicate_objects"] += 1
+                continue
+            seen.add(key)
             closed = bool(m.is_watertight) and bool(m.is_winding_consistent)
             if closed:
                 trimesh.repair.fix_normals(m)
@@ -308,6 +314,44 @@ def _air_sectors(w: Wedges, fc: Facets, wi: np.ndarray, mid: np.ndarray, cover: 
                          for a in (lo[j], lo[j] + 0.5 * np.pi, hi[j] - 0.5 * np.pi))
                    + (width[j] / np.pi,))  # fmt: skip
     return out
+
+
+def coplanar_overlaps(fc: Facets, tol: float) -> np.ndarray:
+    """(P, 2) int: pairs of facets of different objects that lie in one plane (within ``tol``,
+    m), face the same way and overlap: two solids' faces where the solids overlap, or two
+    sheets on one another (z-fighting, as CAD exports make it). Both reflect there, so every
+    path on them is found twice. (A sheet resting on a solid's face, a ceiling board on a wall's
+    top, is modelled so on purpose and not listed.) Overlap: a point of one facet (each
+    triangle's centroid and its corners pulled a tenth towards it) lies inside the other."""
+    if len(fc) < 2:
+        return np.zeros((0, 2), dtype=np.int64)
+    lo, hi = accel.facet_boxes(fc, tol)
+    offsets, hits = spatial.query_boxes(accel.facet_tree(fc), lo, hi)
+    a = np.repeat(np.arange(len(fc)), np.diff(offsets))
+    b = hits
+    keep = (a < b) & (fc.object[a] != fc.object[b]) & (fc.two_sided[a] == fc.two_sided[b])
+    a, b = a[keep], b[keep]
+    dot = np.einsum("ij,ij->i", fc.normal[a], fc.normal[b])
+    side = np.where(fc.two_sided[a], np.sign(dot), 1.0)  # a sheet faces both ways
+    one = (side * dot > 1 - 1e-9) & (np.abs(fc.offset[a] - side * fc.offset[b]) <= tol)
+    a, b = a[one], b[one]
+    if not len(a):
+        return np.zeros((0, 2), dtype=np.int64)
+    found = np.zeros(len(a), dtype=bool)
+    for x, y in ((a, b), (b, a)):
+        cnt = fc.tri_count[x]
+        pair = np.repeat(np.arange(len(x)), cnt)
+        tri = fc.triangles[np.repeat(fc.tri_start[x], cnt) + np.arange(cnt.sum())
+                           - np.repeat(np.cumsum(cnt) - cnt, cnt)]  # fmt: skip
+        c = tri.mean(axis=1)
+        pts = np.concatenate([c[:, None], 0.9 * tri + 0.1 * c[:, None]], axis=1)  # (T, 4, 3)
+        pts = pts.reshape(-1, 3)
+        owner = np.repeat(pair, 4)
+        n, off = fc.normal[y[owner]], fc.offset[y[owner]]
+        pts = pts - (np.einsum("ij,ij->i", pts, n) - off)[:, None] * n
+        inside = accel.points_in_facets(pts, y[owner], fc)
+        found |= np.bincount(owner[inside], minlength=len(x)) > 0
+    return np.stack([a[found], b[found]], axis=1)
 
 
 def _cat(parts: list[np.ndarray]) -> np.ndarray:

@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 
 __all__ = ["DEGENERATE_AREA_M2", "WELD_TOL_M", "REPAIRS", "repaired_parts", "weld_vertices",
-           "split_t_junctions", "split_bodies"]
+           "split_t_junctions", "split_bodies", "geometry_key"]
 
 #: Triangles with an area below this (m^2) are degenerate and dropped.
 DEGENERATE_AREA_M2 = 1e-10
@@ -30,6 +30,7 @@ REPAIRS = {
     "t_junctions": "T-junctions closed (a vertex on another triangle's edge)",
     "rewound": "closed objects' faces turned to one winding",
     "bodies": "closed solids split out of meshes holding several",
+    "duplicate_objects": "objects dropped that repeat another object's triangles",
 }
 
 
@@ -231,6 +232,19 @@ def split_bodies(name: str, mesh: Any) -> list[tuple[str, Any]]:
     closed = np.flatnonzero(~open_group)
     out += [(f"{name}#{k + 1}", _part(vertices, faces[label == c])) for k, c in enumerate(closed)]
     return out
+
+
+def geometry_key(mesh: Any) -> bytes:
+    """A digest of a mesh's triangles, independent of their order, their corners' order and
+    the vertex numbering, to the micrometre: two objects with the same key are the same surface
+    twice (a CAD export's doubled instance), whose faces would reflect every ray twice."""
+    import hashlib
+
+    tri = np.round(np.asarray(mesh.triangles, dtype=float) * 1e6).astype(np.int64)  # (F, 3, 3)
+    order = np.lexsort(tri.transpose(2, 0, 1)[::-1], axis=-1)  # corners sorted per triangle
+    tri = np.take_along_axis(tri, order[..., None], axis=1).reshape(len(tri), 9)
+    tri = tri[np.lexsort(tri.T[::-1])]
+    return hashlib.sha256(tri.tobytes()).digest()
 
 
 def _edge_keys(edges: np.ndarray, n_vertices: int) -> np.ndarray:
