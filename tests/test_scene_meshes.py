@@ -357,6 +357,23 @@ def test_trace_scene_in_survey_coordinates(clean, tmp_path, capsys):
     assert_same_paths(ref, Paths.load(tmp_path / "p.npz"))
 
 
+def test_float32_files_far_from_the_origin_say_how_much_they_rounded(tmp_path):
+    """GLB and STL store float32 numbers: at 1e5 m they are 7.8 mm apart, and the file has
+    rounded the hall by up to 3.9 mm before the tracer sees it (which then keeps it exact). OBJ
+    keeps its decimals, and a hall near the origin loses nothing: no warning."""
+    moved = []
+    for n, m in hall_objects():
+        m = m.copy()
+        m.apply_translation([1e5, 1e5, 0.0])
+        moved.append((n, m))
+    with pytest.warns(UserWarning, match="rounded by up to 3.9 mm"):
+        load_scene(_write(tmp_path / "survey.glb", moved))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        load_scene(_write(tmp_path / "survey.obj", moved))
+        load_scene(_write(tmp_path / "local.glb", hall_objects()))
+
+
 @pytest.mark.filterwarnings("ignore:.*repaired")
 def test_an_stl_in_millimetres_is_refused_in_one_line(tmp_path, capsys):
     m = trimesh.util.concatenate([m for _, m in hall_objects()])
