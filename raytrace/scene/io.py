@@ -198,6 +198,11 @@ def _read_trimesh(p: Path) -> tuple[list[tuple[str, Any, list[str]]], dict[str, 
         named.append((str(node), mesh, hints))
     if not named:
         raise SceneError(f"scene {p.name} contains no triangles")
+    # a hall in mm is refused before it is repaired and built (and before the rounding of its
+    # float32 numbers, which are not metres, is worth a word)
+    lo = np.min([m.bounds[0] for _, m, _ in named], axis=0)
+    hi = np.max([m.bounds[1] for _, m, _ in named], axis=0)
+    check_extent(tuple(float(v) for v in hi - lo), f"scene {p.name}")
     if rounded:
         warnings.warn(
             f"scene {p.name} stores its vertices as float32 numbers (as STL and glTF do) far from "
