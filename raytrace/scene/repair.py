@@ -73,7 +73,7 @@ def repaired_parts(name: str, v: np.ndarray, f: np.ndarray) -> tuple[list[tuple[
             parts = [(name, m)]
         if not m.is_watertight:
             parts = split_bodies(name, m)
-            counts["bodies"] = sum(1 for _, p in parts if p.is_watertight) if len(parts) > 1 else 0
+            counts["bodies"] = len(parts) if len(parts) > 1 else 0
     for _, p in parts:
         if p.is_watertight and not p.is_winding_consistent:
             trimesh.repair.fix_winding(p)
@@ -196,11 +196,12 @@ def split_t_junctions(
 
 
 def split_bodies(name: str, mesh: Any) -> list[tuple[str, Any]]:
-    """A mesh that is not closed, as its closed solids (``name#1``, ``name#2``, ...) and the
-    rest (``name``), when it holds any: several boxes in one STL that touch along edges or share
-    parts of faces (a hall's walls on its floor) make edges of four faces, and the whole mesh
-    an open sheet. Faces are grouped by the edges that exactly two of them share; a group that is
-    closed on its own is a solid. A mesh with no closed group comes back as it is."""
+    """A mesh that is not closed, as its closed solids (``name#1``, ``name#2``, ...) when it is
+    made of nothing else: several boxes in one STL that touch along edges or share parts of
+    faces (a hall's walls on its floor) make edges of four faces, and the whole mesh an open
+    sheet. Faces are grouped by the edges that exactly two of them share; a group that is closed
+    on its own is a solid. A mesh with any open group (a scanned surface with closed bubbles, a
+    solid and a sheet in one STL) comes back as it is."""
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
@@ -223,15 +224,10 @@ def split_bodies(name: str, mesh: Any) -> list[tuple[str, Any]]:
     pair, pair_cnt = np.unique(inv * n_comp + owner, return_counts=True)
     open_group = np.zeros(n_comp, dtype=bool)
     open_group[pair[pair_cnt != 2] % n_comp] = True
-    if open_group.all():
+    if open_group.any():
         return [(name, mesh)]
     vertices = np.asarray(mesh.vertices)
-    out = []
-    if open_group.any():
-        out.append((name, _part(vertices, faces[open_group[label]])))
-    closed = np.flatnonzero(~open_group)
-    out += [(f"{name}#{k + 1}", _part(vertices, faces[label == c])) for k, c in enumerate(closed)]
-    return out
+    return [(f"{name}#{k + 1}", _part(vertices, faces[label == k])) for k in range(n_comp)]
 
 
 def geometry_key(mesh: Any) -> bytes:
