@@ -323,6 +323,23 @@ def test_a_shelf_on_its_wall_in_one_sheet_has_no_edge_there(clean):
         assert_same_paths(ref, _trace(one, TX, rx))
 
 
+def test_nan_vertex_in_a_mitsuba_scenes_mesh_is_refused(tmp_path):
+    """trimesh's processing dropped the NaN vertex and its faces silently: the cube was an open
+    sheet."""
+    m = box((0, 0, 0), (10, 10, 3))
+    m.vertices[1, 0] = np.nan
+    (tmp_path / "meshes").mkdir()
+    m.export(tmp_path / "meshes" / "cube.ply")
+    (tmp_path / "scene.xml").write_text(
+        '<scene version="2.1.0"><bsdf type="itu-radio-material" id="mat-concrete">'
+        '<string name="type" value="concrete"/></bsdf><shape type="ply" id="mesh-cube">'
+        '<string name="filename" value="meshes/cube.ply"/><ref id="mat-concrete" name="bsdf"/>'
+        "</shape></scene>"
+    )
+    with pytest.raises(SceneError, match="scene.xml: mesh meshes/cube.ply has NaN"):
+        load_scene(tmp_path / "scene.xml")
+
+
 # -- survey coordinates and units ----------------------------------------------------------------
 @pytest.mark.parametrize("shift", [(1e5, 1e5, 0.0), (1e6, 1e6, 0.0), (4.5e5, 5.4e6, 120.0)])
 def test_a_hall_in_survey_coordinates_gives_the_same_paths(clean, shift):

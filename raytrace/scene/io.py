@@ -262,11 +262,17 @@ def _read_mitsuba(
             continue
         fpath = (p.parent / fname).resolve()
         try:
-            mesh = trimesh.load(str(fpath), force="mesh")
+            # processed below, once checked: trimesh's processing drops NaN vertices silently
+            mesh = trimesh.load(str(fpath), force="mesh", process=False)
         except Exception as exc:
             raise SceneError(
                 f"cannot read mesh {fname} of {p.name}: {exc}".splitlines()[0]
             ) from None
+        if not np.isfinite(np.asarray(mesh.vertices, dtype=float)).all():
+            raise SceneError(
+                f"scene {p.name}: mesh {fname} has NaN or infinite vertex coordinates"
+            )
+        mesh.process()
         name = shape.get("id") or Path(fname).stem or f"shape_{i}"
         name = reading.shape_names.get(name, name)
         hints = [name]
