@@ -11,7 +11,14 @@ import pytest
 from conftest import box, make_scene
 from test_diffraction_paths import _cluttered_scene
 
-from raytrace.scene.caches import SceneCaches, bounds_of, convex_flags, margin_of
+from raytrace.scene.caches import (
+    EMBREE_LOCAL_M,
+    SceneCaches,
+    bounds_of,
+    convex_flags,
+    embree_origin_of,
+    margin_of,
+)
 from raytrace.solver.config import TraceConfig
 from raytrace.solver.tracer import trace
 
@@ -54,7 +61,8 @@ def test_a_pickled_scene_carries_no_caches_and_rebuilds_its_intersector():
     # the intersector and what it is built from, nothing of the solver's
     rebuilt = {f.name for f in dataclasses.fields(SceneCaches)
                if _filled(getattr(copy.caches, f.name))}  # fmt: skip
-    assert rebuilt == {"embree", "prim_start", "prim_face", "embree_meshes", "bounds"}
+    assert rebuilt == {"embree", "prim_start", "prim_face", "embree_meshes", "embree_origin",
+                       "bounds"}
     o, d = np.array([[5.0, 5.0, 10.0]]), np.array([[0.0, 0.0, -1.0]])
     assert copy.intersect(o, d)[2].tolist() == sc.intersect(o, d)[2].tolist()
 
@@ -94,3 +102,42 @@ def test_scene_layer_builders_against_their_definitions():
     assert sc.object_closed.tolist() == [True, True, False]
     assert convex.tolist() == [True, False, False]
     assert sc.convex_objects() is sc.caches.convex
+
+
+def test_embree_origin_is_zero_near_the_origin_and_the_rounded_centre_far_out():
+    assert embree_origin_of(np.array([[-5.0, 0, 0], [EMBREE_LOCAL_M, 30, 8]])).tolist() == [0, 0, 0]
+    far = np.array([[1e5 - 0.3, 2e6 + 10.2, -0.3], [1e5 + 30.3, 2e6 + 30.2, 8.3]])
+    assert embree_origin_of(far).tolist() == [100015.0, 2000020.0, 4.0]
+    sc = make_scene([("b", box((1e5, 1e5, 0), (1e5 + 2, 1e5 + 3, 1)), "metal")])
+    assert sc.embree_origin().tolist() == [100001.0, 100002.0, 0.0]
+    # the Embree meshes are relative to it, the answers are in the scene's coordinates
+    pts = sc.embree_meshes()[0][0]
+    assert np.abs(pts).max() <= 2.0
+    t, _, obj = sc.intersect(np.array([[1e5 + 1, 1e5 + 1, 5.0]]), np.array([[0.0, 0, -1]]))
+    assert obj.tolist() == [0] and t[0] == pytest.approx(4.0, abs=1e-6)
+
+
+def test_a_box_with_welding_gaps_is_convex():
+    """Facets whose corners lie off their plane by up to 1e-5 m (a box welded from a mesh with
+    gaps): convex within twice that, not within the rounding of a clean mesh; an L-shaped prism
+    with the same noise stays non-convex."""
+    import trimesh
+
+    from raytrace.scene.accel import facet_off_plane
+
+    rng = np.random.default_rng(2)
+    ring = np.array([(0, 0), (3, 0), (3, 1), (1, 1), (1, 3), (0, 3)], dtype=float)
+    verts = np.concatenate([np.c_[ring, np.zeros(6)], np.c_[ring, np.full(6, 2.0)]])
+    fan = [(0, i, i + 1) for i in range(1, 5)]
+    sides = [q for i in range(6)
+             for q in ((i, (i + 1) % 6, 6 + (i + 1) % 6), (i, 6 + (i + 1) % 6, 6 + i))]  # fmt: skip
+    ell = trimesh.Trimesh(verts + [10.0, 0, 0], [t[::-1] for t in fan]
+                          + [tuple(6 + np.array(t)) for t in fan] + sides)  # fmt: skip
+    objects = []
+    for name, m in (("b", box((0, 0, 0), (3, 2, 1))), ("ell", ell)):
+        noisy = np.asarray(m.vertices) + rng.uniform(-1e-5, 1e-5, m.vertices.shape)
+        objects.append((name, trimesh.Trimesh(noisy, m.faces), "metal"))
+    sc = make_scene(objects)
+    off = facet_off_plane(sc.facets)
+    assert 1e-7 < off[sc.facets.object == 0].max() < 4e-5
+    assert sc.object_closed.all() and sc.convex_objects().tolist() == [True, False]

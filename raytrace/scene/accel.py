@@ -61,6 +61,12 @@ def facet_test_arrays(facets: Facets) -> tuple[np.ndarray, ...]:
     cached = facets.cache.get("facet_test_arrays")
     if cached is None:
         lo, hi = facet_boxes(facets)
+        # a facet whose corners lie off its plane (welding gaps of a repaired mesh): a point on
+        # the plane may lie outside the corners' box along the normal by as much
+        off = facet_off_plane(facets)
+        if (off > PLANE_TOL_M).any():
+            pad = np.where(off > PLANE_TOL_M, off, 0.0)[:, None]
+            lo, hi = lo - pad, hi + pad
         rect, r_lo, r_hi = _rectangles(facets)
         cached = (carray(lo), carray(hi), carray(rect, bool), carray(r_lo), carray(r_hi),
                   carray(facets.tri_start, np.int64), carray(facets.tri_count, np.int64),
@@ -214,6 +220,21 @@ def facet_boxes(facets: Facets, grow: float = 1e-6) -> tuple[np.ndarray, np.ndar
     hi.setflags(write=False)
     facets.cache[key] = (lo, hi)
     return lo, hi
+
+
+def facet_off_plane(facets: Facets) -> np.ndarray:
+    """(K,) float, metres: the largest distance of a facet's corners from its plane (cached):
+    rounding (1e-15 m) for a clean mesh, up to the welding gaps for a repaired one, whose
+    coplanar triangles are only nearly so."""
+    cached = facets.cache.get("off_plane")
+    if cached is not None:
+        return cached
+    owner = np.repeat(np.arange(len(facets)), facets.tri_count)
+    d = np.einsum("tij,tj->ti", facets.triangles, facets.normal[owner]) - facets.offset[owner, None]
+    out = np.maximum.reduceat(np.abs(d).max(axis=1), facets.tri_start) if len(facets) else np.zeros(0)
+    out.setflags(write=False)
+    facets.cache["off_plane"] = out
+    return out
 
 
 def facet_spheres(facets: Facets) -> tuple[np.ndarray, np.ndarray]:

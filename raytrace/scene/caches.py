@@ -28,7 +28,13 @@ from . import accel
 from .elements import Facets, SceneObject
 
 __all__ = ["SceneCaches", "embree_meshes", "embree_scene", "subset_scene", "bounds_of",
-           "margin_of", "convex_flags", "object_boxes"]
+           "margin_of", "embree_origin_of", "convex_flags", "object_boxes", "EMBREE_LOCAL_M"]
+
+#: A scene whose coordinates all lie within this distance of the origin (m) is given to Embree
+#: as it is; one farther out (survey or CAD-origin coordinates: 1e5 to 1e7 m) is given relative
+#: to its own centre (:func:`embree_origin_of`). Embree works in float32, whose spacing at 1e5 m
+#: is 8 mm (at 1e3 m, 0.06 mm: below the tracer's end margin of 0.1 mm).
+EMBREE_LOCAL_M = 1000.0
 
 
 @dataclass(eq=False, slots=True)
@@ -43,7 +49,10 @@ class SceneCaches:
     prim_start : (O,) int, each object's first Embree primitive; prim_face : (T,) int, the
         scene face of each Embree triangle (built with ``embree``)
     embree_meshes : list of O ``(points (P, 3) float32, triangles (T, 3) int32, face (T,) int)``,
-        each object's triangles as Embree is given them (:func:`embree_meshes`)
+        each object's triangles as Embree is given them (:func:`embree_meshes`), relative to
+        ``embree_origin``
+    embree_origin : (3,) float, metres, the origin of Embree's frame (:func:`embree_origin_of`:
+        zero but for a scene far from the origin)
     subset_embree : dict, ``objects.tobytes()`` -> ``(EmbreeScene, members)``, the scenes of
         :meth:`~raytrace.scene.model.Scene.first_hit_among` (:func:`subset_scene`)
     bounds : (2, 3) float, read-only, metres (:func:`bounds_of`)
@@ -81,6 +90,7 @@ class SceneCaches:
     prim_start: np.ndarray | None = None
     prim_face: np.ndarray | None = None
     embree_meshes: list[tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None
+    embree_origin: np.ndarray | None = None
     subset_embree: dict[bytes, tuple[Any, np.ndarray]] = field(default_factory=dict)
     bounds: np.ndarray | None = None
     margin: float | None = None
@@ -183,6 +193,18 @@ def bounds_of(vertices: np.ndarray) -> np.ndarray:
     return out
 
 
+def embree_origin_of(bounds: np.ndarray) -> np.ndarray:
+    """(3,) float, metres: the origin of the frame the scene is given to Embree in. Zero for a
+    scene within :data:`EMBREE_LOCAL_M` of the origin (every hall built or exported in its own
+    coordinates: their queries are unchanged); else the centre of its bounding box ``bounds``
+    (2, 3), rounded to the metre (a coordinate minus it is then exact in float64), so that
+    float32 resolves the scene as finely as if it were at the origin."""
+    b = np.asarray(bounds, dtype=float)
+    if not np.isfinite(b).all() or np.abs(b).max() <= EMBREE_LOCAL_M:
+        return np.zeros(3)
+    return np.round(0.5 * (b[0] + b[1]))
+
+
 def margin_of(extent: float) -> float:
     """Offset (m) for rays that leave or end on a surface of a scene of bounding-box diagonal
     ``extent`` (m): Embree works in float32."""
@@ -198,8 +220,9 @@ def convex_flags(
     extent: float,
 ) -> np.ndarray:
     """(O,) bool: the closed solids (``closed`` (O,) bool) that are convex, every vertex on or
-    behind every facet plane of the object (within a rounding tolerance ``tol`` of the scene's
-    ``extent``, m).
+    behind every facet plane of the object (within a tolerance ``tol``: the rounding of the
+    scene's ``extent``, m, or twice the largest distance of a facet's own corners from its plane,
+    whichever is larger).
 
     The definition costs (vertices x facets) per object: 10^8 operations for one scanned
     machine of 20 000 triangles. A solid that is far from convex is recognised first by its
@@ -212,7 +235,7 @@ def convex_flags(
     """
     from scipy.spatial import ConvexHull, QhullError
 
-    tol = 1e-9 * max(extent, 1.0) + 1e-9
+    rounding = 1e-9 * max(extent, 1.0) + 1e-9
     convex = closed.copy()
     for o in np.flatnonzero(convex):
         obj = objects[o]
@@ -220,6 +243,9 @@ def convex_flags(
         ids = np.unique(f)
         v = vertices[ids]
         k = facets.object == o
+        # a facet's own corners may lie off its plane by more than rounding (a box welded from
+        # a mesh with 1e-6 m gaps): behind within twice that still counts as behind
+        tol = max(rounding, 2.0 * float(accel.facet_off_plane(facets)[k].max(initial=0.0)))
         if len(ids) > 64:  # a box or prism: the definition's test is cheaper than a hull
             tri = vertices[f]
             volume = abs(np.einsum("ij,ij->i", tri[:, 0], np.cross(tri[:, 1], tri[:, 2])).sum()) / 6

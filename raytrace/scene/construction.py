@@ -21,13 +21,12 @@ from ..core.errors import SceneError
 from ..core.jit import carray, kernel
 from . import accel, spatial
 from .elements import Facets, SceneObject, Wedges
+from .repair import DEGENERATE_AREA_M2, REPAIRS, WELD_TOL_M, geometry_key, repaired_parts
 
-__all__ = ["DEGENERATE_AREA_M2", "DEFAULT_SMOOTH_ANGLE_DEG", "WEDGE_MIN_ANGLE_RAD", "MAX_SMOOTH_ANGLE_DEG", "BURIED_PROBE_M",
+__all__ = ["DEGENERATE_AREA_M2", "WELD_TOL_M", "DEFAULT_SMOOTH_ANGLE_DEG", "WEDGE_MIN_ANGLE_RAD", "MAX_SMOOTH_ANGLE_DEG", "BURIED_PROBE_M",
            "JUNCTION_MIN_EXCESS_RAD", "scene_parts", "facets_of", "wedges_of", "buried_wedges",
-           "resolve_junctions", "check_smooth_angle"]
+           "resolve_junctions", "check_smooth_angle", "coplanar_overlaps"]
 
-#: Triangles with an area below this (m^2) are degenerate and dropped.
-DEGENERATE_AREA_M2 = 1e-10
 #: Default smooth angle: two adjacent faces whose normals differ by less than this (rad) meet
 #: at a smooth edge, not a wedge (``smooth_angle_deg`` of :func:`scene_parts` chooses another;
 #: docs/scene.md, "Smooth edges", has the measurement behind the default).
@@ -38,6 +37,10 @@ MAX_SMOOTH_ANGLE_DEG = 60.0
 #: Distance (m) from an edge along its outward bisector at which a wedge is probed for being
 #: buried in another solid (then it is not a free, diffracting edge).
 BURIED_PROBE_M = 5e-3
+#: A triangle's side at an angle (rad) below this to an edge it covers gets the slack of the
+#: margin across it (:func:`resolve_junctions`): the sides of a mesh welded from one with gaps
+#: run at ~1e-5 rad to the edges they border.
+NEAR_PARALLEL = 1e-3
 #: Angle (rad) by which the air around a junction edge must exceed pi to stay a (convex) wedge.
 JUNCTION_MIN_EXCESS_RAD = WEDGE_MIN_ANGLE_RAD
 
@@ -73,7 +76,8 @@ def scene_parts(
     verts, faces, face_obj, normals = [], [], [], []
     objects: list[SceneObject] = []
     material_names: list[str] = []
-    n_dropped = 0
+    repairs = dict.fromkeys(["degenerate", *REPAIRS], 0)
+    seen: set[bytes] = set()
     facet_parts: list[dict[str, np.ndarray]] = []
     wedge_parts: list[dict[str, np.ndarray]] = []
     v_offset = 0
@@ -85,34 +89,33 @@ def scene_parts(
             raise SceneError(f"object {name!r} has NaN or infinite vertex coordinates")
         if f.size == 0:
             continue
-        tri = v[f]
-        area = 0.5 * np.linalg.norm(
-            np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1
-        )
-        keep = area > DEGENERATE_AREA_M2
-        n_dropped += int((~keep).sum())
-        if not keep.any():
-            continue
-        m = trimesh.Trimesh(vertices=v, faces=f[keep], process=True, validate=False)
-        m.remove_unreferenced_vertices()
-        closed = not surfaces and bool(m.is_watertight) and bool(m.is_winding_consistent)
-        if closed:
-            trimesh.repair.fix_normals(m)
-            if m.volume < 0:
-                m.invert()
-        if mat not in material_names:
-            material_names.append(mat)
-        mat_id = material_names.index(mat)
-        obj_id = len(objects)
-        objects.append(SceneObject(name, mat, closed, f_offset, len(m.faces)))
-        verts.append(np.asarray(m.vertices, dtype=np.float64))
-        faces.append(np.asarray(m.faces, dtype=np.int64) + v_offset)
-        face_obj.append(np.full(len(m.faces), obj_id, dtype=np.int64))
-        normals.append(np.asarray(m.face_normals, dtype=np.float64))
-        facet_parts.append(facets_of(m, obj_id, mat_id, closed))
-        wedge_parts.append(wedges_of(m, obj_id, mat_id, closed, smooth_rad))
-        v_offset += len(m.vertices)
-        f_offset += len(m.faces)
+        parts, counts = repaired_parts(name, v, f)
+        for key, c in counts.items():
+            repairs[key] += c
+        for part_name, m in parts:
+            key = geometry_key(m)
+            if key in seen:  # the same triangles again (a CAD export's doubled instance)
+                repairs["duplicate_objects"] += 1
+                continue
+            seen.add(key)
+            closed = not surfaces and bool(m.is_watertight) and bool(m.is_winding_consistent)
+            if closed:
+                trimesh.repair.fix_normals(m)
+                if m.volume < 0:
+                    m.invert()
+            if mat not in material_names:
+                material_names.append(mat)
+            mat_id = material_names.index(mat)
+            obj_id = len(objects)
+            objects.append(SceneObject(part_name, mat, closed, f_offset, len(m.faces)))
+            verts.append(np.asarray(m.vertices, dtype=np.float64))
+            faces.append(np.asarray(m.faces, dtype=np.int64) + v_offset)
+            face_obj.append(np.full(len(m.faces), obj_id, dtype=np.int64))
+            normals.append(np.asarray(m.face_normals, dtype=np.float64))
+            facet_parts.append(facets_of(m, obj_id, mat_id, closed))
+            wedge_parts.append(wedges_of(m, obj_id, mat_id, closed, smooth_rad))
+            v_offset += len(m.vertices)
+            f_offset += len(m.faces)
     if not objects:
         raise SceneError(f"scene {source or '<memory>'} has no triangles")
     facets = Facets(**{k: _cat([p[k] for p in facet_parts]) for k in facet_parts[0]})
@@ -135,7 +138,8 @@ def scene_parts(
         "surfaces": bool(surfaces),
         "facets": facets,
         "wedges": wedges,
-        "n_degenerate_dropped": n_dropped,
+        "n_degenerate_dropped": repairs.pop("degenerate"),
+        "repairs": repairs,
     }
 
 
@@ -268,8 +272,10 @@ def _air_sectors(w: Wedges, fc: Facets, wi: np.ndarray, mid: np.ndarray, cover: 
         rays = np.concatenate([u, -u])
         owner = np.concatenate([facets, facets])
         probe = m_i + BURIED_PROBE_M * rays
-        on_plane = probe - np.einsum("ij,ij->i", probe - m_i, fc.normal[owner])[:, None] \
-            * fc.normal[owner]  # fmt: skip
+        # onto each facet's own plane (the edge of a mesh welded from one with gaps lies off
+        # it by up to the gaps, and a probe in the edge's plane would miss a facet it is on)
+        on_plane = probe - (np.einsum("ij,ij->i", probe, fc.normal[owner])
+                            - fc.offset[owner])[:, None] * fc.normal[owner]  # fmt: skip
         frames.append((t0, nrm0, rays))
         probes.append(on_plane)
         owners.append(owner)
@@ -314,6 +320,44 @@ def _air_sectors(w: Wedges, fc: Facets, wi: np.ndarray, mid: np.ndarray, cover: 
                          for a in (lo[j], lo[j] + 0.5 * np.pi, hi[j] - 0.5 * np.pi))
                    + (width[j] / np.pi,))  # fmt: skip
     return out
+
+
+def coplanar_overlaps(fc: Facets, tol: float) -> np.ndarray:
+    """(P, 2) int: pairs of facets of different objects that lie in one plane (within ``tol``,
+    m), face the same way and overlap: two solids' faces where the solids overlap, or two
+    sheets on one another (z-fighting, as CAD exports make it). Both reflect there, so every
+    path on them is found twice. (A sheet resting on a solid's face, a ceiling board on a wall's
+    top, is modelled so on purpose and not listed.) Overlap: a point of one facet (each
+    triangle's centroid and its corners pulled a tenth towards it) lies inside the other."""
+    if len(fc) < 2:
+        return np.zeros((0, 2), dtype=np.int64)
+    lo, hi = accel.facet_boxes(fc, tol)
+    offsets, hits = spatial.query_boxes(accel.facet_tree(fc), lo, hi)
+    a = np.repeat(np.arange(len(fc)), np.diff(offsets))
+    b = hits
+    keep = (a < b) & (fc.object[a] != fc.object[b]) & (fc.two_sided[a] == fc.two_sided[b])
+    a, b = a[keep], b[keep]
+    dot = np.einsum("ij,ij->i", fc.normal[a], fc.normal[b])
+    side = np.where(fc.two_sided[a], np.sign(dot), 1.0)  # a sheet faces both ways
+    one = (side * dot > 1 - 1e-9) & (np.abs(fc.offset[a] - side * fc.offset[b]) <= tol)
+    a, b = a[one], b[one]
+    if not len(a):
+        return np.zeros((0, 2), dtype=np.int64)
+    found = np.zeros(len(a), dtype=bool)
+    for x, y in ((a, b), (b, a)):
+        cnt = fc.tri_count[x]
+        pair = np.repeat(np.arange(len(x)), cnt)
+        tri = fc.triangles[np.repeat(fc.tri_start[x], cnt) + np.arange(cnt.sum())
+                           - np.repeat(np.cumsum(cnt) - cnt, cnt)]  # fmt: skip
+        c = tri.mean(axis=1)
+        pts = np.concatenate([c[:, None], 0.9 * tri + 0.1 * c[:, None]], axis=1)  # (T, 4, 3)
+        pts = pts.reshape(-1, 3)
+        owner = np.repeat(pair, 4)
+        n, off = fc.normal[y[owner]], fc.offset[y[owner]]
+        pts = pts - (np.einsum("ij,ij->i", pts, n) - off)[:, None] * n
+        inside = accel.points_in_facets(pts, y[owner], fc)
+        found |= np.bincount(owner[inside], minlength=len(x)) > 0
+    return np.stack([a[found], b[found]], axis=1)
 
 
 def _cat(parts: list[np.ndarray]) -> np.ndarray:
@@ -608,8 +652,12 @@ def _junction_pieces(
         c0 = np.einsum("ij,ij->i", m, a - v)
         c1 = np.einsum("ij,ij->i", m, d)
         along = np.abs(c1) <= 1e-6
+        # a side at a small angle to the edge (a side of a mesh with welding gaps runs at
+        # ~1e-5 rad to the edge it borders) would cut it where the two lines cross, anywhere
+        # along it: such a side gets the slack of tol across it too
+        slack = np.where(np.abs(c1) <= NEAR_PARALLEL, tol, 0.0)
         with np.errstate(divide="ignore", invalid="ignore"):
-            bound = -c0 / c1
+            bound = -(c0 + slack) / c1
         lo = np.where(~along & (c1 > 0), np.maximum(lo, bound), lo)
         hi = np.where(~along & (c1 < 0), np.minimum(hi, bound), hi)
         hi = np.where(along & (c0 < -tol), -np.inf, hi)
@@ -645,7 +693,7 @@ def _junction_pieces(
 
 def _facets_near_edges(w: Wedges, fc: Facets, tol: float) -> tuple[np.ndarray, np.ndarray]:
     """(wedge, facet) pairs, in (wedge, facet) order, where the edge lies in the plane of a
-    facet of another object (both end points within ``tol``, m).
+    facet of another object (the ends of its part within the facet's box within ``tol``, m).
 
     The facets are found through the facets' tree (:func:`raytrace.scene.accel.facet_tree`):
     only those whose box meets the edge's box grown by twice ``tol``. A facet farther than that
@@ -661,12 +709,40 @@ def _facets_near_edges(w: Wedges, fc: Facets, tol: float) -> tuple[np.ndarray, n
     offsets, hits = spatial.query_boxes(accel.facet_tree(fc), lo, hi)
     wi = np.repeat(np.arange(len(w)), np.diff(offsets))
     fk = hits
-    da = np.einsum("ij,ij->i", w.start[wi], fc.normal[fk]) - fc.offset[fk]
-    db = np.einsum("ij,ij->i", w.end[wi], fc.normal[fk]) - fc.offset[fk]
-    near = (np.abs(da) <= tol) & (np.abs(db) <= tol) & (w.object[wi] != fc.object[fk])
+    # the part of the edge within the facet's box (grown): a small facet of a mesh with
+    # welding gaps is tilted by ~1e-4 rad, and its plane leaves a long edge it covers a part of
+    box_lo, box_hi = accel.facet_boxes(fc, grow)
+    t0, t1 = _clip_to_boxes(w.start[wi], w.direction[wi], w.length[wi], box_lo[fk], box_hi[fk])
+    pa = w.start[wi] + t0[:, None] * w.direction[wi]
+    pb = w.start[wi] + t1[:, None] * w.direction[wi]
+    da = np.einsum("ij,ij->i", pa, fc.normal[fk]) - fc.offset[fk]
+    db = np.einsum("ij,ij->i", pb, fc.normal[fk]) - fc.offset[fk]
+    # another object's facet, or one of the edge's own open sheet across it (a shelf and its
+    # wall in one mesh: the shelf's edge lies on the wall's faces, sharing no edge with them)
+    across = np.maximum(np.abs(np.einsum("ij,ij->i", fc.normal[fk], w.normal0[wi])),
+                        np.abs(np.einsum("ij,ij->i", fc.normal[fk], w.normal1[wi]))) < 1 - 1e-6
+    other = (w.object[wi] != fc.object[fk]) | (fc.two_sided[fk] & across)
+    near = (np.abs(da) <= tol) & (np.abs(db) <= tol) & other
     wi, fk = wi[near], fk[near]
     order = np.lexsort((fk, wi))
     return wi[order], fk[order]
+
+
+def _clip_to_boxes(a: np.ndarray, d: np.ndarray, length: np.ndarray, lo: np.ndarray,
+                   hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """The part ``[t0, t1]`` (n,) of segments ``a + t d``, ``0 <= t <= length`` (metres), within
+    boxes ``lo``, ``hi`` (n, 3) (slab clipping; the whole segment where it misses the box, so
+    that the caller's test then judges the segment as a whole)."""
+    t0, t1 = np.zeros(len(a)), length.astype(float).copy()
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for k in range(3):
+            flat = d[:, k] == 0.0
+            u = (lo[:, k] - a[:, k]) / d[:, k]
+            v = (hi[:, k] - a[:, k]) / d[:, k]
+            t0 = np.where(flat, t0, np.maximum(t0, np.minimum(u, v)))
+            t1 = np.where(flat, t1, np.minimum(t1, np.maximum(u, v)))
+    miss = t0 > t1
+    return np.where(miss, 0.0, t0), np.where(miss, length, t1)
 
 
 def _line_key(a: np.ndarray, b: np.ndarray) -> tuple:

@@ -111,9 +111,11 @@ def extend_scene(base: Scene, extra: Scene) -> Scene:
     # the static objects' triangles as Embree takes them are the base's: their cut depends on
     # the scene's extent only, which objects inside the hall leave as it is (16 of a hall
     # snapshot's 21 ms went into cutting all 115 objects again)
-    if scene.extent == base.extent:
+    if scene.extent == base.extent and np.array_equal(scene.embree_origin(), base.embree_origin()):
+        origin = scene.embree_origin()
+        local = scene.vertices - origin if origin.any() else scene.vertices
         scene.caches.embree_meshes = list(base.embree_meshes()) + embree_meshes(
-            scene.vertices, scene.faces, objects[n_obj:], scene.extent
+            local, scene.faces, objects[n_obj:], scene.extent
         )
         # so does which closed solids are convex (its tolerance is the extent's)
         added = scene.object_closed.copy()

@@ -4,6 +4,7 @@ Sionna RT scene XML, and the bundled scenes by name; binding a material to every
 from __future__ import annotations
 
 import fnmatch
+import warnings
 import xml.etree.ElementTree as ET
 from pathlib import Path
 from typing import Any
@@ -14,12 +15,15 @@ from ..core.errors import SceneError
 from ..core.scale import check_extent
 from ..physics.materials import MaterialLibrary
 from .budget import check_load
+from .caches import EMBREE_LOCAL_M
 from .construction import check_smooth_angle
 from .diskcache import cached_build
 from .model import Scene
 
 #: Mesh formats read through trimesh.
 MESH_SUFFIXES = (".glb", ".gltf", ".obj", ".ply", ".stl", ".off")
+#: Mesh formats that store vertex coordinates as float32 numbers.
+FLOAT32_SUFFIXES = (".glb", ".gltf", ".stl")
 
 
 def load_scene(
@@ -177,13 +181,18 @@ def _read_trimesh(p: Path) -> tuple[list[tuple[str, Any, list[str]]], dict[str, 
 
     try:
         # unprocessed: trimesh's processing silently drops NaN/inf vertices (and the faces using
-        # them), turning a closed wall into an open sheet; each mesh is processed below
-        loaded = trimesh.load(str(p), force="scene", process=False)
+        # them), turning a closed wall into an open sheet; each mesh is processed below. An OBJ's
+        # objects (o) and groups (g) are objects here: trimesh's default joins every object of
+        # one material into one mesh, and a CAD hall's walls, floor and machines, welded into
+        # one, are no longer closed solids
+        kwargs = {"split_objects": True, "split_groups": True} if p.suffix.lower() == ".obj" else {}
+        loaded = trimesh.load(str(p), force="scene", process=False, **kwargs)
     except Exception as exc:  # trimesh raises many types for unreadable files
         raise SceneError(
             f"cannot read scene {p.name}: {type(exc).__name__}: {exc}".splitlines()[0]
         ) from None
     named: list[tuple[str, Any, list[str]]] = []
+    rounded = 0.0  # the largest float32 rounding of a vertex far from the origin, m
     for node in sorted(loaded.graph.nodes_geometry):
         transform, geom_name = loaded.graph[node]
         geom = loaded.geometry.get(geom_name)
@@ -193,6 +202,8 @@ def _read_trimesh(p: Path) -> tuple[list[tuple[str, Any, list[str]]], dict[str, 
             raise SceneError(
                 f"scene {p.name}: object {node!r} has NaN or infinite vertex coordinates"
             )
+        if p.suffix.lower() in FLOAT32_SUFFIXES:
+            rounded = max(rounded, float32_rounding(np.asarray(geom.vertices, dtype=float)))
         mesh = geom.copy()
         if hasattr(mesh, "process"):
             mesh.process()
@@ -204,7 +215,34 @@ def _read_trimesh(p: Path) -> tuple[list[tuple[str, Any, list[str]]], dict[str, 
         named.append((str(node), mesh, hints))
     if not named:
         raise SceneError(f"scene {p.name} contains no triangles")
+    # a hall in mm is refused before it is repaired and built (and before the rounding of its
+    # float32 numbers, which are not metres, is worth a word)
+    lo = np.min([m.bounds[0] for _, m, _ in named], axis=0)
+    hi = np.max([m.bounds[1] for _, m, _ in named], axis=0)
+    check_extent(tuple(float(v) for v in hi - lo), f"scene {p.name}")
+    if rounded:
+        warnings.warn(
+            f"scene {p.name} stores its vertices as float32 numbers (as STL and glTF do) far from "
+            f"the origin, where they are rounded by up to {rounded * 1e3:.2g} mm: export it "
+            "with the origin in the hall (or as OBJ, or with the offset in a glTF node)",
+            stacklevel=3,
+        )
     return named, dict(loaded.metadata or {})
+
+
+def float32_rounding(vertices: np.ndarray) -> float:
+    """Half the float32 spacing (m) at the largest coordinate of ``vertices`` (V, 3), metres, of
+    a file that stores float32 numbers (:data:`FLOAT32_SUFFIXES`; each exactly a float32) beyond
+    :data:`~raytrace.scene.caches.EMBREE_LOCAL_M` from the origin, where that exceeds 0.1 mm;
+    else 0. (The tracer itself keeps such a scene exact: :func:`~raytrace.scene.caches.
+    embree_origin_of`; the file has rounded it already.)"""
+    if not len(vertices):
+        return 0.0
+    far = float(np.abs(vertices).max())
+    if far <= EMBREE_LOCAL_M or not np.array_equal(vertices, vertices.astype(np.float32)):
+        return 0.0
+    half = 0.5 * float(np.spacing(np.float32(far)))
+    return half if half > 1e-4 else 0.0
 
 
 def _read_mitsuba(
@@ -242,11 +280,17 @@ def _read_mitsuba(
             continue
         fpath = (p.parent / fname).resolve()
         try:
-            mesh = trimesh.load(str(fpath), force="mesh")
+            # processed below, once checked: trimesh's processing drops NaN vertices silently
+            mesh = trimesh.load(str(fpath), force="mesh", process=False)
         except Exception as exc:
             raise SceneError(
                 f"cannot read mesh {fname} of {p.name}: {exc}".splitlines()[0]
             ) from None
+        if not np.isfinite(np.asarray(mesh.vertices, dtype=float)).all():
+            raise SceneError(
+                f"scene {p.name}: mesh {fname} has NaN or infinite vertex coordinates"
+            )
+        mesh.process()
         name = shape.get("id") or Path(fname).stem or f"shape_{i}"
         name = reading.shape_names.get(name, name)
         hints = [name]

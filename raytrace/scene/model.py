@@ -30,9 +30,16 @@ import numpy as np
 
 from ..physics.materials import MaterialLibrary
 from .caches import SceneCaches, bounds_of, margin_of
-from .construction import DEFAULT_SMOOTH_ANGLE_DEG, buried_wedges, resolve_junctions, scene_parts
+from .construction import (
+    DEFAULT_SMOOTH_ANGLE_DEG,
+    buried_wedges,
+    coplanar_overlaps,
+    resolve_junctions,
+    scene_parts,
+)
 from .elements import Facets, SceneObject, Wedges
 from .queries import EmbreeQueries
+from .repair import REPAIRS
 
 
 @dataclass
@@ -101,6 +108,10 @@ class Scene(EmbreeQueries):
         """
         parts = scene_parts(meshes, source, smooth_angle_deg, surfaces)
         n_dropped = parts["n_degenerate_dropped"]
+        repairs = parts.pop("repairs")
+        done = [f"{repairs[k]} {text}" for k, text in REPAIRS.items() if repairs[k]]
+        if done:
+            warnings.warn(f"{source or 'scene'} repaired: {', '.join(done)}", stacklevel=2)
         if n_dropped:
             warnings.warn(
                 f"{n_dropped} degenerate triangle(s) dropped from {source or 'scene'}",
@@ -116,6 +127,18 @@ class Scene(EmbreeQueries):
         resolved = resolve_junctions(scene.wedges, scene.facets, scene.margin, scene.inside_solid)
         if resolved is not None:
             scene.wedges, scene.n_junction_wedges, scene.n_composite_wedges = resolved
+        overlaps = coplanar_overlaps(scene.facets, scene.margin)
+        if len(overlaps):
+            names = sorted({tuple(sorted(scene.objects[o].name for o in scene.facets.object[p]))
+                            for p in overlaps})  # fmt: skip
+            shown = ", ".join(f"{x} and {y}" for x, y in names[:3])
+            more = f" (+{len(names) - 3} more)" if len(names) > 3 else ""
+            warnings.warn(
+                f"{source or 'scene'}: {len(overlaps)} facet pair(s) of different objects lie on "
+                f"one another facing the same way (z-fighting: {shown}{more}); both reflect "
+                "there: remove one or move it apart",
+                stacklevel=2,
+            )
         return scene
 
     def __getstate__(self) -> dict[str, Any]:

@@ -19,7 +19,14 @@ import numpy as np
 from ..core.errors import SceneError
 from ..core.jit import carray
 from . import accel
-from .caches import convex_flags, embree_meshes, embree_scene, object_boxes, subset_scene
+from .caches import (
+    convex_flags,
+    embree_meshes,
+    embree_origin_of,
+    embree_scene,
+    object_boxes,
+    subset_scene,
+)
 from .spatial import build_tree, query_boxes
 
 if TYPE_CHECKING:
@@ -40,6 +47,7 @@ class EmbreeQueries:
     caches: SceneCaches
     margin: float
     extent: float
+    bounds: np.ndarray
     object_closed: np.ndarray
 
     def build_embree(self) -> None:
@@ -56,9 +64,28 @@ class EmbreeQueries:
         cached = self.caches.embree_meshes
         if cached is None or len(cached) != len(self.objects):
             extent = self.extent if len(self.vertices) else 0.0
-            cached = embree_meshes(self.vertices, self.faces, self.objects, extent)
+            origin = self.embree_origin()
+            local = self.vertices - origin if origin.any() else self.vertices
+            cached = embree_meshes(local, self.faces, self.objects, extent)
             self.caches.embree_meshes = cached
         return cached
+
+    def embree_origin(self) -> np.ndarray:
+        """(3,) float, metres: the origin of the frame Embree is given the scene and the rays
+        in (:func:`raytrace.scene.caches.embree_origin_of`: zero unless the scene lies far from
+        the origin, as survey coordinates do). Cached."""
+        if self.caches.embree_origin is None:
+            origin = embree_origin_of(self.bounds) if len(self.vertices) else np.zeros(3)
+            origin.setflags(write=False)
+            self.caches.embree_origin = origin
+        return self.caches.embree_origin
+
+    def _embree_points(self, points: np.ndarray) -> np.ndarray:
+        """Points (n, 3), metres, as Embree takes them: float32, in its frame."""
+        origin = self.embree_origin()
+        if origin.any():
+            return (np.asarray(points, dtype=np.float64) - origin).astype(np.float32)
+        return np.asarray(points, dtype=np.float32)
 
     def occluded(
         self, origins: np.ndarray, ends: np.ndarray, margin: float | None = None
@@ -80,7 +107,7 @@ class EmbreeQueries:
         ok = length > 0
         if ok.any():
             res = self.caches.embree.run(
-                o[ok].astype(np.float32),
+                self._embree_points(o[ok]),
                 d[ok].astype(np.float32),
                 dists=length[ok].astype(np.float32),
                 query="OCCLUDED",
@@ -194,7 +221,7 @@ class EmbreeQueries:
         if not ok.all():  # (most calls ask about every ray)
             origins, directions, length = origins[ok], directions[ok], np.asarray(length)[ok]
         res = es.run(
-            np.asarray(origins, dtype=np.float32),
+            self._embree_points(origins),
             np.asarray(directions, dtype=np.float32),
             dists=np.asarray(length, dtype=np.float32),
             query="INTERSECT",
@@ -229,7 +256,7 @@ class EmbreeQueries:
             dist = np.broadcast_to(np.asarray(max_dist, dtype=float), (n,))
         dist = np.where(np.isfinite(dist), dist, 1e30).astype(np.float32, copy=False)
         res = self.caches.embree.run(
-            np.asarray(origins, dtype=np.float32),
+            self._embree_points(origins),
             np.asarray(directions, dtype=np.float32),
             dists=dist,
             query="INTERSECT",

@@ -153,6 +153,10 @@ def evaluate(
     Paths, in candidate order, without the blocked, over-limit and powerless ones.
     """
     depth = cand.depth + ctx.cfg.max_penetrations
+    twice = same_point_twice(ctx, cand)
+    if twice.any():
+        ctx.count("paths_dropped_same_point", int(twice.sum()))
+        cand = cand.take(~twice)
     blocked = blocked_by_opaque(ctx, cand)
     if blocked.any():
         ctx.count("paths_blocked_opaque", int(blocked.sum()))
@@ -172,6 +176,20 @@ def evaluate(
 
 #: Candidates sampled to choose the order in which :func:`blocked_by_opaque` queries the segments.
 ORDER_SAMPLE = 256
+
+
+def same_point_twice(ctx: TraceContext, cand: Candidates) -> np.ndarray:
+    """(M,) bool: candidates with two consecutive interactions on one object closer than the
+    scene's margin: a reflection on a face at the very edge the path then diffracts at (or the
+    reverse). On a clean mesh the edge lies in the face's plane and no such candidate is valid;
+    on one whose welding gaps were closed (:func:`raytrace.scene.construction.weld_vertices`)
+    the edge lies 1e-7 m off the plane and the reflection point just inside the face: the
+    diffraction path again, not another one."""
+    if cand.depth < 2:
+        return np.zeros(len(cand), dtype=bool)
+    gap = norm(cand.verts[:, 1:] - cand.verts[:, :-1])  # (M, k - 1)
+    same = cand.vobj[:, 1:] == cand.vobj[:, :-1]
+    return ((gap < ctx.scene.margin) & same).any(axis=1)
 
 
 def blocked_by_opaque(ctx: TraceContext, cand: Candidates) -> np.ndarray:

@@ -19,20 +19,21 @@ __all__ = ["segment_rays", "opaque_blocks"]
 
 
 @kernel(
-    "Tuple((f8[:, ::1], f8[:, ::1], f8[::1], f4[:, ::1], f4[:, ::1], f4[::1]))("
+    "Tuple((f8[:, ::1], f8[:, ::1], f8[::1], f8[:, ::1], f4[:, ::1], f4[::1]))("
     "f8[:, :, ::1], i8[::1], i8, f8)"
 )
 def segment_rays(chain, live, j, margin):
     """The rays of segment ``j`` of the chains ``live`` (chain (M, k + 2, 3), metres), as
     :func:`raytrace.solver.evaluate.blocked_by_opaque` asks Embree about them: the start ``a``
-    (n, 3), unit direction ``d`` (n, 3; zero for a segment of zero length), length (n,), and,
-    in float32 as Embree takes them, the ray shortened by ``margin`` at both ends: origin
-    ``a + margin d`` (n, 3), direction and reach ``length - 2 margin`` (n,), metres."""
+    (n, 3), unit direction ``d`` (n, 3; zero for a segment of zero length), length (n,), and
+    the ray shortened by ``margin`` at both ends: origin ``a + margin d`` (n, 3; float64, which
+    the scene's queries take into Embree's frame and float32), direction (float32, as Embree
+    takes it) and reach ``length - 2 margin`` (n,; float32), metres."""
     n = len(live)
     a = np.empty((n, 3))
     d = np.empty((n, 3))
     length = np.empty(n)
-    org = np.empty((n, 3), dtype=np.float32)
+    org = np.empty((n, 3))
     d32 = np.empty((n, 3), dtype=np.float32)
     reach = np.empty(n, dtype=np.float32)
     for i in range(n):

@@ -238,19 +238,20 @@ def unseen_entries(rows, fn_exit, d, t_last, normal_last):
 
 
 @kernel(
-    "Tuple((i8[::1], f4[:, ::1], f4[:, ::1], f4[::1]))("
+    "Tuple((i8[::1], f8[:, ::1], f4[:, ::1], f4[::1]))("
     "b1[::1], f8[:, ::1], f8[:, ::1], f8[::1], f8[::1], f8[:, ::1], f8[::1])"
 )
 def walk_rays(active, a, d, t, tmax, shift, shift_end):
-    """The next query of every segment still walking: ``rows`` (n,) int, and Embree's rays
-    (float32): origins ``a + t d`` (n, 3), shifted by ``shift`` while ``t < shift_end`` (a walk
-    past a touched solid), directions ``d`` (n, 3), and reaches ``tmax - t`` (at most ``shift_end
-    - t`` while shifted; 1e30 for an unbounded one), metres."""
+    """The next query of every segment still walking: ``rows`` (n,) int, and Embree's rays:
+    origins ``a + t d`` (n, 3; float64, which the scene's queries take into Embree's frame and
+    float32), shifted by ``shift`` while ``t < shift_end`` (a walk past a touched solid),
+    directions ``d`` (n, 3; float32), and reaches ``tmax - t`` (at most ``shift_end - t`` while
+    shifted; 1e30 for an unbounded one; float32), metres."""
     n = 0
     for r in range(len(active)):
         n += active[r]
     rows = np.empty(n, dtype=np.int64)
-    org = np.empty((n, 3), dtype=np.float32)
+    org = np.empty((n, 3))
     dirs = np.empty((n, 3), dtype=np.float32)
     reach = np.empty(n, dtype=np.float32)
     i = 0
