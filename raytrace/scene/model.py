@@ -127,7 +127,10 @@ class Scene(EmbreeQueries):
         resolved = resolve_junctions(scene.wedges, scene.facets, scene.margin, scene.inside_solid)
         if resolved is not None:
             scene.wedges, scene.n_junction_wedges, scene.n_composite_wedges = resolved
-        overlaps = coplanar_overlaps(scene.facets, scene.margin)
+        # surfaces (Sionna RT's model): a building's bottom lying on its ground is how such
+        # scenes are made (simple_street_canyon's six), not a mistake to name
+        overlaps = (coplanar_overlaps(scene.facets, scene.margin) if not surfaces
+                    else np.zeros((0, 2), dtype=np.int64))  # fmt: skip
         if len(overlaps):
             names = sorted({tuple(sorted(scene.objects[o].name for o in scene.facets.object[p]))
                             for p in overlaps})  # fmt: skip
