@@ -63,7 +63,7 @@ np.savez(sys.argv[2], **out)
 '''
 
 
-def _llvm_env() -> dict[str, str]:
+def llvm_env() -> dict[str, str]:
     """Environment for the Sionna process: point drjit at the newest libLLVM >= 16 if the user
     did not choose one (drjit may otherwise pick an LLVM 14/15 that cannot compile Sionna 2.2)."""
     env = dict(os.environ)
@@ -89,7 +89,7 @@ def run_sionna(python: str, jobs: list[dict], frequency_hz: float, samples: int,
     out = workdir / "sionna_paths.npz"
     t0 = time.perf_counter()
     proc = subprocess.run([python, str(driver), str(spec_path), str(out)], capture_output=True,
-                          text=True, env=_llvm_env())
+                          text=True, env=llvm_env())
     seconds = time.perf_counter() - t0
     if proc.returncode != 0 or not out.exists():
         lines = [ln for ln in (proc.stderr or "").splitlines() if ln.strip() and not ln[0].isspace()]

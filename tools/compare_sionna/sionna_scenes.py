@@ -20,7 +20,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from sionna_run import SionnaError, _llvm_env
+from sionna_run import SionnaError, llvm_env
 
 from raytrace import TraceConfig, load_scene, trace
 from raytrace.core.constants import C0
@@ -90,7 +90,7 @@ def run(python: str, folder: Path, frequency_hz: float, samples: int, seed: int,
     driver.write_text(DRIVER)
     t0 = time.perf_counter()
     proc = subprocess.run([python, str(driver), str(spec), str(out)], capture_output=True,
-                          text=True, env=_llvm_env())  # fmt: skip
+                          text=True, env=llvm_env())  # fmt: skip
     if proc.returncode != 0 or not out.exists():
         lines = [ln for ln in (proc.stderr or "").splitlines() if ln.strip()]
         raise SionnaError(f"Sionna RT failed: {(lines[-1] if lines else proc.returncode)!s:.300}")
@@ -108,10 +108,13 @@ def _hallray(folder: Path, k: int, frequency_hz: float) -> tuple[np.ndarray, np.
     a, b = np.array([tx], float), np.array([rx], float)
     p = trace(scene, a, b, frequency_hz, cfg)
     keep = np.flatnonzero(p.n_reflections + p.n_penetrations + p.n_diffractions <= depth)
-    geo = np.empty(len(keep))
-    for j, i in enumerate(keep):  # one link of a few paths: a loop over its vertices
-        pts = np.vstack([a, p.points[i][np.isfinite(p.points[i]).all(axis=1)], b])
-        geo[j] = np.linalg.norm(np.diff(pts, axis=0), axis=1).sum() / C0
+    # the chain tx, interaction points, rx; a path's unused (NaN, trailing) points set to rx add
+    # segments of zero length
+    pts = p.points[keep]
+    pts = np.where(np.isfinite(pts).all(axis=2, keepdims=True), pts, b[:, None])
+    chain = np.concatenate([np.broadcast_to(a[:, None], (len(keep), 1, 3)), pts,
+                            np.broadcast_to(b[:, None], (len(keep), 1, 3))], axis=1)  # fmt: skip
+    geo = np.linalg.norm(np.diff(chain, axis=1), axis=2).sum(axis=1) / C0
     return geo, p.gain[keep] * np.exp(2j * np.pi * frequency_hz * geo)
 
 
