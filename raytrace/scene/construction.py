@@ -489,8 +489,7 @@ def wedges_of(
     ok = length > 1e-9
     seg, n0, n1, c0, d, length = seg[ok], n0[ok], n1[ok], c0[ok], d[ok], length[ok]
     u = d / length[:, None]
-    into0 = c0 - seg[:, 0]
-    into0 -= np.einsum("ij,ij->i", into0, u)[:, None] * u
+    into0 = _across(seg, u, c0)
     into0 /= np.linalg.norm(into0, axis=1, keepdims=True)
     cos_between = np.clip(np.einsum("ij,ij->i", n0, n1), -1.0, 1.0)
     # exterior angle = pi + angle between outward normals (half-plane: normals opposite -> 2 pi)
@@ -528,14 +527,16 @@ def _fold_outward(seg: np.ndarray, n0: np.ndarray, n1: np.ndarray, c0: np.ndarra
     """
     u = seg[:, 1] - seg[:, 0]
     u /= np.linalg.norm(u, axis=1, keepdims=True)
-
-    def across(c: np.ndarray) -> np.ndarray:  # from the edge into a face, across the edge
-        v = c - seg[:, 0]
-        return v - np.einsum("ij,ij->i", v, u)[:, None] * u
-
-    flip0 = np.einsum("ij,ij->i", n0, across(c1)) > 0
-    flip1 = np.einsum("ij,ij->i", n1, across(c0)) > 0
+    flip0 = np.einsum("ij,ij->i", n0, _across(seg, u, c1)) > 0
+    flip1 = np.einsum("ij,ij->i", n1, _across(seg, u, c0)) > 0
     return np.where(flip0[:, None], -n0, n0), np.where(flip1[:, None], -n1, n1)
+
+
+def _across(seg: np.ndarray, u: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """(E, 3) float, m: from each edge (``seg`` (E, 2, 3), unit direction ``u``) to the point
+    ``c`` (E, 3) of a face, square to the edge: the direction into the face, not normalised."""
+    v = c - seg[:, 0]
+    return v - np.einsum("ij,ij->i", v, u)[:, None] * u
 
 
 def _merge_collinear(
