@@ -302,3 +302,17 @@ def test_street_canyon_reads_as_surfaces_without_a_warning():
     assert f"T(#{scene.objects.index(o)}) " in " ".join(df["interactions"]) + " "
     assert load_scene(DATA / "simple_street_canyon" / "simple_street_canyon.xml", cache=False,
                       surfaces=False).inside_solid(inside[None])[0] >= 0  # fmt: skip
+
+
+def test_trace_scene_reads_the_box_as_surfaces_and_solids_on_request(capsys):
+    """The command: a Sionna RT box is traced from inside by default (its model printed), and
+    ``--solids`` refuses the antenna in one line that names ``--surfaces``, exit status 2."""
+    from raytrace.cli.trace_scene import trace_scene_main
+
+    xml = str(DATA / "box" / "box.xml")
+    args = [xml, "--tx", "1.3,2.1,1.4", "--rx=-2.2,-0.7,3.1", "--max-diffractions", "0"]
+    assert trace_scene_main(args) == 0
+    assert "model      surfaces" in capsys.readouterr().out
+    assert trace_scene_main([*args, "--solids"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "inside the solid 'mesh-box'" in err[0] and "--surfaces" in err[0]
