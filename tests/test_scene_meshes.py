@@ -299,6 +299,58 @@ def test_a_hall_in_one_stl_is_split_into_its_solids(tmp_path, gap):
         np.testing.assert_allclose(sorted(b[key]), sorted(a[key]), rtol=0, atol=DELAY_TOL_S)
 
 
+def test_solids_and_a_sheet_in_one_mesh_are_split_into_both(tmp_path):
+    """The hall's nine solids and a free-standing concrete screen (an open sheet) in one STL, as
+    a CAD export that joins every object of a material gives them: the solids split out of it
+    and the screen left as one sheet (``hall.stl#sheet``) trace as the ten separate objects (per
+    link, the same interaction sequences with delays to 1 ps). Left as one open sheet, the walls
+    were two-sided sheets and every path through them crossed two slabs."""
+    rng = np.random.default_rng(3)
+    concrete = [(n.rsplit("_", 1)[0] + "_concrete", m) for n, m in hall_objects()]
+    screen = quad((12, 2, 0.5), (0, 6, 0), (0, 0, 3.5))
+    ref_scene = _scene(concrete + [("screen_concrete", screen)])
+    rx = _rx(ref_scene)
+    mesh = trimesh.util.concatenate([_soup(m, 1e-6, rng) for _, m in concrete] + [_soup(screen)])
+    mesh.export(str(tmp_path / "hall.stl"))
+    with pytest.warns(UserWarning, match="9 closed solids split out of open meshes"):
+        scene = load_scene(tmp_path / "hall.stl", default_material="concrete")
+    names = [o.name for o in scene.objects]
+    assert sorted(names) == sorted([f"hall.stl#{k}" for k in range(1, 10)] + ["hall.stl#sheet"])
+    assert scene.object_closed.tolist() == [n != "hall.stl#sheet" for n in names]
+    assert (len(scene.facets), len(scene.wedges)) == (len(ref_scene.facets), len(ref_scene.wedges))
+
+    def kinds(p):
+        out = {}
+        for i in range(p.n_paths):
+            key = (int(p.tx_index[i]), int(p.rx_index[i]), tuple(np.asarray(p.interaction[i]).tolist()))
+            out.setdefault(key, []).append(float(p.delay_s[i]))
+        return out
+
+    a, b = kinds(_trace(ref_scene, TX, rx)), kinds(_trace(scene, TX, rx))
+    assert sorted(a) == sorted(b)
+    for key in a:
+        np.testing.assert_allclose(sorted(b[key]), sorted(a[key]), rtol=0, atol=DELAY_TOL_S)
+
+
+def test_a_closed_fold_glued_to_a_sheet_stays_in_it():
+    """A tetrahedron that shares an edge with an open sheet (the folds a scan's reconstruction
+    makes) is part of that surface: the mesh comes back whole. The same tetrahedron apart from
+    the sheet is a solid of its own."""
+    from raytrace.scene.repair import split_bodies
+
+    sheet = quad((0, 0, 0), (2, 0, 0), (0, 2, 0))
+    v = np.array([[0, 0, 0], [2, 0, 0], [1, 0.5, 1], [1, -0.5, 0.5]], float)
+    tet = trimesh.Trimesh(v, [[0, 1, 2], [0, 3, 1], [1, 3, 2], [0, 2, 3]], process=True)
+    assert tet.is_watertight
+    glued = trimesh.util.concatenate([sheet, tet])
+    glued.merge_vertices()
+    assert [n for n, _ in split_bodies("scan", glued)] == ["scan"]
+    apart = trimesh.util.concatenate([sheet, tet.copy().apply_translation([0, 0, 3])])
+    parts = dict(split_bodies("scan", apart))
+    assert sorted(parts) == ["scan#1", "scan#sheet"]
+    assert parts["scan#1"].is_watertight and len(parts["scan#sheet"].faces) == 2
+
+
 def test_a_shelf_on_its_wall_in_one_sheet_has_no_edge_there(clean):
     """A wall sheet and a shelf sheet standing out of it, as one object (the shelf's edge on the
     wall's faces, or on an edge the wall shares with it: three faces) traced as the two

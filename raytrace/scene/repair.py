@@ -1,8 +1,8 @@
 """Repairing one object's mesh as CAD exports and scans bring it, before the scene is built from
 it (:func:`raytrace.scene.construction.scene_parts`): welding gaps and triangle soups
 (:func:`weld_vertices`), degenerate and duplicate triangles, inconsistent winding, T-junctions
-(:func:`split_t_junctions`), and several solids in one mesh (:func:`split_bodies`: an STL holds
-one object). A clean mesh passes through unchanged. docs/scene.md, "Meshes from CAD and scans",
+(:func:`split_t_junctions`), and several solids, or solids and sheets, in one mesh
+(:func:`split_bodies`: an STL holds one object, a CAD export may join the objects of a material). A clean mesh passes through unchanged. docs/scene.md, "Meshes from CAD and scans",
 measures each case.
 """
 
@@ -29,7 +29,7 @@ REPAIRS = {
     "duplicate": "duplicate triangles dropped",
     "t_junctions": "T-junctions closed (a vertex on another triangle's edge)",
     "rewound": "closed objects' faces turned to one winding",
-    "bodies": "closed solids split out of meshes holding several",
+    "bodies": "closed solids split out of open meshes",
     "duplicate_objects": "objects dropped that repeat another object's triangles",
 }
 
@@ -43,7 +43,8 @@ def repaired_parts(name: str, v: np.ndarray, f: np.ndarray) -> tuple[list[tuple[
     In order: vertices closer than :data:`WELD_TOL_M` welded, degenerate triangles (area below
     :data:`DEGENERATE_AREA_M2`) and duplicate ones (the same three vertices twice, in either
     winding) dropped; a mesh that is not closed then gets its T-junctions split and, if it is
-    still not closed, its closed solids split out (:func:`split_bodies`); a closed mesh's faces
+    still not closed, its closed solids split out of it (:func:`split_bodies`; the rest stays
+    one open sheet); a closed mesh's faces
     are turned to one consistent winding. Each of these left a closed solid an open two-sided
     sheet. A clean mesh is built as before, unchanged.
     """
@@ -73,7 +74,7 @@ def repaired_parts(name: str, v: np.ndarray, f: np.ndarray) -> tuple[list[tuple[
             parts = [(name, m)]
         if not m.is_watertight:
             parts = split_bodies(name, m)
-            counts["bodies"] = len(parts) if len(parts) > 1 else 0
+            counts["bodies"] = sum(1 for n, _ in parts if n != name and not n.endswith("#sheet"))
     for _, p in parts:
         if p.is_watertight and not p.is_winding_consistent:
             trimesh.repair.fix_winding(p)
@@ -196,12 +197,18 @@ def split_t_junctions(
 
 
 def split_bodies(name: str, mesh: Any) -> list[tuple[str, Any]]:
-    """A mesh that is not closed, as its closed solids (``name#1``, ``name#2``, ...) when it is
-    made of nothing else: several boxes in one STL that touch along edges or share parts of
-    faces (a hall's walls on its floor) make edges of four faces, and the whole mesh an open
-    sheet. Faces are grouped by the edges that exactly two of them share; a group that is closed
-    on its own is a solid. A mesh with any open group (a scanned surface with closed bubbles, a
-    solid and a sheet in one STL) comes back as it is."""
+    """A mesh that is not closed, as its closed solids (``name#1``, ``name#2``, ...) and, if
+    anything else is left, one open sheet of the rest (``name#sheet``).
+
+    Several boxes in one STL that touch along edges or share parts of faces (a hall's walls on
+    its floor) make edges of four faces, and the whole mesh an open sheet; a CAD export that
+    joins every object of one material (the concrete walls' boxes and an open floor plane) is
+    a mesh of solids and a sheet. Faces are grouped by the edges that exactly two of them
+    share; a group that is closed on its own (each of its edges used by exactly two of its
+    faces) and shares no vertex with an open group is a solid; the rest together is one sheet
+    (a closed group glued to the sheet along edges of three faces, as a scan's reconstruction
+    makes them, is a fold of that sheet). A mesh that is one group, or has no such solid, comes
+    back as it is."""
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
@@ -224,10 +231,23 @@ def split_bodies(name: str, mesh: Any) -> list[tuple[str, Any]]:
     pair, pair_cnt = np.unique(inv * n_comp + owner, return_counts=True)
     open_group = np.zeros(n_comp, dtype=bool)
     open_group[pair[pair_cnt != 2] % n_comp] = True
-    if open_group.any():
+    # a closed group that shares a vertex with the open rest is a fold of that surface (a scan's
+    # reconstruction glues tetrahedra to its sheet along edges of three faces), not a solid of
+    # its own: it stays in the sheet
+    sheet_faces = open_group[label]
+    touching = np.zeros(len(mesh.vertices), dtype=bool)
+    touching[faces[sheet_faces].ravel()] = True
+    attached = np.zeros(n_comp, dtype=bool)
+    attached[label[touching[faces].any(axis=1)]] = True
+    solid = ~open_group & ~attached
+    if not solid.any():
         return [(name, mesh)]
     vertices = np.asarray(mesh.vertices)
-    return [(f"{name}#{k + 1}", _part(vertices, faces[label == k])) for k in range(n_comp)]
+    parts = [(f"{name}#{k + 1}", _part(vertices, faces[label == g]))
+             for k, g in enumerate(np.flatnonzero(solid))]  # fmt: skip
+    if not solid.all():
+        parts.append((f"{name}#sheet", _part(vertices, faces[~solid[label]])))
+    return parts
 
 
 def geometry_key(mesh: Any) -> bytes:
