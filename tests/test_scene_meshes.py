@@ -18,7 +18,7 @@ import raytrace
 from raytrace import TraceConfig
 from raytrace.cli.trace_scene import trace_scene_main
 from raytrace.core.errors import HallrayError, SceneError
-from raytrace.scene.io import load_scene
+from raytrace.scene.io import Y_UP_TO_Z_UP, file_up, load_scene
 from raytrace.solver.paths import Paths
 
 #: Delays of the same path in the clean and the repaired (or moved) hall agree to this, seconds.
@@ -330,6 +330,69 @@ def test_solids_and_a_sheet_in_one_mesh_are_split_into_both(tmp_path):
     assert sorted(a) == sorted(b)
     for key in a:
         np.testing.assert_allclose(sorted(b[key]), sorted(a[key]), rtol=0, atol=DELAY_TOL_S)
+
+
+# -- the file's up axis ---------------------------------------------------------------------------
+def _blender_glb(objects) -> bytes:
+    """``objects`` as Blender's glTF export writes them: its z-up frame's (x, y, z) stored as
+    (x, z, -y), +y up as glTF specifies, and its exporter named in ``asset.generator``."""
+    import json
+    import struct
+
+    to_file = np.linalg.inv(Y_UP_TO_Z_UP)
+    sc = trimesh.Scene()
+    for name, mesh in objects:
+        sc.add_geometry(mesh.copy().apply_transform(to_file), node_name=name, geom_name=name)
+    data = sc.export(file_type="glb")
+    n = struct.unpack_from("<I", data, 12)[0]
+    gltf = json.loads(data[20 : 20 + n])
+    gltf["asset"]["generator"] = "Khronos glTF Blender I/O v4.2.70"
+    text = json.dumps(gltf, separators=(",", ":")).encode()
+    text += b" " * (-len(text) % 4)
+    rest = data[20 + n :]
+    head = struct.pack("<III", 0x46546C67, 2, 20 + len(text) + len(rest))
+    return head + struct.pack("<II", len(text), 0x4E4F534A) + text + rest
+
+
+def test_a_blender_gltf_is_turned_to_z_up(clean, tmp_path, capsys):
+    """A hall exported from Blender to glTF (+y up, as the specification says) is read in
+    Blender's own z-up frame, so positions read off Blender are the scene's: the clean hall's
+    paths, delays to 1 ps. ``up="z"`` keeps the file's axes (the hall on its side); a GLB that
+    trimesh wrote (hallray's own) stays z-up."""
+    _, rx, ref = clean
+    path = tmp_path / "hall.glb"
+    path.write_bytes(_blender_glb(hall_objects()))
+    assert file_up(path) == "y"
+    scene = load_scene(path)
+    assert scene.up == "y" and scene.summary()["up"] == "y"
+    np.testing.assert_allclose(scene.bounds, [[-0.3, -0.3, -0.3], [30.3, 20.3, 8.3]], atol=1e-6)
+    assert_same_paths(ref, _trace(scene, TX, rx))
+    side = load_scene(path, up="z")
+    assert side.up == "z"
+    np.testing.assert_allclose(side.bounds, [[-0.3, -0.3, -20.3], [30.3, 8.3, 0.3]], atol=1e-6)
+    assert file_up(_write(tmp_path / "mine.glb", hall_objects())) == "z"
+    assert load_scene("hall").up == "z"
+    assert trace_scene_main([str(path), "--default-material", "concrete"]) == 0
+    assert "up         the file's +y (glTF's convention), turned to z up" in capsys.readouterr().out
+
+
+def test_a_blender_obj_is_y_up_and_up_can_be_given(tmp_path):
+    """An OBJ whose header names Blender is +y up (its exporter's default); another OBJ is z-up
+    unless ``up="y"`` says otherwise; a file hallray wrote (its metadata) refuses ``up="y"``
+    in one line; a wrong axis is a one-line error."""
+    box_y = box((0, 0, -2), (4, 3, 0))  # 4 x 2 x 3 m high, stored y-up
+    text = box_y.export(file_type="obj")
+    (tmp_path / "blender.obj").write_text("# Blender 4.2.0\n# www.blender.org\n" + text)
+    (tmp_path / "other.obj").write_text(text)
+    assert (file_up(tmp_path / "blender.obj"), file_up(tmp_path / "other.obj")) == ("y", "z")
+    up = load_scene(tmp_path / "blender.obj", default_material="metal")
+    np.testing.assert_allclose(up.bounds, [[0, 0, 0], [4, 2, 3]], atol=1e-9)
+    given = load_scene(tmp_path / "other.obj", default_material="metal", up="y")
+    np.testing.assert_allclose(given.bounds, up.bounds, atol=1e-9)
+    with pytest.raises(SceneError, match="written by hallray, with z up"):
+        load_scene("hall", up="y")
+    with pytest.raises(SceneError, match="up axis must be one of z, y, not 'x'"):
+        load_scene("hall", up="x")
 
 
 def test_a_closed_fold_glued_to_a_sheet_stays_in_it():

@@ -84,6 +84,12 @@ def add_scene_arguments(p: argparse.ArgumentParser) -> None:
         "mesh files and hallray's own XML)",
     )
     p.add_argument(
+        "--up",
+        choices=("z", "y"),
+        help="the file's axis that points up; y turns it to z up, (x, y, z) -> (x, -z, y) "
+        "[the format's convention: y for glTF not written by trimesh and Blender's OBJ, else z]",
+    )
+    p.add_argument(
         "--no-scene-cache",
         action="store_true",
         help="neither read nor write the preprocessing cache beside a large scene "
@@ -98,6 +104,7 @@ def scene_options(args: argparse.Namespace) -> dict[str, Any]:
         "default_material": args.default_material,
         "smooth_angle_deg": args.smooth_angle,
         "surfaces": args.surfaces,
+        "up": args.up,
         "cache": False if args.no_scene_cache else None,
     }
 

@@ -208,6 +208,9 @@ def _print_summary(s: dict[str, Any]) -> None:
     if s.get("surfaces"):
         print("model      surfaces: every face a slab of its material's thickness, closed meshes "
               "hollow (Sionna RT's; --solids for solids)")  # fmt: skip
+    if s.get("up") == "y":
+        print("up         the file's +y (glTF's convention), turned to z up: (x, y, z) -> "
+              "(x, -z, y); --up z keeps the file's axes")  # fmt: skip
     print(f"materials  {mats}")
     print(f"triangles  {s['triangles']}   facets {s['facets']}   wedges {s['wedges']}")
 

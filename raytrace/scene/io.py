@@ -24,6 +24,13 @@ from .model import Scene
 MESH_SUFFIXES = (".glb", ".gltf", ".obj", ".ply", ".stl", ".off")
 #: Mesh formats that store vertex coordinates as float32 numbers.
 FLOAT32_SUFFIXES = (".glb", ".gltf", ".stl")
+#: The axes of a file that may be up: z (hallray's frame, STL/PLY/OFF, Mitsuba XML as Sionna RT
+#: writes it) or y (glTF's convention, and Blender's OBJ export).
+UP_AXES = ("z", "y")
+#: A y-up file's coordinates into hallray's z-up frame: (x, y, z) -> (x, -z, y), +90 degrees
+#: about x. It undoes Blender's glTF and OBJ exports, which write its own z-up frame's
+#: (x, y, z) as (x, z, -y), so positions read off Blender are the scene's.
+Y_UP_TO_Z_UP = np.array([[1.0, 0, 0, 0], [0, 0, -1.0, 0], [0, 1.0, 0, 0], [0, 0, 0, 1.0]])
 
 
 def load_scene(
@@ -33,6 +40,7 @@ def load_scene(
     default_material: str | None = None,
     smooth_angle_deg: float | None = None,
     surfaces: bool | None = None,
+    up: str | None = None,
     cache: bool | None = None,
 ) -> Scene:
     """Read a scene and bind a material to every object.
@@ -59,6 +67,11 @@ def load_scene(
         (hallray's model). Default (None): surfaces for a Mitsuba / Sionna RT XML without a
         hallray sidecar (a scene hallray did not write), solids otherwise (docs/scene.md,
         "Solids or surfaces").
+    up : {"z", "y"}, optional
+        The file's axis that points up. "y" turns the scene into hallray's z-up frame,
+        ``(x, y, z) -> (x, -z, y)`` (:data:`Y_UP_TO_Z_UP`); ``Scene.up`` records it. Default
+        (None): the file's convention (:func:`file_up`): y for glTF not written by trimesh
+        (hallray's own GLBs are z-up) and for an OBJ that Blender wrote, z otherwise.
     cache : bool, optional
         Keep the scene's preprocessing on disk beside the file (``.hallray-cache/``, keyed by
         the content hash of the file, the materials and these options) and reuse it on the next
@@ -90,13 +103,18 @@ def load_scene(
             f"use one of {', '.join(MESH_SUFFIXES)} or .xml"
         )
     check_smooth_angle(smooth_angle_deg)
+    if up is not None and up not in UP_AXES:
+        raise SceneError(f"up axis must be one of {', '.join(UP_AXES)}, not {up!r}")
+    up = up or file_up(p)
     options = {"default_material": default_material, "smooth_angle_deg": smooth_angle_deg}
     if surfaces is not None:  # the default's key stays that of caches written before the option
         options["surfaces"] = bool(surfaces)
+    if up != "z":  # likewise
+        options["up"] = up
     try:
         scene = cached_build(
             p.resolve(), materials, options,
-            lambda: _build(p, materials, default_material, smooth_angle_deg, surfaces), cache,
+            lambda: _build(p, materials, default_material, smooth_angle_deg, surfaces, up), cache,
         )  # fmt: skip
     except OSError as exc:  # a materials file or a mesh the XML names cannot be read
         raise SceneError(f"cannot read {exc.filename or p.name}: {exc.strerror or exc}") from None
@@ -113,9 +131,10 @@ def _build(
     default_material: str | None,
     smooth_angle_deg: float | None,
     surfaces: bool | None = None,
+    up: str = "z",
 ) -> Scene:
-    """:func:`load_scene` without the cache: read, estimate the memory, bind the materials,
-    build."""
+    """:func:`load_scene` without the cache: read, turn a y-up file to z up, estimate the
+    memory, bind the materials, build."""
     if p.suffix.lower() == ".xml":
         named, metadata, xml_materials, xml_surfaces = _read_mitsuba(p)
         if surfaces is None:  # Sionna RT's model, unless hallray wrote it as solids (its sidecar)
@@ -123,6 +142,12 @@ def _build(
     else:
         named, metadata = _read_trimesh(p)
         xml_materials = {}
+    if up == "y":
+        if isinstance(metadata, dict) and metadata.get("hallray"):
+            raise SceneError(f"scene {p.name} was written by hallray, with z up: --up y does "
+                             "not apply to it")  # fmt: skip
+        for _, mesh, _ in named:
+            mesh.apply_transform(Y_UP_TO_Z_UP)
     check_load(sum(len(m.faces) for _, m, _ in named), p.name)
     library = MaterialLibrary.itu()
     meta_h = metadata.get("hallray", {}) if isinstance(metadata, dict) else {}
@@ -170,9 +195,31 @@ def _build(
             f"{len(unbound)} object(s) without a material: {shown}; name them after a material, "
             "add a 'bind' pattern, or give a default material"
         )
-    return Scene.from_meshes(bound, library, metadata=metadata, source=str(p),
-                             smooth_angle_deg=smooth_angle_deg,
-                             surfaces=bool(surfaces))  # fmt: skip
+    scene = Scene.from_meshes(bound, library, metadata=metadata, source=str(p),
+                              smooth_angle_deg=smooth_angle_deg,
+                              surfaces=bool(surfaces))  # fmt: skip
+    scene.up = up
+    return scene
+
+
+def file_up(p: Path) -> str:
+    """The axis that is up in the file ``p`` by its format's convention: "y" for glTF (the
+    specification's +y up) unless trimesh wrote it (hallray's own GLBs, and scenes written with
+    trimesh, keep z up), and for an OBJ whose header says Blender wrote it (its exporter's
+    default, +y up); "z" otherwise. Only the file's first 64 KiB are read (glTF's ``asset``
+    with its ``generator`` comes first in the JSON)."""
+    suffix = p.suffix.lower()
+    if suffix not in (".glb", ".gltf", ".obj"):
+        return "z"
+    with open(p, "rb") as fh:
+        head = fh.read(65536)
+    if suffix == ".obj":
+        comments = [ln for ln in head.splitlines()[:5] if ln.startswith(b"#")]
+        return "y" if any(b"blender" in ln.lower() for ln in comments) else "z"
+    import re
+
+    m = re.search(rb'"generator"\s*:\s*"([^"]*)"', head)
+    return "z" if m is not None and b"trimesh" in m.group(1).lower() else "y"
 
 
 def _read_trimesh(p: Path) -> tuple[list[tuple[str, Any, list[str]]], dict[str, Any]]:

@@ -84,6 +84,9 @@ class Scene(EmbreeQueries):
     #: Built with every mesh an open surface (:func:`~raytrace.scene.construction.scene_parts`'s
     #: ``surfaces``: Sionna RT's model, the default for a Mitsuba XML that hallray did not write).
     surfaces: bool = False
+    #: The file's axis that was up: "y" when the file was turned into the z-up frame
+    #: (:func:`~raytrace.scene.io.load_scene`'s ``up``).
+    up: str = "z"
     caches: SceneCaches = field(default_factory=SceneCaches, init=False, repr=False,
                                 compare=False)
 
@@ -312,6 +315,7 @@ class Scene(EmbreeQueries):
             "composite_wedges": self.n_composite_wedges,
             "smooth_angle_deg": self.smooth_angle_deg,
             "surfaces": self.surfaces,
+            "up": self.up,
         }
 
 
