@@ -389,7 +389,7 @@ def test_a_blender_obj_is_y_up_and_up_can_be_given(tmp_path):
     np.testing.assert_allclose(up.bounds, [[0, 0, 0], [4, 2, 3]], atol=1e-9)
     given = load_scene(tmp_path / "other.obj", default_material="metal", up="y")
     np.testing.assert_allclose(given.bounds, up.bounds, atol=1e-9)
-    with pytest.raises(SceneError, match="written by hallray, with z up"):
+    with pytest.raises(SceneError, match="written by hallray, in metres with z up: --up y does not apply"):
         load_scene("hall", up="y")
     with pytest.raises(SceneError, match="up axis must be one of z, y, not 'x'"):
         load_scene("hall", up="x")
@@ -518,6 +518,32 @@ def test_an_stl_in_millimetres_is_refused_in_one_line(tmp_path, capsys):
     assert "warning" not in err  # refused before it is repaired or its rounding is weighed
     (line,) = [ln for ln in err.splitlines() if ln.startswith("error:")]
     assert "hall_mm.stl" in line and "millimetres" in line and "Traceback" not in err
+    assert line.endswith("read it with --unit mm")
+
+
+def test_a_hall_in_millimetres_read_with_its_unit_gives_the_halls_paths(clean, tmp_path, capsys):
+    """The hall exported in millimetres (an STL as CAD writes it, and an OBJ) and read with
+    ``unit="mm"``: the metre hall's facets, and its paths (delays to 1 ps) from the OBJ's
+    objects; ``--unit mm`` on the command line; a file hallray wrote refuses another unit."""
+    _, rx, ref = clean
+    mm = [(n, m.copy().apply_scale(1000.0)) for n, m in hall_objects()]
+    scene = load_scene(_write(tmp_path / "hall_mm.obj", mm), unit="mm")
+    assert scene.unit == "mm" and scene.summary()["unit"] == "mm"
+    np.testing.assert_allclose(scene.bounds, [[-0.3, -0.3, -0.3], [30.3, 20.3, 8.3]], atol=1e-9)
+    assert_same_paths(ref, _trace(scene, TX, rx))
+    stl = tmp_path / "hall_mm.stl"
+    trimesh.util.concatenate([m for _, m in mm]).export(str(stl))
+    with pytest.warns(UserWarning, match="9 closed solids split out"):
+        one = load_scene(stl, default_material="concrete", unit="mm")
+    np.testing.assert_allclose(one.bounds, scene.bounds, atol=1e-4)  # float32 mm: 1e-6 m
+    assert len(one.facets) == len(scene.facets)
+    assert trace_scene_main([str(stl), "--default-material", "concrete", "--unit", "mm",
+                             "--summary-only"]) == 0  # fmt: skip
+    assert "unit       the file's numbers in mm, scaled to metres" in capsys.readouterr().out
+    with pytest.raises(SceneError, match="in metres with z up: --unit mm does not apply"):
+        load_scene("hall", unit="mm")
+    with pytest.raises(SceneError, match="unit must be one of m, mm, cm, km, in, ft, not 'yd'"):
+        load_scene("hall", unit="yd")
 
 
 def test_clean_scenes_raise_no_repair_warning():

@@ -90,6 +90,13 @@ def add_scene_arguments(p: argparse.ArgumentParser) -> None:
         "[the format's convention: y for glTF not written by trimesh and Blender's OBJ, else z]",
     )
     p.add_argument(
+        "--unit",
+        choices=("m", "mm", "cm", "km", "in", "ft"),
+        default="m",
+        help="unit of the file's numbers, scaled to metres as it is read (a CAD export in "
+        "millimetres: mm) [m]",
+    )
+    p.add_argument(
         "--no-scene-cache",
         action="store_true",
         help="neither read nor write the preprocessing cache beside a large scene "
@@ -105,6 +112,7 @@ def scene_options(args: argparse.Namespace) -> dict[str, Any]:
         "smooth_angle_deg": args.smooth_angle,
         "surfaces": args.surfaces,
         "up": args.up,
+        "unit": args.unit,
         "cache": False if args.no_scene_cache else None,
     }
 

@@ -31,6 +31,8 @@ UP_AXES = ("z", "y")
 #: about x. It undoes Blender's glTF and OBJ exports, which write its own z-up frame's
 #: (x, y, z) as (x, z, -y), so positions read off Blender are the scene's.
 Y_UP_TO_Z_UP = np.array([[1.0, 0, 0, 0], [0, 0, -1.0, 0], [0, 1.0, 0, 0], [0, 0, 0, 1.0]])
+#: Length units a file's numbers may be in, metres per unit (``load_scene(unit=...)``).
+UNITS = {"m": 1.0, "mm": 1e-3, "cm": 1e-2, "km": 1e3, "in": 0.0254, "ft": 0.3048}
 
 
 def load_scene(
@@ -41,6 +43,7 @@ def load_scene(
     smooth_angle_deg: float | None = None,
     surfaces: bool | None = None,
     up: str | None = None,
+    unit: str = "m",
     cache: bool | None = None,
 ) -> Scene:
     """Read a scene and bind a material to every object.
@@ -72,6 +75,10 @@ def load_scene(
         ``(x, y, z) -> (x, -z, y)`` (:data:`Y_UP_TO_Z_UP`); ``Scene.up`` records it. Default
         (None): the file's convention (:func:`file_up`): y for glTF not written by trimesh
         (hallray's own GLBs are z-up) and for an OBJ that Blender wrote, z otherwise.
+    unit : str
+        The unit of the file's numbers, a key of :data:`UNITS` (default metres): a CAD export
+        in millimetres is read with ``"mm"`` and scaled to metres as it is read. A scene
+        beyond the size of a hall is refused with the unit that most likely explains it.
     cache : bool, optional
         Keep the scene's preprocessing on disk beside the file (``.hallray-cache/``, keyed by
         the content hash of the file, the materials and these options) and reuse it on the next
@@ -106,22 +113,27 @@ def load_scene(
     if up is not None and up not in UP_AXES:
         raise SceneError(f"up axis must be one of {', '.join(UP_AXES)}, not {up!r}")
     up = up or file_up(p)
+    if unit not in UNITS:
+        raise SceneError(f"unit must be one of {', '.join(UNITS)}, not {unit!r}")
     options = {"default_material": default_material, "smooth_angle_deg": smooth_angle_deg}
     if surfaces is not None:  # the default's key stays that of caches written before the option
         options["surfaces"] = bool(surfaces)
     if up != "z":  # likewise
         options["up"] = up
+    if unit != "m":
+        options["unit"] = unit
     try:
         scene = cached_build(
             p.resolve(), materials, options,
-            lambda: _build(p, materials, default_material, smooth_angle_deg, surfaces, up), cache,
+            lambda: _build(p, materials, default_material, smooth_angle_deg, surfaces, up, unit),
+            cache,
         )  # fmt: skip
     except OSError as exc:  # a materials file or a mesh the XML names cannot be read
         raise SceneError(f"cannot read {exc.filename or p.name}: {exc.strerror or exc}") from None
     scene.source = str(p)  # as a fresh build names it, also when read from the cache
     lo, hi = scene.bounds
     # a hall in mm (or cm, or km): refused before tracing
-    check_extent(tuple(float(v) for v in hi - lo), f"scene {p.name}")
+    check_extent(tuple(float(v) for v in hi - lo), f"scene {p.name}", option="--unit")
     return scene
 
 
@@ -132,6 +144,7 @@ def _build(
     smooth_angle_deg: float | None,
     surfaces: bool | None = None,
     up: str = "z",
+    unit: str = "m",
 ) -> Scene:
     """:func:`load_scene` without the cache: read, turn a y-up file to z up, estimate the
     memory, bind the materials, build."""
@@ -140,14 +153,15 @@ def _build(
         if surfaces is None:  # Sionna RT's model, unless hallray wrote it as solids (its sidecar)
             surfaces = xml_surfaces
     else:
-        named, metadata = _read_trimesh(p)
+        named, metadata = _read_trimesh(p, up, unit)
         xml_materials = {}
+    _check_own(p, metadata, up, unit)
     if up == "y":
-        if isinstance(metadata, dict) and metadata.get("hallray"):
-            raise SceneError(f"scene {p.name} was written by hallray, with z up: --up y does "
-                             "not apply to it")  # fmt: skip
         for _, mesh, _ in named:
             mesh.apply_transform(Y_UP_TO_Z_UP)
+    if unit != "m" and p.suffix.lower() == ".xml":  # a mesh file's are scaled as it is read
+        for _, mesh, _ in named:
+            mesh.apply_scale(UNITS[unit])
     check_load(sum(len(m.faces) for _, m, _ in named), p.name)
     library = MaterialLibrary.itu()
     meta_h = metadata.get("hallray", {}) if isinstance(metadata, dict) else {}
@@ -198,7 +212,7 @@ def _build(
     scene = Scene.from_meshes(bound, library, metadata=metadata, source=str(p),
                               smooth_angle_deg=smooth_angle_deg,
                               surfaces=bool(surfaces))  # fmt: skip
-    scene.up = up
+    scene.up, scene.unit = up, unit
     return scene
 
 
@@ -222,8 +236,19 @@ def file_up(p: Path) -> str:
     return "z" if m is not None and b"trimesh" in m.group(1).lower() else "y"
 
 
-def _read_trimesh(p: Path) -> tuple[list[tuple[str, Any, list[str]]], dict[str, Any]]:
-    """Objects of a mesh file as (name, mesh in world coordinates, name hints)."""
+def _check_own(p: Path, metadata: Any, up: str, unit: str) -> None:
+    """Refuse another up axis or unit for a file hallray wrote (its ``hallray`` metadata: its
+    positions are in metres, z up)."""
+    if isinstance(metadata, dict) and metadata.get("hallray") and (up != "z" or unit != "m"):
+        raise SceneError(f"scene {p.name} was written by hallray, in metres with z up: "
+                         f"{'--up y' if up != 'z' else f'--unit {unit}'} does not apply to it")
+
+
+def _read_trimesh(
+    p: Path, up: str = "z", unit: str = "m"
+) -> tuple[list[tuple[str, Any, list[str]]], dict[str, Any]]:
+    """Objects of a mesh file as (name, mesh in world coordinates, name hints), its numbers
+    scaled from ``unit`` to metres (the turn to z ``up`` is :func:`_build`'s)."""
     import trimesh
 
     try:
@@ -238,6 +263,8 @@ def _read_trimesh(p: Path) -> tuple[list[tuple[str, Any, list[str]]], dict[str, 
         raise SceneError(
             f"cannot read scene {p.name}: {type(exc).__name__}: {exc}".splitlines()[0]
         ) from None
+    _check_own(p, loaded.metadata, up, unit)  # before its size is weighed in that unit
+    scale = UNITS[unit]
     named: list[tuple[str, Any, list[str]]] = []
     rounded = 0.0  # the largest float32 rounding of a vertex far from the origin, m
     for node in sorted(loaded.graph.nodes_geometry):
@@ -250,11 +277,13 @@ def _read_trimesh(p: Path) -> tuple[list[tuple[str, Any, list[str]]], dict[str, 
                 f"scene {p.name}: object {node!r} has NaN or infinite vertex coordinates"
             )
         if p.suffix.lower() in FLOAT32_SUFFIXES:
-            rounded = max(rounded, float32_rounding(np.asarray(geom.vertices, dtype=float)))
+            rounded = max(rounded, float32_rounding(np.asarray(geom.vertices, dtype=float), scale))
         mesh = geom.copy()
         if hasattr(mesh, "process"):
             mesh.process()
         mesh.apply_transform(transform)
+        if scale != 1.0:
+            mesh.apply_scale(scale)
         hints = [node, geom_name]
         mat = getattr(getattr(geom, "visual", None), "material", None)
         if mat is not None and getattr(mat, "name", None):
@@ -266,7 +295,7 @@ def _read_trimesh(p: Path) -> tuple[list[tuple[str, Any, list[str]]], dict[str, 
     # float32 numbers, which are not metres, is worth a word)
     lo = np.min([m.bounds[0] for _, m, _ in named], axis=0)
     hi = np.max([m.bounds[1] for _, m, _ in named], axis=0)
-    check_extent(tuple(float(v) for v in hi - lo), f"scene {p.name}")
+    check_extent(tuple(float(v) for v in hi - lo), f"scene {p.name}", option="--unit")
     if rounded:
         warnings.warn(
             f"scene {p.name} stores its vertices as float32 numbers (as STL and glTF do) far from "
@@ -277,18 +306,18 @@ def _read_trimesh(p: Path) -> tuple[list[tuple[str, Any, list[str]]], dict[str, 
     return named, dict(loaded.metadata or {})
 
 
-def float32_rounding(vertices: np.ndarray) -> float:
-    """Half the float32 spacing (m) at the largest coordinate of ``vertices`` (V, 3), metres, of
-    a file that stores float32 numbers (:data:`FLOAT32_SUFFIXES`; each exactly a float32) beyond
+def float32_rounding(vertices: np.ndarray, scale: float = 1.0) -> float:
+    """Half the float32 spacing (m) at the largest coordinate of ``vertices`` (V, 3), in the
+    file's unit of ``scale`` metres, of a file that stores float32 numbers (:data:`FLOAT32_SUFFIXES`; each exactly a float32) beyond
     :data:`~raytrace.scene.caches.EMBREE_LOCAL_M` from the origin, where that exceeds 0.1 mm;
     else 0. (The tracer itself keeps such a scene exact: :func:`~raytrace.scene.caches.
     embree_origin_of`; the file has rounded it already.)"""
     if not len(vertices):
         return 0.0
     far = float(np.abs(vertices).max())
-    if far <= EMBREE_LOCAL_M or not np.array_equal(vertices, vertices.astype(np.float32)):
+    if far * scale <= EMBREE_LOCAL_M or not np.array_equal(vertices, vertices.astype(np.float32)):
         return 0.0
-    half = 0.5 * float(np.spacing(np.float32(far)))
+    half = 0.5 * float(np.spacing(np.float32(far))) * scale
     return half if half > 1e-4 else 0.0
 
 

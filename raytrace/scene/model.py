@@ -87,6 +87,8 @@ class Scene(EmbreeQueries):
     #: The file's axis that was up: "y" when the file was turned into the z-up frame
     #: (:func:`~raytrace.scene.io.load_scene`'s ``up``).
     up: str = "z"
+    #: The unit of the file's numbers, scaled to metres as it was read (``load_scene``'s ``unit``).
+    unit: str = "m"
     caches: SceneCaches = field(default_factory=SceneCaches, init=False, repr=False,
                                 compare=False)
 
@@ -316,6 +318,7 @@ class Scene(EmbreeQueries):
             "smooth_angle_deg": self.smooth_angle_deg,
             "surfaces": self.surfaces,
             "up": self.up,
+            "unit": self.unit,
         }
 
 
