@@ -1,5 +1,6 @@
-"""Reading scenes from files: meshes (glb, gltf, obj, ply, stl, off) through trimesh, Mitsuba /
-Sionna RT scene XML, and the bundled scenes by name; binding a material to every object."""
+"""Reading scenes from files: meshes (glb, gltf, obj, ply, stl, off) through trimesh, IFC building
+models through IfcOpenShell (:mod:`.ifc`), Mitsuba / Sionna RT scene XML, and the bundled scenes
+by name; binding a material to every object."""
 
 from __future__ import annotations
 
@@ -51,7 +52,8 @@ def load_scene(
     Parameters
     ----------
     path : str or Path
-        A mesh (.glb, .gltf, .obj, .ply, .stl, .off) read through trimesh, a Mitsuba / Sionna RT
+        A mesh (.glb, .gltf, .obj, .ply, .stl, .off) read through trimesh, a building model in
+        IFC (.ifc, through IfcOpenShell: :mod:`raytrace.scene.ifc`), a Mitsuba / Sionna RT
         scene XML, or the name of a bundled scene (``"hall"``).
     materials : MaterialLibrary, YAML path or dict, optional
         User materials, a ``bind`` map of glob patterns on object names to materials (overrides
@@ -96,25 +98,7 @@ def load_scene(
         a scene too large for the memory available (estimated before it is built:
         :func:`raytrace.scene.budget.check_load`).
     """
-    from .bundled import resolve_scene
-
-    p = resolve_scene(path)
-    if not p.exists():
-        raise SceneError(f"scene file not found: {path}")
-    if p.is_dir():
-        raise SceneError(f"scene path is a directory, not a file: {path}")
-    suffix = p.suffix.lower()
-    if suffix != ".xml" and suffix not in MESH_SUFFIXES:
-        raise SceneError(
-            f"unsupported scene format {suffix or '(none)'!r} for {p.name}; "
-            f"use one of {', '.join(MESH_SUFFIXES)} or .xml"
-        )
-    check_smooth_angle(smooth_angle_deg)
-    if up is not None and up not in UP_AXES:
-        raise SceneError(f"up axis must be one of {', '.join(UP_AXES)}, not {up!r}")
-    up = up or file_up(p)
-    if unit not in UNITS:
-        raise SceneError(f"unit must be one of {', '.join(UNITS)}, not {unit!r}")
+    p, up = _checked(path, smooth_angle_deg, up, unit)
     options = {"default_material": default_material, "smooth_angle_deg": smooth_angle_deg}
     if surfaces is not None:  # the default's key stays that of caches written before the option
         options["surfaces"] = bool(surfaces)
@@ -137,6 +121,35 @@ def load_scene(
     return scene
 
 
+def _checked(path: str | Path, smooth_angle_deg: float | None, up: str | None,
+             unit: str) -> tuple[Path, str]:  # fmt: skip
+    """:func:`load_scene`'s file and its up axis (the given one, or the file's convention), with
+    the options checked: one-line :class:`SceneError` for a missing file or format, a wrong
+    smooth angle, axis or unit."""
+    from .bundled import resolve_scene
+
+    p = resolve_scene(path)
+    if not p.exists():
+        raise SceneError(f"scene file not found: {path}")
+    if p.is_dir():
+        raise SceneError(f"scene path is a directory, not a file: {path}")
+    suffix = p.suffix.lower()
+    if suffix not in (".xml", ".ifc") and suffix not in MESH_SUFFIXES:
+        raise SceneError(
+            f"unsupported scene format {suffix or '(none)'!r} for {p.name}; "
+            f"use one of {', '.join(MESH_SUFFIXES)}, .ifc or .xml"
+        )
+    check_smooth_angle(smooth_angle_deg)
+    if up is not None and up not in UP_AXES:
+        raise SceneError(f"up axis must be one of {', '.join(UP_AXES)}, not {up!r}")
+    if unit not in UNITS:
+        raise SceneError(f"unit must be one of {', '.join(UNITS)}, not {unit!r}")
+    if unit != "m" and suffix == ".ifc":
+        raise SceneError(f"scene {p.name} is IFC, which states its own length unit (read as "
+                         f"metres): --unit {unit} does not apply to it")  # fmt: skip
+    return p, up or file_up(p)
+
+
 def _build(
     p: Path,
     materials: Any,
@@ -152,6 +165,13 @@ def _build(
         named, metadata, xml_materials, xml_surfaces = _read_mitsuba(p)
         if surfaces is None:  # Sionna RT's model, unless hallray wrote it as solids (its sidecar)
             surfaces = xml_surfaces
+    elif p.suffix.lower() == ".ifc":
+        from .ifc import read_ifc
+
+        named, metadata, xml_materials = read_ifc(p, _threads()), {}, {}
+        lo = np.min([m.bounds[0] for _, m, _ in named], axis=0)
+        hi = np.max([m.bounds[1] for _, m, _ in named], axis=0)
+        check_extent(tuple(float(v) for v in hi - lo), f"scene {p.name}")
     else:
         named, metadata = _read_trimesh(p, up, unit)
         xml_materials = {}
@@ -234,6 +254,16 @@ def file_up(p: Path) -> str:
 
     m = re.search(rb'"generator"\s*:\s*"([^"]*)"', head)
     return "z" if m is not None and b"trimesh" in m.group(1).lower() else "y"
+
+
+def _threads() -> int:
+    """The cores this process may use."""
+    import os
+
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        return os.cpu_count() or 1
 
 
 def _check_own(p: Path, metadata: Any, up: str, unit: str) -> None:
