@@ -111,6 +111,16 @@ def test_material_hints_order(tmp_path):
     assert material_hints(bare) == ["D1", "wood"]
 
 
+def test_classes_missing_from_an_older_schema_are_skipped_quietly():
+    """IFC2X3 (Revit's default export) has no IfcSpatialZone: nothing of it to skip."""
+    from raytrace.scene.ifc import IFC_SKIPPED, _by_type
+
+    old = ifcopenshell.file(schema="IFC2X3")
+    old.createIfcSpace(ifcopenshell.guid.new())
+    assert "IfcSpatialZone" in IFC_SKIPPED and _by_type(old, "IfcSpatialZone") == []
+    assert len(_by_type(old, "IfcSpace")) == 1
+
+
 def test_ifc_errors_are_one_line(hall_ifc, tmp_path, capsys, monkeypatch):
     """An unreadable file, --unit on IFC (which states its own unit), and a missing IfcOpenShell
     are one line each; trace-scene reads IFC."""
