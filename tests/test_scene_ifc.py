@@ -111,6 +111,16 @@ def test_material_hints_order(tmp_path):
     assert material_hints(bare) == ["D1", "wood"]
 
 
+def test_an_element_without_triangles_is_named_in_a_warning(tmp_path):
+    """A wall of zero height has a body but no triangles: it is named, not silently missing."""
+    flat = ("IfcWall", "flat wall", (0.0, 0.0, 0.0), (5.0, 0.2, 0.0), "Concrete")
+    path = write_ifc_hall(tmp_path / "flat.ifc", ELEMENTS + [flat])
+    with pytest.warns(UserWarning, match=r"1 element\(s\) with a body gave no triangles and are "
+                                         r"not in the scene: IfcWall_flat-wall_"):  # fmt: skip
+        scene = load_scene(path, default_material="metal", cache=False)
+    assert len(scene.objects) == len(ELEMENTS)
+
+
 def test_classes_missing_from_an_older_schema_are_skipped_quietly():
     """IFC2X3 (Revit's default export) has no IfcSpatialZone: nothing of it to skip."""
     from raytrace.scene.ifc import IFC_SKIPPED, _by_type

@@ -11,6 +11,7 @@ z-up. Spaces, openings and other elements without a physical body are not read.
 from __future__ import annotations
 
 import re
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -82,6 +83,7 @@ def read_ifc(p: Path, threads: int = 1) -> list[tuple[str, Any, list[str]]]:
     skipped = [e for c in IFC_SKIPPED for e in _by_type(model, c)]
     iterator = ifcopenshell.geom.iterator(settings, model, max(1, int(threads)), exclude=skipped)
     named: list[tuple[str, Any, list[str]]] = []
+    read: set[int] = set()
     if iterator.initialize():
         while True:
             shape = iterator.get()
@@ -94,12 +96,26 @@ def read_ifc(p: Path, threads: int = 1) -> list[tuple[str, Any, list[str]]]:
                                      "infinite vertex coordinates")  # fmt: skip
                 mesh = trimesh.Trimesh(vertices=v, faces=f, process=True, validate=False)
                 named.append((_object_name(element), mesh, material_hints(element)))
+                read.add(element.id())
             if not iterator.next():
                 break
     if not named:
         raise SceneError(f"scene {p.name} has no building element with a body (walls, slabs, "
                          "columns, ...)")  # fmt: skip
+    lost = [_object_name(e) for e in model.by_type("IfcProduct")
+            if e.id() not in read and _has_body(e) and not any(e.is_a(c) for c in IFC_SKIPPED)]
+    if lost:  # IfcOpenShell logs why; the user needs to know that they are missing
+        more = f" (+{len(lost) - 5} more)" if len(lost) > 5 else ""
+        warnings.warn(f"scene {p.name}: {len(lost)} element(s) with a body gave no triangles and "
+                      f"are not in the scene: {', '.join(sorted(lost)[:5])}{more}", stacklevel=3)
     return sorted(named, key=lambda t: t[0])
+
+
+def _has_body(element: Any) -> bool:
+    """Whether ``element`` has a 3D body representation (``Body``), which the reader tessellates."""
+    shape = getattr(element, "Representation", None)
+    return shape is not None and any(r.RepresentationIdentifier == "Body"
+                                     for r in shape.Representations)  # fmt: skip
 
 
 def material_hints(element: Any) -> list[str]:
