@@ -333,20 +333,21 @@ def test_solids_and_a_sheet_in_one_mesh_are_split_into_both(tmp_path):
 
 
 # -- the file's up axis ---------------------------------------------------------------------------
-def _blender_glb(objects) -> bytes:
+def _blender_glb(objects, generator="Khronos glTF Blender I/O v4.2.70", y_up=True) -> bytes:
     """``objects`` as Blender's glTF export writes them: its z-up frame's (x, y, z) stored as
-    (x, z, -y), +y up as glTF specifies, and its exporter named in ``asset.generator``."""
+    (x, z, -y), +y up as glTF specifies, and its exporter named in ``asset.generator`` (with
+    ``y_up=False``, stored as they are, as a tool that ignores the convention writes them)."""
     import json
     import struct
 
-    to_file = np.linalg.inv(Y_UP_TO_Z_UP)
+    to_file = np.linalg.inv(Y_UP_TO_Z_UP) if y_up else np.eye(4)
     sc = trimesh.Scene()
     for name, mesh in objects:
         sc.add_geometry(mesh.copy().apply_transform(to_file), node_name=name, geom_name=name)
     data = sc.export(file_type="glb")
     n = struct.unpack_from("<I", data, 12)[0]
     gltf = json.loads(data[20 : 20 + n])
-    gltf["asset"]["generator"] = "Khronos glTF Blender I/O v4.2.70"
+    gltf["asset"]["generator"] = generator
     text = json.dumps(gltf, separators=(",", ":")).encode()
     text += b" " * (-len(text) % 4)
     rest = data[20 + n :]
@@ -374,6 +375,23 @@ def test_a_blender_gltf_is_turned_to_z_up(clean, tmp_path, capsys):
     assert load_scene("hall").up == "z"
     assert trace_scene_main([str(path), "--default-material", "concrete"]) == 0
     assert "up         the file's +y (glTF's convention), turned to z up" in capsys.readouterr().out
+
+
+def test_a_gltf_stored_z_up_against_its_convention_is_read_as_stored(clean, tmp_path):
+    """A glTF from a tool that stores the hall z-up (lower along z than along y) is read as it
+    is, with a warning naming --up y; the clean hall's paths; ``up="y"`` still turns it."""
+    _, rx, ref = clean
+    path = tmp_path / "hall.glb"
+    path.write_bytes(_blender_glb(hall_objects(), generator="SomeExporter 1.0", y_up=False))
+    assert file_up(path) == "y"
+    with pytest.warns(UserWarning, match=r"lower along z \(8.6 m\) than along y \(20.6 m\): read "
+                                         r"with z up as it is stored; --up y turns it"):  # fmt: skip
+        scene = load_scene(path, cache=False)
+    assert scene.up == "z"
+    assert_same_paths(ref, _trace(scene, TX, rx))
+    turned = load_scene(path, up="y", cache=False)
+    assert turned.up == "y"
+    np.testing.assert_allclose(turned.bounds, [[-0.3, -8.3, -0.3], [30.3, 0.3, 20.3]], atol=1e-6)
 
 
 def test_a_blender_obj_is_y_up_and_up_can_be_given(tmp_path):

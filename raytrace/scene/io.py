@@ -76,7 +76,9 @@ def load_scene(
         The file's axis that points up. "y" turns the scene into hallray's z-up frame,
         ``(x, y, z) -> (x, -z, y)`` (:data:`Y_UP_TO_Z_UP`); ``Scene.up`` records it. Default
         (None): the file's convention (:func:`file_up`): y for glTF not written by trimesh
-        (hallray's own GLBs are z-up) and for an OBJ that Blender wrote, z otherwise.
+        (hallray's own GLBs are z-up) and for an OBJ that Blender wrote, z otherwise; a glTF
+        that is lower along z than along y was stored z-up against its convention and is read
+        as it is, with a warning.
     unit : str
         The unit of the file's numbers, a key of :data:`UNITS` (default metres): a CAD export
         in millimetres is read with ``"mm"`` and scaled to metres as it is read. A scene
@@ -99,17 +101,21 @@ def load_scene(
         :func:`raytrace.scene.budget.check_load`).
     """
     p, up = _checked(path, smooth_angle_deg, up, unit)
+    convention = file_up(p)
     options = {"default_material": default_material, "smooth_angle_deg": smooth_angle_deg}
     if surfaces is not None:  # the default's key stays that of caches written before the option
         options["surfaces"] = bool(surfaces)
-    if up != "z":  # likewise
+    if up is not None and (up, convention) != ("z", "z"):  # likewise
         options["up"] = up
+    elif up is None and convention == "y":  # the file's geometry decides (:func:`_turned_up`)
+        options["up"] = "convention-y"
     if unit != "m":
         options["unit"] = unit
     try:
         scene = cached_build(
             p.resolve(), materials, options,
-            lambda: _build(p, materials, default_material, smooth_angle_deg, surfaces, up, unit),
+            lambda: _build(p, materials, default_material, smooth_angle_deg, surfaces,
+                           up or convention, unit, up is None),
             cache,
         )  # fmt: skip
     except OSError as exc:  # a materials file or a mesh the XML names cannot be read
@@ -122,9 +128,8 @@ def load_scene(
 
 
 def _checked(path: str | Path, smooth_angle_deg: float | None, up: str | None,
-             unit: str) -> tuple[Path, str]:  # fmt: skip
-    """:func:`load_scene`'s file and its up axis (the given one, or the file's convention), with
-    the options checked: one-line :class:`SceneError` for a missing file or format, a wrong
+             unit: str) -> tuple[Path, str | None]:  # fmt: skip
+    """:func:`load_scene`'s file and its up axis as given, with the options checked: one-line :class:`SceneError` for a missing file or format, a wrong
     smooth angle, axis or unit."""
     from .bundled import resolve_scene
 
@@ -147,7 +152,7 @@ def _checked(path: str | Path, smooth_angle_deg: float | None, up: str | None,
     if unit != "m" and suffix == ".ifc":
         raise SceneError(f"scene {p.name} is IFC, which states its own length unit (read as "
                          f"metres): --unit {unit} does not apply to it")  # fmt: skip
-    return p, up or file_up(p)
+    return p, up
 
 
 def _build(
@@ -158,6 +163,7 @@ def _build(
     surfaces: bool | None = None,
     up: str = "z",
     unit: str = "m",
+    by_convention: bool = False,
 ) -> Scene:
     """:func:`load_scene` without the cache: read, turn a y-up file to z up, estimate the
     memory, bind the materials, build."""
@@ -173,9 +179,14 @@ def _build(
         hi = np.max([m.bounds[1] for _, m, _ in named], axis=0)
         check_extent(tuple(float(v) for v in hi - lo), f"scene {p.name}")
     else:
-        named, metadata = _read_trimesh(p, up, unit)
+        named, metadata = _read_trimesh(p, "z" if by_convention else up, unit)
         xml_materials = {}
-    _check_own(p, metadata, up, unit)
+    _check_own(p, metadata, "z" if by_convention else up, unit)
+    if up == "y" and by_convention and "blender" not in file_writer(p).lower():
+        # hallray's own files are z-up whoever wrote them; an unknown tool's glTF may ignore
+        # the convention, which its geometry shows (Blender's exporters follow it)
+        own = isinstance(metadata, dict) and bool(metadata.get("hallray"))
+        up = "z" if own else _turned_up(p, named)
     if up == "y":
         for _, mesh, _ in named:
             mesh.apply_transform(Y_UP_TO_Z_UP)
@@ -236,24 +247,52 @@ def _build(
     return scene
 
 
+def _turned_up(p: Path, named: list[tuple[str, Any, list[str]]]) -> str:
+    """The up axis of a glTF that a tool other than Blender wrote, by its geometry: a hall is
+    lower than it is long and wide, so a file lower along z than along y was written z-up
+    against the convention (by a tool that ignores it): "z", with a warning naming ``--up y``;
+    else "y"."""
+    lo = np.min([m.bounds[0] for _, m, _ in named], axis=0)
+    hi = np.max([m.bounds[1] for _, m, _ in named], axis=0)
+    size = hi - lo
+    if size[2] < size[1]:
+        warnings.warn(f"scene {p.name} is glTF, +y up by its specification, but it is lower along "
+                      f"z ({size[2]:.3g} m) than along y ({size[1]:.3g} m): read with z up as it "
+                      "is stored; --up y turns it", stacklevel=4)  # fmt: skip
+        return "z"
+    return "y"
+
+
 def file_up(p: Path) -> str:
     """The axis that is up in the file ``p`` by its format's convention: "y" for glTF (the
     specification's +y up) unless trimesh wrote it (hallray's own GLBs, and scenes written with
     trimesh, keep z up), and for an OBJ whose header says Blender wrote it (its exporter's
-    default, +y up); "z" otherwise. Only the file's first 64 KiB are read (glTF's ``asset``
-    with its ``generator`` comes first in the JSON)."""
+    default, +y up); "z" otherwise (:func:`file_writer`)."""
+    suffix = p.suffix.lower()
+    writer = file_writer(p).lower()
+    if suffix == ".obj":
+        return "y" if "blender" in writer else "z"
+    if suffix in (".glb", ".gltf"):
+        return "z" if "trimesh" in writer else "y"
+    return "z"
+
+
+def file_writer(p: Path) -> str:
+    """What wrote the file ``p``, as it says: a glTF's ``asset.generator``, an OBJ's header
+    comments; "" if it does not say, or for other formats. Only the file's first 64 KiB are read
+    (glTF's ``asset`` comes first in the JSON)."""
+    import re
+
     suffix = p.suffix.lower()
     if suffix not in (".glb", ".gltf", ".obj"):
-        return "z"
+        return ""
     with open(p, "rb") as fh:
         head = fh.read(65536)
     if suffix == ".obj":
-        comments = [ln for ln in head.splitlines()[:5] if ln.startswith(b"#")]
-        return "y" if any(b"blender" in ln.lower() for ln in comments) else "z"
-    import re
-
+        lines = [ln[1:].strip() for ln in head.splitlines()[:5] if ln.startswith(b"#")]
+        return b" ".join(lines).decode("utf-8", "replace")
     m = re.search(rb'"generator"\s*:\s*"([^"]*)"', head)
-    return "z" if m is not None and b"trimesh" in m.group(1).lower() else "y"
+    return "" if m is None else m.group(1).decode("utf-8", "replace")
 
 
 def _threads() -> int:
