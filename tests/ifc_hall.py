@@ -18,9 +18,10 @@ ELEMENTS = [
 ]
 
 
-def write_ifc_hall(path: Path, elements=ELEMENTS, space: bool = True) -> Path:
+def write_ifc_hall(path: Path, elements=ELEMENTS, space: bool = True, then=None) -> Path:
     """Write ``elements`` (plus an IfcSpace, which is not a body) to ``path`` in IFC4, with
-    millimetres as the file's length unit."""
+    millimetres as the file's length unit; ``then(model, {name: element})`` adds to them
+    before the file is written (an opening's void relation)."""
 
     from ifcopenshell.api import (
         aggregate,
@@ -47,15 +48,16 @@ def write_ifc_hall(path: Path, elements=ELEMENTS, space: bool = True) -> Path:
     aggregate.assign_object(m, products=[storey], relating_object=building)
     boxes = list(elements) + ([("IfcSpace", "hall space", (0.0, 0.0, 0.0), (10.0, 8.0, 4.0), None)]
                               if space else [])  # fmt: skip
+    made = {}
     for cls, name, lo, size, mat in boxes:
-        el = root.create_entity(m, ifc_class=cls, name=name)
+        el = made[name] = root.create_entity(m, ifc_class=cls, name=name)
         rep = geometry.add_wall_representation(m, context=body, length=size[0], height=size[2],
                                                thickness=size[1])  # fmt: skip
         geometry.assign_representation(m, product=el, representation=rep)
         placement = np.eye(4)
         placement[:3, 3] = lo
         geometry.edit_object_placement(m, product=el, matrix=placement, is_si=True)
-        if cls != "IfcSpace":
+        if cls not in ("IfcSpace", "IfcOpeningElement"):
             spatial.assign_container(m, products=[el], relating_structure=storey)
         if isinstance(mat, str):
             material.assign_material(m, products=[el], material=material.add_material(m, name=mat))
@@ -66,5 +68,7 @@ def write_ifc_hall(path: Path, elements=ELEMENTS, space: bool = True) -> Path:
                                            material=material.add_material(m, name=layer_name))  # fmt: skip
                 material.edit_layer(m, layer=layer, attributes={"LayerThickness": thickness * 1000})
             material.assign_material(m, products=[el], type="IfcMaterialLayerSet", material=layers)
+    if then is not None:
+        then(m, made)
     m.write(str(path))
     return path

@@ -20,7 +20,7 @@ from raytrace.core.constants import C0
 from raytrace.core.errors import SceneError
 from raytrace.physics.materials import MaterialLibrary
 from raytrace.scene.io import load_scene
-from raytrace.solver.paths import REFLECTION
+from raytrace.solver.paths import PENETRATION, REFLECTION
 
 ifcopenshell = pytest.importorskip("ifcopenshell")
 
@@ -119,6 +119,32 @@ def test_an_element_without_triangles_is_named_in_a_warning(tmp_path):
                                          r"not in the scene: IfcWall_flat-wall_"):  # fmt: skip
         scene = load_scene(path, default_material="metal", cache=False)
     assert len(scene.objects) == len(ELEMENTS)
+
+
+def test_a_window_in_its_walls_opening(tmp_path):
+    """A wall with an opening (IfcOpeningElement, a void feature) and a window in it, neither
+    with an IFC material: the opening is cut (the wall is a box with a hole: 32 triangles), the
+    direct path through it crosses the window's glass only and one beside it the wall only; both
+    are bound by their class, which a warning says."""
+    from ifcopenshell.api import feature
+
+    path = write_ifc_hall(tmp_path / "window.ifc", [
+        ("IfcWall", "w", (0.0, 5.0, 0.0), (10.0, 0.2, 4.0), None),
+        ("IfcOpeningElement", "hole", (4.0, 4.9, 1.0), (2.0, 0.4, 1.5), None),
+        ("IfcWindow", "win", (4.0, 5.08, 1.0), (2.0, 0.04, 1.5), None),
+    ], space=False, then=lambda m, els: feature.add_feature(m, feature=els["hole"], element=els["w"]))
+    with pytest.warns(UserWarning, match=r"2 element\(s\) have no IFC material and are bound by "
+                                         r"their class .*IfcWall -> concrete \(1\), IfcWindow -> glass"):
+        scene = load_scene(path, cache=False)
+    names = [o.name.split("_")[0] for o in scene.objects]
+    assert names == ["IfcWall", "IfcWindow"]
+    assert [o.material for o in scene.objects] == ["concrete", "glass"]
+    assert scene.objects[0].face_count == 32
+    for x, crossed in ((5.0, 1), (1.0, 0)):  # through the opening, beside it
+        p = raytrace.trace(scene, np.array([[x, 3.0, 1.75]]), np.array([[x, 7.0, 1.75]]),
+                           3.775e9, TraceConfig(max_reflections=0, max_diffractions=0), threads=1)
+        (direct,) = [i for i in range(p.n_paths) if p.interaction[i][0] == PENETRATION]
+        assert p.objects[direct][0] == crossed and (p.objects[direct][1:] == -1).all()
 
 
 def test_classes_missing_from_an_older_schema_are_skipped_quietly():

@@ -84,6 +84,7 @@ def read_ifc(p: Path, threads: int = 1) -> list[tuple[str, Any, list[str]]]:
     iterator = ifcopenshell.geom.iterator(settings, model, max(1, int(threads)), exclude=skipped)
     named: list[tuple[str, Any, list[str]]] = []
     read: set[int] = set()
+    by_class: dict[str, int] = {}  # elements without IFC materials, by the class guess
     if iterator.initialize():
         while True:
             shape = iterator.get()
@@ -97,6 +98,10 @@ def read_ifc(p: Path, threads: int = 1) -> list[tuple[str, Any, list[str]]]:
                 mesh = trimesh.Trimesh(vertices=v, faces=f, process=True, validate=False)
                 named.append((_object_name(element), mesh, material_hints(element)))
                 read.add(element.id())
+                guess = _class_material(element)
+                if guess is not None and not _ordered_materials(element, _material_of(element)):
+                    key = f"{element.is_a()} -> {guess}"
+                    by_class[key] = by_class.get(key, 0) + 1
             if not iterator.next():
                 break
     if not named:
@@ -108,6 +113,11 @@ def read_ifc(p: Path, threads: int = 1) -> list[tuple[str, Any, list[str]]]:
         more = f" (+{len(lost) - 5} more)" if len(lost) > 5 else ""
         warnings.warn(f"scene {p.name}: {len(lost)} element(s) with a body gave no triangles and "
                       f"are not in the scene: {', '.join(sorted(lost)[:5])}{more}", stacklevel=3)
+    if by_class:  # a guess the user should see, unless the element's name says better
+        shown = ", ".join(f"{k} ({n})" for k, n in sorted(by_class.items()))
+        warnings.warn(f"scene {p.name}: {sum(by_class.values())} element(s) have no IFC material "
+                      f"and are bound by their class unless their name names one: {shown}; a "
+                      "'bind' pattern on the class (IfcWall_*) chooses another", stacklevel=3)
     return sorted(named, key=lambda t: t[0])
 
 
@@ -123,20 +133,29 @@ def material_hints(element: Any) -> list[str]:
     layer of a layered wall first; a window's glazing first), each followed by the library
     material that :data:`IFC_MATERIAL_WORDS` reads in it, its name and type, and last the
     material of its class (:data:`IFC_CLASS_MATERIALS`)."""
-    import ifcopenshell.util.element as util
-
     names: list[str] = []
-    for mat in _ordered_materials(element, util.get_material(element, should_skip_usage=True)):
+    for mat in _ordered_materials(element, _material_of(element)):
         for text in (getattr(mat, "Name", None), getattr(mat, "Category", None)):
             if text:
                 names.append(str(text))
                 words = re.findall(r"[a-z]+", str(text).lower())
                 names += [IFC_MATERIAL_WORDS[w] for w in words if w in IFC_MATERIAL_WORDS]
     names += [str(t) for t in (element.Name, getattr(element, "ObjectType", None)) if t]
+    guess = _class_material(element)
+    return names + ([guess] if guess is not None else [])
+
+
+def _class_material(element: Any) -> str | None:
+    """:data:`IFC_CLASS_MATERIALS` of the element's class (or a superclass), or None."""
     cls = next((c for c in IFC_CLASS_MATERIALS if element.is_a(c)), None)
-    if cls is not None:
-        names.append(IFC_CLASS_MATERIALS[cls])
-    return names
+    return None if cls is None else IFC_CLASS_MATERIALS[cls]
+
+
+def _material_of(element: Any) -> Any:
+    """The element's material definition (its type's where it has none of its own), or None."""
+    import ifcopenshell.util.element as util
+
+    return util.get_material(element, should_skip_usage=True)
 
 
 def _ordered_materials(element: Any, definition: Any) -> list[Any]:
