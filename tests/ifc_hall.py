@@ -62,10 +62,11 @@ def write_ifc_hall(path: Path, elements=ELEMENTS, space: bool = True, then=None)
         if isinstance(mat, str):
             material.assign_material(m, products=[el], material=material.add_material(m, name=mat))
         elif mat:
-            layers = material.add_material_set(m, name=f"{name} layers", set_type="IfcMaterialLayerSet")
+            layers = material.add_material_set(m, name=f"{name} layers",
+                                               set_type="IfcMaterialLayerSet")  # fmt: skip
             for layer_name, thickness in mat:
-                layer = material.add_layer(m, layer_set=layers,
-                                           material=material.add_material(m, name=layer_name))  # fmt: skip
+                made_material = material.add_material(m, name=layer_name)
+                layer = material.add_layer(m, layer_set=layers, material=made_material)
                 material.edit_layer(m, layer=layer, attributes={"LayerThickness": thickness * 1000})
             material.assign_material(m, products=[el], type="IfcMaterialLayerSet", material=layers)
     if then is not None:

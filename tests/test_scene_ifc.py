@@ -105,7 +105,8 @@ def test_material_hints_order(tmp_path):
     lib = MaterialLibrary.itu()
     assert next(lib.match(h) for h in hints if lib.match(h)) == "glass"
     beam = root.create_entity(m, ifc_class="IfcBeam", name="B7")
-    material.assign_material(m, products=[beam], material=material.add_material(m, name="S235 Steel"))
+    steel = material.add_material(m, name="S235 Steel")
+    material.assign_material(m, products=[beam], material=steel)
     assert next(lib.match(h) for h in material_hints(beam) if lib.match(h)) == "metal"
     bare = root.create_entity(m, ifc_class="IfcDoor", name="D1")
     assert material_hints(bare) == ["D1", "wood"]
@@ -128,13 +129,19 @@ def test_a_window_in_its_walls_opening(tmp_path):
     are bound by their class, which a warning says."""
     from ifcopenshell.api import feature
 
-    path = write_ifc_hall(tmp_path / "window.ifc", [
+    elements = [
         ("IfcWall", "w", (0.0, 5.0, 0.0), (10.0, 0.2, 4.0), None),
         ("IfcOpeningElement", "hole", (4.0, 4.9, 1.0), (2.0, 0.4, 1.5), None),
         ("IfcWindow", "win", (4.0, 5.08, 1.0), (2.0, 0.04, 1.5), None),
-    ], space=False, then=lambda m, els: feature.add_feature(m, feature=els["hole"], element=els["w"]))
-    with pytest.warns(UserWarning, match=r"2 element\(s\) have no IFC material and are bound by "
-                                         r"their class .*IfcWall -> concrete \(1\), IfcWindow -> glass"):
+    ]
+
+    def cut(m, made):
+        feature.add_feature(m, feature=made["hole"], element=made["w"])
+
+    path = write_ifc_hall(tmp_path / "window.ifc", elements, space=False, then=cut)
+    said = (r"2 element\(s\) have no IFC material and are bound by their class .*"
+            r"IfcWall -> concrete \(1\), IfcWindow -> glass")
+    with pytest.warns(UserWarning, match=said):
         scene = load_scene(path, cache=False)
     names = [o.name.split("_")[0] for o in scene.objects]
     assert names == ["IfcWall", "IfcWindow"]

@@ -173,7 +173,8 @@ def _ordered_materials(element: Any, definition: Any) -> list[Any]:
     if kind == "IfcMaterialConstituentSet":
         parts = list(definition.MaterialConstituents or [])
         if element.is_a("IfcWindow") or element.is_a("IfcCurtainWall"):
-            parts.sort(key=lambda c: not re.search(r"glaz|glass", str(c.Category or c.Name or "").lower()))
+            glazing = re.compile(r"glaz|glass")
+            parts.sort(key=lambda c: not glazing.search(str(c.Category or c.Name or "").lower()))
         else:
             parts.sort(key=lambda c: -float(getattr(c, "Fraction", None) or 0))
         return [c.Material for c in parts if c.Material is not None]

@@ -129,8 +129,8 @@ def load_scene(
 
 def _checked(path: str | Path, smooth_angle_deg: float | None, up: str | None,
              unit: str) -> tuple[Path, str | None]:  # fmt: skip
-    """:func:`load_scene`'s file and its up axis as given, with the options checked: one-line :class:`SceneError` for a missing file or format, a wrong
-    smooth angle, axis or unit."""
+    """:func:`load_scene`'s file and its up axis as given, with the options checked: a one-line
+    :class:`SceneError` for a missing file or format, a wrong smooth angle, axis or unit."""
     from .bundled import resolve_scene
 
     p = resolve_scene(path)
@@ -377,7 +377,8 @@ def _read_trimesh(
 
 def float32_rounding(vertices: np.ndarray, scale: float = 1.0) -> float:
     """Half the float32 spacing (m) at the largest coordinate of ``vertices`` (V, 3), in the
-    file's unit of ``scale`` metres, of a file that stores float32 numbers (:data:`FLOAT32_SUFFIXES`; each exactly a float32) beyond
+    file's unit of ``scale`` metres, of a file that stores float32 numbers
+    (:data:`FLOAT32_SUFFIXES`; each exactly a float32) beyond
     :data:`~raytrace.scene.caches.EMBREE_LOCAL_M` from the origin, where that exceeds 0.1 mm;
     else 0. (The tracer itself keeps such a scene exact: :func:`~raytrace.scene.caches.
     embree_origin_of`; the file has rounded it already.)"""

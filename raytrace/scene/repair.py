@@ -2,7 +2,8 @@
 it (:func:`raytrace.scene.construction.scene_parts`): welding gaps and triangle soups
 (:func:`weld_vertices`), degenerate and duplicate triangles, inconsistent winding, T-junctions
 (:func:`split_t_junctions`), and several solids, or solids and sheets, in one mesh
-(:func:`split_bodies`: an STL holds one object, a CAD export may join the objects of a material). A clean mesh passes through unchanged. docs/scene.md, "Meshes from CAD and scans",
+(:func:`split_bodies`: an STL holds one object, a CAD export may join the objects of a
+material). A clean mesh passes through unchanged. docs/scene.md, "Meshes from CAD and scans",
 measures each case.
 """
 
