@@ -96,10 +96,11 @@ def read_ifc(p: Path, threads: int = 1) -> list[tuple[str, Any, list[str]]]:
                     raise SceneError(f"scene {p.name}: element {element.GlobalId} has NaN or "
                                      "infinite vertex coordinates")  # fmt: skip
                 mesh = trimesh.Trimesh(vertices=v, faces=f, process=True, validate=False)
-                named.append((_object_name(element), mesh, material_hints(element)))
+                hints, n_materials = _hints(element)
+                named.append((_object_name(element), mesh, hints))
                 read.add(element.id())
                 guess = _class_material(element)
-                if guess is not None and not _ordered_materials(element, _material_of(element)):
+                if guess is not None and not n_materials:
                     key = f"{element.is_a()} -> {guess}"
                     by_class[key] = by_class.get(key, 0) + 1
             if not iterator.next():
@@ -133,8 +134,14 @@ def material_hints(element: Any) -> list[str]:
     layer of a layered wall first; a window's glazing first), each followed by the library
     material that :data:`IFC_MATERIAL_WORDS` reads in it, its name and type, and last the
     material of its class (:data:`IFC_CLASS_MATERIALS`)."""
+    return _hints(element)[0]
+
+
+def _hints(element: Any) -> tuple[list[str], int]:
+    """:func:`material_hints` and the number of IFC materials among them."""
     names: list[str] = []
-    for mat in _ordered_materials(element, _material_of(element)):
+    materials = _ordered_materials(element, _material_of(element))
+    for mat in materials:
         for text in (getattr(mat, "Name", None), getattr(mat, "Category", None)):
             if text:
                 names.append(str(text))
@@ -142,7 +149,7 @@ def material_hints(element: Any) -> list[str]:
                 names += [IFC_MATERIAL_WORDS[w] for w in words if w in IFC_MATERIAL_WORDS]
     names += [str(t) for t in (element.Name, getattr(element, "ObjectType", None)) if t]
     guess = _class_material(element)
-    return names + ([guess] if guess is not None else [])
+    return names + ([guess] if guess is not None else []), len(materials)
 
 
 def _class_material(element: Any) -> str | None:
