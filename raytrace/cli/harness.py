@@ -55,7 +55,8 @@ def parse_xyz(text: str) -> list[float]:
 
 def add_scene_arguments(p: argparse.ArgumentParser) -> None:
     """The options of every command that loads a scene: SCENE, --materials, --default-material."""
-    p.add_argument("scene", help="scene file (.glb .gltf .obj .ply .stl, IFC, Mitsuba XML) or 'hall'")
+    p.add_argument("scene",
+                   help="scene file (.glb .gltf .obj .ply .stl, IFC, Mitsuba XML) or 'hall'")
     p.add_argument("--materials", help="materials YAML (user materials, bind patterns, default)")
     p.add_argument("--default-material", help="material for objects no name or pattern binds")
     p.add_argument(

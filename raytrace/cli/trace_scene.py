@@ -209,8 +209,8 @@ def _print_summary(s: dict[str, Any]) -> None:
         print("model      surfaces: every face a slab of its material's thickness, closed meshes "
               "hollow (Sionna RT's; --solids for solids)")  # fmt: skip
     if s.get("up") == "y":
-        print("up         the file's +y (glTF's convention), turned to z up: (x, y, z) -> "
-              "(x, -z, y); --up z keeps the file's axes")  # fmt: skip
+        print("up         the file's +y, turned to z up: (x, y, z) -> (x, -z, y); --up z keeps "
+              "the file's axes")  # fmt: skip
     if s.get("unit", "m") != "m":
         print(f"unit       the file's numbers in {s['unit']}, scaled to metres")
     print(f"materials  {mats}")
