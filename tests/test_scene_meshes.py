@@ -7,6 +7,7 @@ line naming the file (raytrace.scene.io, raytrace.scene.construction, raytrace.s
 
 from __future__ import annotations
 
+import sys
 import warnings
 
 import numpy as np
@@ -394,6 +395,70 @@ def test_a_gltf_stored_z_up_against_its_convention_is_read_as_stored(clean, tmp_
     np.testing.assert_allclose(turned.bounds, [[-0.3, -8.3, -0.3], [30.3, 0.3, 20.3]], atol=1e-6)
 
 
+def _write_dae(path, objects, meter=1.0, unit_name="meter", up="Z_UP", to_file=None,
+               polylist=False):  # fmt: skip
+    """``objects`` as a Collada file with pycollada, in a unit of ``meter`` metres and the given
+    ``<up_axis>``, the vertices transformed by ``to_file`` first; each material named after
+    the object's; as ``<polylist>`` instead of ``<triangles>`` with ``polylist``."""
+    import collada
+    from collada import asset, geometry, material, scene, source
+
+    to_file = np.eye(4) if to_file is None else to_file
+    c = collada.Collada()
+    c.assetInfo.unitmeter, c.assetInfo.unitname = meter, unit_name
+    c.assetInfo.upaxis = getattr(asset.UP_AXIS, up)
+    nodes = []
+    for k, (name, m) in enumerate(objects):
+        v = (np.c_[m.vertices, np.ones(len(m.vertices))] @ to_file.T)[:, :3] / meter
+        effect = material.Effect(f"e{k}", [], "phong", diffuse=(0.5, 0.5, 0.5))
+        mat = material.Material(f"m{k}", name.rsplit("_", 1)[1], effect)
+        c.effects.append(effect)
+        c.materials.append(mat)
+        geom = geometry.Geometry(c, f"g{k}", name, [source.FloatSource(f"v{k}", v.ravel(),
+                                                                       ("X", "Y", "Z"))])
+        inputs = source.InputList()
+        inputs.addInput(0, "VERTEX", f"#v{k}")
+        faces = np.asarray(m.faces).ravel()
+        geom.primitives.append(
+            geom.createPolylist(faces, np.full(len(m.faces), 3), inputs, f"ref{k}") if polylist
+            else geom.createTriangleSet(faces, inputs, f"ref{k}"))  # fmt: skip
+        c.geometries.append(geom)
+        bound = scene.MaterialNode(f"ref{k}", mat, inputs=[])
+        nodes.append(scene.Node(name, children=[scene.GeometryNode(geom, [bound])]))
+    c.scene = scene.Scene("hall", nodes)
+    c.scenes.append(c.scene)
+    c.write(str(path))
+    return path
+
+
+def test_a_collada_file_is_read_in_the_unit_and_up_axis_it_states(clean, tmp_path, monkeypatch):
+    """SketchUp's Collada export states inches and Z_UP: read in metres with the materials its
+    names bind, the clean hall's paths (delays to 1 ps); a file in metres stating Y_UP, its
+    faces as polygon lists, is turned; a given --unit wins over the stated one; X_UP and a
+    missing pycollada are one-line errors."""
+    pytest.importorskip("collada")
+    _, rx, ref = clean
+    inches = _write_dae(tmp_path / "hall_in.dae", hall_objects(), meter=0.0254, unit_name="inch")
+    scene = load_scene(inches)
+    assert (scene.unit, scene.up) == ("in", "z")
+    np.testing.assert_allclose(scene.bounds, [[-0.3, -0.3, -0.3], [30.3, 20.3, 8.3]], atol=1e-5)
+    assert_same_paths(ref, _trace(scene, TX, rx))
+    feet = load_scene(inches, unit="ft", cache=False)  # the given unit, not the stated one
+    assert feet.unit == "ft"
+    np.testing.assert_allclose(feet.bounds, scene.bounds * (0.3048 / 0.0254), rtol=1e-12)
+    y_up = _write_dae(tmp_path / "hall_y.dae", hall_objects(), up="Y_UP",
+                      to_file=np.linalg.inv(Y_UP_TO_Z_UP), polylist=True)  # fmt: skip
+    turned = load_scene(y_up)
+    assert (turned.unit, turned.up) == ("m", "y")
+    assert_same_paths(ref, _trace(turned, TX, rx))
+    sideways = _write_dae(tmp_path / "hall_x.dae", hall_objects(), up="X_UP")
+    with pytest.raises(SceneError, match="states X_UP, which hallray does not turn"):
+        load_scene(sideways)
+    monkeypatch.setitem(sys.modules, "collada", None)  # as if not installed
+    with pytest.raises(SceneError, match=r"needs pycollada: pip install 'hallray\[dae\]'"):
+        load_scene(inches, cache=False)
+
+
 def test_a_blender_obj_is_y_up_and_up_can_be_given(tmp_path):
     """An OBJ whose header names Blender is +y up (its exporter's default); another OBJ is z-up
     unless ``up="y"`` says otherwise; a file hallray wrote (its metadata) refuses ``up="y"``
@@ -557,7 +622,7 @@ def test_a_hall_in_millimetres_read_with_its_unit_gives_the_halls_paths(clean, t
     assert len(one.facets) == len(scene.facets)
     assert trace_scene_main([str(stl), "--default-material", "concrete", "--unit", "mm",
                              "--summary-only"]) == 0  # fmt: skip
-    assert "unit       the file's numbers in mm, scaled to metres" in capsys.readouterr().out
+    assert "unit       the file's numbers are millimetres, scaled to metres" in capsys.readouterr().out
     with pytest.raises(SceneError, match="in metres with z up: --unit mm does not apply"):
         load_scene("hall", unit="mm")
     with pytest.raises(SceneError, match="unit must be one of m, mm, cm, km, in, ft, not 'yd'"):

@@ -56,7 +56,7 @@ def parse_xyz(text: str) -> list[float]:
 def add_scene_arguments(p: argparse.ArgumentParser) -> None:
     """The options of every command that loads a scene: SCENE, --materials, --default-material."""
     p.add_argument("scene",
-                   help="scene file (.glb .gltf .obj .ply .stl, IFC, Mitsuba XML) or 'hall'")
+                   help="scene file (.glb .gltf .obj .ply .stl .dae, IFC, Mitsuba XML) or 'hall'")
     p.add_argument("--materials", help="materials YAML (user materials, bind patterns, default)")
     p.add_argument("--default-material", help="material for objects no name or pattern binds")
     p.add_argument(
@@ -93,9 +93,8 @@ def add_scene_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--unit",
         choices=("m", "mm", "cm", "km", "in", "ft"),
-        default="m",
         help="unit of the file's numbers, scaled to metres as it is read (a CAD export in "
-        "millimetres: mm) [m]",
+        "millimetres: mm) [the unit a Collada file states, else m]",
     )
     p.add_argument(
         "--no-scene-cache",

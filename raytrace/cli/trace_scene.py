@@ -197,6 +197,10 @@ def link_table(paths: Any, tx_names: list[str], rx_names: list[str]) -> list[dic
     return rows
 
 
+_UNIT_WORDS = {"mm": "millimetres", "cm": "centimetres", "km": "kilometres", "in": "inches",
+               "ft": "feet"}  # fmt: skip
+
+
 def _print_summary(s: dict[str, Any]) -> None:
     size = " x ".join(f"{v:.2f}" for v in s["size_m"])
     mats = ", ".join(f"{k} ({v})" for k, v in s["materials"].items())
@@ -212,7 +216,8 @@ def _print_summary(s: dict[str, Any]) -> None:
         print("up         the file's +y, turned to z up: (x, y, z) -> (x, -z, y); --up z keeps "
               "the file's axes")  # fmt: skip
     if s.get("unit", "m") != "m":
-        print(f"unit       the file's numbers in {s['unit']}, scaled to metres")
+        print(f"unit       the file's numbers are {_UNIT_WORDS.get(s['unit'], s['unit'])}, "
+              "scaled to metres")  # fmt: skip
     print(f"materials  {mats}")
     print(f"triangles  {s['triangles']}   facets {s['facets']}   wedges {s['wedges']}")
 

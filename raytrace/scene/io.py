@@ -1,10 +1,12 @@
-"""Reading scenes from files: meshes (glb, gltf, obj, ply, stl, off) through trimesh, IFC building
-models through IfcOpenShell (:mod:`.ifc`), Mitsuba / Sionna RT scene XML, and the bundled scenes
-by name; binding a material to every object."""
+"""Reading scenes from files: meshes (glb, gltf, obj, ply, stl, off) through trimesh, Collada
+(dae) through pycollada (:mod:`.collada`), IFC building models through IfcOpenShell
+(:mod:`.ifc`), Mitsuba / Sionna RT scene XML, and the bundled scenes by name; binding a material
+to every object."""
 
 from __future__ import annotations
 
 import fnmatch
+import re
 import warnings
 import xml.etree.ElementTree as ET
 from pathlib import Path
@@ -22,7 +24,7 @@ from .diskcache import cached_build
 from .model import Scene
 
 #: Mesh formats read through trimesh.
-MESH_SUFFIXES = (".glb", ".gltf", ".obj", ".ply", ".stl", ".off")
+MESH_SUFFIXES = (".glb", ".gltf", ".obj", ".ply", ".stl", ".off", ".dae")
 #: Mesh formats that store vertex coordinates as float32 numbers.
 FLOAT32_SUFFIXES = (".glb", ".gltf", ".stl")
 #: The axes of a file that may be up: z (hallray's frame, STL/PLY/OFF, Mitsuba XML as Sionna RT
@@ -44,7 +46,7 @@ def load_scene(
     smooth_angle_deg: float | None = None,
     surfaces: bool | None = None,
     up: str | None = None,
-    unit: str = "m",
+    unit: str | None = None,
     cache: bool | None = None,
 ) -> Scene:
     """Read a scene and bind a material to every object.
@@ -52,7 +54,8 @@ def load_scene(
     Parameters
     ----------
     path : str or Path
-        A mesh (.glb, .gltf, .obj, .ply, .stl, .off) read through trimesh, a building model in
+        A mesh (.glb, .gltf, .obj, .ply, .stl, .off; .dae through pycollada: its unit and
+        up axis as it states them) read through trimesh, a building model in
         IFC (.ifc, through IfcOpenShell: :mod:`raytrace.scene.ifc`), a Mitsuba / Sionna RT
         scene XML, or the name of a bundled scene (``"hall"``).
     materials : MaterialLibrary, YAML path or dict, optional
@@ -79,10 +82,12 @@ def load_scene(
         (hallray's own GLBs are z-up) and for an OBJ that Blender wrote, z otherwise; a glTF
         that is lower along z than along y was stored z-up against its convention and is read
         as it is, with a warning.
-    unit : str
-        The unit of the file's numbers, a key of :data:`UNITS` (default metres): a CAD export
-        in millimetres is read with ``"mm"`` and scaled to metres as it is read. A scene
-        beyond the size of a hall is refused with the unit that most likely explains it.
+    unit : str, optional
+        The unit of the file's numbers, a key of :data:`UNITS`: a CAD export in millimetres is
+        read with ``"mm"`` and scaled to metres as it is read. Default (None): the unit the
+        file states (a Collada file's ``<unit meter=...>``: SketchUp writes inches), else
+        metres. A scene beyond the size of a hall is refused with the unit that most likely
+        explains it.
     cache : bool, optional
         Keep the scene's preprocessing on disk beside the file (``.hallray-cache/``, keyed by
         the content hash of the file, the materials and these options) and reuse it on the next
@@ -102,6 +107,11 @@ def load_scene(
     """
     p, up = _checked(path, smooth_angle_deg, up, unit)
     convention = file_up(p)
+    if up is None and convention == "x":
+        raise SceneError(f"scene {p.name} states X_UP, which hallray does not turn: read it with "
+                         "--up z or --up y")  # fmt: skip
+    declared = file_unit(p)
+    unit_name, scale = (unit, UNITS[unit]) if unit is not None else declared or ("m", 1.0)
     options = {"default_material": default_material, "smooth_angle_deg": smooth_angle_deg}
     if surfaces is not None:  # the default's key stays that of caches written before the option
         options["surfaces"] = bool(surfaces)
@@ -109,13 +119,13 @@ def load_scene(
         options["up"] = up
     elif up is None and convention == "y":  # the file's geometry decides (:func:`_turned_up`)
         options["up"] = "convention-y"
-    if unit != "m":
+    if unit is not None and (unit != "m" or declared is not None):  # a stated one is content
         options["unit"] = unit
     try:
         scene = cached_build(
             p.resolve(), materials, options,
             lambda: _build(p, materials, default_material, smooth_angle_deg, surfaces,
-                           up or convention, unit, up is None),
+                           up or convention, (unit_name, scale), up is None),
             cache,
         )  # fmt: skip
     except OSError as exc:  # a materials file or a mesh the XML names cannot be read
@@ -128,7 +138,7 @@ def load_scene(
 
 
 def _checked(path: str | Path, smooth_angle_deg: float | None, up: str | None,
-             unit: str) -> tuple[Path, str | None]:  # fmt: skip
+             unit: str | None) -> tuple[Path, str | None]:  # fmt: skip
     """:func:`load_scene`'s file and its up axis as given, with the options checked: a one-line
     :class:`SceneError` for a missing file or format, a wrong smooth angle, axis or unit."""
     from .bundled import resolve_scene
@@ -147,9 +157,9 @@ def _checked(path: str | Path, smooth_angle_deg: float | None, up: str | None,
     check_smooth_angle(smooth_angle_deg)
     if up is not None and up not in UP_AXES:
         raise SceneError(f"up axis must be one of {', '.join(UP_AXES)}, not {up!r}")
-    if unit not in UNITS:
+    if unit is not None and unit not in UNITS:
         raise SceneError(f"unit must be one of {', '.join(UNITS)}, not {unit!r}")
-    if unit != "m" and suffix == ".ifc":
+    if unit not in (None, "m") and suffix == ".ifc":
         raise SceneError(f"scene {p.name} is IFC, which states its own length unit (read as "
                          f"metres): --unit {unit} does not apply to it")  # fmt: skip
     return p, up
@@ -162,11 +172,12 @@ def _build(
     smooth_angle_deg: float | None,
     surfaces: bool | None = None,
     up: str = "z",
-    unit: str = "m",
+    unit: tuple[str, float] = ("m", 1.0),
     by_convention: bool = False,
 ) -> Scene:
-    """:func:`load_scene` without the cache: read, turn a y-up file to z up, estimate the
-    memory, bind the materials, build."""
+    """:func:`load_scene` without the cache: read (``unit``: the unit's name and metres per
+    unit), turn a y-up file to z up, estimate the memory, bind the materials, build."""
+    unit_name, scale = unit
     if p.suffix.lower() == ".xml":
         named, metadata, xml_materials, xml_surfaces = _read_mitsuba(p)
         if surfaces is None:  # Sionna RT's model, unless hallray wrote it as solids (its sidecar)
@@ -178,11 +189,19 @@ def _build(
         lo = np.min([m.bounds[0] for _, m, _ in named], axis=0)
         hi = np.max([m.bounds[1] for _, m, _ in named], axis=0)
         check_extent(tuple(float(v) for v in hi - lo), f"scene {p.name}")
+    elif p.suffix.lower() == ".dae":  # trimesh's reader drops the names that bind materials
+        from .collada import read_collada
+
+        named, metadata, xml_materials = read_collada(p, scale), {}, {}
+        lo = np.min([m.bounds[0] for _, m, _ in named], axis=0)
+        hi = np.max([m.bounds[1] for _, m, _ in named], axis=0)
+        check_extent(tuple(float(v) for v in hi - lo), f"scene {p.name}", option="--unit")
     else:
-        named, metadata = _read_trimesh(p, "z" if by_convention else up, unit)
+        named, metadata = _read_trimesh(p, "z" if by_convention else up, unit_name, scale)
         xml_materials = {}
-    _check_own(p, metadata, "z" if by_convention else up, unit)
-    if up == "y" and by_convention and "blender" not in file_writer(p).lower():
+    _check_own(p, metadata, "z" if by_convention else up, unit_name)
+    gltf = p.suffix.lower() in (".glb", ".gltf")
+    if up == "y" and by_convention and gltf and "blender" not in file_writer(p).lower():
         # hallray's own files are z-up whoever wrote them; an unknown tool's glTF may ignore
         # the convention, which its geometry shows (Blender's exporters follow it)
         own = isinstance(metadata, dict) and bool(metadata.get("hallray"))
@@ -190,9 +209,9 @@ def _build(
     if up == "y":
         for _, mesh, _ in named:
             mesh.apply_transform(Y_UP_TO_Z_UP)
-    if unit != "m" and p.suffix.lower() == ".xml":  # a mesh file's are scaled as it is read
+    if scale != 1.0 and p.suffix.lower() == ".xml":  # a mesh file's are scaled as it is read
         for _, mesh, _ in named:
-            mesh.apply_scale(UNITS[unit])
+            mesh.apply_scale(scale)
     check_load(sum(len(m.faces) for _, m, _ in named), p.name)
     library = MaterialLibrary.itu()
     meta_h = metadata.get("hallray", {}) if isinstance(metadata, dict) else {}
@@ -243,7 +262,7 @@ def _build(
     scene = Scene.from_meshes(bound, library, metadata=metadata, source=str(p),
                               smooth_angle_deg=smooth_angle_deg,
                               surfaces=bool(surfaces))  # fmt: skip
-    scene.up, scene.unit = up, unit
+    scene.up, scene.unit = up, unit_name
     return scene
 
 
@@ -269,6 +288,9 @@ def file_up(p: Path) -> str:
     trimesh, keep z up), and for an OBJ whose header says Blender wrote it (its exporter's
     default, +y up); "z" otherwise (:func:`file_writer`)."""
     suffix = p.suffix.lower()
+    if suffix == ".dae":  # Collada states it (<up_axis>), Y_UP if it does not
+        m = re.search(rb"<up_axis>\s*([XYZ])_UP\s*</up_axis>", _head(p))
+        return "y" if m is None else m.group(1).decode().lower()
     writer = file_writer(p).lower()
     if suffix == ".obj":
         return "y" if "blender" in writer else "z"
@@ -277,17 +299,38 @@ def file_up(p: Path) -> str:
     return "z"
 
 
+def file_unit(p: Path) -> tuple[str, float] | None:
+    """The length unit a file states, as (name, metres per unit): a Collada file's
+    ``<unit meter=...>`` (named after :data:`UNITS` when it is one of them, e.g. SketchUp's
+    inches ``"in"``); None for formats that do not state one (glTF is metres by its
+    specification, IFC's unit is converted by IfcOpenShell)."""
+    if p.suffix.lower() != ".dae":
+        return None
+    m = re.search(rb"<unit\b[^>]*\bmeter\s*=\s*[\"']([^\"']+)[\"']", _head(p))
+    try:
+        meter = float(m.group(1)) if m is not None else None
+    except ValueError:
+        meter = None
+    if meter is None or not np.isfinite(meter) or meter <= 0:
+        return None
+    name = next((k for k, v in UNITS.items() if np.isclose(v, meter, rtol=1e-6)), f"{meter:g} m")
+    return name, meter
+
+
+def _head(p: Path) -> bytes:
+    """The first 64 KiB of ``p`` (where formats name their writer, unit and axes)."""
+    with open(p, "rb") as fh:
+        return fh.read(65536)
+
+
 def file_writer(p: Path) -> str:
     """What wrote the file ``p``, as it says: a glTF's ``asset.generator``, an OBJ's header
     comments; "" if it does not say, or for other formats. Only the file's first 64 KiB are read
     (glTF's ``asset`` comes first in the JSON)."""
-    import re
-
     suffix = p.suffix.lower()
     if suffix not in (".glb", ".gltf", ".obj"):
         return ""
-    with open(p, "rb") as fh:
-        head = fh.read(65536)
+    head = _head(p)
     if suffix == ".obj":
         lines = [ln[1:].strip() for ln in head.splitlines()[:5] if ln.startswith(b"#")]
         return b" ".join(lines).decode("utf-8", "replace")
@@ -314,10 +357,11 @@ def _check_own(p: Path, metadata: Any, up: str, unit: str) -> None:
 
 
 def _read_trimesh(
-    p: Path, up: str = "z", unit: str = "m"
+    p: Path, up: str = "z", unit: str = "m", scale: float = 1.0
 ) -> tuple[list[tuple[str, Any, list[str]]], dict[str, Any]]:
     """Objects of a mesh file as (name, mesh in world coordinates, name hints), its numbers
-    scaled from ``unit`` to metres (the turn to z ``up`` is :func:`_build`'s)."""
+    in ``unit`` (``scale`` metres each) scaled to metres (the turn to z ``up`` is
+    :func:`_build`'s)."""
     import trimesh
 
     try:
@@ -333,7 +377,6 @@ def _read_trimesh(
             f"cannot read scene {p.name}: {type(exc).__name__}: {exc}".splitlines()[0]
         ) from None
     _check_own(p, loaded.metadata, up, unit)  # before its size is weighed in that unit
-    scale = UNITS[unit]
     named: list[tuple[str, Any, list[str]]] = []
     rounded = 0.0  # the largest float32 rounding of a vertex far from the origin, m
     for node in sorted(loaded.graph.nodes_geometry):
