@@ -29,6 +29,26 @@ def make_scene(objects, library: MaterialLibrary | None = None) -> Scene:
     return Scene.from_meshes(list(objects), library or MaterialLibrary.itu())
 
 
+def assert_same_paths_by_link(a, b, atol_s: float, objects: bool = True) -> None:
+    """``a`` and ``b`` hold the same paths: per link and interaction sequence (and the objects
+    they meet, with ``objects``), as many, with sorted delays equal to ``atol_s`` seconds.
+    Element indices are not compared: a scene read from another file numbers them its own way."""
+
+    def groups(p) -> dict[tuple, list[float]]:
+        out: dict[tuple, list[float]] = {}
+        for i in range(p.n_paths):
+            key = (int(p.tx_index[i]), int(p.rx_index[i]), tuple(p.interaction[i].tolist()))
+            key += (tuple(p.objects[i].tolist()),) if objects else ()
+            out.setdefault(key, []).append(float(p.delay_s[i]))
+        return out
+
+    ga, gb = groups(a), groups(b)
+    assert sorted(ga) == sorted(gb), sorted(set(ga) ^ set(gb))[:3]
+    for key, delays in ga.items():
+        assert len(delays) == len(gb[key]), key
+        np.testing.assert_allclose(sorted(gb[key]), sorted(delays), rtol=0, atol=atol_s)
+
+
 def assert_same_both_ways(fwd, rev, n_a: int, n_b: int, gain_rtol: float = 1e-9) -> None:
     """Every link A -> B of ``fwd`` has the same paths as B -> A of ``rev``: as many, and, sorted
     by delay, the same delays (1e-12 relative) and complex gains (``gain_rtol``). Independent of
