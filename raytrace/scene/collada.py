@@ -62,7 +62,7 @@ def read_collada(p: Path, scale: float = 1.0) -> list[tuple[str, Any, list[str]]
             raise SceneError(f"scene {p.name} has no <scene> to place its geometries")
         parts = _placed_parts(doc, scale)
     named = []
-    for key, (verts, faces, hints) in parts.items():
+    for key, (verts, faces, hints, _) in parts.items():
         v, f = np.concatenate(verts), np.concatenate(faces)
         if not np.isfinite(v).all():
             raise SceneError(f"scene {p.name}: object {key!r} has NaN or infinite vertex "
@@ -76,9 +76,9 @@ def read_collada(p: Path, scale: float = 1.0) -> list[tuple[str, Any, list[str]]
 
 def _placed_parts(doc: Any, scale: float) -> dict[str, list]:
     """Every placement of every geometry of ``doc`` in world coordinates and metres, by object
-    name: ``[vertex blocks, face blocks, hints]``."""
+    name: ``[vertex blocks, face blocks, hints, vertices so far]``."""
     placed: dict[str, int] = {}
-    parts: dict[str, list] = {}  # name -> [vertex blocks, face blocks, hints]
+    parts: dict[str, list] = {}
     for bound in doc.scene.objects("geometry"):
         geom = bound.original
         base = _label(geom.name or geom.id)
@@ -96,10 +96,12 @@ def _placed_parts(doc: Any, scale: float) -> dict[str, list]:
             mat = _material_name(tri.material)
             key = name if len(mats) == 1 else f"{name}/{_label(mat)}"
             entry = parts.setdefault(key, [[], [], [mat, getattr(tri.material, "id", ""),
-                                                    geom.name or "", geom.id or ""]])  # fmt: skip
-            entry[1].append(np.asarray(tri.vertex_index, dtype=np.int64).reshape(-1, 3)
-                            + sum(len(v) for v in entry[0]))  # fmt: skip
-            entry[0].append(np.asarray(tri.vertex, dtype=np.float64).reshape(-1, 3) * scale)
+                                                    geom.name or "", geom.id or ""], 0])  # fmt: skip
+            v = np.asarray(tri.vertex, dtype=np.float64).reshape(-1, 3) * scale
+            # this block's indices follow the vertices of the object's earlier blocks
+            entry[1].append(np.asarray(tri.vertex_index, dtype=np.int64).reshape(-1, 3) + entry[3])
+            entry[0].append(v)
+            entry[3] += len(v)
     return parts
 
 

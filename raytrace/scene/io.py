@@ -9,6 +9,7 @@ import fnmatch
 import re
 import warnings
 import xml.etree.ElementTree as ET
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -106,26 +107,24 @@ def load_scene(
         :func:`raytrace.scene.budget.check_load`).
     """
     p, up = _checked(path, smooth_angle_deg, up, unit)
-    convention = file_up(p)
+    facts = file_facts(p)
+    convention = facts.up
     if up is None and convention == "x":
         raise SceneError(f"scene {p.name} states X_UP, which hallray does not turn: read it with "
                          "--up z or --up y")  # fmt: skip
-    declared = file_unit(p)
+    declared = facts.unit
+    # a glTF from a tool other than Blender may be stored against its convention: its
+    # geometry decides (:func:`_turned_up`; Blender's exporters follow the convention)
+    check_geometry = (up is None and convention == "y" and p.suffix.lower() in (".glb", ".gltf")
+                      and "blender" not in facts.writer.lower())  # fmt: skip
     unit_name, scale = (unit, UNITS[unit]) if unit is not None else declared or ("m", 1.0)
-    options = {"default_material": default_material, "smooth_angle_deg": smooth_angle_deg}
-    if surfaces is not None:  # the default's key stays that of caches written before the option
-        options["surfaces"] = bool(surfaces)
-    if up is not None and (up, convention) != ("z", "z"):  # likewise
-        options["up"] = up
-    elif up is None and convention == "y":  # the file's geometry decides (:func:`_turned_up`)
-        options["up"] = "convention-y"
-    if unit is not None and (unit != "m" or declared is not None):  # a stated one is content
-        options["unit"] = unit
+    options = _cache_options(default_material, smooth_angle_deg, surfaces, up, convention,
+                             check_geometry, unit, declared)  # fmt: skip
     try:
         scene = cached_build(
             p.resolve(), materials, options,
             lambda: _build(p, materials, default_material, smooth_angle_deg, surfaces,
-                           up or convention, (unit_name, scale), up is None),
+                           up or convention, (unit_name, scale), up is None, check_geometry),
             cache,
         )  # fmt: skip
     except OSError as exc:  # a materials file or a mesh the XML names cannot be read
@@ -135,6 +134,23 @@ def load_scene(
     # a hall in mm (or cm, or km): refused before tracing
     check_extent(tuple(float(v) for v in hi - lo), f"scene {p.name}", option="--unit")
     return scene
+
+
+def _cache_options(default_material: str | None, smooth_angle_deg: float | None,
+                   surfaces: bool | None, up: str | None, convention: str, check_geometry: bool,
+                   unit: str | None, declared: tuple[str, float] | None) -> dict[str, Any]:  # fmt: skip
+    """What :func:`load_scene`'s built scene depends on besides the file and the materials (the
+    disk cache's key). The defaults' key stays that of caches written before these options."""
+    options = {"default_material": default_material, "smooth_angle_deg": smooth_angle_deg}
+    if surfaces is not None:
+        options["surfaces"] = bool(surfaces)
+    if check_geometry:  # decided by the geometry, not by the file's statement
+        options["up"] = "convention-y"
+    elif (up or convention, convention) != ("z", "z"):  # turned, or a file not z-up kept so
+        options["up"] = up or convention
+    if unit is not None and (unit != "m" or declared is not None):  # a stated one is content
+        options["unit"] = unit
+    return options
 
 
 def _checked(path: str | Path, smooth_angle_deg: float | None, up: str | None,
@@ -174,6 +190,7 @@ def _build(
     up: str = "z",
     unit: tuple[str, float] = ("m", 1.0),
     by_convention: bool = False,
+    check_geometry: bool = False,
 ) -> Scene:
     """:func:`load_scene` without the cache: read (``unit``: the unit's name and metres per
     unit), turn a y-up file to z up, estimate the memory, bind the materials, build."""
@@ -186,24 +203,17 @@ def _build(
         from .ifc import read_ifc
 
         named, metadata, xml_materials = read_ifc(p, _threads()), {}, {}
-        lo = np.min([m.bounds[0] for _, m, _ in named], axis=0)
-        hi = np.max([m.bounds[1] for _, m, _ in named], axis=0)
-        check_extent(tuple(float(v) for v in hi - lo), f"scene {p.name}")
+        check_extent(_extent(named), f"scene {p.name}")
     elif p.suffix.lower() == ".dae":  # trimesh's reader drops the names that bind materials
         from .collada import read_collada
 
         named, metadata, xml_materials = read_collada(p, scale), {}, {}
-        lo = np.min([m.bounds[0] for _, m, _ in named], axis=0)
-        hi = np.max([m.bounds[1] for _, m, _ in named], axis=0)
-        check_extent(tuple(float(v) for v in hi - lo), f"scene {p.name}", option="--unit")
+        check_extent(_extent(named), f"scene {p.name}", option="--unit")
     else:
         named, metadata = _read_trimesh(p, "z" if by_convention else up, unit_name, scale)
         xml_materials = {}
     _check_own(p, metadata, "z" if by_convention else up, unit_name)
-    gltf = p.suffix.lower() in (".glb", ".gltf")
-    if up == "y" and by_convention and gltf and "blender" not in file_writer(p).lower():
-        # hallray's own files are z-up whoever wrote them; an unknown tool's glTF may ignore
-        # the convention, which its geometry shows (Blender's exporters follow it)
+    if up == "y" and check_geometry:  # hallray's own files are z-up whoever wrote them
         own = isinstance(metadata, dict) and bool(metadata.get("hallray"))
         up = "z" if own else _turned_up(p, named)
     if up == "y":
@@ -266,14 +276,19 @@ def _build(
     return scene
 
 
+def _extent(named: list[tuple[str, Any, list[str]]]) -> tuple[float, float, float]:
+    """(x, y, z) extent (file units scaled as read) of the meshes of ``named``."""
+    lo = np.min([m.bounds[0] for _, m, _ in named], axis=0)
+    hi = np.max([m.bounds[1] for _, m, _ in named], axis=0)
+    return tuple(float(v) for v in hi - lo)
+
+
 def _turned_up(p: Path, named: list[tuple[str, Any, list[str]]]) -> str:
     """The up axis of a glTF that a tool other than Blender wrote, by its geometry: a hall is
     lower than it is long and wide, so a file lower along z than along y was written z-up
     against the convention (by a tool that ignores it): "z", with a warning naming ``--up y``;
     else "y"."""
-    lo = np.min([m.bounds[0] for _, m, _ in named], axis=0)
-    hi = np.max([m.bounds[1] for _, m, _ in named], axis=0)
-    size = hi - lo
+    size = _extent(named)
     if size[2] < size[1]:
         warnings.warn(f"scene {p.name} is glTF, +y up by its specification, but it is lower along "
                       f"z ({size[2]:.3g} m) than along y ({size[1]:.3g} m): read with z up as it "
@@ -282,31 +297,59 @@ def _turned_up(p: Path, named: list[tuple[str, Any, list[str]]]) -> str:
     return "y"
 
 
-def file_up(p: Path) -> str:
-    """The axis that is up in the file ``p`` by its format's convention: "y" for glTF (the
-    specification's +y up) unless trimesh wrote it (hallray's own GLBs, and scenes written with
-    trimesh, keep z up), and for an OBJ whose header says Blender wrote it (its exporter's
-    default, +y up); "z" otherwise (:func:`file_writer`)."""
+@dataclass(frozen=True)
+class FileFacts:
+    """What a scene file says of itself, from its first 64 KiB (:func:`file_facts`).
+
+    Attributes
+    ----------
+    up : the axis that is up by the format's convention or the file's statement: "y" for glTF
+        (the specification's +y up) unless trimesh wrote it (hallray's own GLBs, and scenes
+        written with trimesh, keep z up), for an OBJ whose header says Blender wrote it (its
+        exporter's default) and for a Collada file that states ``Y_UP`` or nothing; a Collada
+        file's ``X_UP`` is "x"; "z" otherwise.
+    unit : the length unit the file states, as (name, metres per unit): a Collada file's
+        ``<unit meter=...>`` (named after :data:`UNITS` when it is one of them, e.g. SketchUp's
+        inches ``"in"``); None for formats that do not state one (glTF is metres by its
+        specification, IFC's unit is converted by IfcOpenShell).
+    writer : what wrote it, as it says: a glTF's ``asset.generator``, an OBJ's header comments;
+        "" if it does not say.
+    """
+
+    up: str
+    unit: tuple[str, float] | None
+    writer: str
+
+
+def file_facts(p: Path) -> FileFacts:
+    """:class:`FileFacts` of the file ``p``, reading its first 64 KiB once (glTF's ``asset``
+    comes first in its JSON, Collada's ``<asset>`` first in its XML)."""
     suffix = p.suffix.lower()
-    if suffix == ".dae":  # Collada states it (<up_axis>), Y_UP if it does not
-        m = re.search(rb"<up_axis>\s*([XYZ])_UP\s*</up_axis>", _head(p))
-        return "y" if m is None else m.group(1).decode().lower()
-    writer = file_writer(p).lower()
+    if suffix not in (".glb", ".gltf", ".obj", ".dae"):
+        return FileFacts("z", None, "")
+    with open(p, "rb") as fh:
+        head = fh.read(65536)
+    if suffix == ".dae":
+        axis = re.search(rb"<up_axis>\s*([XYZ])_UP\s*</up_axis>", head)
+        return FileFacts("y" if axis is None else axis.group(1).decode().lower(),
+                         _stated_unit(head), "")  # fmt: skip
     if suffix == ".obj":
-        return "y" if "blender" in writer else "z"
-    if suffix in (".glb", ".gltf"):
-        return "z" if "trimesh" in writer else "y"
-    return "z"
+        lines = [ln[1:].strip() for ln in head.splitlines()[:5] if ln.startswith(b"#")]
+        writer = b" ".join(lines).decode("utf-8", "replace")
+        return FileFacts("y" if "blender" in writer.lower() else "z", None, writer)
+    m = re.search(rb'"generator"\s*:\s*"([^"]*)"', head)
+    writer = "" if m is None else m.group(1).decode("utf-8", "replace")
+    return FileFacts("z" if "trimesh" in writer.lower() else "y", None, writer)
 
 
-def file_unit(p: Path) -> tuple[str, float] | None:
-    """The length unit a file states, as (name, metres per unit): a Collada file's
-    ``<unit meter=...>`` (named after :data:`UNITS` when it is one of them, e.g. SketchUp's
-    inches ``"in"``); None for formats that do not state one (glTF is metres by its
-    specification, IFC's unit is converted by IfcOpenShell)."""
-    if p.suffix.lower() != ".dae":
-        return None
-    m = re.search(rb"<unit\b[^>]*\bmeter\s*=\s*[\"']([^\"']+)[\"']", _head(p))
+def file_up(p: Path) -> str:
+    """The axis that is up in the file ``p`` by its format's convention (:class:`FileFacts`)."""
+    return file_facts(p).up
+
+
+def _stated_unit(head: bytes) -> tuple[str, float] | None:
+    """A Collada header's ``<unit meter=...>`` as (name, metres per unit), or None."""
+    m = re.search(rb"<unit\b[^>]*\bmeter\s*=\s*[\"']([^\"']+)[\"']", head)
     try:
         meter = float(m.group(1)) if m is not None else None
     except ValueError:
@@ -315,27 +358,6 @@ def file_unit(p: Path) -> tuple[str, float] | None:
         return None
     name = next((k for k, v in UNITS.items() if np.isclose(v, meter, rtol=1e-6)), f"{meter:g} m")
     return name, meter
-
-
-def _head(p: Path) -> bytes:
-    """The first 64 KiB of ``p`` (where formats name their writer, unit and axes)."""
-    with open(p, "rb") as fh:
-        return fh.read(65536)
-
-
-def file_writer(p: Path) -> str:
-    """What wrote the file ``p``, as it says: a glTF's ``asset.generator``, an OBJ's header
-    comments; "" if it does not say, or for other formats. Only the file's first 64 KiB are read
-    (glTF's ``asset`` comes first in the JSON)."""
-    suffix = p.suffix.lower()
-    if suffix not in (".glb", ".gltf", ".obj"):
-        return ""
-    head = _head(p)
-    if suffix == ".obj":
-        lines = [ln[1:].strip() for ln in head.splitlines()[:5] if ln.startswith(b"#")]
-        return b" ".join(lines).decode("utf-8", "replace")
-    m = re.search(rb'"generator"\s*:\s*"([^"]*)"', head)
-    return "" if m is None else m.group(1).decode("utf-8", "replace")
 
 
 def _threads() -> int:
@@ -405,9 +427,7 @@ def _read_trimesh(
         raise SceneError(f"scene {p.name} contains no triangles")
     # a hall in mm is refused before it is repaired and built (and before the rounding of its
     # float32 numbers, which are not metres, is worth a word)
-    lo = np.min([m.bounds[0] for _, m, _ in named], axis=0)
-    hi = np.max([m.bounds[1] for _, m, _ in named], axis=0)
-    check_extent(tuple(float(v) for v in hi - lo), f"scene {p.name}", option="--unit")
+    check_extent(_extent(named), f"scene {p.name}", option="--unit")
     if rounded:
         warnings.warn(
             f"scene {p.name} stores its vertices as float32 numbers (as STL and glTF do) far from "
