@@ -402,8 +402,8 @@ def _write_dae(path, objects, meter=1.0, unit_name="meter", up="Z_UP", to_file=N
 def test_a_collada_file_is_read_in_the_unit_and_up_axis_it_states(clean, tmp_path, monkeypatch):
     """SketchUp's Collada export states inches and Z_UP: read in metres with the materials its
     names bind, the clean hall's paths (delays to 1 ps); a file in metres stating Y_UP, its
-    faces as polygon lists, is turned; a given --unit wins over the stated one; X_UP and a
-    missing pycollada are one-line errors."""
+    faces as polygon lists, is turned; a given --unit wins over the stated one; a malformed
+    file, X_UP and a missing pycollada are one-line errors."""
     pytest.importorskip("collada")
     _, rx, ref = clean
     inches = _write_dae(tmp_path / "hall_in.dae", hall_objects(), meter=0.0254, unit_name="inch")
@@ -419,6 +419,10 @@ def test_a_collada_file_is_read_in_the_unit_and_up_axis_it_states(clean, tmp_pat
     turned = load_scene(y_up)
     assert (turned.unit, turned.up) == ("m", "y")
     assert_same_paths(ref, _trace(turned, TX, rx))
+    broken = tmp_path / "broken.dae"
+    broken.write_text("<COLLADA><broken")
+    with pytest.raises(SceneError, match="cannot read scene broken.dae: DaeMalformedError"):
+        load_scene(broken)
     sideways = _write_dae(tmp_path / "hall_x.dae", hall_objects(), up="X_UP")
     with pytest.raises(SceneError, match="states X_UP, which hallray does not turn"):
         load_scene(sideways)
