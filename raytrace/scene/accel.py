@@ -307,6 +307,7 @@ def beam_facets(
     side: np.ndarray,
     mask: np.ndarray | None = None,
     masked: np.ndarray | None = None,
+    forest: tuple[tuple[SphereTree, int], ...] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """(query, facet) pairs, in query order: the facets whose bounding sphere each beam can
     reach with some part strictly on its plane's ``side`` (:func:`raytrace.scene.spatial.
@@ -320,6 +321,8 @@ def beam_facets(
     mask : (K,) bool, optional, facets that may take part (a trace of some objects only)
     masked : (Q,) bool, with ``mask``: the beams from a facet that may take part; the others
         are asked about the facets that may take part only (a tree over those, built here)
+    forest : trees to ask instead of :func:`facet_forest` (each with the index its elements
+        are offset by), without ``mask``; the hits are then those trees' elements
 
     Returns
     -------
@@ -337,7 +340,7 @@ def beam_facets(
             f_parts.append(hits + first)
 
     if mask is None:
-        ask(facet_forest(facets), None)
+        ask(facet_forest(facets) if forest is None else forest, None)
     else:
         ask(facet_forest(facets), np.flatnonzero(masked))
         chosen = np.flatnonzero(mask)

@@ -39,6 +39,13 @@ class TraceConfig:
     extrapolate : bool, allow materials outside their ITU-R P.2040 frequency range (warns)
     slab_delay : bool, a penetrated slab delays the path by its group delay
         (:func:`raytrace.physics.materials.slab_group_delay`), not only its phase
+    facet_reach : float, metres, >= 0; 0 (the default) traces exactly. Above 0, an
+        approximation for scenes of many small facets (scanned or tessellated machines): a
+        facet whose bounding sphere's radius is below it reflects, in a path of more than one
+        reflection or diffraction, only toward or from the interactions next to it on the path
+        whose bounding boxes come within this distance of its own
+        (:mod:`raytrace.solver.near`); every path found is one the exact tracer finds, with
+        the same numbers. Its recall is measured in docs/tracing.md.
     """
 
     max_reflections: int = field(default=2, metadata=_limit("reflections per path (0-2)", 0, 2))
@@ -68,6 +75,17 @@ class TraceConfig:
         },
     )
 
+    facet_reach: float = field(
+        default=0.0,
+        metadata={
+            "help": "approximate, for scenes of many small facets: a facet of radius below this "
+            "(m) pairs, in paths of several interactions, only with edges and facets within "
+            "this distance of it (0: exact)",
+            "kind": "float",
+            "range": (0.0, math.inf),
+        },
+    )
+
     def __post_init__(self) -> None:
         for f in fields(self):
             value = getattr(self, f.name)
@@ -82,6 +100,10 @@ class TraceConfig:
                 ok = isinstance(value, (int, float)) and not isinstance(value, bool)
                 if not ok or math.isnan(value) or value == math.inf:
                     raise TraceInputError(f"{f.name} must be a number or -inf, got {value!r}")
+                lo, hi = f.metadata.get("range", (-math.inf, math.inf))
+                if not lo <= value < hi:
+                    raise TraceInputError(
+                        f"{f.name} must be a finite number >= {lo:g}, got {value!r}")
             elif not isinstance(value, bool):
                 raise TraceInputError(f"{f.name} must be true or false, got {value!r}")
 

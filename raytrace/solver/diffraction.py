@@ -37,7 +37,7 @@ from ..physics.utd import (
 )
 from ..scene import accel
 from ..scene.spatial import build_tree
-from . import kernels, shadow
+from . import kernels, near, shadow
 from . import reflection as refl
 from .context import TraceContext
 from .evaluate import Candidates, DiffractionModel, DiffractionOperator, candidates, evaluate
@@ -327,7 +327,8 @@ def _end_chunks(
     else:
         f_chosen = np.ones(len(fc), dtype=bool)
         g_chosen = np.ones(len(geo.g_start), dtype=bool)
-    if kernels.use_tables(len(fc), len(ctx.scene.wedges)):
+    tables = kernels.use_tables(len(fc), len(ctx.scene.wedges)) and not ctx.cfg.facet_reach
+    if tables:
         fixed = (*geo.facets[:2], f_chosen, *geo.facets[2:], *geo.groups, g_chosen, *geo.wedges,
                  *_wedge_frame(ctx).kernel_args, accel.PLANE_TOL_M, SPAN_PAD_M, kernels.PRUNE)  # fmt: skip
     else:
@@ -335,17 +336,17 @@ def _end_chunks(
     taken = range(len(ends)) if only is None else only
     if not keep:
         for e in taken:
-            yield from _end_triples(fc, geo, fixed, ends[e], side[e], e)
+            yield from _end_triples(fc, geo, fixed, ends[e], side[e], e, tables)
         return
     kept = ctx.scene.wedges.cache.setdefault("end_pairs", {})
     mask = (None if ctx.facet_mask is None or mixed_rdr
             else (ctx.facet_mask.tobytes(), ctx.wedge_mask.tobytes()))  # fmt: skip
     for e in taken:
         key = (ends[e].tobytes(), side[e].tobytes(), mask, kernels.PRUNE, float(ctx.scene.margin),
-               ctx.opaque.tobytes())
+               ctx.opaque.tobytes(), ctx.cfg.facet_reach)
         found = kept.get(key)
         if found is None:
-            found = yield from _kept_triples(ctx, fc, geo, fixed, ends[e], side[e], e)
+            found = yield from _kept_triples(ctx, fc, geo, fixed, ends[e], side[e], e, tables)
             if found is None:  # too many to keep: streamed already
                 continue
             keep_bounded(kept, key, found, END_PAIRS_KEPT)
@@ -354,13 +355,13 @@ def _end_chunks(
 
 
 def _kept_triples(ctx: TraceContext, fc, geo: _PairGeometry, fixed: tuple, end: np.ndarray,
-                  side_e: np.ndarray, e: int):  # fmt: skip
+                  side_e: np.ndarray, e: int, tables: bool):  # fmt: skip
     """A transmitter's triples to keep (a generator): gathered while they are at most
     :data:`KEEP_MAX_TRIPLES`, then returned (without the end index, read-only) for the caller
     to keep and yield; beyond that, every chunk is yielded as it comes and None returned."""
     held: list[tuple[np.ndarray, ...]] = []
     n = 0
-    chunks = _end_triples(fc, geo, fixed, end, side_e, e)
+    chunks = _end_triples(fc, geo, fixed, end, side_e, e, tables)
     for chunk in chunks:
         held.append(chunk)
         n += len(chunk[0])
@@ -402,8 +403,9 @@ def _pair_buffers(n: int) -> tuple:
 
 
 def _end_triples(fc, geo: _PairGeometry, fixed: tuple, end: np.ndarray, side_e: np.ndarray,
-                 e: int) -> Iterator[tuple[np.ndarray, ...]]:  # fmt: skip
-    """End point ``e``'s triples (:func:`_triple_chunks`), in chunks."""
+                 e: int, tables: bool) -> Iterator[tuple[np.ndarray, ...]]:  # fmt: skip
+    """End point ``e``'s triples (:func:`_triple_chunks`), in chunks: by the scan of
+    :func:`raytrace.solver.kernels.facet_wedge_pairs` (``tables``) or the trees' walks."""
     f_ok = np.flatnonzero(side_e != 0)
     sgn = side_e[f_ok].astype(float)
     nrm, off = fc.normal[f_ok], fc.offset[f_ok]
@@ -414,25 +416,38 @@ def _end_triples(fc, geo: _PairGeometry, fixed: tuple, end: np.ndarray, side_e: 
     c = np.ascontiguousarray
     per_facet = (f_ok, sgn, h_f, c(img_f.T), c(f_beam.axis.T), f_beam.cos_a, f_beam.sin_a,
                  f_beam.apex_inside)  # fmt: skip
-    if kernels.use_tables(len(fc), len(geo.wedges[0])):
+    if tables:
         *arrays, m = kernels.facet_wedge_pairs(*per_facet, *fixed, e, *_pair_buffers(PAIRS_PER_END))
         if m:
             yield tuple(x[:m] for x in arrays)
         return
     walks, tail = fixed
-    for leaves, asks in walks:
+    for leaves, asks, lists in walks:
         active = np.ones(len(f_ok), dtype=bool) if asks is None else c(asks[f_ok])
-        j, rows = 0, PAIRS_PER_END
-        while j < len(f_ok):
-            *arrays, _ = _pair_buffers(rows)
-            m, j_next = kernels.facet_wedge_pairs_tree(*per_facet, active, *geo.facets, *leaves,
-                                                       *tail, e, *arrays, j)  # fmt: skip
-            if m:
-                yield tuple(x[:m] for x in arrays)
-            if j_next < len(f_ok):
-                # full: larger buffers next (one facet's triples never split), up to a chunk
-                rows = 2 * rows if m == 0 else min(2 * rows, max(rows, TRIPLE_CHUNK))
-            j = j_next
+        # the approximate discovery (solver/near.py): the small facets take their own lists
+        walked = active if lists is None else active & ~lists[0][f_ok]
+        yield from _streamed(partial(kernels.facet_wedge_pairs_tree, *per_facet, walked,
+                                     *geo.facets, *leaves, *tail, e), len(f_ok))  # fmt: skip
+        if lists is not None:
+            yield from _streamed(partial(kernels.facet_wedge_pairs_near, *per_facet,
+                                         active & lists[0][f_ok], *geo.facets, *lists[1:],
+                                         *leaves[6:], *tail, e), len(f_ok))  # fmt: skip
+
+
+def _streamed(run, n: int) -> Iterator[tuple[np.ndarray, ...]]:
+    """The triples of a walk kernel over ``n`` facets (``run(*buffers, j)`` fills the buffers
+    with whole facets from ``j`` on and returns the rows written and the next facet), in chunks:
+    buffers that double when one facet's triples do not fit, up to :data:`TRIPLE_CHUNK`."""
+    j, rows = 0, PAIRS_PER_END
+    while j < n:
+        *arrays, _ = _pair_buffers(rows)
+        m, j_next = run(*arrays, j)
+        if m:
+            yield tuple(x[:m] for x in arrays)
+        if j_next < n:
+            # full: larger buffers next (one facet's triples never split), up to a chunk
+            rows = 2 * rows if m == 0 else min(2 * rows, max(rows, TRIPLE_CHUNK))
+        j = j_next
 
 
 def _wedge_walks(ctx: TraceContext, geo: _PairGeometry,
@@ -451,14 +466,34 @@ def _wedge_walks(ctx: TraceContext, geo: _PairGeometry,
         leaves = [kernels.edge_leaves(tree, np.arange(tree.size) + first, geo.wedges, frame)
                   for tree, first in forest]  # fmt: skip
         cached = w.cache["edge_leaves"] = (forest, leaves)
-    walks = [(leaves, f_chosen) for leaves in cached[1]] if len(w) else []
+    reach = ctx.cfg.facet_reach
+    small = near.small_facets(ctx.scene.facets, reach) if reach else None
+
+    def lists(tree, kept: int | None):
+        # the approximate discovery's lists of a tree (kept on the scene for the forest's tree
+        # ``kept``, made again for other facets)
+        if small is None or not small.any():
+            return None
+        fc = ctx.scene.facets
+        key = ("near_edges", float(reach), kept)
+        found = w.cache.get(key) if kept is not None else None
+        if found is None or found[0] is not tree or found[1] is not fc:
+            found = (tree, fc, (small, *near.near_edges(fc, tree, reach, small)))
+            if kept is not None:
+                w.cache[key] = found
+        return found[2]
+
+    walks = ([(leaves, f_chosen, lists(tree, i))
+              for i, (leaves, (tree, _)) in enumerate(zip(cached[1], forest))]
+             if len(w) else [])  # fmt: skip
     if len(w) and f_chosen is not None:
         chosen = np.flatnonzero(ctx.wedge_mask)
         if len(chosen):
             a, b = w.start[chosen], w.end[chosen]
             tree = build_tree(np.minimum(a, b), np.maximum(a, b), 0.5 * (a + b),
                               0.5 * w.length[chosen] * (1 + 1e-9) + 1e-9)  # fmt: skip
-            walks.append((kernels.edge_leaves(tree, chosen, geo.wedges, frame), ~f_chosen))
+            walks.append((kernels.edge_leaves(tree, chosen, geo.wedges, frame), ~f_chosen,
+                          lists(tree, None)))
     tail = (*frame[7:], accel.PLANE_TOL_M, SPAN_PAD_M, kernels.PRUNE)
     return walks, tail
 

@@ -16,7 +16,8 @@ import numpy as np
 from ..core.jit import carray
 from ..core.kept import keep
 from ..scene import accel
-from . import kernels, shadow
+from ..scene.spatial import build_tree
+from . import kernels, near, shadow
 from . import reflection as refl
 from .context import TraceContext
 from .evaluate import candidates, evaluate
@@ -181,7 +182,8 @@ def _second_images(ctx: TraceContext, t: int, in_shadow: np.ndarray,
     """
     fc = ctx.scene.facets
     mask = None if ctx.facet_mask is None else ctx.facet_mask.tobytes()
-    key = (ctx.tx[t].tobytes(), mask, np.packbits(in_shadow).tobytes(), kernels.PRUNE)
+    reach = ctx.cfg.facet_reach
+    key = (ctx.tx[t].tobytes(), mask, np.packbits(in_shadow).tobytes(), kernels.PRUNE, reach)
     kept = fc.cache.setdefault("second_images", {})
     found = kept.get(key)
     if found is not None:
@@ -195,7 +197,10 @@ def _second_images(ctx: TraceContext, t: int, in_shadow: np.ndarray,
     # (a query on the facets' trees, output-sensitive: no (facets x facets) table)
     b1 = refl.beam(img1, centre[f1], radius[f1])
     # (for the paths of some objects only: a first facet on them, or a second one)
-    if kernels.use_tables(len(fc), len(ctx.scene.wedges)):  # the (facets x facets) table
+    tables = kernels.use_tables(len(fc), len(ctx.scene.wedges)) and not reach
+    if reach:  # the approximate discovery (solver/near.py)
+        a, f2, s_img = _near_second_facets(fc, f1, b1, side_t[f1], ctx.facet_mask, reach)
+    elif tables:  # the (facets x facets) table
         a, f2 = _table_pairs(fc, f1, ctx.facet_mask)
         # the pairs that can exchange a reflection (facing each other, not the same plane),
         # the first image on a reflecting side of the second facet (exact necessary conditions)
@@ -208,15 +213,15 @@ def _second_images(ctx: TraceContext, t: int, in_shadow: np.ndarray,
         a, f2, s_img = a[beam], f2[beam], s_img[beam]
     else:  # the trees' beam queries, the same conditions in one compiled pass
         a, f2, s_img = _second_facets(fc, f1, b1, side_t[f1], ctx.facet_mask)
-        if (receivers is not None and kernels.PRUNE
-                and _kept_bytes(len(a), len(f1), len(fc)) > SECOND_IMAGES_KEPT_BYTES):  # fmt: skip
-            reach = kernels.second_pairs_reaching(
-                carray(a, np.int64), carray(f2, np.int64), carray(s_img, np.int8), carray(img1),
-                carray(b1.axis), carray(b1.cos_a), carray(b1.apex_inside, bool), carray(fc.normal),
-                carray(fc.offset), carray(centre), carray(radius), *receivers, PAIRS_SLACK,
-            )  # fmt: skip
-            a, f2, s_img = a[reach], f2[reach], s_img[reach]
-            key = None  # this trace's receivers' only: not kept
+    if (not tables and receivers is not None and kernels.PRUNE
+            and _kept_bytes(len(a), len(f1), len(fc)) > SECOND_IMAGES_KEPT_BYTES):  # fmt: skip
+        reaching = kernels.second_pairs_reaching(
+            carray(a, np.int64), carray(f2, np.int64), carray(s_img, np.int8), carray(img1),
+            carray(b1.axis), carray(b1.cos_a), carray(b1.apex_inside, bool), carray(fc.normal),
+            carray(fc.offset), carray(centre), carray(radius), *receivers, PAIRS_SLACK,
+        )  # fmt: skip
+        a, f2, s_img = a[reaching], f2[reaching], s_img[reaching]
+        key = None  # this trace's receivers' only: not kept
     order = np.lexsort((f2, a))  # in (first image, second facet) order, as a table would give
     c = lambda x, t=np.float64: np.array(x, dtype=t, order="C", copy=True)  # noqa: E731
     a, f2, s_img = c(a[order], np.int64), c(f2[order], np.int64), c(s_img[order], np.int8)
@@ -255,8 +260,8 @@ def _kept_bytes(n_pairs: int, n_first: int, n_facets: int) -> int:
     return 90 * n_pairs + 81 * n_first + n_facets
 
 
-def _second_facets(fc, f1: np.ndarray, b1: refl.Beam, side1: np.ndarray,
-                   mask: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+def _second_facets(fc, f1: np.ndarray, b1: refl.Beam, side1: np.ndarray, mask: np.ndarray | None,
+                   forest: tuple | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
     """(row of ``f1``, second facet, side of the first image) of the pairs of facets that can
     exchange a reflection from the first images ``b1.apex`` (:func:`_second_images`): the beam
     queries of :func:`raytrace.scene.accel.beam_facets` (with ``mask`` (K,) bool, a trace of
@@ -265,30 +270,81 @@ def _second_facets(fc, f1: np.ndarray, b1: refl.Beam, side1: np.ndarray,
     blocks of :data:`SECOND_FACETS_BLOCK`: a transmitter of a million-triangle hall has tens of
     millions of queried pairs, of which the conditions keep a few per cent, and the query's
     arrays of all of them at once were gigabytes. The pairs are the same (the caller sorts
-    them)."""
-    c = carray
-    centre, radius = accel.facet_spheres(fc)
-    starts = c(3 * (np.cumsum(fc.tri_count) - fc.tri_count), np.int64)
-    facet_args = (c(centre), c(radius), c(fc.normal), c(fc.offset), c(fc.two_sided, bool),
-                  c(fc.triangles.reshape(-1, 3)), starts, c(3 * fc.tri_count, np.int64),
-                  accel.PLANE_TOL_M)  # fmt: skip
+    them). With ``forest`` (trees as :func:`raytrace.scene.accel.beam_facets` takes them, and
+    the facet of each of their elements), those trees' facets only."""
     parts = []
     for r0 in range(0, len(f1), SECOND_FACETS_BLOCK):
         rows = slice(r0, r0 + SECOND_FACETS_BLOCK)
         b = refl.Beam(*(x[rows] for x in b1))
         f1_b = f1[rows]
         a, f2 = accel.beam_facets(fc, b, fc.normal[f1_b], fc.offset[f1_b], side1[rows], mask,
-                                  None if mask is None else mask[f1_b])  # fmt: skip
-        s_img = kernels.second_facets(
-            c(a, np.int64), c(f2, np.int64), c(b.apex), c(b.axis), c(b.cos_a), c(b.sin_a),
-            c(b.apex_inside, bool), c(f1_b, np.int64), *facet_args,
-        )  # fmt: skip
-        ok = s_img != 0
-        parts.append((a[ok] + r0, f2[ok], s_img[ok]))
+                                  None if mask is None else mask[f1_b],
+                                  None if forest is None else forest[0])  # fmt: skip
+        if forest is not None:
+            f2 = forest[1][f2]
+        parts.append(_pair_conditions(fc, a, f2, f1_b, b, r0))
+    return _joined_pairs(parts)
+
+
+def _pair_conditions(fc, a: np.ndarray, f2: np.ndarray, f1: np.ndarray, b1: refl.Beam,
+                     r0: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+    """The pairs (row ``a`` of ``f1`` and ``b1``, second facet ``f2``) that pass the exact
+    necessary conditions of :func:`raytrace.solver.kernels.second_facets`, with the rows
+    shifted by ``r0``, and the side of the second facet the first image is on."""
+    c = carray
+    centre, radius = accel.facet_spheres(fc)
+    starts = c(3 * (np.cumsum(fc.tri_count) - fc.tri_count), np.int64)
+    s_img = kernels.second_facets(
+        c(a, np.int64), c(f2, np.int64), c(b1.apex), c(b1.axis), c(b1.cos_a), c(b1.sin_a),
+        c(b1.apex_inside, bool), c(f1, np.int64), c(centre), c(radius), c(fc.normal),
+        c(fc.offset), c(fc.two_sided, bool), c(fc.triangles.reshape(-1, 3)), starts,
+        c(3 * fc.tri_count, np.int64), accel.PLANE_TOL_M,
+    )  # fmt: skip
+    ok = s_img != 0
+    return a[ok] + r0, f2[ok], s_img[ok]
+
+
+def _joined_pairs(parts: list) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     if not parts:
         return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int8)
     a, f2, s_img = (np.concatenate(x) for x in zip(*parts))
     return a, f2, s_img
+
+
+def _near_second_facets(fc, f1: np.ndarray, b1: refl.Beam, side1: np.ndarray,
+                        mask: np.ndarray | None, reach: float) -> tuple[np.ndarray, ...]:  # fmt: skip
+    """:func:`_second_facets` in the approximate discovery (:mod:`raytrace.solver.near`): the
+    pairs of two large facets from the beam queries of the large first facets on a tree of the
+    large facets (with ``mask``, on every facet, the small second facets then dropped), and
+    the pairs with a small facet from the lists of facets within ``reach``; the same exact
+    conditions on both. Rows of ``f1``, in no particular order (the caller sorts them)."""
+    small = near.small_facets(fc, reach)
+    large = np.flatnonzero(~small[f1])
+    b_large = refl.Beam(*(x[large] for x in b1))
+    forest = None if mask is not None else _large_forest(fc, reach, small)
+    a, f2, s_img = _second_facets(fc, f1[large], b_large, side1[large], mask, forest)
+    keep = ~small[f2]
+    parts = [(large[a[keep]], f2[keep], s_img[keep])]
+    for a, f2 in near.near_facet_pairs(fc, reach, small, f1):
+        if mask is not None:
+            chosen = mask[f1[a]] | mask[f2]
+            a, f2 = a[chosen], f2[chosen]
+        parts.append(_pair_conditions(fc, a, f2, f1, b1))
+    return _joined_pairs(parts)
+
+
+def _large_forest(fc, reach: float, small: np.ndarray) -> tuple[tuple, np.ndarray]:
+    """A tree over the facets that are not small (cached per ``reach``) as
+    :func:`raytrace.scene.accel.beam_facets` takes trees, and those facets' indices."""
+    key = ("large_tree", float(reach))
+    cached = fc.cache.get(key)
+    if cached is None:
+        large = np.flatnonzero(~small)
+        lo, hi = accel.facet_boxes(fc, 0.0)
+        centre, radius = accel.facet_spheres(fc)
+        tree = build_tree(lo[large], hi[large], centre[large], radius[large])
+        cached = fc.cache[key] = (((tree, 0),), large)
+    return cached
 
 
 #: First facets per block of :func:`_second_facets` (a block's queried pairs are about a

@@ -46,6 +46,7 @@ from .prune import (
 from .reach import (
     EdgeLeaves,
     edge_leaves,
+    facet_wedge_pairs_near,
     facet_wedge_pairs_tree,
     first_order_candidates,
     second_facets,
@@ -55,7 +56,7 @@ from .sequences import interaction_sequences
 from .solids import edge_distance, line_span, shadowed_groups, shadowed_triples, touch_rows
 from .walk import end_probes, entry_points, unseen_entries, walk_hits, walk_rays, walk_record
 
-__all__ = ["PRUNE", "EXHAUSTIVE", "TREES", "TABLE_MAX_PAIRS", "use_tables", "surely_inside", "facet_wedge_pairs", "EdgeLeaves", "edge_leaves", "facet_wedge_pairs_tree", "first_order_candidates", "second_facets", "second_pairs_reaching", "expand_over_others",
+__all__ = ["PRUNE", "EXHAUSTIVE", "TREES", "TABLE_MAX_PAIRS", "use_tables", "surely_inside", "facet_wedge_pairs", "EdgeLeaves", "edge_leaves", "facet_wedge_pairs_near", "facet_wedge_pairs_tree", "first_order_candidates", "second_facets", "second_pairs_reaching", "expand_over_others",
            "reflection_edge_points", "along_and_off_rows", "second_order_candidates", "line_span",
            "shadowed_groups", "shadowed_triples", "edge_distance",
            "opaque_blocks", "touch_rows", "entry_points", "end_probes",

@@ -22,7 +22,8 @@ from ...core.jit import helper, inline, kernel
 from ...scene.accel import facet_sees
 from .prune import FRAME_SIG, PAIRS_OUT_SIG, beam_reaches1, edge_span, inside1, point_in_beam1
 
-__all__ = ["EdgeLeaves", "edge_leaves", "facet_wedge_pairs_tree", "first_order_candidates",
+__all__ = ["EdgeLeaves", "edge_leaves", "facet_wedge_pairs_near", "facet_wedge_pairs_tree",
+           "first_order_candidates",
            "second_facets", "second_pairs_reaching"]
 
 @helper
@@ -191,6 +192,75 @@ def facet_wedge_pairs_tree(f_ok, sgn, h_f, img_c, axis_c, cos_a, sin_a, apex_in,
                 out_img[m, 0], out_img[m, 1], out_img[m, 2] = ix, iy, iz
                 out_lo[m], out_hi[m] = t_lo, t_hi
                 m += 1
+    return m, len(f_ok)
+
+
+_NEAR_PAIRS_SIG = (
+    "UniTuple(i8, 2)("
+    # per facet of the end (F,), as _TREE_PAIRS_SIG
+    "i8[::1], f8[::1], f8[::1], f8[:, ::1], f8[:, ::1], f8[::1], f8[::1], b1[::1], b1[::1], "
+    # facets (K,): normals, offsets, boxes; each facet's run of near edges' leaf slots
+    "f8[:, ::1], f8[::1], f8[:, ::1], f8[:, ::1], i8[::1], i4[::1], "
+    # the tree's edges in leaf order (EdgeLeaves) with its wedge frame
+    f"i8[::1], f8[:, ::1], {FRAME_SIG}, "
+    f"f8, f8, b1, i8, {PAIRS_OUT_SIG}, i8)"
+)
+
+
+@kernel(_NEAR_PAIRS_SIG)
+def facet_wedge_pairs_near(f_ok, sgn, h_f, img_c, axis_c, cos_a, sin_a, apex_in, f_active,
+                           normal, offset, lo, hi, near_start, near_slot, leaf_w, geo,
+                           t0, n0, t_start, n_start, cos_n, sin_n, prunable, m2_coef, min_rho2,
+                           eps, pad, prune, e, out_e, out_f, out_w, out_img, out_lo, out_hi,
+                           j0):  # fmt: skip
+    """:func:`facet_wedge_pairs_tree` for the small facets of the approximate discovery
+    (:mod:`raytrace.solver.near`): the facets with ``f_active`` take the edges of their own
+    lists (``near_slot[near_start[f]:near_start[f + 1]]``, leaf slots of the tree) instead of
+    walking the tree with their beams, with the same per-edge tests in the same arithmetic.
+    Buffers, ``j0`` and the return as :func:`facet_wedge_pairs_tree`.
+
+    long kernel: the per-edge tests are written out for the reason that kernel gives.
+    """
+    cap = len(out_e)
+    m = 0
+    for j in range(j0, len(f_ok)):
+        if not f_active[j]:
+            continue
+        f = f_ok[j]
+        k0, k1 = near_start[f], near_start[f + 1]
+        if m + (k1 - k0) > cap:
+            return m, j  # this facet does not fit: the next call starts with it
+        s_j = sgn[j]
+        nx, ny, nz, off = normal[f, 0], normal[f, 1], normal[f, 2], offset[f]
+        ix, iy, iz = img_c[0, j], img_c[1, j], img_c[2, j]
+        ux, uy, uz = axis_c[0, j], axis_c[1, j], axis_c[2, j]
+        ca, sa, ai = cos_a[j], sin_a[j], apex_in[j]
+        h = h_f[j]
+        flx, fly, flz, fhx, fhy, fhz = lo[f, 0], lo[f, 1], lo[f, 2], hi[f, 0], hi[f, 1], hi[f, 2]
+        for i in range(k0, k1):
+            k = np.int64(near_slot[i])
+            ax, ay, az = geo[k, 0], geo[k, 1], geo[k, 2]
+            bx, by, bz = geo[k, 3], geo[k, 4], geo[k, 5]
+            da = (ax * nx + ay * ny + az * nz - off) * s_j
+            db = (bx * nx + by * ny + bz * nz - off) * s_j
+            if not (da > eps or db > eps):
+                continue
+            t_lo, t_hi = -np.inf, np.inf
+            if prune:
+                if not beam_reaches1(ix, iy, iz, ux, uy, uz, ca, sa, ai, geo[k, 6], geo[k, 7],
+                                     geo[k, 8], geo[k, 9]):  # fmt: skip
+                    continue
+                if inside1(t0, n0, t_start, n_start, cos_n, sin_n, prunable, m2_coef, min_rho2,
+                           k, ix, iy, iz):  # fmt: skip
+                    continue
+                ok, t_lo, t_hi = edge_span(ax, ay, az, bx, by, bz, ix, iy, iz, da, db, eps, h,
+                                            flx, fly, flz, fhx, fhy, fhz, geo[k, 10], pad)  # fmt: skip
+                if not ok:
+                    continue
+            out_e[m], out_f[m], out_w[m] = e, f, leaf_w[k]
+            out_img[m, 0], out_img[m, 1], out_img[m, 2] = ix, iy, iz
+            out_lo[m], out_hi[m] = t_lo, t_hi
+            m += 1
     return m, len(f_ok)
 
 
