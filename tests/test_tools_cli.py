@@ -46,6 +46,8 @@ CASES: dict[str, tuple[str, list[str], str]] = {
         "bench_twin.py", ["--data", "{tmp}", "--maps", "{tmp}", "--steps", "0.05,abc"], "--steps"
     ),
     "bench_scale-too-few-triangles": ("bench_scale.py", ["--max-triangles", "10"], "--max-triangles"),
+    "bench_scale-negative-reach": ("bench_scale.py", ["--facet-reach", "-1"], "--facet-reach"),
+    "bench_scale-recall-without-reach": ("bench_scale.py", ["--recall"], "give --facet-reach"),
     "smooth_edges-bad-angles": ("smooth_edges.py", ["--angles", "2,abc"], "--angles"),
     "smooth_edges-angle-out-of-range": ("smooth_edges.py", ["--angles", "120"], "smooth angle"),
     "build_scenes-exclusive-options": ("build_scenes.py", ["--check", "--los-table"], "not allowed"),

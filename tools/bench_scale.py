@@ -9,7 +9,9 @@ own peak memory, a cold load with the disk cache off, then the first trace: tree
 built, then a warm trace; wall time and this process' CPU time, the steadier figure on a shared
 machine: the trace's stage threads run in it). Generated scenes are kept in ``--dir`` for the next run.
 ``--scene FILE`` adds a scene of your own (a public city mesh: its links are
-:func:`scene_links`'; not in the slope). Not a test: it asserts nothing.
+:func:`scene_links`'; not in the slope). ``--facet-reach R`` traces with the approximate
+discovery of ``TraceConfig(facet_reach=R)``, and ``--recall`` adds an exact trace of each scene
+and the approximate trace's recall against it. Not a test: it asserts nothing.
 """
 
 from __future__ import annotations
@@ -29,11 +31,14 @@ from raytrace.cli.harness import OneLineParser, run_tool
 from raytrace.core.errors import HallrayError
 
 
-def measure_one(path: str, f_hz: float) -> dict:
+def measure_one(path: str, f_hz: float, reach: float = 0.0, with_recall: bool = False) -> dict:
     """Load (no disk cache), first and warm trace of the scene's links (:func:`scene_links` when
-    the scene carries none) in this process; peak RSS."""
-    from raytrace import load_scene, trace
+    the scene carries none) in this process, with ``TraceConfig(facet_reach=reach)``; peak RSS.
+    ``with_recall``: then an exact trace too, and the recall of the approximate one against it
+    (:func:`raytrace.solver.near.recall`)."""
+    from raytrace import TraceConfig, load_scene, trace
     from raytrace.scene.metadata import SceneMetadata
+    from raytrace.solver.near import recall
 
     t0 = time.perf_counter()
     scene = load_scene(path, cache=False, default_material="metal")
@@ -43,18 +48,24 @@ def measure_one(path: str, f_hz: float) -> dict:
         tx, rx = inp.bs_xyz, inp.point_xyz
     else:
         tx, rx = scene_links(scene)
+    cfg = TraceConfig(facet_reach=reach)
     t0, c0 = time.perf_counter(), time.process_time()
-    paths = trace(scene, tx, rx, f_hz)
+    paths = trace(scene, tx, rx, f_hz, cfg)
     first_s, first_cpu = time.perf_counter() - t0, time.process_time() - c0
     t0, c0 = time.perf_counter(), time.process_time()
-    trace(scene, tx, rx, f_hz)
+    trace(scene, tx, rx, f_hz, cfg)
     warm_s, warm_cpu = time.perf_counter() - t0, time.process_time() - c0
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6
+    found = {}
+    if with_recall:
+        r = recall(trace(scene, tx, rx, f_hz), paths)
+        found = {"recall_paths": r.paths, "recall_first_arrivals": r.first_arrivals,
+                 "exact_paths": r.n_exact}  # fmt: skip
     return {
         "scene": Path(path).name, "triangles": int(len(scene.faces)), "wedges": len(scene.wedges),
         "links": len(tx) * len(rx), "load_s": load_s, "first_trace_s": first_s,
         "warm_trace_s": warm_s, "first_trace_cpu_s": first_cpu, "warm_trace_cpu_s": warm_cpu,
-        "paths": int(paths.n_paths),
-        "peak_gb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6,
+        "paths": int(paths.n_paths), "facet_reach": reach, "peak_gb": peak, **found,
     }  # fmt: skip
 
 
@@ -94,13 +105,19 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--scene", action="append", default=[], help="another scene (repeatable)")
     ap.add_argument("--frequency-hz", type=float, default=3.775e9, help="carrier [3.775e9]")
     ap.add_argument("--timeout", type=float, default=3600, help="seconds per scene [3600]")
+    ap.add_argument("--facet-reach", type=float, default=0.0,
+                    help="trace with TraceConfig(facet_reach=...), metres (0: exact) [0]")  # fmt: skip
+    ap.add_argument("--recall", action="store_true",
+                    help="with --facet-reach: also trace exactly and report the recall")  # fmt: skip
     ap.add_argument("--json", action="store_true", help="print one JSON object")
     ap.add_argument("--one", help=argparse.SUPPRESS)  # the child process: measure this scene
     return ap
 
 
-def _child(path: str, f_hz: float, timeout: float) -> dict:
-    cmd = [sys.executable, __file__, "--one", path, "--frequency-hz", repr(f_hz)]
+def _child(path: str, args: argparse.Namespace) -> dict:
+    cmd = [sys.executable, __file__, "--one", path, "--frequency-hz", repr(args.frequency_hz),
+           "--facet-reach", repr(args.facet_reach)] + (["--recall"] if args.recall else [])
+    timeout = args.timeout
     try:
         proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout)
     except subprocess.TimeoutExpired:
@@ -116,8 +133,13 @@ def _main(args: argparse.Namespace) -> int:
     from raytrace.scene.bundled import resolve_scene
 
     if args.one:
-        print(json.dumps(measure_one(args.one, args.frequency_hz)))
+        print(json.dumps(measure_one(args.one, args.frequency_hz, args.facet_reach, args.recall)))
         return 0
+    if not 0.0 <= args.facet_reach < float("inf"):
+        raise HallrayError(f"--facet-reach must be a distance >= 0 m, got {args.facet_reach:g}")
+    if args.recall and not args.facet_reach:
+        raise HallrayError("--recall compares a trace with --facet-reach against the exact one: "
+                           "give --facet-reach")
     if not args.max_triangles >= 1e3:
         raise HallrayError(f"--max-triangles must be at least 1e3, got {args.max_triangles:g}")
     work = Path(args.dir) if args.dir else Path(tempfile.mkdtemp(prefix="hallray-scale-"))
@@ -135,7 +157,7 @@ def _main(args: argparse.Namespace) -> int:
         files.append(str(f))
     rows = []
     for f in files + list(args.scene):
-        r = _child(f, args.frequency_hz, args.timeout)
+        r = _child(f, args)
         rows.append(r)
         if not args.json:
             _print_row(r)
@@ -158,7 +180,9 @@ def _print_row(r: dict) -> None:
     print(f"{r['scene']:>22} {r['triangles']:>9,} tri {r['wedges']:>8,} wedges  load {r['load_s']:6.1f} s  "
           f"first {r['first_trace_s']:6.1f} s ({r['first_trace_cpu_s']:.1f} s CPU)  "
           f"warm {r['warm_trace_s']:6.1f} s ({r['warm_trace_cpu_s']:.1f} s CPU)  {r['paths']:>7,} paths  "
-          f"peak {r['peak_gb']:.2f} GB", flush=True)  # fmt: skip
+          f"peak {r['peak_gb']:.2f} GB" + (f"  recall {r['recall_paths']:.2%} of paths, "
+          f"{r['recall_first_arrivals']:.0%} of first arrivals" if "recall_paths" in r else ""),
+          flush=True)  # fmt: skip
 
 
 def main(argv: list[str] | None = None) -> int:
