@@ -13,8 +13,8 @@ triangles      load peak    peak after the first trace
 6 400          0.33 GB      0.37 GB
 21 760         0.35 GB      0.68-0.74 GB
 83 200         0.39-0.50 GB 1.7-2.6 GB
-247 040        0.69 GB
-984 320        2.1 GB
+247 040        0.69 GB      2.9-3.0 GB
+984 320        2.1 GB       5.3-6.6 GB
 =============  ===========  ==========================
 """
 
@@ -25,7 +25,7 @@ import resource
 
 from ..core.errors import SceneError
 
-__all__ = ["CHECK_MIN_TRIANGLES", "available_bytes", "load_bytes", "trace_bytes", "check_load", "check_trace"]
+__all__ = ["CHECK_MIN_TRIANGLES", "TRACE_BASE_B", "available_bytes", "load_bytes", "trace_bytes", "check_load", "check_trace"]
 
 #: Traces of scenes below this many triangles are not estimated (they fit anywhere).
 CHECK_MIN_TRIANGLES = 20_000
@@ -33,10 +33,16 @@ CHECK_MIN_TRIANGLES = 20_000
 LOAD_BASE_B = 400e6
 #: Load: bytes per triangle (measured 1.8 kB: trimesh's processing, facets, wedges, trees).
 LOAD_PER_TRIANGLE_B = 2.5e3
-#: Trace: bytes per triangle on top of the loaded scene (measured 16.8 kB at 83 200 triangles,
-#: 9.2 kB at 247 040 and 6.0 kB at 984 320: the kept second images, at most 1 GiB, candidate
-#: lists of the ends, trees, Embree's build).
-TRACE_PER_TRIANGLE_B = 20e3
+#: Trace: bytes on top of the loaded scene, whatever its size: the kept second images (at most
+#: 1 GiB, :data:`raytrace.solver.specular.SECOND_IMAGES_KEPT_BYTES`), an end's kept triples and
+#: the chunks in flight. A flat 20 kB per triangle (the ratio at 83 200 triangles, where the
+#: kept part dominates) asked 19.7 GB for the million-triangle hall, whose trace adds 4.5 GB:
+#: a machine with 16 GB was refused a trace it could run.
+TRACE_BASE_B = 2.5e9
+#: Trace: bytes per triangle beyond that (the trace added, measured: 2.2 GB at 83 200
+#: triangles, 2.3 GB at 247 040, 3.2-4.5 GB at 984 320 (exact or ``facet_reach``); trees,
+#: Embree's build, the candidate lists of the ends, the approximate discovery's lists).
+TRACE_PER_TRIANGLE_B = 5e3
 
 
 def available_bytes() -> float:
@@ -70,8 +76,9 @@ def load_bytes(n_triangles: int) -> float:
 
 
 def trace_bytes(n_triangles: int) -> float:
-    """Estimated bytes a trace adds to a loaded scene of ``n_triangles`` triangles."""
-    return TRACE_PER_TRIANGLE_B * n_triangles
+    """Estimated bytes a trace adds to a loaded scene of ``n_triangles`` triangles (at least
+    30 % above every measured peak of the scale benchmark)."""
+    return TRACE_BASE_B + TRACE_PER_TRIANGLE_B * n_triangles
 
 
 def _gb(b: float) -> str:
