@@ -31,7 +31,7 @@ import numpy as np
 from ..scene import accel
 from ..scene.spatial import SphereTree, query_boxes
 
-__all__ = ["small_facets", "near_edges", "near_facet_pairs", "QUERY_BLOCK", "Recall", "recall"]
+__all__ = ["small_facets", "near_edges", "near_facets", "near_facet_pairs", "QUERY_BLOCK", "Recall", "recall"]
 
 #: Facets queried per block while the lists are made: a block's hits are about a hundred per
 #: facet before the filters (8 bytes each), and the lists keep int32.
@@ -90,25 +90,55 @@ def _some_part_in_front(facets, f: np.ndarray, lo: np.ndarray, hi: np.ndarray) -
     return ahead | facets.two_sided[f]
 
 
-def near_facet_pairs(facets, reach: float, small: np.ndarray,
+def near_facets(facets, reach: float, small: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The facets each facet may exchange a double reflection with in the approximate
+    discovery: those whose boxes meet its box grown by ``reach``, where one of the two is small
+    and the two face each other (:func:`raytrace.scene.accel.facing`, a condition of every
+    double reflection, whatever the transmitter). Made once per scene, in blocks of
+    :data:`QUERY_BLOCK` facets (a million-triangle hall's box hits are tens of millions).
+
+    Returns
+    -------
+    start : (K + 1,) int64, partners : (L,) int32: facet ``f``'s are
+        ``partners[start[f]:start[f + 1]]``, in increasing order
+    """
+    tree = accel.facet_tree(facets)
+    k = len(facets)
+    counts = np.zeros(k + 1, np.int64)
+    parts = []
+    for b0 in range(0, k, QUERY_BLOCK):
+        f1 = np.arange(b0, min(k, b0 + QUERY_BLOCK))
+        offsets, hits = query_boxes(tree, *_grown_boxes(facets, f1, reach))
+        owner = np.repeat(f1, np.diff(offsets))
+        keep = small[owner] | small[hits]
+        owner, hits = owner[keep], hits[keep]
+        keep = accel.facing(facets, owner, hits)
+        owner, hits = owner[keep], hits[keep]
+        order = np.lexsort((hits, owner))
+        counts[1:] += np.bincount(owner, minlength=k)[:k] if len(owner) else 0
+        parts.append(hits[order].astype(np.int32))
+    start = np.cumsum(counts)
+    return start, (np.concatenate(parts) if parts else np.zeros(0, np.int32))
+
+
+def near_facet_pairs(lists: tuple[np.ndarray, np.ndarray],
                      first: np.ndarray) -> Iterator[tuple[np.ndarray, np.ndarray]]:  # fmt: skip
-    """The (first facet, second facet) pairs of double reflections that involve a small facet,
-    with the boxes of the two within ``reach``: for each facet of ``first`` (rows), the facets
-    whose boxes meet its box grown by ``reach``, where one of the two is small. In blocks of
-    :data:`QUERY_BLOCK` first facets (a million-triangle hall's pairs are tens of millions
-    before the caller's exact conditions keep a few per cent).
+    """The (first facet, second facet) pairs of :func:`near_facets`' ``lists`` whose first facet
+    is one of ``first``, in blocks of :data:`QUERY_BLOCK` first facets, in (row, second facet)
+    order.
 
     Yields
     ------
     a : (P,) int, rows of ``first``; f2 : (P,) int, second facets
     """
-    tree = accel.facet_tree(facets)
+    start, partners = lists
     for b0 in range(0, len(first), QUERY_BLOCK):
         f1 = first[b0 : b0 + QUERY_BLOCK]
-        offsets, hits = query_boxes(tree, *_grown_boxes(facets, f1, reach))
-        local = np.repeat(np.arange(len(f1)), np.diff(offsets))
-        keep = (small[f1[local]] | small[hits]) & (f1[local] != hits)
-        yield local[keep] + b0, hits[keep]
+        counts = start[f1 + 1] - start[f1]
+        a = np.repeat(np.arange(b0, b0 + len(f1)), counts)
+        # each row's run of partners: its start, plus the position within the run
+        at = np.repeat(start[f1] - (np.cumsum(counts) - counts), counts) + np.arange(counts.sum())
+        yield a, partners[at].astype(np.int64)
 
 
 class Recall(NamedTuple):

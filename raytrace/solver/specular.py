@@ -325,7 +325,11 @@ def _near_second_facets(fc, f1: np.ndarray, b1: refl.Beam, side1: np.ndarray,
     a, f2, s_img = _second_facets(fc, f1[large], b_large, side1[large], mask, forest)
     keep = ~small[f2]
     parts = [(large[a[keep]], f2[keep], s_img[keep])]
-    for a, f2 in near.near_facet_pairs(fc, reach, small, f1):
+    key = ("near_facets", float(reach))
+    lists = fc.cache.get(key)
+    if lists is None:
+        lists = fc.cache[key] = near.near_facets(fc, reach, small)
+    for a, f2 in near.near_facet_pairs(lists, f1):
         if mask is not None:
             chosen = mask[f1[a]] | mask[f2]
             a, f2 = a[chosen], f2[chosen]
