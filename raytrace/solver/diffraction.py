@@ -470,8 +470,9 @@ def _wedge_walks(ctx: TraceContext, geo: _PairGeometry,
     small = near.small_facets(ctx.scene.facets, reach) if reach else None
 
     def lists(tree, kept: int | None):
-        # the approximate discovery's lists of a tree (kept on the scene for the forest's tree
-        # ``kept``, made again for other facets)
+        # the approximate discovery's lists of a tree: kept on the scene for the forest's tree
+        # number ``kept`` (while its tree and the facets are the same), made again for a
+        # restricted trace's tree of the chosen edges (kept None)
         if small is None or not small.any():
             return None
         fc = ctx.scene.facets

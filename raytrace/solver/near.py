@@ -14,8 +14,8 @@ So with ``facet_reach = r > 0`` a facet whose bounding sphere's radius is below 
 facet) reflects, in a path of more than one reflection or diffraction, only toward or from the
 edges and facets next to it on the path whose bounding boxes come within ``r`` of its own box
 (per axis: the boxes grown by ``r`` meet). Its candidates come from lists made once per scene
-(the edges' kept on it) by box queries on the trees
-(:func:`raytrace.scene.spatial.query_boxes`), not from walks of its beam. Nothing else changes:
+(kept on it) by box queries on the trees in one compiled pass (:func:`_near_runs`), not from
+walks of its beam. Nothing else changes:
 line of sight, single reflections, single diffractions, penetrations, and every pair of large
 facets and edges are the exact tracer's, and every path found is one the exact tracer finds, with
 the same numbers (``tests/test_near.py``).
@@ -28,14 +28,18 @@ from typing import NamedTuple
 
 import numpy as np
 
+from ..core.jit import carray, kernel
 from ..scene import accel
-from ..scene.spatial import SphereTree, query_boxes
+from ..scene.accel import facet_sees
+from ..scene.spatial import SphereTree
 
 __all__ = ["small_facets", "near_edges", "near_facets", "near_facet_pairs", "QUERY_BLOCK", "Recall", "recall"]
 
-#: Facets queried per block while the lists are made: a block's hits are about a hundred per
-#: facet before the filters (8 bytes each), and the lists keep int32.
+#: First facets per block of :func:`near_facet_pairs` (a hundred partners each at most, 16 bytes
+#: per pair as the caller takes them).
 QUERY_BLOCK = 1 << 14
+#: Values per buffer while the lists are made (int32: 16 MB).
+LIST_BUFFER = 1 << 22
 
 
 def small_facets(facets, reach: float) -> np.ndarray:
@@ -44,15 +48,111 @@ def small_facets(facets, reach: float) -> np.ndarray:
     return accel.facet_spheres(facets)[1] < reach
 
 
-def _grown_boxes(facets, rows: np.ndarray, reach: float) -> tuple[np.ndarray, np.ndarray]:
-    lo, hi = accel.facet_boxes(facets, 0.0)
-    return lo[rows] - reach, hi[rows] + reach
+@kernel("Tuple((i8, i8))(i8[::1], f8[:, ::1], f8[:, ::1], i8[::1], i8[::1], i8[::1], i8[::1], "
+        "f8[:, ::1], f8[:, ::1], i8[::1], f8[:, ::1], f8[:, ::1], f8, b1, b1[::1], f8[:, ::1], "
+        "f8[::1], b1[::1], f8[:, ::1], i8[::1], i8[::1], f8, i8, i8[::1], i4[::1])")
+def _near_runs(order, node_lo, node_hi, left, right, start, count, lo, hi, rows, f_lo, f_hi, reach,
+               facets_mode, small, normal, offset, two_sided, corners, c_start, c_count, tol, q0,
+               counts, out):  # fmt: skip
+    """The lists of :func:`near_edges` (``facets_mode`` False: the tree is of edges, the values
+    leaf slots) or :func:`near_facets` (True: the tree is the facets', the values facets) for
+    the facets ``rows`` (increasing) from ``q0`` on, in one pass: the tree's elements whose box
+    (``lo``, ``hi``) meets the facet's box grown by ``reach``, filtered, written into ``out``
+    until it is full and counted in ``counts[f + 1]``. Returns ``(q, m)``: the first row not
+    done and the values written (a row's values are never split)."""
+    cap = len(out)
+    stack = np.empty(256, np.int64)
+    m = 0
+    for q in range(q0, len(rows)):
+        m_q = m
+        f = rows[q]
+        qlx, qly, qlz = f_lo[f, 0] - reach, f_lo[f, 1] - reach, f_lo[f, 2] - reach
+        qhx, qhy, qhz = f_hi[f, 0] + reach, f_hi[f, 1] + reach, f_hi[f, 2] + reach
+        nx, ny, nz, off = normal[f, 0], normal[f, 1], normal[f, 2], offset[f]
+        one_sided = not two_sided[f]
+        top = 0
+        stack[0] = 0
+        while top >= 0:
+            node = stack[top]
+            top -= 1
+            if not (node_lo[node, 0] <= qhx and qlx <= node_hi[node, 0]
+                    and node_lo[node, 1] <= qhy and qly <= node_hi[node, 1]
+                    and node_lo[node, 2] <= qhz and qlz <= node_hi[node, 2]):  # fmt: skip
+                continue
+            if left[node] >= 0:
+                top += 1
+                stack[top] = right[node]
+                top += 1
+                stack[top] = left[node]
+                continue
+            for k in range(start[node], start[node] + count[node]):
+                e = order[k]
+                if not (lo[e, 0] <= qhx and qlx <= hi[e, 0] and lo[e, 1] <= qhy
+                        and qly <= hi[e, 1] and lo[e, 2] <= qhz and qlz <= hi[e, 2]):  # fmt: skip
+                    continue
+                if facets_mode:
+                    # one of the two small, and facing each other (accel.facing)
+                    if e == f or not (small[f] or small[e]):
+                        continue
+                    if not facet_sees(corners, c_start[f], c_count[f], normal[e, 0],
+                                      normal[e, 1], normal[e, 2], offset[e], two_sided[e], tol):
+                        continue  # fmt: skip
+                    if not facet_sees(corners, c_start[e], c_count[e], nx, ny, nz, off,
+                                      two_sided[f], tol):  # fmt: skip
+                        continue
+                    value = e
+                else:
+                    # an edge lies in its box: a part in front of a one-sided facet puts the
+                    # box's corner farthest along the normal there
+                    if one_sided:
+                        cx = hi[e, 0] if nx > 0 else lo[e, 0]
+                        cy = hi[e, 1] if ny > 0 else lo[e, 1]
+                        cz = hi[e, 2] if nz > 0 else lo[e, 2]
+                        if not cx * nx + cy * ny + cz * nz - off > tol:
+                            continue
+                    value = k
+                if m == cap:
+                    return q, m_q  # full: the caller takes a new buffer for this row
+                out[m] = value
+                m += 1
+        counts[f + 1] = m - m_q
+    return len(rows), m
+
+
+def _lists(facets, tree: SphereTree, rows: np.ndarray, reach: float, facets_mode: bool,
+           small: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """CSR lists of :func:`_near_runs` over ``rows``: ``start`` (K + 1,) int64 and the values
+    (L,) int32, in buffers of :data:`LIST_BUFFER` values taken as they fill."""
+    k = len(facets)
+    counts = np.zeros(k + 1, np.int64)
+    f_lo, f_hi = accel.facet_boxes(facets, 0.0)
+    verts = carray(facets.triangles.reshape(-1, 3))
+    c_start = carray(3 * (np.cumsum(facets.tri_count) - facets.tri_count), np.int64)
+    fixed = (carray(tree.order, np.int64), carray(tree.node_lo), carray(tree.node_hi),
+             carray(tree.left, np.int64), carray(tree.right, np.int64),
+             carray(tree.start, np.int64), carray(tree.count, np.int64), carray(tree.lo),
+             carray(tree.hi), carray(rows, np.int64), carray(f_lo), carray(f_hi), float(reach),
+             facets_mode, carray(small, bool), carray(facets.normal), carray(facets.offset),
+             carray(facets.two_sided, bool), verts, c_start,
+             carray(3 * facets.tri_count, np.int64), accel.PLANE_TOL_M)  # fmt: skip
+    parts = []
+    q, cap = 0, LIST_BUFFER
+    while q < len(rows) and tree.size:
+        out = np.empty(cap, np.int32)
+        q_next, m = _near_runs(*fixed, q, counts, out)
+        parts.append(out[:m].copy() if 2 * m < cap else out[:m])
+        if q_next == q and m == 0:
+            cap *= 2  # one row's values do not fit: a larger buffer for it
+        q = q_next
+    values = np.concatenate(parts) if len(parts) > 1 else (parts[0] if parts else
+                                                           np.zeros(0, np.int32))  # fmt: skip
+    return np.cumsum(counts), values
 
 
 def near_edges(facets, tree: SphereTree, reach: float, small: np.ndarray) -> tuple[np.ndarray, ...]:
     """The edges of ``tree`` (a tree of edges, as :func:`raytrace.scene.accel.wedge_tree`) near
     each small facet: their boxes meet the facet's box grown by ``reach``, and for a one-sided
-    facet (a closed solid's) some part is strictly in front of its plane (every path's rule:
+    facet (a closed solid's) some part may be strictly in front of its plane (every path's rule:
     :func:`raytrace.solver.kernels.facet_wedge_pairs_tree` tests it again per end).
 
     Returns
@@ -60,65 +160,21 @@ def near_edges(facets, tree: SphereTree, reach: float, small: np.ndarray) -> tup
     start : (K + 1,) int64, slots : (L,) int32: facet ``f``'s edges are the tree's leaf slots
         ``slots[start[f]:start[f + 1]]`` (positions in ``tree.order``); none for a large facet
     """
-    k = len(facets)
-    rows = np.flatnonzero(small)
-    slot_of = np.empty(tree.size, np.int64)
-    slot_of[tree.order] = np.arange(tree.size)
-    counts = np.zeros(k + 1, np.int64)
-    parts = []
-    for b0 in range(0, len(rows), QUERY_BLOCK):
-        f = rows[b0 : b0 + QUERY_BLOCK]
-        offsets, hits = query_boxes(tree, *_grown_boxes(facets, f, reach))
-        owner = np.repeat(f, np.diff(offsets))
-        # an edge lies in its box: a part of it in front puts the box's farthest corner there
-        keep = _some_part_in_front(facets, owner, tree.lo[hits], tree.hi[hits])
-        owner, hits = owner[keep], hits[keep]
-        counts[1:] += np.bincount(owner, minlength=k)[:k] if len(owner) else 0
-        parts.append(slot_of[hits].astype(np.int32))
-    start = np.cumsum(counts)
-    slots = np.concatenate(parts) if parts else np.zeros(0, np.int32)
-    return start, slots
-
-
-def _some_part_in_front(facets, f: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-    """(n,) bool: per (facet ``f``, box ``lo``, ``hi``): the facet is two-sided, or some corner
-    of the box lies strictly in front of its plane (a necessary condition for an element in
-    the box to have a part there)."""
-    n = facets.normal[f]
-    far = np.where(n > 0, hi, lo)  # the box's corner farthest along the normal
-    ahead = np.einsum("ij,ij->i", far, n) - facets.offset[f] > accel.PLANE_TOL_M
-    return ahead | facets.two_sided[f]
+    return _lists(facets, tree, np.flatnonzero(small), reach, False, small)
 
 
 def near_facets(facets, reach: float, small: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The facets each facet may exchange a double reflection with in the approximate
     discovery: those whose boxes meet its box grown by ``reach``, where one of the two is small
     and the two face each other (:func:`raytrace.scene.accel.facing`, a condition of every
-    double reflection, whatever the transmitter). Made once per scene, in blocks of
-    :data:`QUERY_BLOCK` facets (a million-triangle hall's box hits are tens of millions).
+    double reflection, whatever the transmitter). Made once per scene.
 
     Returns
     -------
     start : (K + 1,) int64, partners : (L,) int32: facet ``f``'s are
-        ``partners[start[f]:start[f + 1]]``, in increasing order
+        ``partners[start[f]:start[f + 1]]``
     """
-    tree = accel.facet_tree(facets)
-    k = len(facets)
-    counts = np.zeros(k + 1, np.int64)
-    parts = []
-    for b0 in range(0, k, QUERY_BLOCK):
-        f1 = np.arange(b0, min(k, b0 + QUERY_BLOCK))
-        offsets, hits = query_boxes(tree, *_grown_boxes(facets, f1, reach))
-        owner = np.repeat(f1, np.diff(offsets))
-        keep = small[owner] | small[hits]
-        owner, hits = owner[keep], hits[keep]
-        keep = accel.facing(facets, owner, hits)
-        owner, hits = owner[keep], hits[keep]
-        order = np.lexsort((hits, owner))
-        counts[1:] += np.bincount(owner, minlength=k)[:k] if len(owner) else 0
-        parts.append(hits[order].astype(np.int32))
-    start = np.cumsum(counts)
-    return start, (np.concatenate(parts) if parts else np.zeros(0, np.int32))
+    return _lists(facets, accel.facet_tree(facets), np.arange(len(facets)), reach, True, small)
 
 
 def near_facet_pairs(lists: tuple[np.ndarray, np.ndarray],
