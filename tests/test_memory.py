@@ -79,3 +79,26 @@ def test_zero_size_and_object_arrays():
     assert fresh_empty((0, 3)).shape == (0, 3)
     monkey = fresh_empty(10, object)
     assert monkey.dtype == object and monkey.base is None
+
+
+def test_the_free_heap_is_given_back_after_a_large_load(tmp_path, monkeypatch):
+    """glibc's malloc_trim is there on Linux, and load_scene calls it after a scene of at
+    least budget.CHECK_MIN_TRIANGLES triangles only."""
+    import trimesh
+
+    import raytrace.scene.io as io
+    from raytrace import load_scene
+    from raytrace.scene.budget import CHECK_MIN_TRIANGLES
+
+    assert memory.release_free_heap() is sys.platform.startswith("linux")
+    calls = []
+    monkeypatch.setattr(io, "release_free_heap", lambda: calls.append(1) or True)
+    for sub, expected in ((2, 0), (5, 1)):  # 320 and 20 480 triangles
+        mesh = trimesh.creation.icosphere(sub, 1.0)
+        mesh.apply_translation([0.0, 0.0, 2.0])
+        path = tmp_path / f"ball{sub}_metal.stl"
+        mesh.export(path)
+        calls.clear()
+        scene = load_scene(path, cache=False)
+        assert (len(scene.faces) >= CHECK_MIN_TRIANGLES) == bool(expected)
+        assert len(calls) == expected

@@ -16,9 +16,10 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import SceneError
+from ..core.memory import release_free_heap
 from ..core.scale import check_extent
 from ..physics.materials import MaterialLibrary
-from .budget import check_load
+from .budget import CHECK_MIN_TRIANGLES, check_load
 from .caches import EMBREE_LOCAL_M
 from .construction import check_smooth_angle
 from .diskcache import cached_build
@@ -130,6 +131,8 @@ def load_scene(
     except OSError as exc:  # a materials file or a mesh the XML names cannot be read
         raise SceneError(f"cannot read {exc.filename or p.name}: {exc.strerror or exc}") from None
     scene.source = str(p)  # as a fresh build names it, also when read from the cache
+    if len(scene.faces) >= CHECK_MIN_TRIANGLES:
+        release_free_heap()  # a large load's temporaries, given back before the traces
     lo, hi = scene.bounds
     # a hall in mm (or cm, or km): refused before tracing
     check_extent(tuple(float(v) for v in hi - lo), f"scene {p.name}", option="--unit")
