@@ -196,3 +196,19 @@ def test_a_moving_object_of_small_facets_retraced_incrementally():
     assert new.n_paths > 0
     r = near.recall(full, inc)
     assert (r.n_found, r.n_extra, inc.n_paths) == (full.n_paths, 0, full.n_paths)
+
+
+def test_double_reflections_made_for_the_receivers_only_obey_the_rule_too(monkeypatch):
+    """A large scene's transmitter images beyond its share of the kept bytes are made for the
+    trace's receivers only (forced here): the same paths."""
+    import raytrace.solver.specular as specular
+
+    scene = _room(sphere_first=True)
+    tx, rx = _ends(scene)
+    exact = raytrace.trace(scene, tx, rx, 3.775e9, threads=1)
+    monkeypatch.setattr(specular, "SECOND_IMAGES_KEPT_BYTES", 0)
+    approx = raytrace.trace(scene, tx, rx, 3.775e9, TraceConfig(facet_reach=0.15), threads=1)
+    kept = scene.facets.cache.get("second_images", {})
+    assert not [k for k in kept if k[-1] == 0.15]  # made for these receivers, not kept
+    assert (approx.n_reflections == 2).sum() > 50
+    assert_rule_holds(scene, exact, approx, 0.15)

@@ -160,8 +160,9 @@ def _second_images(ctx: TraceContext, t: int, in_shadow: np.ndarray,
     reflection there) and :data:`raytrace.solver.kernels.PRUNE`).
 
     With ``receivers`` (``side_rx`` (R, K) int8, ``rx`` (R, 3), C-contiguous), pairs too many
-    to keep (:func:`_kept_bytes` beyond :data:`SECOND_IMAGES_KEPT_BYTES`) are made for these
-    receivers only: the pairs that can reach none of them
+    to keep (:func:`_kept_bytes` beyond :data:`SECOND_IMAGES_KEPT_BYTES`, or beyond one
+    transmitter's share of it, 1 / :data:`SECOND_IMAGES_KEPT`, with ``facet_reach``) are made
+    for these receivers only: the pairs that can reach none of them
     (:func:`raytrace.solver.kernels.second_pairs_reaching`) are dropped before they are sorted,
     mirrored and given beams, and the result is not kept. On a million-triangle hall that was
     most of a transmitter's tens of millions of pairs, for the same candidates.
@@ -213,8 +214,12 @@ def _second_images(ctx: TraceContext, t: int, in_shadow: np.ndarray,
         a, f2, s_img = a[beam], f2[beam], s_img[beam]
     else:  # the trees' beam queries, the same conditions in one compiled pass
         a, f2, s_img = _second_facets(fc, f1, b1, side_t[f1], ctx.facet_mask)
+    # the approximate discovery is for the largest scenes: a transmitter's images are kept
+    # only within its share of the kept bytes, so that its first trace neither sorts nor
+    # holds pairs that reach no receiver (1 GiB kept was the million-triangle trace's peak)
+    limit = SECOND_IMAGES_KEPT_BYTES // (SECOND_IMAGES_KEPT if reach else 1)
     if (not tables and receivers is not None and kernels.PRUNE
-            and _kept_bytes(len(a), len(f1), len(fc)) > SECOND_IMAGES_KEPT_BYTES):  # fmt: skip
+            and _kept_bytes(len(a), len(f1), len(fc)) > limit):  # fmt: skip
         reaching = kernels.second_pairs_reaching(
             carray(a, np.int64), carray(f2, np.int64), carray(s_img, np.int8), carray(img1),
             carray(b1.axis), carray(b1.cos_a), carray(b1.apex_inside, bool), carray(fc.normal),
