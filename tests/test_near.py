@@ -151,9 +151,10 @@ def test_random_noisy_rooms(seed, reach):
 
 
 def test_the_reach_is_checked():
-    for bad in (-0.1, float("inf"), float("nan"), "1"):
-        with pytest.raises(raytrace.TraceInputError, match="facet_reach"):
+    for bad in (-0.1, float("inf"), float("-inf"), float("nan"), "1", True):
+        with pytest.raises(raytrace.TraceInputError, match="facet_reach must be a finite number >= 0"):
             TraceConfig(facet_reach=bad)
+    assert TraceConfig(facet_reach=0).facet_reach == 0
 
 
 def test_recall_counts_paths_and_first_arrivals():

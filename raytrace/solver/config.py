@@ -98,12 +98,13 @@ class TraceConfig:
                     raise TraceInputError(f"{f.name} must be an integer {span}, got {value!r}")
             elif kind == "float":
                 ok = isinstance(value, (int, float)) and not isinstance(value, bool)
-                if not ok or math.isnan(value) or value == math.inf:
+                if "range" in f.metadata:  # a finite distance from lo up
+                    lo, hi = f.metadata["range"]
+                    if not ok or not lo <= value < hi:
+                        raise TraceInputError(
+                            f"{f.name} must be a finite number >= {lo:g}, got {value!r}")
+                elif not ok or math.isnan(value) or value == math.inf:
                     raise TraceInputError(f"{f.name} must be a number or -inf, got {value!r}")
-                lo, hi = f.metadata.get("range", (-math.inf, math.inf))
-                if not lo <= value < hi:
-                    raise TraceInputError(
-                        f"{f.name} must be a finite number >= {lo:g}, got {value!r}")
             elif not isinstance(value, bool):
                 raise TraceInputError(f"{f.name} must be true or false, got {value!r}")
 

@@ -15,10 +15,9 @@ facet) reflects, in a path of more than one reflection or diffraction, only towa
 edges and facets next to it on the path whose bounding boxes come within ``r`` of its own box
 (per axis: the boxes grown by ``r`` meet). Its candidates come from lists made once per scene
 (kept on it) by box queries on the trees in one compiled pass (:func:`_near_runs`), not from
-walks of its beam. Nothing else changes:
-line of sight, single reflections, single diffractions, penetrations, and every pair of large
-facets and edges are the exact tracer's, and every path found is one the exact tracer finds, with
-the same numbers (``tests/test_near.py``).
+walks of its beam. Nothing else changes: line of sight, single reflections, single diffractions,
+penetrations, and every pair of large facets and edges are the exact tracer's, and every path
+found is one the exact tracer finds, with the same numbers (``tests/test_near.py``).
 """
 
 from __future__ import annotations
@@ -33,7 +32,8 @@ from ..scene import accel
 from ..scene.accel import facet_sees
 from ..scene.spatial import SphereTree
 
-__all__ = ["small_facets", "near_edges", "near_facets", "near_facet_pairs", "QUERY_BLOCK", "Recall", "recall"]
+__all__ = ["small_facets", "near_edges", "near_facets", "near_facet_pairs", "QUERY_BLOCK",
+           "LIST_BUFFER", "Recall", "recall"]
 
 #: First facets per block of :func:`near_facet_pairs` (a hundred partners each at most, 16 bytes
 #: per pair as the caller takes them).
@@ -180,8 +180,7 @@ def near_facets(facets, reach: float, small: np.ndarray) -> tuple[np.ndarray, np
 def near_facet_pairs(lists: tuple[np.ndarray, np.ndarray],
                      first: np.ndarray) -> Iterator[tuple[np.ndarray, np.ndarray]]:  # fmt: skip
     """The (first facet, second facet) pairs of :func:`near_facets`' ``lists`` whose first facet
-    is one of ``first``, in blocks of :data:`QUERY_BLOCK` first facets, in (row, second facet)
-    order.
+    is one of ``first``, in blocks of :data:`QUERY_BLOCK` first facets, in row order.
 
     Yields
     ------
