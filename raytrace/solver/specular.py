@@ -278,6 +278,7 @@ def _second_facets(fc, f1: np.ndarray, b1: refl.Beam, side1: np.ndarray, mask: n
     them). With ``forest`` (trees as :func:`raytrace.scene.accel.beam_facets` takes them, and
     the facet of each of their elements), those trees' facets only."""
     parts = []
+    facet_args = _facet_args(fc)
     for r0 in range(0, len(f1), SECOND_FACETS_BLOCK):
         rows = slice(r0, r0 + SECOND_FACETS_BLOCK)
         b = refl.Beam(*(x[rows] for x in b1))
@@ -287,23 +288,32 @@ def _second_facets(fc, f1: np.ndarray, b1: refl.Beam, side1: np.ndarray, mask: n
                                   None if forest is None else forest[0])  # fmt: skip
         if forest is not None:
             f2 = forest[1][f2]
-        parts.append(_pair_conditions(fc, a, f2, f1_b, b, r0))
+        parts.append(_pair_conditions(a, f2, f1_b, b, facet_args, r0))
     return _joined_pairs(parts)
 
 
-def _pair_conditions(fc, a: np.ndarray, f2: np.ndarray, f1: np.ndarray, b1: refl.Beam,
-                     r0: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
-    """The pairs (row ``a`` of ``f1`` and ``b1``, second facet ``f2``) that pass the exact
-    necessary conditions of :func:`raytrace.solver.kernels.second_facets`, with the rows
-    shifted by ``r0``, and the side of the second facet the first image is on."""
+def _facet_args(fc) -> tuple:
+    """The facets' arrays :func:`raytrace.solver.kernels.second_facets` takes after the pairs
+    (spheres, planes, sides, corners and each facet's run of them), made once per call of the
+    callers below, not once per block."""
     c = carray
     centre, radius = accel.facet_spheres(fc)
     starts = c(3 * (np.cumsum(fc.tri_count) - fc.tri_count), np.int64)
+    return (c(centre), c(radius), c(fc.normal), c(fc.offset), c(fc.two_sided, bool),
+            c(fc.triangles.reshape(-1, 3)), starts, c(3 * fc.tri_count, np.int64),
+            accel.PLANE_TOL_M)  # fmt: skip
+
+
+def _pair_conditions(a: np.ndarray, f2: np.ndarray, f1: np.ndarray, b1: refl.Beam,
+                     facet_args: tuple, r0: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+    """The pairs (row ``a`` of ``f1`` and ``b1``, second facet ``f2``) that pass the exact
+    necessary conditions of :func:`raytrace.solver.kernels.second_facets` (``facet_args`` of
+    :func:`_facet_args`), with the rows shifted by ``r0``, and the side of the second facet the
+    first image is on."""
+    c = carray
     s_img = kernels.second_facets(
         c(a, np.int64), c(f2, np.int64), c(b1.apex), c(b1.axis), c(b1.cos_a), c(b1.sin_a),
-        c(b1.apex_inside, bool), c(f1, np.int64), c(centre), c(radius), c(fc.normal),
-        c(fc.offset), c(fc.two_sided, bool), c(fc.triangles.reshape(-1, 3)), starts,
-        c(3 * fc.tri_count, np.int64), accel.PLANE_TOL_M,
+        c(b1.apex_inside, bool), c(f1, np.int64), *facet_args,
     )  # fmt: skip
     ok = s_img != 0
     return a[ok] + r0, f2[ok], s_img[ok]
@@ -334,11 +344,13 @@ def _near_second_facets(fc, f1: np.ndarray, b1: refl.Beam, side1: np.ndarray,
     lists = fc.cache.get(key)
     if lists is None:
         lists = fc.cache[key] = near.near_facets(fc, reach, small)
+    facet_args = _facet_args(fc)
+    b1 = refl.Beam(*(carray(x, bool if x.dtype == bool else np.float64) for x in b1))
     for a, f2 in near.near_facet_pairs(lists, f1):
         if mask is not None:
             chosen = mask[f1[a]] | mask[f2]
             a, f2 = a[chosen], f2[chosen]
-        parts.append(_pair_conditions(fc, a, f2, f1, b1))
+        parts.append(_pair_conditions(a, f2, f1, b1, facet_args))
     return _joined_pairs(parts)
 
 
