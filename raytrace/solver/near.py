@@ -227,11 +227,12 @@ def _keys(p, depth: int) -> np.ndarray:
     return rows.view(np.dtype((np.void, rows.dtype.itemsize * rows.shape[1]))).ravel()
 
 
-def _first(p) -> dict:
-    out: dict = {}
-    for i in np.lexsort((p.delay_s, p.rx_index, p.tx_index)):
-        out.setdefault((int(p.tx_index[i]), int(p.rx_index[i])), i)
-    return out
+def _first(p, n_rx: int) -> tuple[np.ndarray, np.ndarray]:
+    """Each link with a path (``tx * n_rx + rx``, increasing) and its first-arriving path."""
+    order = np.lexsort((p.delay_s, p.rx_index, p.tx_index))
+    link = p.tx_index[order].astype(np.int64) * n_rx + p.rx_index[order]
+    first = np.r_[True, link[1:] != link[:-1]] if len(link) else np.zeros(0, bool)
+    return link[first], order[first]
 
 
 def recall(exact, approx) -> Recall:
@@ -241,7 +242,9 @@ def recall(exact, approx) -> Recall:
     ke, ka = _keys(exact, depth), _keys(approx, depth)
     found = np.isin(ke, ka)
     extra = int((~np.isin(ka, ke)).sum())
-    fe, fa = _first(exact), _first(approx)
-    same = sum(1 for link, i in fe.items() if link in fa and ke[i] == ka[fa[link]])
-    return Recall(float(found.mean()) if len(ke) else 1.0, same / len(fe) if fe else 1.0,
+    n_rx = int(max(exact.rx_index.max(initial=-1), approx.rx_index.max(initial=-1))) + 1
+    (le, ie), (la, ia) = _first(exact, n_rx), _first(approx, n_rx)
+    _, je, ja = np.intersect1d(le, la, assume_unique=True, return_indices=True)
+    same = int((ke[ie[je]] == ka[ia[ja]]).sum())
+    return Recall(float(found.mean()) if len(ke) else 1.0, same / len(le) if len(le) else 1.0,
                   len(ke), int(found.sum()), extra)  # fmt: skip
